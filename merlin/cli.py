@@ -1,0 +1,42 @@
+"""The ``merlin`` command. Each subcommand lives in its own module under :mod:`merlin.commands` and
+registers itself through ``register(subparsers)``; this file only discovers and dispatches them.
+
+Exit codes, for every subcommand: 0 success, 1 a check or expectation failed, 2 invalid input (the message
+names the file, key and value).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+
+import merlin.commands
+from merlin.config.loader import ConfigError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="merlin", description="Merlin trusted autopilot")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for mod in sorted(pkgutil.iter_modules(merlin.commands.__path__), key=lambda m: m.name):
+        module = importlib.import_module(f"merlin.commands.{mod.name}")
+        register = getattr(module, "register", None)
+        if register is not None:
+            register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        rc = args.func(args)
+    except ConfigError as exc:
+        print(f"merlin {args.command}: {exc}", file=sys.stderr)
+        return 2
+    return int(rc or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

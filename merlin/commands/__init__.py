@@ -1,0 +1,1 @@
+"""Subcommands of the ``merlin`` CLI, one module each, discovered by :mod:`merlin.cli`."""

@@ -1,0 +1,128 @@
+"""Reading a configuration file: YAML in, a validated :class:`MerlinConfig` out, or a clear error.
+
+Errors name the file, the line, the key path, the value found and what is allowed, because the person
+reading them is a safety reviewer editing a file, not a Python programmer reading a traceback.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+from pydantic import BaseModel, ValidationError
+
+from merlin.config.models import MerlinConfig
+
+M = TypeVar("M", bound=BaseModel)
+
+
+class ConfigError(Exception):
+    """A user-caused error in a configuration or scenario file. ``str()`` is the message to print."""
+
+    def __init__(self, source: str, problems: Sequence[str]) -> None:
+        self.source = source
+        self.problems = list(problems)
+        lines = [f"{source}: invalid ({len(self.problems)} problem{'s' if len(self.problems) != 1 else ''})"]
+        lines += [f"  - {p}" for p in self.problems]
+        super().__init__("\n".join(lines))
+
+
+def _line_index(text: str) -> dict[tuple[str | int, ...], int]:
+    """Map each key path in a YAML document to its 1-based line, for error messages."""
+    out: dict[tuple[str | int, ...], int] = {}
+    try:
+        root = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError:
+        return out
+
+    def walk(node: yaml.Node | None, path: tuple[str | int, ...]) -> None:
+        if node is None:
+            return
+        out.setdefault(path, node.start_mark.line + 1)
+        if isinstance(node, yaml.MappingNode):
+            for k, v in node.value:
+                key = k.value
+                out[(*path, key)] = k.start_mark.line + 1
+                walk(v, (*path, key))
+        elif isinstance(node, yaml.SequenceNode):
+            for i, v in enumerate(node.value):
+                walk(v, (*path, i))
+
+    walk(root, ())
+    return out
+
+
+def _fmt_value(v: Any) -> str:
+    s = repr(v)
+    return s if len(s) <= 80 else s[:77] + "..."
+
+
+def describe_validation_error(err: ValidationError, lines: Mapping[tuple[str | int, ...], int]) -> list[str]:
+    problems = []
+    for e in err.errors():
+        loc = tuple(x for x in e["loc"] if not (isinstance(x, str) and x.startswith("function-")))
+        path = ".".join(str(x) for x in loc) or "(top level)"
+        line = None
+        for k in range(len(loc), -1, -1):
+            if loc[:k] in lines:
+                line = lines[loc[:k]]
+                break
+        where = f"line {line}: " if line else ""
+        msg = e["msg"]
+        if e["type"] == "extra_forbidden":
+            msg = "unknown key (check the spelling; see docs/config-reference.md for the allowed keys)"
+        elif e["type"] == "missing":
+            msg = "required key is missing"
+        value = "" if e["type"] == "missing" else f"; value {_fmt_value(e.get('input'))}"
+        problems.append(f"{where}{path}: {msg}{value}")
+    return problems
+
+
+def parse_yaml(text: str, source: str) -> tuple[Any, dict[tuple[str | int, ...], int]]:
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+        raise ConfigError(source, [f"{where}not valid YAML ({getattr(exc, 'problem', exc)})"]) from None
+    return data, _line_index(text)
+
+
+def validate_model(model: type[M], data: Any, source: str, lines: Mapping[tuple[str | int, ...], int]) -> M:
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(source, [f"(top level): expected a mapping of keys, got {type(data).__name__}"])
+    try:
+        return model.model_validate(data)
+    except ValidationError as err:
+        raise ConfigError(source, describe_validation_error(err, lines)) from None
+
+
+def load_config_text(text: str, source: str = "<config>") -> MerlinConfig:
+    data, lines = parse_yaml(text, source)
+    return validate_model(MerlinConfig, data, source, lines)
+
+
+def load_config(path: str | Path) -> MerlinConfig:
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(str(p), [f"cannot read the file: {exc.strerror or exc}"]) from None
+    return load_config_text(text, str(p))
+
+
+def canonical_json(cfg: BaseModel) -> str:
+    """The effective configuration as canonical JSON: sorted keys, no whitespace, defaults filled."""
+    return json.dumps(cfg.model_dump(mode="json"), sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def config_sha256(cfg: BaseModel) -> str:
+    """SHA-256 of :func:`canonical_json`: equal for equal effective configurations, whatever the file's
+    layout, comments or omitted defaults, so the flown configuration is traceable in every log."""
+    return hashlib.sha256(canonical_json(cfg).encode("utf-8")).hexdigest()

@@ -1,0 +1,349 @@
+"""Plain data passed into and out of the trusted core's tick.
+
+Everything here is a frozen, slotted dataclass or an enum: the edge (simulator, MAVLink runtime, log
+replay) builds these from the world, the core reads them and returns a :class:`Decision`. Vectors are
+tuples of floats rather than numpy arrays: they are immutable, hashable and, for three elements, an
+order of magnitude cheaper to build and read in the 400 Hz tick than a numpy array (see
+``docs/architecture.md``, "Why tuples in the tick").
+
+Frames and units follow PX4/MAVLink: local frame NED about home, body frame FRD, SI units and radians.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum, IntEnum
+
+Vec3 = tuple[float, float, float]
+ZERO3: Vec3 = (0.0, 0.0, 0.0)
+
+
+class Authority(IntEnum):
+    """Who drives the actuators. SHADOW: the experimental controller is judged, TRUSTED actuates."""
+
+    TRUSTED = 0
+    OPERATOR = 1
+    EXPERIMENTAL = 2
+    SHADOW = 3
+
+
+class Behavior(IntEnum):
+    """What Merlin's own (trusted) autopilot does when it holds authority."""
+
+    IDLE = 0  # disarmed / on the ground, motors off
+    TAKEOFF = 1
+    HOLD = 2  # loiter / position hold
+    MISSION = 3
+    RTL = 4
+    LAND = 5
+    TERMINATE = 6  # flight termination: motors off (last resort, off by default)
+
+
+class Action(IntEnum):
+    """A monitor's consequence. Ordered by precedence: a later member always wins (cf. PX4 failsafe)."""
+
+    NONE = 0
+    WARN = 1
+    HOLD = 2
+    RTL = 3
+    LAND = 4
+    TERMINATE = 5
+
+
+ACTION_BEHAVIOR: dict[Action, Behavior] = {
+    Action.HOLD: Behavior.HOLD,
+    Action.RTL: Behavior.RTL,
+    Action.LAND: Behavior.LAND,
+    Action.TERMINATE: Behavior.TERMINATE,
+}
+
+
+class NavMode(IntEnum):
+    """Which source the navigation solution currently trusts for horizontal position (paper Table 1)."""
+
+    GPS = 0
+    VO = 1
+    INERTIAL = 2
+    LOST = 3
+
+
+class SetpointKind(IntEnum):
+    POSITION = 0  # position target, optional velocity feed-forward
+    VELOCITY = 1
+    ATTITUDE = 2  # roll/pitch/yaw + collective thrust
+
+
+class CommandKind(IntEnum):
+    """The level of the command the core hands to the actuator stage (the autopilot's inner loops)."""
+
+    IDLE = 0  # motors off, disarmed
+    VELOCITY = 1  # NED velocity + yaw; the autopilot's velocity->attitude->rate->mixer loops track it
+    ATTITUDE = 2  # roll, pitch, yaw + collective thrust
+    TERMINATE = 3
+
+
+class RequestKind(IntEnum):
+    REQUEST = 0  # ask for EXPERIMENTAL authority
+    REQUEST_SHADOW = 1  # ask to be judged in SHADOW (never actuates)
+    ACK = 2  # acknowledge a grant (carries the grant's sequence number)
+    RELEASE = 3  # hand authority back voluntarily
+
+
+class GcsCommandKind(IntEnum):
+    ARM = 0
+    DISARM = 1
+    TAKEOFF = 2
+    HOLD = 3
+    RTL = 4
+    LAND = 5
+    MISSION = 6
+    TERMINATE = 7
+
+
+class ReasonCode(IntEnum):
+    """Machine-readable cause carried by every grant, denial and revocation (the ICD uses these values)."""
+
+    NONE = 0
+    ENVELOPE = 1
+    GEOFENCE = 2
+    CONTROLLER_HEARTBEAT = 3
+    SETPOINT_STALE = 4
+    RC_LINK = 5
+    GCS_LINK = 6
+    NAV_DEGRADED = 7
+    NAV_LOST = 8
+    INVALID_INPUT = 9
+    BATTERY_LOW = 10
+    BATTERY_CRITICAL = 11
+    OPERATOR_TAKEOVER = 12
+    GCS_COMMAND = 13
+    RELEASED = 14
+    ACK_TIMEOUT = 15
+    PRECONDITION = 16
+    COOLDOWN = 17
+    REVOCATION_LIMIT = 18
+    NOT_ARMED = 19
+    SEQUENCE_MISMATCH = 20
+    SETPOINT_INCONSISTENT = 21
+    HEARTBEAT_NOT_ESTABLISHED = 22
+    GRANTED = 23
+    OPERATOR_RELEASE = 24
+    BUSY = 25
+    DISARMED = 26
+    LANDED = 27
+    OUTSIDE_FENCE = 28
+
+
+@dataclass(frozen=True, slots=True)
+class Reason:
+    """Why something happened: the monitor, the parameter, the measured value, its limit and for how long."""
+
+    code: ReasonCode
+    monitor: str = ""
+    parameter: str = ""
+    value: float = 0.0
+    limit: float = 0.0
+    duration_s: float = 0.0
+    text: str = ""
+
+    def describe(self) -> str:
+        if self.text:
+            return self.text
+        if self.parameter:
+            return (
+                f"{self.monitor}: {self.parameter}={self.value:.4g} beyond limit {self.limit:.4g}"
+                f" for {self.duration_s:.3g} s"
+            )
+        return self.monitor or self.code.name.lower()
+
+
+NO_REASON = Reason(ReasonCode.NONE)
+
+
+# ----------------------------------------------------------------------------------------------- inputs
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleState:
+    """The navigation solution handed to the core, with its uncertainty and health.
+
+    ``accel_body_mps2`` is specific force in FRD (what an accelerometer reads; about (0, 0, -9.81) in
+    hover). ``alt_m`` is height above home, positive up (= -pos_ned_m[2] for a flat home).
+    """
+
+    pos_ned_m: Vec3 = ZERO3
+    vel_ned_mps: Vec3 = ZERO3
+    att_rpy_rad: Vec3 = ZERO3
+    rates_frd_radps: Vec3 = ZERO3
+    accel_frd_mps2: Vec3 = (0.0, 0.0, -9.80665)
+    airspeed_mps: float = 0.0
+    pos_sigma_h_m: float = 0.5
+    pos_sigma_v_m: float = 0.5
+    nav_mode: NavMode = NavMode.GPS
+    nav_inertial_s: float = 0.0  # time since the last absolute or VO position/velocity aid
+    armed: bool = False
+    landed: bool = True
+    battery_frac: float = 1.0
+
+    @property
+    def alt_m(self) -> float:
+        return -self.pos_ned_m[2]
+
+
+@dataclass(frozen=True, slots=True)
+class Setpoint:
+    """A setpoint from the experimental controller or the operator, in the ICD's units and frames.
+
+    Fields that a setpoint kind does not use are ignored. ``thrust`` is the normalised collective 0..1.
+    """
+
+    kind: SetpointKind
+    pos_ned_m: Vec3 = ZERO3
+    vel_ned_mps: Vec3 = ZERO3
+    yaw_rad: float = 0.0
+    yaw_rate_radps: float = 0.0
+    att_rpy_rad: Vec3 = ZERO3
+    thrust: float = 0.5
+
+
+@dataclass(frozen=True, slots=True)
+class AuthorityRequest:
+    kind: RequestKind
+    seq: int = 0  # for ACK: the grant's sequence number
+    t_s: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class ExperimentalInput:
+    """What the edge knows of the experimental controller at this tick (times are the core's clock)."""
+
+    heartbeat_t_s: float | None = None  # time of the latest heartbeat received, None if never
+    setpoint: Setpoint | None = None
+    setpoint_t_s: float | None = None  # time the latest setpoint was received
+    requests: tuple[AuthorityRequest, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class OperatorInput:
+    """The human operator's RC link: sticks in [-1, 1] (throttle stick too: 0 = hold altitude)."""
+
+    link_t_s: float | None = None  # time of the latest RC frame, None if never
+    takeover: bool = False  # the takeover switch; a rising edge takes authority
+    roll: float = 0.0
+    pitch: float = 0.0
+    yaw: float = 0.0
+    throttle: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class GcsCommand:
+    kind: GcsCommandKind
+    param: float = 0.0  # TAKEOFF: altitude above home, m
+    seq: int = 0  # echoed in the acknowledgement
+    force: bool = False  # ARM/DISARM: skip the checks, as MAVLink's 21196 magic does
+
+
+@dataclass(frozen=True, slots=True)
+class Inputs:
+    state: VehicleState = field(default_factory=VehicleState)
+    experimental: ExperimentalInput = field(default_factory=ExperimentalInput)
+    operator: OperatorInput = field(default_factory=OperatorInput)
+    gcs_link_t_s: float | None = None  # time of the latest ground-station heartbeat
+    gcs_commands: tuple[GcsCommand, ...] = ()
+
+
+# ---------------------------------------------------------------------------------------------- outputs
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """The command the actuator stage must follow, after bumpless shaping."""
+
+    kind: CommandKind
+    source: Authority
+    vel_ned_mps: Vec3 = ZERO3
+    yaw_rad: float = 0.0
+    yaw_rate_radps: float = 0.0
+    att_rpy_rad: Vec3 = ZERO3
+    thrust: float = 0.0
+    pos_target_ned_m: Vec3 | None = None  # the position the velocity command closes on, if any
+    blend: float = 1.0  # 0 at a transfer, 1 once the incoming source is fully in command
+
+
+class EventKind(Enum):
+    GRANTED = "granted"
+    ACKNOWLEDGED = "acknowledged"
+    DENIED = "denied"
+    REVOKED = "revoked"
+    RELEASED = "released"
+    AUTHORITY = "authority"
+    MONITOR_TRIPPED = "monitor_tripped"
+    MONITOR_CLEARED = "monitor_cleared"
+    SHADOW_VIOLATION = "shadow_violation"
+    BEHAVIOR = "behavior"
+    COMMAND_ACK = "command_ack"
+    WARNING = "warning"
+
+
+@dataclass(frozen=True, slots=True)
+class Event:
+    """A typed event of one tick. ``AUTHORITY`` events carry ``from_``/``to``; exchange events ``seq``."""
+
+    t_s: float
+    kind: EventKind
+    reason: Reason = NO_REASON
+    from_: Authority | None = None
+    to: Authority | None = None
+    seq: int = 0
+    behavior: Behavior | None = None
+    accepted: bool = True  # COMMAND_ACK: whether the command was accepted
+    command: GcsCommandKind | None = None
+
+    def to_dict(self) -> dict[str, object]:
+        d: dict[str, object] = {"t": self.t_s, "type": self.kind.value}
+        if self.from_ is not None:
+            d["from"] = self.from_.name
+        if self.to is not None:
+            d["to"] = self.to.name
+        if self.reason.code is not ReasonCode.NONE:
+            d["reason"] = self.reason.code.name.lower()
+            d["reason_detail"] = {
+                "monitor": self.reason.monitor,
+                "parameter": self.reason.parameter,
+                "value": self.reason.value,
+                "limit": self.reason.limit,
+                "duration_s": self.reason.duration_s,
+                "text": self.reason.describe(),
+            }
+        if self.seq:
+            d["seq"] = self.seq
+        if self.behavior is not None:
+            d["behavior"] = self.behavior.name
+        if self.command is not None:
+            d["command"] = self.command.name
+            d["accepted"] = self.accepted
+        return d
+
+
+@dataclass(frozen=True, slots=True)
+class MonitorStatus:
+    """One monitor's verdict this tick: whether it is tripped, and the worst offending reason."""
+
+    name: str
+    tripped: bool
+    reason: Reason = NO_REASON
+    # envelope: per-parameter elapsed violation time (s), 0 where inside bounds; fence: projected margin
+    detail: tuple[tuple[str, float], ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class Decision:
+    t_s: float
+    authority: Authority
+    behavior: Behavior
+    command: Command
+    monitors: tuple[MonitorStatus, ...]
+    events: tuple[Event, ...]
+    armed: bool
+    pending_grant_seq: int = 0  # nonzero while a grant awaits its ACK
+    revocations: int = 0
