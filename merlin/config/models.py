@@ -11,7 +11,7 @@ Numbers taken from the seeds are cited where they are used.
 from __future__ import annotations
 
 import math
-from enum import Enum
+from enum import StrEnum
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
@@ -181,7 +181,7 @@ LatLon = Annotated[list[float], Field(min_length=2, max_length=2)]
 NorthEast = Annotated[list[float], Field(min_length=2, max_length=2)]
 
 
-class FenceMode(str, Enum):
+class FenceMode(StrEnum):
     VELOCITY_PROJECTION = "velocity_projection"  # paper Figure 4(a)
     POSITION_ONLY = "position_only"  # paper Figure 4(b), for comparison
 
@@ -254,7 +254,7 @@ class GeofenceConfig(Strict):
 # ------------------------------------------------------------------------------------------- vehicle
 
 
-class VehicleType(str, Enum):
+class VehicleType(StrEnum):
     MULTIROTOR = "multirotor"
     FIXED_WING = "fixed_wing"
 
@@ -294,7 +294,7 @@ class Watchdogs(Strict):
 # ----------------------------------------------------------------------------------- arbiter table
 
 
-class ActionName(str, Enum):
+class ActionName(StrEnum):
     NONE = "none"
     WARN = "warn"
     HOLD = "hold"
@@ -303,7 +303,7 @@ class ActionName(str, Enum):
     TERMINATE = "terminate"
 
 
-class ClearName(str, Enum):
+class ClearName(StrEnum):
     WHEN_CLEAR = "when_clear"  # the action ends when the monitor clears
     ON_REQUEST = "on_request"  # the action holds until a new authority exchange or mode command
     NEVER = "never"  # until disarm
@@ -438,6 +438,10 @@ class TrustedConfig(Strict):
     rtl_acceptance_m: float = Field(2.0, gt=0.0, description="horizontal distance counting as 'home'")
     position_gain_per_s: float = Field(1.0, gt=0.0, description="position error to velocity, 1/s")
     takeoff_altitude_m: float = Field(10.0, gt=0.0)
+    mission_ned_m: list[Annotated[list[float], Field(min_length=3, max_length=3)]] = Field(
+        default_factory=list, description="trusted mission waypoints [north_m, east_m, down_m] about home"
+    )
+    mission_acceptance_m: float = Field(2.0, gt=0.0)
 
 
 class NavConfig(Strict):

@@ -1,0 +1,168 @@
+"""Merlin's own guidance behaviours for a multirotor: TAKEOFF, HOLD (loiter), MISSION, RTL and LAND.
+
+Each behaviour turns the current state into a velocity setpoint (with the position it closes on), so the
+trusted core can shape it like any other source's. Pure and deterministic: the behaviour's memory is an
+explicit :class:`GuidanceState`, created by :func:`enter` from the current state (this is what makes a
+takeover bumpless: HOLD holds where the vehicle can stop, not where it was when the monitor tripped) and
+advanced by :func:`step`.
+
+The position loop is a proportional law with speed limits, the outer loop of PX4's multicopter position
+controller (position error -> velocity setpoint); the velocity, attitude and rate loops live in the
+actuator stage (:mod:`merlin.autopilot.multirotor_control`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+from merlin.core.config import TrustedParams
+from merlin.core.types import Behavior, Setpoint, SetpointKind, Vec3, VehicleState
+
+RTL_CLIMB, RTL_RETURN, RTL_DESCEND = 0, 1, 2
+#: Vertical distance within which a climb or takeoff counts as complete, m.
+ALTITUDE_ACCEPTANCE_M = 0.5
+
+
+class GuidanceState(NamedTuple):
+    behavior: Behavior
+    anchor_ned_m: Vec3  # HOLD point, LAND/TAKEOFF/RTL-climb horizontal position
+    yaw_rad: float
+    phase: int = 0  # RTL phase
+    mission_index: int = 0
+    done: bool = False  # TAKEOFF reached its height; MISSION flew its last waypoint
+
+
+def position_to_velocity(
+    target: Vec3,
+    pos: Vec3,
+    ff: Vec3,
+    gain_per_s: float,
+    max_h_mps: float,
+    max_up_mps: float,
+    max_down_mps: float,
+) -> Vec3:
+    """P law from position error to a velocity setpoint, horizontally and vertically speed-limited."""
+    vn = ff[0] + gain_per_s * (target[0] - pos[0])
+    ve = ff[1] + gain_per_s * (target[1] - pos[1])
+    vd = ff[2] + gain_per_s * (target[2] - pos[2])
+    h = math.hypot(vn, ve)
+    if h > max_h_mps:
+        k = max_h_mps / h
+        vn, ve = vn * k, ve * k
+    vd = min(max(vd, -max_up_mps), max_down_mps)
+    return (vn, ve, vd)
+
+
+def stopping_point(s: VehicleState, decel_mps2: float) -> Vec3:
+    """Where the vehicle comes to rest if it brakes now at ``decel_mps2`` (horizontal and vertical)."""
+    p, v = s.pos_ned_m, s.vel_ned_mps
+    k = 1.0 / (2.0 * decel_mps2)
+    return (p[0] + v[0] * abs(v[0]) * k, p[1] + v[1] * abs(v[1]) * k, p[2] + v[2] * abs(v[2]) * k)
+
+
+def enter(behavior: Behavior, s: VehicleState, cfg: TrustedParams) -> GuidanceState:
+    yaw = s.att_rpy_rad[2]
+    if not math.isfinite(yaw):
+        yaw = 0.0
+    if behavior in (Behavior.HOLD, Behavior.RTL, Behavior.MISSION):
+        anchor = stopping_point(s, cfg.max_horizontal_decel_mps2)
+    else:
+        anchor = s.pos_ned_m
+    return GuidanceState(behavior=behavior, anchor_ned_m=anchor, yaw_rad=yaw)
+
+
+def _hold(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> Setpoint:
+    vel = position_to_velocity(
+        g.anchor_ned_m,
+        s.pos_ned_m,
+        (0.0, 0.0, 0.0),
+        cfg.position_gain_per_s,
+        cfg.cruise_speed_mps,
+        cfg.climb_speed_mps,
+        cfg.land_speed_mps * 2.0,
+    )
+    return Setpoint(SetpointKind.VELOCITY, pos_ned_m=g.anchor_ned_m, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
+
+
+def _descend_speed(s: VehicleState, cfg: TrustedParams) -> float:
+    # Half speed for the last few metres (as PX4's MPC_LAND_ALT2 slow-down), for a gentle touchdown.
+    return cfg.land_speed_mps * (0.5 if s.alt_m < cfg.land_final_height_m else 1.0)
+
+
+def _land_at(xy: Vec3, g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> Setpoint:
+    target = (xy[0], xy[1], s.pos_ned_m[2])
+    vel = position_to_velocity(
+        target, s.pos_ned_m, (0.0, 0.0, 0.0), cfg.position_gain_per_s, cfg.cruise_speed_mps, 0.0, 0.0
+    )
+    down = 0.0 if s.landed else _descend_speed(s, cfg)
+    return Setpoint(
+        SetpointKind.VELOCITY,
+        pos_ned_m=(xy[0], xy[1], 0.0),
+        vel_ned_mps=(vel[0], vel[1], down),
+        yaw_rad=g.yaw_rad,
+    )
+
+
+def step(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[GuidanceState, Setpoint]:
+    """Advance a behaviour by one tick: the new guidance state and the velocity setpoint to shape."""
+    b = g.behavior
+    if b is Behavior.HOLD:
+        return g, _hold(g, s, cfg)
+
+    if b is Behavior.TAKEOFF:
+        target_alt = cfg.takeoff_altitude_m
+        target = (g.anchor_ned_m[0], g.anchor_ned_m[1], -target_alt)
+        done = g.done or s.alt_m >= target_alt - ALTITUDE_ACCEPTANCE_M
+        vel = position_to_velocity(
+            target, s.pos_ned_m, (0.0, 0.0, 0.0), cfg.position_gain_per_s, cfg.cruise_speed_mps,
+            cfg.climb_speed_mps, cfg.land_speed_mps,
+        )
+        g2 = g if done == g.done else GuidanceState(b, g.anchor_ned_m, g.yaw_rad, g.phase, g.mission_index, done)
+        return g2, Setpoint(SetpointKind.VELOCITY, pos_ned_m=target, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
+
+    if b is Behavior.LAND:
+        return g, _land_at(g.anchor_ned_m, g, s, cfg)
+
+    if b is Behavior.RTL:
+        safe_alt = max(cfg.rtl_altitude_m, -g.anchor_ned_m[2])
+        phase = g.phase
+        if phase == RTL_CLIMB and s.alt_m >= safe_alt - ALTITUDE_ACCEPTANCE_M:
+            phase = RTL_RETURN
+        if phase == RTL_RETURN and math.hypot(s.pos_ned_m[0], s.pos_ned_m[1]) <= cfg.rtl_acceptance_m:
+            phase = RTL_DESCEND
+        g2 = g if phase == g.phase else GuidanceState(b, g.anchor_ned_m, g.yaw_rad, phase, g.mission_index, g.done)
+        if phase == RTL_DESCEND:
+            return g2, _land_at((0.0, 0.0, 0.0), g2, s, cfg)
+        if phase == RTL_CLIMB:
+            target = (g.anchor_ned_m[0], g.anchor_ned_m[1], -safe_alt)
+        else:
+            target = (0.0, 0.0, -safe_alt)
+        vel = position_to_velocity(
+            target, s.pos_ned_m, (0.0, 0.0, 0.0), cfg.position_gain_per_s, cfg.cruise_speed_mps,
+            cfg.climb_speed_mps, cfg.land_speed_mps * 2.0,
+        )
+        return g2, Setpoint(SetpointKind.VELOCITY, pos_ned_m=target, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
+
+    if b is Behavior.MISSION:
+        wps = cfg.mission_ned_m
+        i = g.mission_index
+        if i < len(wps):
+            wp = wps[i]
+            dist = math.dist(wp, s.pos_ned_m)
+            if dist <= cfg.mission_acceptance_m:
+                i += 1
+        if i >= len(wps):
+            hold_at = wps[-1] if wps else g.anchor_ned_m
+            g2 = GuidanceState(b, hold_at, g.yaw_rad, g.phase, i, True)
+            return g2, _hold(g2, s, cfg)
+        wp = wps[i]
+        vel = position_to_velocity(
+            wp, s.pos_ned_m, (0.0, 0.0, 0.0), cfg.position_gain_per_s, cfg.cruise_speed_mps,
+            cfg.climb_speed_mps, cfg.land_speed_mps * 2.0,
+        )
+        g2 = g if i == g.mission_index else GuidanceState(b, g.anchor_ned_m, g.yaw_rad, g.phase, i, False)
+        return g2, Setpoint(SetpointKind.VELOCITY, pos_ned_m=wp, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
+
+    # IDLE and TERMINATE: nothing to fly; the command stage turns the motors off.
+    return g, Setpoint(SetpointKind.VELOCITY, pos_ned_m=s.pos_ned_m, yaw_rad=g.yaw_rad)

@@ -1,0 +1,121 @@
+"""Build the core's plain runtime configuration from the validated models (degrees -> radians here)."""
+
+from __future__ import annotations
+
+import math
+
+from merlin.config.fence_build import build_fence
+from merlin.config.loader import config_sha256
+from merlin.config.models import ENVELOPE_PARAMETERS, MerlinConfig
+from merlin.core.config import (
+    BatteryParams,
+    CoreConfig,
+    EnvelopeLimit,
+    HandoverParams,
+    NavParams,
+    OperatorParams,
+    RuleRow,
+    TrustedParams,
+    WatchdogTimeouts,
+)
+from merlin.core.envelope import PARAMETER_INDEX
+from merlin.core.types import Action
+
+_DEG = math.pi / 180.0
+_ANGLE_PARAMS = {"roll_deg", "pitch_deg", "yaw_deg", "roll_rate_degps", "pitch_rate_degps", "yaw_rate_degps"}
+
+
+def envelope_limits(cfg: MerlinConfig, stage: str | None = None) -> tuple[EnvelopeLimit, ...]:
+    """The enabled limits of a stage (the active one by default), in SI units, Table 2 order."""
+    limits = cfg.envelope.resolve(stage or cfg.envelope.active_stage)
+    out = []
+    for name in ENVELOPE_PARAMETERS:
+        lim = limits[name]
+        if not lim.enabled:
+            continue
+        scale = _DEG if name in _ANGLE_PARAMS else 1.0
+        out.append(
+            EnvelopeLimit(
+                name=name,
+                index=PARAMETER_INDEX[name],
+                min=lim.min * scale,
+                max=lim.max * scale,
+                duration_s=lim.duration_s,
+                display_scale=1.0 / scale,
+                wraps=name == "yaw_deg",
+                min_display=lim.min,
+                max_display=lim.max,
+            )
+        )
+    return tuple(out)
+
+
+def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig:
+    h, o, t, v = cfg.handover, cfg.operator, cfg.trusted, cfg.vehicle
+    rules = tuple(
+        RuleRow(
+            monitor=name,
+            experimental=Action[r.experimental.name],
+            operator=Action[r.operator.name],
+            trusted=Action[r.trusted.name],
+            clear=r.clear.value,
+        )
+        for name, r in cfg.arbiter.rules.items()
+    )
+    fence = build_fence(cfg.geofence, cfg.home, cfg.vehicle, source=source) if cfg.geofence.enabled else None
+    return CoreConfig(
+        envelope=envelope_limits(cfg),
+        rules=rules,
+        fence=fence,
+        watchdogs=WatchdogTimeouts(
+            controller_heartbeat_s=cfg.watchdogs.controller_heartbeat.timeout_s,
+            setpoint_stale_s=cfg.watchdogs.setpoint_stale.timeout_s,
+            rc_link_s=cfg.watchdogs.rc_link.timeout_s,
+            gcs_link_s=cfg.watchdogs.gcs_link.timeout_s,
+        ),
+        handover=HandoverParams(
+            ack_timeout_s=h.ack_timeout_s,
+            heartbeat_alive_min_s=h.heartbeat_alive_min_s,
+            max_setpoint_position_error_m=h.max_setpoint_position_error_m,
+            max_setpoint_velocity_error_mps=h.max_setpoint_velocity_error_mps,
+            max_setpoint_attitude_error_rad=h.max_setpoint_attitude_error_deg * _DEG,
+            cooldown_s=h.cooldown_s,
+            max_revocations_per_flight=h.max_revocations_per_flight,
+            blend_window_s=h.blend_window_s,
+            max_accel_mps2=h.max_accel_mps2,
+            max_attitude_rate_radps=h.max_attitude_rate_degps * _DEG,
+            max_thrust_rate_per_s=h.max_thrust_rate_per_s,
+        ),
+        operator=OperatorParams(
+            oversight_envelope=o.oversight_envelope,
+            oversight_geofence=o.oversight_geofence,
+            override_grace_s=o.override_grace_s,
+            max_speed_h_mps=o.max_speed_h_mps,
+            max_speed_up_mps=o.max_speed_up_mps,
+            max_speed_down_mps=o.max_speed_down_mps,
+            max_yaw_rate_radps=o.max_yaw_rate_degps * _DEG,
+            stick_deadband=o.stick_deadband,
+        ),
+        trusted=TrustedParams(
+            rtl_altitude_m=t.rtl_altitude_m,
+            cruise_speed_mps=t.cruise_speed_mps,
+            climb_speed_mps=t.climb_speed_mps,
+            land_speed_mps=t.land_speed_mps,
+            land_final_height_m=t.land_final_height_m,
+            rtl_acceptance_m=t.rtl_acceptance_m,
+            position_gain_per_s=t.position_gain_per_s,
+            takeoff_altitude_m=t.takeoff_altitude_m,
+            max_horizontal_decel_mps2=v.max_horizontal_decel_mps2,
+            hover_thrust=v.hover_thrust,
+            mission_ned_m=tuple((float(a), float(b), float(c)) for a, b, c in t.mission_ned_m),
+            mission_acceptance_m=t.mission_acceptance_m,
+        ),
+        nav=NavParams(
+            experimental_requires_gps=cfg.nav.experimental_requires_gps,
+            max_pos_sigma_h_m=cfg.nav.max_pos_sigma_h_m,
+            inertial_time_limit_s=cfg.nav.inertial_time_limit_s,
+        ),
+        battery=BatteryParams(low_frac=cfg.battery.low_frac, critical_frac=cfg.battery.critical_frac),
+        termination_enabled=cfg.arbiter.termination_enabled,
+        config_sha256=config_sha256(cfg),
+    )

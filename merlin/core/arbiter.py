@@ -1,0 +1,467 @@
+"""The authority arbiter: who flies, and why.
+
+Read it like PX4's commander failsafe framework: the monitors' verdicts come in as data, a declarative
+table (:class:`merlin.core.config.RuleRow`, one row per monitor, one action per authority, a clear
+condition) says what each verdict means, actions are ordered by precedence (:class:`Action`: a later member
+always wins), and one pure function, :func:`update`, advances the state by one tick. No clock, no I/O.
+
+The rules it enforces, in the order a tick applies them:
+
+1. An acknowledged grant switches authority on the tick after its ACK, if the preconditions still hold.
+2. Revocation never waits: if a tripped monitor's action for the current authority is HOLD or worse,
+   authority returns to TRUSTED on this tick with that monitor's reason, and the action is latched.
+   SHADOW is judged by the EXPERIMENTAL column on what the controller *commands*; a violation ends it.
+   Under TRUSTED, a tripped monitor escalates Merlin's own behaviour (e.g. HOLD -> RTL) while airborne.
+3. The human operator can always take over (a rising edge of the takeover switch on a live RC link),
+   and remains under envelope/geofence oversight unless configured otherwise; a monitor already tripped
+   at the takeover is given ``override_grace_s`` so the human can fly out of the condition.
+4. Ground-station commands (arm, disarm, takeoff, hold, RTL, land, mission, terminate) are acknowledged.
+5. The positive exchange (paper: "eliminates ambiguity of causality"): REQUEST -> preconditions ->
+   GRANT(seq) -> ACK(seq) -> switch on the next tick; no ACK by the deadline -> DENIED(ack_timeout).
+6. Latched actions end by their clear condition: when the monitor clears, on the next exchange or mode
+   command, or never (until disarm).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import NamedTuple
+
+from merlin.core.config import Clear, CoreConfig, RuleRow
+from merlin.core.types import (
+    ACTION_BEHAVIOR,
+    Action,
+    Authority,
+    AuthorityRequest,
+    Behavior,
+    Event,
+    EventKind,
+    GcsCommand,
+    GcsCommandKind,
+    Reason,
+    ReasonCode,
+    RequestKind,
+)
+
+#: Behaviour precedence when several are asked for at once (latched actions versus the commanded mode).
+BEHAVIOR_RANK: dict[Behavior, int] = {
+    Behavior.IDLE: 0,
+    Behavior.TAKEOFF: 1,
+    Behavior.HOLD: 2,
+    Behavior.MISSION: 3,
+    Behavior.RTL: 4,
+    Behavior.LAND: 5,
+    Behavior.TERMINATE: 6,
+}
+
+#: Monitors that the operator-oversight switches in the configuration can exempt the human from.
+OVERSIGHT = {"envelope": "oversight_envelope", "geofence": "oversight_geofence"}
+
+#: Seconds on the ground in LAND/RTL before Merlin disarms (as PX4's COM_DISARM_LAND default of 2 s).
+AUTO_DISARM_LANDED_S = 2.0
+
+_MODE_BEHAVIOR = {
+    GcsCommandKind.HOLD: Behavior.HOLD,
+    GcsCommandKind.RTL: Behavior.RTL,
+    GcsCommandKind.LAND: Behavior.LAND,
+    GcsCommandKind.MISSION: Behavior.MISSION,
+}
+
+
+class Latch(NamedTuple):
+    monitor: str
+    action: Action
+    reason: Reason
+    clear: str
+
+
+class Pending(NamedTuple):
+    seq: int
+    target: Authority
+    deadline_s: float
+
+
+class ArbiterState(NamedTuple):
+    armed: bool = False
+    authority: Authority = Authority.TRUSTED
+    base: Behavior = Behavior.IDLE  # the commanded trusted behaviour, before latched actions
+    latches: tuple[Latch, ...] = ()
+    pending: Pending | None = None  # granted, awaiting ACK
+    switch: Pending | None = None  # acknowledged, switches on the next tick
+    next_seq: int = 1
+    revocations: int = 0
+    last_revocation_t_s: float = -math.inf
+    takeover_prev: bool = False
+    grace_until_s: float = -math.inf
+    grace_monitors: frozenset[str] = frozenset()
+    landed_since_s: float | None = None
+    takeoff_alt_m: float = 0.0
+
+    @property
+    def behavior(self) -> Behavior:
+        if not self.armed:
+            return Behavior.IDLE
+        b = self.base
+        for latch in self.latches:
+            lb = ACTION_BEHAVIOR.get(latch.action)
+            if lb is not None and BEHAVIOR_RANK[lb] > BEHAVIOR_RANK[b]:
+                b = lb
+        return b
+
+
+class TickView(NamedTuple):
+    """What the earlier stages of this tick found, as the arbiter needs it."""
+
+    now: float
+    tripped: Mapping[str, Reason]  # monitors tripped on the vehicle's state
+    shadow_tripped: Mapping[str, Reason]  # monitors tripped on what a SHADOW controller commands
+    newly_tripped: frozenset[str]
+    grant_block: Reason | None  # first failing precondition for EXPERIMENTAL (None: all hold)
+    shadow_block: Reason | None  # first failing precondition for SHADOW
+    arm_block: Reason | None  # why arming would be refused now (None: may arm)
+    takeover: bool  # the operator's takeover switch, from a live RC link (False when the link is lost)
+    landed: bool
+    requests: tuple[AuthorityRequest, ...] = ()
+    commands: tuple[GcsCommand, ...] = ()
+
+
+def column(row: RuleRow, authority: Authority) -> Action:
+    """The table's action for a tripped monitor under an authority (SHADOW flies TRUSTED)."""
+    if authority is Authority.EXPERIMENTAL:
+        return row.experimental
+    if authority is Authority.OPERATOR:
+        return row.operator
+    return row.trusted
+
+
+def _worst(
+    tripped: Mapping[str, Reason], cfg: CoreConfig, authority: Authority, st: ArbiterState, now: float
+) -> list[tuple[Action, RuleRow, Reason]]:
+    """Tripped monitors with their action under ``authority``, worst first (table order breaks ties)."""
+    out: list[tuple[Action, RuleRow, Reason]] = []
+    for row in cfg.rules:
+        reason = tripped.get(row.monitor)
+        if reason is None:
+            continue
+        action = column(row, authority)
+        if authority is Authority.OPERATOR and row.monitor in OVERSIGHT:
+            exempt = not getattr(cfg.operator, OVERSIGHT[row.monitor])
+            in_grace = row.monitor in st.grace_monitors and now <= st.grace_until_s
+            if exempt or in_grace:
+                action = Action.NONE
+        out.append((action, row, reason))
+    out.sort(key=lambda x: -int(x[0]))
+    return out
+
+
+def _authority_event(now: float, frm: Authority, to: Authority, reason: Reason, seq: int = 0) -> Event:
+    return Event(now, EventKind.AUTHORITY, reason=reason, from_=frm, to=to, seq=seq)
+
+
+def _drop_on_request(latches: tuple[Latch, ...]) -> tuple[Latch, ...]:
+    return tuple(latch for latch in latches if latch.clear != Clear.ON_REQUEST)
+
+
+def _cancel_exchange(st: ArbiterState, now: float, reason: Reason, events: list[Event]) -> ArbiterState:
+    for p in (st.pending, st.switch):
+        if p is not None:
+            events.append(Event(now, EventKind.DENIED, reason=reason, seq=p.seq, to=p.target))
+    return st._replace(pending=None, switch=None)
+
+
+def _to_trusted(
+    st: ArbiterState, now: float, reason: Reason, events: list[Event], base: Behavior = Behavior.HOLD
+) -> ArbiterState:
+    if st.authority is not Authority.TRUSTED:
+        events.append(_authority_event(now, st.authority, Authority.TRUSTED, reason))
+    return st._replace(authority=Authority.TRUSTED, base=base)
+
+
+def _simple(code: ReasonCode, text: str) -> Reason:
+    return Reason(code, monitor="arbiter", text=text)
+
+
+def _switch(st: ArbiterState, view: TickView, cfg: CoreConfig, events: list[Event]) -> ArbiterState:
+    sw = st.switch
+    assert sw is not None  # update() calls this stage only with an acknowledged grant
+    st = st._replace(switch=None)
+    block = _exchange_block(st, view, cfg, sw.target)
+    if block is not None:
+        events.append(Event(view.now, EventKind.DENIED, reason=block, seq=sw.seq, to=sw.target))
+        return st
+    events.append(
+        _authority_event(view.now, st.authority, sw.target, Reason(ReasonCode.GRANTED, "arbiter"), sw.seq)
+    )
+    return st._replace(authority=sw.target, base=Behavior.HOLD, latches=_drop_on_request(st.latches))
+
+
+def _revoke(st: ArbiterState, view: TickView, cfg: CoreConfig, events: list[Event]) -> ArbiterState:
+    now = view.now
+    if st.authority is Authority.SHADOW:
+        judged = _worst(view.shadow_tripped, cfg, Authority.EXPERIMENTAL, st, now)
+        if judged and judged[0][0] >= Action.WARN:
+            reason = judged[0][2]
+            events.append(Event(now, EventKind.SHADOW_VIOLATION, reason=reason))
+            events.append(Event(now, EventKind.REVOKED, reason=reason, from_=Authority.SHADOW))
+            st = _to_trusted(st, now, reason, events, base=st.base)
+    if st.authority in (Authority.EXPERIMENTAL, Authority.OPERATOR):
+        judged = _worst(view.tripped, cfg, st.authority, st, now)
+        acts = [a for a in judged if a[0] >= Action.HOLD]
+        for action, row, reason in judged:
+            if action is Action.WARN and row.monitor in view.newly_tripped:
+                events.append(Event(now, EventKind.WARNING, reason=reason))
+        if acts:
+            reason = acts[0][2]
+            was = st.authority
+            events.append(Event(now, EventKind.REVOKED, reason=reason, from_=was))
+            latches = st.latches + tuple(Latch(r.monitor, a, rs, r.clear) for a, r, rs in acts)
+            st = _to_trusted(st, now, reason, events)
+            st = st._replace(latches=latches)
+            if was is Authority.EXPERIMENTAL:
+                st = st._replace(revocations=st.revocations + 1, last_revocation_t_s=now)
+            return st
+    if st.authority is not Authority.TRUSTED and st.authority is not Authority.SHADOW:
+        return st
+    if not st.armed or view.landed:
+        return st
+    latched = {latch.monitor for latch in st.latches}
+    new: list[Latch] = []
+    for action, row, reason in _worst(view.tripped, cfg, Authority.TRUSTED, st, now):
+        if action is Action.WARN and row.monitor in view.newly_tripped:
+            events.append(Event(now, EventKind.WARNING, reason=reason))
+        if action >= Action.HOLD and row.monitor not in latched:
+            new.append(Latch(row.monitor, action, reason, row.clear))
+    if new:
+        st = st._replace(latches=st.latches + tuple(new))
+    return st
+
+
+def _operator(st: ArbiterState, view: TickView, cfg: CoreConfig, events: list[Event]) -> ArbiterState:
+    now = view.now
+    rising = view.takeover and not st.takeover_prev  # update() calls this stage only on an edge
+    falling = not rising
+    st = st._replace(takeover_prev=view.takeover)
+    if rising and st.armed and st.authority is not Authority.OPERATOR:
+        reason = _simple(ReasonCode.OPERATOR_TAKEOVER, "operator took over")
+        st = _cancel_exchange(st, now, reason, events)
+        events.append(_authority_event(now, st.authority, Authority.OPERATOR, reason))
+        in_condition = frozenset(m for m in OVERSIGHT if m in view.tripped)
+        return st._replace(
+            authority=Authority.OPERATOR,
+            latches=_drop_on_request(st.latches),
+            grace_until_s=now + cfg.operator.override_grace_s,
+            grace_monitors=in_condition,
+        )
+    if falling and st.authority is Authority.OPERATOR:
+        return _to_trusted(st, now, _simple(ReasonCode.OPERATOR_RELEASE, "operator released control"), events)
+    return st
+
+
+def _ack(now: float, cmd: GcsCommand, accepted: bool, reason: Reason, events: list[Event]) -> None:
+    events.append(
+        Event(now, EventKind.COMMAND_ACK, reason=reason, seq=cmd.seq, accepted=accepted, command=cmd.kind)
+    )
+
+
+def _commands(st: ArbiterState, view: TickView, cfg: CoreConfig, events: list[Event]) -> ArbiterState:
+    now = view.now
+    ok = Reason(ReasonCode.NONE)
+    for cmd in view.commands:
+        k = cmd.kind
+        if k is GcsCommandKind.ARM:
+            if st.armed:
+                _ack(now, cmd, True, ok, events)
+            elif view.arm_block is not None and not cmd.force:
+                _ack(now, cmd, False, view.arm_block, events)
+            else:
+                st = st._replace(armed=True, base=Behavior.IDLE, revocations=0, landed_since_s=None)
+                _ack(now, cmd, True, ok, events)
+            continue
+        if k is GcsCommandKind.DISARM:
+            if not st.armed:
+                _ack(now, cmd, True, ok, events)
+            elif not view.landed and not cmd.force:
+                _ack(now, cmd, False, _simple(ReasonCode.PRECONDITION, "refused: vehicle is airborne"), events)
+            else:
+                st = _disarm(st, now, _simple(ReasonCode.DISARMED, "disarmed by ground station"), events)
+                _ack(now, cmd, True, ok, events)
+            continue
+        if not st.armed:
+            _ack(now, cmd, False, _simple(ReasonCode.NOT_ARMED, "refused: vehicle is not armed"), events)
+            continue
+        if k is GcsCommandKind.TERMINATE:
+            if not cfg.termination_enabled:
+                _ack(now, cmd, False, _simple(ReasonCode.PRECONDITION, "flight termination is disabled"), events)
+                continue
+            reason = _simple(ReasonCode.GCS_COMMAND, "flight termination commanded")
+            st = _cancel_exchange(st, now, reason, events)
+            st = _to_trusted(st, now, reason, events, base=Behavior.TERMINATE)
+            st = st._replace(latches=(*st.latches, Latch("gcs", Action.TERMINATE, reason, Clear.NEVER)))
+            _ack(now, cmd, True, ok, events)
+            continue
+        if k is GcsCommandKind.TAKEOFF:
+            if not view.landed:
+                _ack(now, cmd, False, _simple(ReasonCode.PRECONDITION, "refused: already airborne"), events)
+                continue
+            alt = cmd.param if math.isfinite(cmd.param) and cmd.param > 0.0 else cfg.trusted.takeoff_altitude_m
+            reason = _simple(ReasonCode.GCS_COMMAND, "takeoff commanded")
+            st = _cancel_exchange(st, now, reason, events)
+            st = _to_trusted(st, now, reason, events, base=Behavior.TAKEOFF)
+            st = st._replace(takeoff_alt_m=alt, latches=_drop_on_request(st.latches))
+            _ack(now, cmd, True, ok, events)
+            continue
+        behavior = _MODE_BEHAVIOR[k]
+        if view.landed and behavior is not Behavior.LAND:
+            _ack(now, cmd, False, _simple(ReasonCode.LANDED, "refused: on the ground; take off first"), events)
+            continue
+        reason = _simple(ReasonCode.GCS_COMMAND, f"{behavior.name} commanded by ground station")
+        st = _cancel_exchange(st, now, reason, events)
+        st = _to_trusted(st, now, reason, events, base=behavior)
+        st = st._replace(latches=_drop_on_request(st.latches))
+        _ack(now, cmd, True, ok, events)
+    return st
+
+
+def _disarm(st: ArbiterState, now: float, reason: Reason, events: list[Event]) -> ArbiterState:
+    st = _cancel_exchange(st, now, reason, events)
+    st = _to_trusted(st, now, reason, events, base=Behavior.IDLE)
+    return st._replace(armed=False, latches=(), landed_since_s=None)
+
+
+def _exchange_block(st: ArbiterState, view: TickView, cfg: CoreConfig, target: Authority) -> Reason | None:
+    """Why a grant to ``target`` must be refused now, or None. Arbiter-side checks, then the stages'."""
+    now = view.now
+    if not st.armed:
+        return _simple(ReasonCode.NOT_ARMED, "refused: vehicle is not armed")
+    if st.authority is Authority.OPERATOR:
+        return _simple(ReasonCode.BUSY, "refused: the operator has authority")
+    for latch in st.latches:
+        if latch.clear == Clear.NEVER:
+            return latch.reason
+    if target is Authority.SHADOW:
+        return view.shadow_block
+    since = now - st.last_revocation_t_s
+    if since < cfg.handover.cooldown_s:
+        return Reason(
+            ReasonCode.COOLDOWN,
+            "arbiter",
+            "cooldown_s",
+            since,
+            cfg.handover.cooldown_s,
+            since,
+            f"refused: {since:.2f} s since the last revocation, cool-down is {cfg.handover.cooldown_s:.2f} s",
+        )
+    limit = cfg.handover.max_revocations_per_flight
+    if limit and st.revocations >= limit:
+        return Reason(
+            ReasonCode.REVOCATION_LIMIT,
+            "arbiter",
+            "revocations",
+            float(st.revocations),
+            float(limit),
+            0.0,
+            f"refused: {st.revocations} revocations this flight, the limit is {limit}",
+        )
+    return view.grant_block
+
+
+def _exchange(st: ArbiterState, view: TickView, cfg: CoreConfig, events: list[Event]) -> ArbiterState:
+    now = view.now
+    for req in view.requests:
+        if req.kind is RequestKind.RELEASE:
+            reason = _simple(ReasonCode.RELEASED, "controller released authority")
+            st = _cancel_exchange(st, now, reason, events)
+            if st.authority in (Authority.EXPERIMENTAL, Authority.SHADOW):
+                events.append(Event(now, EventKind.RELEASED, reason=reason, from_=st.authority))
+                st = _to_trusted(st, now, reason, events)
+            continue
+        if req.kind is RequestKind.ACK:
+            p = st.pending
+            if p is not None and req.seq == p.seq:
+                events.append(Event(now, EventKind.ACKNOWLEDGED, seq=p.seq, to=p.target))
+                st = st._replace(pending=None, switch=p)
+            else:
+                expected = p.seq if p is not None else 0
+                reason = Reason(
+                    ReasonCode.SEQUENCE_MISMATCH,
+                    "arbiter",
+                    "seq",
+                    float(req.seq),
+                    float(expected),
+                    0.0,
+                    f"ACK for grant {req.seq} does not match the pending grant ({expected or 'none'})",
+                )
+                events.append(Event(now, EventKind.DENIED, reason=reason, seq=req.seq))
+            continue
+        target = Authority.SHADOW if req.kind is RequestKind.REQUEST_SHADOW else Authority.EXPERIMENTAL
+        if st.authority is target or st.pending is not None or st.switch is not None:
+            reason = _simple(ReasonCode.BUSY, "refused: authority already held or an exchange is under way")
+            events.append(Event(now, EventKind.DENIED, reason=reason, to=target))
+            continue
+        block = _exchange_block(st, view, cfg, target)
+        if block is not None:
+            events.append(Event(now, EventKind.DENIED, reason=block, to=target))
+            continue
+        seq = st.next_seq
+        deadline = now + cfg.handover.ack_timeout_s
+        events.append(Event(now, EventKind.GRANTED, reason=Reason(ReasonCode.GRANTED, "arbiter"), seq=seq, to=target))
+        st = st._replace(pending=Pending(seq, target, deadline), next_seq=seq + 1)
+    p = st.pending
+    if p is not None and now > p.deadline_s:
+        reason = Reason(
+            ReasonCode.ACK_TIMEOUT,
+            "arbiter",
+            "ack_wait_s",
+            now - (p.deadline_s - cfg.handover.ack_timeout_s),
+            cfg.handover.ack_timeout_s,
+            0.0,
+            f"grant {p.seq} was not acknowledged within {cfg.handover.ack_timeout_s:.2f} s",
+        )
+        events.append(Event(now, EventKind.DENIED, reason=reason, seq=p.seq, to=p.target))
+        st = st._replace(pending=None)
+    return st
+
+
+def _housekeeping(st: ArbiterState, view: TickView, events: list[Event]) -> ArbiterState:
+    now = view.now
+    kept = tuple(
+        latch for latch in st.latches if not (latch.clear == Clear.WHEN_CLEAR and latch.monitor not in view.tripped)
+    )
+    if len(kept) != len(st.latches):
+        st = st._replace(latches=kept)
+    grace = frozenset(m for m in st.grace_monitors if m in view.tripped)
+    if grace != st.grace_monitors:
+        st = st._replace(grace_monitors=grace)
+    landed_since = (st.landed_since_s if st.landed_since_s is not None else now) if view.landed else None
+    if landed_since != st.landed_since_s:
+        st = st._replace(landed_since_s=landed_since)
+    if (
+        st.armed
+        and landed_since is not None
+        and st.authority is Authority.TRUSTED
+        and st.behavior in (Behavior.LAND, Behavior.RTL)
+        and now - landed_since >= AUTO_DISARM_LANDED_S
+    ):
+        st = _disarm(st, now, _simple(ReasonCode.LANDED, "landed: disarmed"), events)
+    return st
+
+
+def update(st: ArbiterState, view: TickView, cfg: CoreConfig) -> tuple[ArbiterState, list[Event]]:
+    """Advance the arbiter by one tick. Pure: the same state, view and configuration give the same result."""
+    events: list[Event] = []
+    # Each stage runs only when it can have an effect: on a quiet tick (nothing tripped, no request,
+    # no command) the arbiter costs a handful of comparisons (docs/architecture.md, "Cost of the tick").
+    if st.switch is not None:
+        st = _switch(st, view, cfg, events)
+    if view.tripped or st.authority is Authority.SHADOW:
+        st = _revoke(st, view, cfg, events)
+    if view.takeover is not st.takeover_prev:
+        st = _operator(st, view, cfg, events)
+    if view.commands:
+        st = _commands(st, view, cfg, events)
+    if view.requests or st.pending is not None:
+        st = _exchange(st, view, cfg, events)
+    if st.latches or st.grace_monitors or view.landed or st.landed_since_s is not None:
+        st = _housekeeping(st, view, events)
+    return st, events

@@ -1,0 +1,139 @@
+"""The core's runtime configuration: plain, frozen, SI units and radians, cheap to read in the tick.
+
+Built once, at the edge, from the validated pydantic models by :func:`merlin.config.runtime.build_core_config`;
+the core never imports pydantic or reads a file.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from merlin.core.geofence import Fence
+from merlin.core.types import Action
+
+
+class Clear:
+    """When a latched action ends (cf. PX4 failsafe framework's clear conditions)."""
+
+    WHEN_CLEAR = "when_clear"
+    ON_REQUEST = "on_request"
+    NEVER = "never"
+
+
+@dataclass(frozen=True, slots=True)
+class EnvelopeLimit:
+    """One envelope parameter in SI units. ``index`` selects the value from :func:`envelope_values`."""
+
+    name: str  # as in the configuration file, with its display unit, e.g. "roll_deg"
+    index: int
+    min: float
+    max: float
+    duration_s: float
+    display_scale: float = 1.0  # SI value * display_scale = value in the configuration's unit
+    wraps: bool = False  # an angle that wraps at +-pi (yaw)
+    min_display: float = math.nan  # the bounds exactly as configured (no degree round trip in reports)
+    max_display: float = math.nan
+
+    def shown_limit(self, value_si: float) -> float:
+        """The configured bound a value violates, in the configuration's unit."""
+        low = value_si < self.min
+        if low:
+            return self.min_display if math.isfinite(self.min_display) else self.min * self.display_scale
+        return self.max_display if math.isfinite(self.max_display) else self.max * self.display_scale
+
+
+@dataclass(frozen=True, slots=True)
+class RuleRow:
+    """One row of the arbiter's table: the monitor, its action under each authority, its clear condition."""
+
+    monitor: str
+    experimental: Action
+    operator: Action
+    trusted: Action
+    clear: str = Clear.ON_REQUEST
+
+
+@dataclass(frozen=True, slots=True)
+class WatchdogTimeouts:
+    controller_heartbeat_s: float = 0.5
+    setpoint_stale_s: float = 0.5
+    rc_link_s: float = 1.0
+    gcs_link_s: float = 5.0
+
+
+@dataclass(frozen=True, slots=True)
+class HandoverParams:
+    ack_timeout_s: float = 1.0
+    heartbeat_alive_min_s: float = 1.0
+    max_setpoint_position_error_m: float = 10.0
+    max_setpoint_velocity_error_mps: float = 3.0
+    max_setpoint_attitude_error_rad: float = 0.2618
+    cooldown_s: float = 5.0
+    max_revocations_per_flight: int = 3
+    blend_window_s: float = 1.0
+    max_accel_mps2: float = 6.0
+    max_attitude_rate_radps: float = 1.5708
+    max_thrust_rate_per_s: float = 1.0
+
+
+@dataclass(frozen=True, slots=True)
+class OperatorParams:
+    oversight_envelope: bool = True
+    oversight_geofence: bool = True
+    override_grace_s: float = 5.0
+    max_speed_h_mps: float = 8.0
+    max_speed_up_mps: float = 3.0
+    max_speed_down_mps: float = 1.5
+    max_yaw_rate_radps: float = 1.0472
+    stick_deadband: float = 0.05
+
+
+@dataclass(frozen=True, slots=True)
+class TrustedParams:
+    rtl_altitude_m: float = 30.0
+    cruise_speed_mps: float = 6.0
+    climb_speed_mps: float = 2.5
+    land_speed_mps: float = 0.8
+    land_final_height_m: float = 3.0
+    rtl_acceptance_m: float = 2.0
+    position_gain_per_s: float = 1.0
+    takeoff_altitude_m: float = 10.0
+    max_horizontal_decel_mps2: float = 4.0
+    hover_thrust: float = 0.5
+    mission_ned_m: tuple[tuple[float, float, float], ...] = ()
+    mission_acceptance_m: float = 2.0
+
+
+@dataclass(frozen=True, slots=True)
+class NavParams:
+    experimental_requires_gps: bool = True
+    max_pos_sigma_h_m: float = 5.0
+    inertial_time_limit_s: float = 30.0
+
+
+@dataclass(frozen=True, slots=True)
+class BatteryParams:
+    low_frac: float = 0.25
+    critical_frac: float = 0.10
+
+
+@dataclass(frozen=True, slots=True)
+class CoreConfig:
+    envelope: tuple[EnvelopeLimit, ...]
+    rules: tuple[RuleRow, ...]
+    fence: Fence | None
+    watchdogs: WatchdogTimeouts = field(default_factory=WatchdogTimeouts)
+    handover: HandoverParams = field(default_factory=HandoverParams)
+    operator: OperatorParams = field(default_factory=OperatorParams)
+    trusted: TrustedParams = field(default_factory=TrustedParams)
+    nav: NavParams = field(default_factory=NavParams)
+    battery: BatteryParams = field(default_factory=BatteryParams)
+    termination_enabled: bool = False
+    config_sha256: str = ""
+
+    def rule(self, monitor: str) -> RuleRow:
+        for r in self.rules:
+            if r.monitor == monitor:
+                return r
+        raise KeyError(monitor)

@@ -1,0 +1,227 @@
+"""Command shaping: turn the authority holder's setpoint into the command to actuate, bumplessly.
+
+The paper: "This control transfer also permits the controllers to initialize reference commands and
+internal parameters to achieve smooth, bumpless control switching ... necessary to avoid discontinuous or
+abrupt actuator commands." At every change of source (authority or trusted behaviour) the command starts
+from the last actuated command -- or, when the incoming source commands at another level (velocity vs.
+attitude), from the vehicle's current state at that level -- and is blended linearly into the new source's
+command over ``blend_window_s``, with a slew-rate limit on top. Once the window has passed and the
+command has caught up, the new source's command passes through unchanged (the envelope judges it).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+from merlin.autopilot.guidance import position_to_velocity
+from merlin.core.config import HandoverParams, OperatorParams, TrustedParams
+from merlin.core.types import (
+    Authority,
+    Command,
+    CommandKind,
+    OperatorInput,
+    Setpoint,
+    SetpointKind,
+    Vec3,
+    VehicleState,
+)
+
+
+def _wrap_pi(x: float) -> float:
+    return math.atan2(math.sin(x), math.cos(x))
+
+
+def setpoint_to_command(sp: Setpoint, s: VehicleState, source: Authority, tp: TrustedParams) -> Command:
+    """A source's setpoint as a command at the actuator stage's level (position closed by the P loop)."""
+    if sp.kind is SetpointKind.ATTITUDE:
+        return Command(
+            CommandKind.ATTITUDE,
+            source,
+            att_rpy_rad=sp.att_rpy_rad,
+            yaw_rad=sp.att_rpy_rad[2],
+            thrust=min(max(sp.thrust, 0.0), 1.0),
+        )
+    if sp.kind is SetpointKind.POSITION:
+        vel = position_to_velocity(
+            sp.pos_ned_m,
+            s.pos_ned_m,
+            sp.vel_ned_mps,
+            tp.position_gain_per_s,
+            math.inf,
+            math.inf,
+            math.inf,
+        )
+        return Command(
+            CommandKind.VELOCITY,
+            source,
+            vel_ned_mps=vel,
+            yaw_rad=sp.yaw_rad,
+            yaw_rate_radps=sp.yaw_rate_radps,
+            pos_target_ned_m=sp.pos_ned_m,
+        )
+    return Command(
+        CommandKind.VELOCITY,
+        source,
+        vel_ned_mps=sp.vel_ned_mps,
+        yaw_rad=sp.yaw_rad,
+        yaw_rate_radps=sp.yaw_rate_radps,
+        pos_target_ned_m=sp.pos_ned_m if source is Authority.TRUSTED else None,
+    )
+
+
+class OperatorMemory(NamedTuple):
+    """What the operator's position-assist mode remembers: the heading and the point held at centre sticks."""
+
+    yaw_rad: float
+    hold_ned_m: Vec3 | None
+
+
+def operator_command(
+    op: OperatorInput,
+    s: VehicleState,
+    mem: OperatorMemory,
+    dt: float,
+    cfg: OperatorParams,
+    tp: TrustedParams,
+) -> tuple[OperatorMemory, Command]:
+    """Sticks to a velocity command, as PX4's position mode: deflection commands speed in the heading frame,
+    centred sticks hold the position where the vehicle stops."""
+
+    def dz(x: float) -> float:
+        if not math.isfinite(x):
+            return 0.0
+        x = min(max(x, -1.0), 1.0)
+        if abs(x) <= cfg.stick_deadband:
+            return 0.0
+        return math.copysign((abs(x) - cfg.stick_deadband) / (1.0 - cfg.stick_deadband), x)
+
+    fwd, right, yaw_in, thr = dz(op.pitch), dz(op.roll), dz(op.yaw), dz(op.throttle)
+    yaw = _wrap_pi(mem.yaw_rad + yaw_in * cfg.max_yaw_rate_radps * dt)
+    c, sn = math.cos(yaw), math.sin(yaw)
+    vn = (fwd * c - right * sn) * cfg.max_speed_h_mps
+    ve = (fwd * sn + right * c) * cfg.max_speed_h_mps
+    vd = -thr * (cfg.max_speed_up_mps if thr > 0.0 else cfg.max_speed_down_mps)
+    hold = mem.hold_ned_m
+    if fwd == 0.0 and right == 0.0 and thr == 0.0:
+        if hold is None:
+            v = s.vel_ned_mps
+            k = 1.0 / (2.0 * tp.max_horizontal_decel_mps2)
+            p = s.pos_ned_m
+            hold = (p[0] + v[0] * abs(v[0]) * k, p[1] + v[1] * abs(v[1]) * k, p[2])
+        vn, ve, vd = position_to_velocity(
+            hold, s.pos_ned_m, (0.0, 0.0, 0.0), tp.position_gain_per_s, cfg.max_speed_h_mps,
+            cfg.max_speed_up_mps, cfg.max_speed_down_mps,
+        )
+    else:
+        hold = None
+    cmd = Command(
+        CommandKind.VELOCITY,
+        Authority.OPERATOR,
+        vel_ned_mps=(vn, ve, vd),
+        yaw_rad=yaw,
+        yaw_rate_radps=yaw_in * cfg.max_yaw_rate_radps,
+        pos_target_ned_m=hold,
+    )
+    return OperatorMemory(yaw, hold), cmd
+
+
+class Blend(NamedTuple):
+    """An active bumpless transition: started at ``t0_s`` from the command ``start``."""
+
+    t0_s: float
+    start: Command
+
+
+def blend_start(last: Command | None, incoming: Command, s: VehicleState, hover_thrust: float) -> Command:
+    """The command a transition starts from: the last actuated one at the same level, else the state's."""
+    if last is not None and last.kind is incoming.kind:
+        return last
+    if incoming.kind is CommandKind.ATTITUDE:
+        thrust = last.thrust if last is not None and last.kind is CommandKind.ATTITUDE else hover_thrust
+        att = s.att_rpy_rad if all(math.isfinite(a) for a in s.att_rpy_rad) else (0.0, 0.0, 0.0)
+        return Command(CommandKind.ATTITUDE, incoming.source, att_rpy_rad=att, yaw_rad=att[2], thrust=thrust)
+    v = s.vel_ned_mps if all(math.isfinite(x) for x in s.vel_ned_mps) else (0.0, 0.0, 0.0)
+    yaw = s.att_rpy_rad[2] if math.isfinite(s.att_rpy_rad[2]) else incoming.yaw_rad
+    return Command(CommandKind.VELOCITY, incoming.source, vel_ned_mps=v, yaw_rad=yaw)
+
+
+def _toward(prev: float, target: float, max_step: float) -> float:
+    d = target - prev
+    if d > max_step:
+        return prev + max_step
+    if d < -max_step:
+        return prev - max_step
+    return target
+
+
+def _toward_angle(prev: float, target: float, max_step: float) -> float:
+    return _wrap_pi(prev + _toward(0.0, _wrap_pi(target - prev), max_step))
+
+
+def shape(
+    blend: Blend | None,
+    last: Command | None,
+    incoming: Command,
+    now: float,
+    dt: float,
+    hp: HandoverParams,
+) -> tuple[Blend | None, Command]:
+    """Blend and slew-limit ``incoming`` after a transfer; pass it through once the transition is over.
+
+    ``last`` is the previously actuated command (same level as ``blend.start`` during a transition).
+    """
+    if blend is None or last is None or last.kind is not incoming.kind:
+        return None, incoming
+    window = hp.blend_window_s
+    alpha = 1.0 if window <= 0.0 else min(max((now - blend.t0_s) / window, 0.0), 1.0)
+    a = blend.start
+    if incoming.kind is CommandKind.ATTITUDE:
+        tgt_att = tuple(
+            _wrap_pi(a.att_rpy_rad[i] + alpha * _wrap_pi(incoming.att_rpy_rad[i] - a.att_rpy_rad[i]))
+            for i in range(3)
+        )
+        tgt_thrust = a.thrust + alpha * (incoming.thrust - a.thrust)
+        step_att = hp.max_attitude_rate_radps * dt
+        att = tuple(_toward_angle(last.att_rpy_rad[i], tgt_att[i], step_att) for i in range(3))
+        thrust = _toward(last.thrust, tgt_thrust, hp.max_thrust_rate_per_s * dt)
+        out = Command(
+            CommandKind.ATTITUDE,
+            incoming.source,
+            att_rpy_rad=(att[0], att[1], att[2]),
+            yaw_rad=att[2],
+            thrust=thrust,
+            blend=alpha,
+        )
+        caught_up = max(abs(_wrap_pi(att[i] - incoming.att_rpy_rad[i])) for i in range(3)) < 1e-6 and abs(
+            thrust - incoming.thrust
+        ) < 1e-6
+    else:
+        tv = tuple(a.vel_ned_mps[i] + alpha * (incoming.vel_ned_mps[i] - a.vel_ned_mps[i]) for i in range(3))
+        lv = last.vel_ned_mps
+        dv = (tv[0] - lv[0], tv[1] - lv[1], tv[2] - lv[2])
+        mag = math.sqrt(dv[0] * dv[0] + dv[1] * dv[1] + dv[2] * dv[2])
+        max_dv = hp.max_accel_mps2 * dt
+        if mag > max_dv:
+            k = max_dv / mag
+            dv = (dv[0] * k, dv[1] * k, dv[2] * k)
+        vel = (lv[0] + dv[0], lv[1] + dv[1], lv[2] + dv[2])
+        yaw_t = _wrap_pi(a.yaw_rad + alpha * _wrap_pi(incoming.yaw_rad - a.yaw_rad))
+        yaw = _toward_angle(last.yaw_rad, yaw_t, hp.max_attitude_rate_radps * dt)
+        out = Command(
+            CommandKind.VELOCITY,
+            incoming.source,
+            vel_ned_mps=vel,
+            yaw_rad=yaw,
+            yaw_rate_radps=incoming.yaw_rate_radps * alpha,
+            pos_target_ned_m=incoming.pos_target_ned_m,
+            blend=alpha,
+        )
+        iv = incoming.vel_ned_mps
+        caught_up = (
+            max(abs(vel[0] - iv[0]), abs(vel[1] - iv[1]), abs(vel[2] - iv[2])) < 1e-6
+            and abs(_wrap_pi(yaw - incoming.yaw_rad)) < 1e-6
+        )
+    if alpha >= 1.0 and caught_up:
+        return None, incoming
+    return blend, out

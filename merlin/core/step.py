@@ -1,0 +1,554 @@
+"""One tick of the trusted core: state and inputs in, a decision out.
+
+The stages run in one direction, each reading what the previous one produced (``docs/architecture.md``):
+
+    validate inputs -> monitors (envelope, geofence, watchdogs, nav, battery) -> preconditions
+        -> arbiter (authority, latched actions, exchange) -> trusted guidance / operator / experimental
+        -> command shaping (bumpless) -> decision
+
+:func:`step` is a pure function of ``(config, state, now, inputs)``: no clock, no I/O, no randomness, so a
+recorded run replays decision for decision. :class:`TrustedCore` is the convenience wrapper that keeps the
+state between calls. Nothing an input contains -- NaN, infinity, absurd magnitudes, missing setpoints --
+makes :func:`step` raise: bad values become the ``invalid_input`` faults of the monitors.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import NamedTuple
+
+from merlin.autopilot import guidance
+from merlin.core import arbiter, envelope, geofence, watchdog
+from merlin.core.arbiter import ArbiterState, TickView
+from merlin.core.config import CoreConfig
+from merlin.core.shaping import (
+    Blend,
+    OperatorMemory,
+    blend_start,
+    operator_command,
+    setpoint_to_command,
+    shape,
+)
+from merlin.core.types import (
+    NO_REASON,
+    Action,
+    Authority,
+    Behavior,
+    Command,
+    CommandKind,
+    Decision,
+    Event,
+    EventKind,
+    Inputs,
+    MonitorStatus,
+    NavMode,
+    Reason,
+    ReasonCode,
+    Setpoint,
+    SetpointKind,
+    VehicleState,
+)
+
+#: Magnitudes beyond these are not a vehicle state or a setpoint but a fault (``invalid_input``).
+MAX_ABS_POSITION_M = 1.0e6
+MAX_ABS_VELOCITY_MPS = 500.0
+MAX_ABS_RATE_RADPS = 100.0
+MAX_ABS_ACCEL_MPS2 = 1000.0
+MAX_SETPOINT_POSITION_M = 1.0e5
+MAX_SETPOINT_VELOCITY_MPS = 100.0
+MAX_SETPOINT_YAW_RATE_RADPS = 20.0
+
+
+class CoreState(NamedTuple):
+    t_s: float | None = None
+    arbiter: ArbiterState = ArbiterState()
+    env_since: tuple[float | None, ...] = ()
+    shadow_env_since: tuple[float | None, ...] = ()
+    hb_alive_since_s: float | None = None
+    reported: frozenset[str] = frozenset()  # monitors whose trip has been reported and not yet cleared
+    guidance: guidance.GuidanceState | None = None
+    operator: OperatorMemory = OperatorMemory(0.0, None)
+    blend: Blend | None = None
+    last_command: Command | None = None
+    last_source: tuple[Authority, Behavior] | None = None
+    last_valid_state: VehicleState = VehicleState()
+    clear_statuses: tuple[MonitorStatus, ...] = ()  # one untripped status per table row, built once
+    checked_setpoint: Setpoint | None = None
+    checked_setpoint_bad: Reason | None = None
+
+
+def initial_state(cfg: CoreConfig) -> CoreState:
+    n = len(cfg.envelope)
+    return CoreState(
+        env_since=(None,) * n,
+        shadow_env_since=(None,) * n,
+        clear_statuses=tuple(MonitorStatus(r.monitor, False) for r in cfg.rules),
+    )
+
+
+# ------------------------------------------------------------------------------------------ validation
+
+
+def _finite3(v: object) -> bool:
+    return (
+        isinstance(v, tuple)
+        and len(v) == 3
+        and all(isinstance(x, (int, float)) and math.isfinite(x) for x in v)
+    )
+
+
+def _bad(monitor: str, param: str, value: object, text: str) -> Reason:
+    num = value if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
+    return Reason(ReasonCode.INVALID_INPUT, monitor, param, float(num), math.nan, 0.0, f"{monitor}: {param} {text}")
+
+
+def _state_ok(s: VehicleState) -> bool:
+    """Fast path: every field finite and within its magnitude bound (NaN fails every comparison)."""
+    try:
+        p, v, a, w, f = s.pos_ned_m, s.vel_ned_mps, s.att_rpy_rad, s.rates_frd_radps, s.accel_frd_mps2
+        lp, lv, la, lw, lf = MAX_ABS_POSITION_M, MAX_ABS_VELOCITY_MPS, 4.0 * math.pi, MAX_ABS_RATE_RADPS, MAX_ABS_ACCEL_MPS2
+        return bool(
+            len(p) == 3 and len(v) == 3 and len(a) == 3 and len(w) == 3 and len(f) == 3
+            and -lp <= p[0] <= lp and -lp <= p[1] <= lp and -lp <= p[2] <= lp
+            and -lv <= v[0] <= lv and -lv <= v[1] <= lv and -lv <= v[2] <= lv
+            and -la <= a[0] <= la and -la <= a[1] <= la and -la <= a[2] <= la
+            and -lw <= w[0] <= lw and -lw <= w[1] <= lw and -lw <= w[2] <= lw
+            and -lf <= f[0] <= lf and -lf <= f[1] <= lf and -lf <= f[2] <= lf
+            and 0.0 <= s.airspeed_mps <= lv
+            and 0.0 <= s.pos_sigma_h_m <= lp and 0.0 <= s.pos_sigma_v_m <= lp
+            and 0.0 <= s.nav_inertial_s <= 1.0e7 and 0.0 <= s.battery_frac <= 1.0
+            and isinstance(s.nav_mode, NavMode)
+            and type(p[0]) is not bool
+        )
+    except (TypeError, IndexError):
+        return False
+
+
+def validate_state(s: VehicleState) -> Reason | None:
+    """None for a usable navigation solution; else the first offending field."""
+    if _state_ok(s):
+        return None
+    checks: tuple[tuple[str, object, float], ...] = (
+        ("pos_ned_m", s.pos_ned_m, MAX_ABS_POSITION_M),
+        ("vel_ned_mps", s.vel_ned_mps, MAX_ABS_VELOCITY_MPS),
+        ("att_rpy_rad", s.att_rpy_rad, 4.0 * math.pi),
+        ("rates_frd_radps", s.rates_frd_radps, MAX_ABS_RATE_RADPS),
+        ("accel_frd_mps2", s.accel_frd_mps2, MAX_ABS_ACCEL_MPS2),
+    )
+    for name, v, lim in checks:
+        if not _finite3(v):
+            return _bad("state_invalid", name, math.nan, f"is not three finite numbers: {v!r}")
+        assert isinstance(v, tuple)
+        for x in v:
+            if abs(x) > lim:
+                return _bad("state_invalid", name, x, f"magnitude {x!r} exceeds {lim:g}")
+    scalars: tuple[tuple[str, object, float, float], ...] = (
+        ("airspeed_mps", s.airspeed_mps, 0.0, MAX_ABS_VELOCITY_MPS),
+        ("pos_sigma_h_m", s.pos_sigma_h_m, 0.0, MAX_ABS_POSITION_M),
+        ("pos_sigma_v_m", s.pos_sigma_v_m, 0.0, MAX_ABS_POSITION_M),
+        ("nav_inertial_s", s.nav_inertial_s, 0.0, 1.0e7),
+        ("battery_frac", s.battery_frac, 0.0, 1.0),
+    )
+    for name, x, lo, hi in scalars:
+        if not isinstance(x, (int, float)) or not math.isfinite(x) or x < lo or x > hi:
+            return _bad("state_invalid", name, x, f"= {x!r} is outside [{lo:g}, {hi:g}]")
+    if not isinstance(s.nav_mode, NavMode):
+        return _bad("state_invalid", "nav_mode", math.nan, f"= {s.nav_mode!r} is not a navigation mode")
+    return None
+
+
+def _setpoint_ok(sp: Setpoint) -> bool:
+    """Fast path of :func:`validate_setpoint` (NaN fails every comparison)."""
+    try:
+        if sp.kind is SetpointKind.ATTITUDE:
+            a, pi = sp.att_rpy_rad, math.pi
+            return bool(len(a) == 3 and -pi <= a[0] <= pi and -pi <= a[1] <= pi and -pi <= a[2] <= pi
+                        and 0.0 <= sp.thrust <= 1.0)
+        if sp.kind is SetpointKind.POSITION or sp.kind is SetpointKind.VELOCITY:
+            p, v = sp.pos_ned_m, sp.vel_ned_mps
+            lp, lv, ly, lr = MAX_SETPOINT_POSITION_M, MAX_SETPOINT_VELOCITY_MPS, 4.0 * math.pi, MAX_SETPOINT_YAW_RATE_RADPS
+            return bool(len(p) == 3 and len(v) == 3
+                        and -lp <= p[0] <= lp and -lp <= p[1] <= lp and -lp <= p[2] <= lp
+                        and -lv <= v[0] <= lv and -lv <= v[1] <= lv and -lv <= v[2] <= lv
+                        and -ly <= sp.yaw_rad <= ly and -lr <= sp.yaw_rate_radps <= lr)
+    except (TypeError, IndexError):
+        return False
+    return False
+
+
+def validate_setpoint(sp: Setpoint) -> Reason | None:
+    """None for a setpoint the core can act on; else the first offending field (reason ``invalid_input``)."""
+    if _setpoint_ok(sp):
+        return None
+    if not isinstance(sp.kind, SetpointKind):
+        return _bad("setpoint_invalid", "kind", math.nan, f"= {sp.kind!r} is not a setpoint kind")
+    fields: tuple[tuple[str, object, float], ...]
+    if sp.kind is SetpointKind.ATTITUDE:
+        fields = (("att_rpy_rad", sp.att_rpy_rad, math.pi),)
+        t = sp.thrust
+        if not isinstance(t, (int, float)) or not math.isfinite(t) or not 0.0 <= t <= 1.0:
+            return _bad("setpoint_invalid", "thrust", t, f"= {t!r} is outside [0, 1]")
+    else:
+        fields = (
+            ("pos_ned_m", sp.pos_ned_m, MAX_SETPOINT_POSITION_M),
+            ("vel_ned_mps", sp.vel_ned_mps, MAX_SETPOINT_VELOCITY_MPS),
+        )
+        for name, x, lim in (
+            ("yaw_rad", sp.yaw_rad, 4.0 * math.pi),
+            ("yaw_rate_radps", sp.yaw_rate_radps, MAX_SETPOINT_YAW_RATE_RADPS),
+        ):
+            if not isinstance(x, (int, float)) or not math.isfinite(x) or abs(x) > lim:
+                return _bad("setpoint_invalid", name, x, f"= {x!r} is not finite within +-{lim:g}")
+    for name, v, lim in fields:
+        if not _finite3(v):
+            return _bad("setpoint_invalid", name, math.nan, f"is not three finite numbers: {v!r}")
+        assert isinstance(v, tuple)
+        for x in v:
+            if abs(x) > lim:
+                return _bad("setpoint_invalid", name, x, f"magnitude {x!r} exceeds {lim:g}")
+    return None
+
+
+# ---------------------------------------------------------------------------------------------- monitors
+
+def _status(
+    clear: MonitorStatus, reason: Reason | None, detail: tuple[tuple[str, float], ...] = ()
+) -> MonitorStatus:
+    if reason is None and not detail:
+        return clear
+    name = clear.name
+    return MonitorStatus(name, reason is not None, reason if reason is not None else NO_REASON, detail)
+
+
+def _fence_reason(res: geofence.FenceResult, monitor: str = "geofence") -> Reason:
+    return Reason(
+        ReasonCode.GEOFENCE,
+        monitor,
+        res.kind or "fence",
+        res.stopping_distance_m,
+        res.clearance_m,
+        0.0,
+        f"{monitor}: projected path of {res.stopping_distance_m:.1f} m reaches the {res.kind or 'fence'}"
+        f" boundary (clearance {res.clearance_m:.1f} m)",
+    )
+
+
+def _setpoint_consistency(sp: Setpoint, s: VehicleState, cfg: CoreConfig) -> Reason | None:
+    h = cfg.handover
+    if sp.kind is SetpointKind.POSITION:
+        err = math.dist(sp.pos_ned_m, s.pos_ned_m)
+        if err > h.max_setpoint_position_error_m:
+            return Reason(ReasonCode.SETPOINT_INCONSISTENT, "handover", "position_error_m", err,
+                          h.max_setpoint_position_error_m, 0.0,
+                          f"refused: first position setpoint is {err:.1f} m from the vehicle")
+    if sp.kind is SetpointKind.VELOCITY:
+        err = math.dist(sp.vel_ned_mps, s.vel_ned_mps)
+        if err > h.max_setpoint_velocity_error_mps:
+            return Reason(ReasonCode.SETPOINT_INCONSISTENT, "handover", "velocity_error_mps", err,
+                          h.max_setpoint_velocity_error_mps, 0.0,
+                          f"refused: first velocity setpoint differs by {err:.1f} m/s from the vehicle's")
+    if sp.kind is SetpointKind.ATTITUDE:
+        err = max(abs(sp.att_rpy_rad[0] - s.att_rpy_rad[0]), abs(sp.att_rpy_rad[1] - s.att_rpy_rad[1]))
+        if err > h.max_setpoint_attitude_error_rad:
+            return Reason(ReasonCode.SETPOINT_INCONSISTENT, "handover", "attitude_error_deg", math.degrees(err),
+                          math.degrees(h.max_setpoint_attitude_error_rad), 0.0,
+                          f"refused: first attitude setpoint is {math.degrees(err):.1f} deg from the vehicle's")
+    return None
+
+
+def _grant_block(
+    cfg: CoreConfig,
+    s: VehicleState,
+    inputs: Inputs,
+    tripped: dict[str, Reason],
+    hb_alive_since: float | None,
+    now: float,
+    shadow: bool,
+) -> Reason | None:
+    """The first precondition for a grant that does not hold now (None: all hold)."""
+    for name in ("state_invalid", "controller_heartbeat", "setpoint_stale", "setpoint_invalid"):
+        r = tripped.get(name)
+        if r is not None:
+            return r
+    alive = 0.0 if hb_alive_since is None else now - hb_alive_since
+    need = cfg.handover.heartbeat_alive_min_s
+    if hb_alive_since is None or alive + envelope.TIME_EPS_S < need:
+        return Reason(ReasonCode.HEARTBEAT_NOT_ESTABLISHED, "handover", "heartbeat_alive_s", alive, need, alive,
+                      f"refused: controller heartbeat unbroken for {alive:.2f} s, {need:.2f} s required")
+    sp = inputs.experimental.setpoint
+    if sp is None:
+        return Reason(ReasonCode.PRECONDITION, "handover", text="refused: no setpoint received yet")
+    if shadow:
+        return None
+    for row in cfg.rules:
+        r = tripped.get(row.monitor)
+        if r is not None and row.experimental >= Action.HOLD:
+            return r
+    env = envelope.all_inside(cfg.envelope, envelope.envelope_values(s))
+    if env is not None:
+        return env
+    nav = cfg.nav
+    if nav.experimental_requires_gps and s.nav_mode is not NavMode.GPS:
+        return Reason(ReasonCode.NAV_DEGRADED, "nav", "nav_mode", float(s.nav_mode), float(NavMode.GPS), 0.0,
+                      f"refused: navigation is {s.nav_mode.name}, GPS required")
+    if s.pos_sigma_h_m > nav.max_pos_sigma_h_m:
+        return Reason(ReasonCode.NAV_DEGRADED, "nav", "pos_sigma_h_m", s.pos_sigma_h_m, nav.max_pos_sigma_h_m,
+                      0.0, f"refused: position sigma {s.pos_sigma_h_m:.2f} m above {nav.max_pos_sigma_h_m:.2f} m")
+    cmd_env = envelope.all_inside(
+        tuple(lim for lim in cfg.envelope if not math.isnan(envelope.commanded_values(sp, s)[lim.index])),
+        envelope.commanded_values(sp, s),
+    )
+    if cmd_env is not None:
+        return replace(cmd_env, text=f"refused: the setpoint commands {cmd_env.parameter}={cmd_env.value:.4g}"
+                       f" outside [{cmd_env.limit:.4g}]")
+    return _setpoint_consistency(sp, s, cfg)
+
+
+def _arm_block(cfg: CoreConfig, s: VehicleState, tripped: dict[str, Reason]) -> Reason | None:
+    r = tripped.get("state_invalid")
+    if r is not None:
+        return r
+    if cfg.fence is not None and not geofence.contains(cfg.fence, s.pos_ned_m):
+        return Reason(ReasonCode.OUTSIDE_FENCE, "geofence", text="refused: arming outside the geofence")
+    for name in ("battery_critical", "nav_lost"):
+        r = tripped.get(name)
+        if r is not None:
+            return r
+    return None
+
+
+# -------------------------------------------------------------------------------------------------- step
+
+
+def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[CoreState, Decision]:
+    """Advance the trusted core by one tick."""
+    events: list[Event] = []
+    if not isinstance(now, (int, float)) or not math.isfinite(now):
+        now = st.t_s if st.t_s is not None else 0.0
+    dt = 0.0 if st.t_s is None else max(0.0, now - st.t_s)
+    if len(st.env_since) != len(cfg.envelope) or len(st.clear_statuses) != len(cfg.rules):
+        st = initial_state(cfg)._replace(arbiter=st.arbiter, t_s=st.t_s)
+
+    # -- validate inputs
+    raw = inputs.state
+    state_bad = validate_state(raw)
+    s = st.last_valid_state if state_bad is not None else raw
+    if state_bad is not None:
+        s = replace(s, armed=bool(raw.armed), landed=bool(raw.landed))
+    exp = inputs.experimental
+    sp = exp.setpoint
+    # A setpoint is validated once: the edge passes the same immutable object until a new one arrives.
+    if sp is None:
+        sp_bad = None
+    elif sp is st.checked_setpoint:
+        sp_bad = st.checked_setpoint_bad
+    else:
+        sp_bad = validate_setpoint(sp)
+
+    # -- monitors on the vehicle's state
+    tripped: dict[str, Reason] = {}
+    if state_bad is not None:
+        tripped["state_invalid"] = state_bad
+    env = envelope.update(cfg.envelope, st.env_since, envelope.envelope_values(raw), now)
+    if env.reason is not None:
+        tripped["envelope"] = env.reason
+    fence_res = None
+    if cfg.fence is not None:
+        fence_res = geofence.check(cfg.fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, s.pos_sigma_v_m,
+                                   not s.landed)
+        if fence_res.tripped:
+            tripped["geofence"] = _fence_reason(fence_res)
+    wd = cfg.watchdogs
+    hb_t, sp_t = exp.heartbeat_t_s, exp.setpoint_t_s
+    if hb_t is None or not now - hb_t <= wd.controller_heartbeat_s:  # "not <=": a NaN time is expired too
+        tripped["controller_heartbeat"] = watchdog.reason(
+            ReasonCode.CONTROLLER_HEARTBEAT, "controller_heartbeat", now, hb_t, wd.controller_heartbeat_s)
+    if sp_t is None or not now - sp_t <= wd.setpoint_stale_s:
+        tripped["setpoint_stale"] = watchdog.reason(
+            ReasonCode.SETPOINT_STALE, "setpoint_stale", now, sp_t, wd.setpoint_stale_s)
+    if sp_bad is not None:
+        tripped["setpoint_invalid"] = sp_bad
+    op = inputs.operator
+    rc_t, gcs_t = op.link_t_s, inputs.gcs_link_t_s
+    rc_lost = rc_t is not None and not now - rc_t <= wd.rc_link_s
+    if rc_lost:
+        tripped["rc_link"] = watchdog.reason(ReasonCode.RC_LINK, "rc_link", now, rc_t, wd.rc_link_s)
+    if gcs_t is not None and not now - gcs_t <= wd.gcs_link_s:
+        tripped["gcs_link"] = watchdog.reason(ReasonCode.GCS_LINK, "gcs_link", now, gcs_t, wd.gcs_link_s)
+    if state_bad is None:
+        mode = s.nav_mode
+        if mode is NavMode.VO or mode is NavMode.INERTIAL:
+            tripped["nav_gps_lost"] = Reason(ReasonCode.NAV_DEGRADED, "nav_gps_lost", "nav_mode", float(mode),
+                                             float(NavMode.GPS), 0.0, f"GPS not trusted: navigating on {mode.name}")
+        if mode is NavMode.INERTIAL and s.nav_inertial_s >= cfg.nav.inertial_time_limit_s:
+            tripped["nav_inertial_timeout"] = Reason(
+                ReasonCode.NAV_DEGRADED, "nav_inertial_timeout", "nav_inertial_s", s.nav_inertial_s,
+                cfg.nav.inertial_time_limit_s, s.nav_inertial_s, "inertial-only navigation beyond its time limit")
+        if mode is NavMode.LOST:
+            tripped["nav_lost"] = Reason(ReasonCode.NAV_LOST, "nav_lost", "nav_mode", float(mode), 0.0, 0.0,
+                                         "navigation lost")
+        if s.battery_frac < cfg.battery.critical_frac:
+            tripped["battery_critical"] = Reason(ReasonCode.BATTERY_CRITICAL, "battery_critical", "battery_frac",
+                                                 s.battery_frac, cfg.battery.critical_frac)
+        if s.battery_frac < cfg.battery.low_frac:
+            tripped["battery_low"] = Reason(ReasonCode.BATTERY_LOW, "battery_low", "battery_frac", s.battery_frac,
+                                            cfg.battery.low_frac)
+    hb_since = watchdog.alive_since(now, exp.heartbeat_t_s, wd.controller_heartbeat_s, st.hb_alive_since_s)
+
+    # -- SHADOW: judge what the controller commands, not what the vehicle does
+    arb = st.arbiter
+    shadow_tripped: dict[str, Reason] = {}
+    shadow_since = st.shadow_env_since
+    if arb.authority is Authority.SHADOW:
+        shadow_tripped = {k: v for k, v in tripped.items() if k not in ("envelope", "geofence")}
+        if sp is not None and sp_bad is None:
+            cv = envelope.commanded_values(sp, s)
+            senv = envelope.update(cfg.envelope, shadow_since, cv, now, skip_nan=True)
+            shadow_since = senv.since
+            if senv.reason is not None:
+                shadow_tripped["envelope"] = replace(senv.reason, monitor="envelope (commanded)")
+            if cfg.fence is not None and sp.kind is not SetpointKind.ATTITUDE:
+                cmd = setpoint_to_command(sp, s, Authority.SHADOW, cfg.trusted)
+                fr = geofence.check(cfg.fence, s.pos_ned_m, cmd.vel_ned_mps, s.pos_sigma_h_m, s.pos_sigma_v_m,
+                                    not s.landed)
+                if fr.tripped:
+                    shadow_tripped["geofence"] = _fence_reason(fr, "geofence (commanded)")
+    else:
+        shadow_since = (None,) * len(cfg.envelope)
+
+    # -- preconditions (only computed when an exchange needs them)
+    need_block = bool(exp.requests) or arb.switch is not None
+    grant_block = _grant_block(cfg, s, inputs, tripped, hb_since, now, False) if need_block else None
+    shadow_block = _grant_block(cfg, s, inputs, tripped, hb_since, now, True) if need_block else None
+    arm_block = _arm_block(cfg, s, tripped) if inputs.gcs_commands else None
+
+    newly = frozenset(k for k in tripped if k not in st.reported)
+    view = TickView(
+        now=now,
+        tripped=tripped,
+        shadow_tripped=shadow_tripped,
+        newly_tripped=newly,
+        grant_block=grant_block,
+        shadow_block=shadow_block,
+        arm_block=arm_block,
+        takeover=bool(op.takeover) and not rc_lost and op.link_t_s is not None,
+        landed=bool(s.landed),
+        requests=exp.requests,
+        commands=inputs.gcs_commands,
+    )
+    arb, arb_events = arbiter.update(arb, view, cfg)
+
+    # -- trusted guidance
+    behavior = arb.behavior
+    authority = arb.authority
+    g = st.guidance
+    flies_trusted = authority in (Authority.TRUSTED, Authority.SHADOW) and arb.armed
+    g_setpoint: Setpoint | None = None
+    if flies_trusted and behavior not in (Behavior.IDLE, Behavior.TERMINATE):
+        if g is None or g.behavior is not behavior:
+            g = guidance.enter(behavior, s, cfg.trusted)
+            if behavior is Behavior.TAKEOFF:
+                g = g._replace(anchor_ned_m=(g.anchor_ned_m[0], g.anchor_ned_m[1], -arb.takeoff_alt_m))
+        g, g_setpoint = guidance.step(g, s, cfg.trusted)
+        if behavior is Behavior.TAKEOFF and g.done:
+            arb = arb._replace(base=Behavior.HOLD)
+    else:
+        g = None
+    prev_behavior = st.last_source[1] if st.last_source is not None else Behavior.IDLE
+    if behavior is not prev_behavior:
+        events.append(Event(now, EventKind.BEHAVIOR, behavior=behavior))
+
+    # -- the source's command, then bumpless shaping
+    op_mem = st.operator
+    source = (authority, behavior)
+    if source != st.last_source and authority is Authority.OPERATOR:
+        op_mem = OperatorMemory(s.att_rpy_rad[2], None)
+    if not arb.armed or (flies_trusted and behavior is Behavior.IDLE):
+        incoming = Command(CommandKind.IDLE, authority)
+    elif flies_trusted and behavior is Behavior.TERMINATE:
+        incoming = Command(CommandKind.TERMINATE, authority)
+    elif authority is Authority.OPERATOR:
+        op_mem, incoming = operator_command(op, s, op_mem, dt, cfg.operator, cfg.trusted)
+    elif authority is Authority.EXPERIMENTAL and sp is not None and sp_bad is None:
+        incoming = setpoint_to_command(sp, s, authority, cfg.trusted)
+    elif g_setpoint is not None:
+        incoming = setpoint_to_command(g_setpoint, s, Authority.TRUSTED, cfg.trusted)
+    else:  # unreachable in practice: EXPERIMENTAL without a valid setpoint is revoked this tick
+        incoming = Command(CommandKind.VELOCITY, Authority.TRUSTED, yaw_rad=s.att_rpy_rad[2])
+    blend = st.blend
+    if incoming.kind in (CommandKind.IDLE, CommandKind.TERMINATE):
+        blend, command = None, incoming
+    else:
+        if source != st.last_source or (st.last_command is not None and st.last_command.kind is not incoming.kind):
+            blend = Blend(now, blend_start(st.last_command, incoming, s, cfg.trusted.hover_thrust))
+            last = blend.start
+        else:
+            last = st.last_command if st.last_command is not None else incoming
+        blend, command = shape(blend, last, incoming, now, dt, cfg.handover)
+
+    # -- monitor statuses and their edges (reported only where the table gives them a consequence)
+    statuses: list[MonitorStatus] = []
+    reported: set[str] = set()
+    quiet = not tripped and not st.reported and not env.violating and not shadow_tripped
+    for row, clear in () if quiet else zip(cfg.rules, st.clear_statuses, strict=True):
+        name = row.monitor
+        reason = tripped.get(name)
+        detail = env.violating if name == "envelope" else ()
+        statuses.append(_status(clear, reason, detail))
+        relevant = reason is not None and arbiter.column(row, authority) is not Action.NONE
+        if relevant:
+            reported.add(name)
+            if name not in st.reported:
+                assert reason is not None
+                events.append(Event(now, EventKind.MONITOR_TRIPPED, reason=reason))
+        elif name in st.reported and reason is None:
+            events.append(Event(now, EventKind.MONITOR_CLEARED, reason=Reason(ReasonCode.NONE, name)))
+        elif name in st.reported:
+            reported.add(name)
+    for name, reason in shadow_tripped.items():
+        if name in ("envelope", "geofence"):
+            statuses.append(MonitorStatus(f"shadow_{name}", True, reason))
+
+    new_state = CoreState(
+        t_s=now,
+        arbiter=arb,
+        env_since=env.since,
+        shadow_env_since=shadow_since,
+        hb_alive_since_s=hb_since,
+        reported=frozenset(reported),
+        guidance=g,
+        operator=op_mem,
+        blend=blend,
+        last_command=command,
+        last_source=source,
+        last_valid_state=s,
+        clear_statuses=st.clear_statuses,
+        checked_setpoint=sp,
+        checked_setpoint_bad=sp_bad,
+    )
+    all_events = tuple(arb_events) + tuple(events)
+    decision = Decision(
+        t_s=now,
+        authority=authority,
+        behavior=behavior,
+        command=command,
+        monitors=st.clear_statuses if quiet else tuple(statuses),
+        events=all_events,
+        armed=arb.armed,
+        pending_grant_seq=arb.pending.seq if arb.pending is not None else 0,
+        revocations=arb.revocations,
+    )
+    return new_state, decision
+
+
+class TrustedCore:
+    """Keeps the core's state between ticks: ``core.step(now, inputs) -> Decision``."""
+
+    def __init__(self, cfg: CoreConfig, state: CoreState | None = None) -> None:
+        self.cfg = cfg
+        self.state = state if state is not None else initial_state(cfg)
+
+    def step(self, now: float, inputs: Inputs) -> Decision:
+        self.state, decision = step(self.cfg, self.state, now, inputs)
+        return decision
