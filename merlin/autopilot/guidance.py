@@ -31,6 +31,7 @@ class GuidanceState(NamedTuple):
     phase: int = 0  # RTL phase
     mission_index: int = 0
     done: bool = False  # TAKEOFF reached its height; MISSION flew its last waypoint
+    vel_cmd: Vec3 = (0.0, 0.0, 0.0)  # the last velocity setpoint, for the acceleration limit
 
 
 def position_to_velocity(
@@ -69,7 +70,12 @@ def enter(behavior: Behavior, s: VehicleState, cfg: TrustedParams) -> GuidanceSt
         anchor = stopping_point(s, cfg.max_horizontal_decel_mps2)
     else:
         anchor = s.pos_ned_m
-    return GuidanceState(behavior=behavior, anchor_ned_m=anchor, yaw_rad=yaw)
+    phase = RTL_CLIMB
+    if behavior is Behavior.RTL and math.hypot(anchor[0], anchor[1]) <= cfg.rtl_direct_radius_m:
+        phase = RTL_RETURN  # already near home: no climb (PX4's RTL_MIN_DIST behaviour)
+    v = s.vel_ned_mps
+    v0 = v if all(math.isfinite(x) for x in v) else (0.0, 0.0, 0.0)
+    return GuidanceState(behavior=behavior, anchor_ned_m=anchor, yaw_rad=yaw, phase=phase, vel_cmd=v0)
 
 
 def _hold(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> Setpoint:
@@ -95,7 +101,9 @@ def _land_at(xy: Vec3, g: GuidanceState, s: VehicleState, cfg: TrustedParams) ->
     vel = position_to_velocity(
         target, s.pos_ned_m, (0.0, 0.0, 0.0), cfg.position_gain_per_s, cfg.cruise_speed_mps, 0.0, 0.0
     )
-    down = 0.0 if s.landed else _descend_speed(s, cfg)
+    # keep commanding descent on the ground: the velocity loop then winds the collective down and the
+    # vehicle stays down until it is disarmed (a zero command would hover it back up)
+    down = _descend_speed(s, cfg)
     return Setpoint(
         SetpointKind.VELOCITY,
         pos_ned_m=(xy[0], xy[1], 0.0),
@@ -104,8 +112,29 @@ def _land_at(xy: Vec3, g: GuidanceState, s: VehicleState, cfg: TrustedParams) ->
     )
 
 
-def step(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[GuidanceState, Setpoint]:
-    """Advance a behaviour by one tick: the new guidance state and the velocity setpoint to shape."""
+def step(g: GuidanceState, s: VehicleState, cfg: TrustedParams, dt: float) -> tuple[GuidanceState, Setpoint]:
+    """Advance a behaviour by one tick: the new guidance state and the velocity setpoint to shape.
+
+    The setpoint's change is limited to the braking deceleration the fence projection assumes
+    (``max_horizontal_decel_mps2``, ``max_vertical_decel_mps2``): Merlin's own autopilot never asks for
+    more than the geofence counted on, and never steps its command (cf. PX4's acceleration-limited
+    trajectory generator).
+    """
+    g2, sp = _target(g, s, cfg)
+    lim_h = cfg.max_horizontal_decel_mps2 * dt
+    lim_v = cfg.max_vertical_decel_mps2 * dt
+    p, t = g2.vel_cmd, sp.vel_ned_mps
+    dn, de, dd = t[0] - p[0], t[1] - p[1], t[2] - p[2]
+    h = math.hypot(dn, de)
+    if h > lim_h:
+        dn, de = dn * lim_h / h, de * lim_h / h
+    dd = min(max(dd, -lim_v), lim_v)
+    v = (p[0] + dn, p[1] + de, p[2] + dd)
+    return g2._replace(vel_cmd=v), sp._replace(vel_ned_mps=v)
+
+
+def _target(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[GuidanceState, Setpoint]:
+    """The behaviour's unlimited velocity setpoint."""
     b = g.behavior
     if b is Behavior.HOLD:
         return g, _hold(g, s, cfg)
@@ -118,7 +147,7 @@ def step(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[Guidanc
             target, s.pos_ned_m, (0.0, 0.0, 0.0), cfg.position_gain_per_s, cfg.cruise_speed_mps,
             cfg.climb_speed_mps, cfg.land_speed_mps,
         )
-        g2 = g if done == g.done else GuidanceState(b, g.anchor_ned_m, g.yaw_rad, g.phase, g.mission_index, done)
+        g2 = g if done == g.done else g._replace(done=done)
         return g2, Setpoint(SetpointKind.VELOCITY, pos_ned_m=target, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
 
     if b is Behavior.LAND:
@@ -126,12 +155,14 @@ def step(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[Guidanc
 
     if b is Behavior.RTL:
         safe_alt = max(cfg.rtl_altitude_m, -g.anchor_ned_m[2])
+        if g.phase != RTL_CLIMB and math.hypot(g.anchor_ned_m[0], g.anchor_ned_m[1]) <= cfg.rtl_direct_radius_m:
+            safe_alt = -g.anchor_ned_m[2]  # returning from close by: stay at the present height
         phase = g.phase
         if phase == RTL_CLIMB and s.alt_m >= safe_alt - ALTITUDE_ACCEPTANCE_M:
             phase = RTL_RETURN
         if phase == RTL_RETURN and math.hypot(s.pos_ned_m[0], s.pos_ned_m[1]) <= cfg.rtl_acceptance_m:
             phase = RTL_DESCEND
-        g2 = g if phase == g.phase else GuidanceState(b, g.anchor_ned_m, g.yaw_rad, phase, g.mission_index, g.done)
+        g2 = g if phase == g.phase else g._replace(phase=phase)
         if phase == RTL_DESCEND:
             return g2, _land_at((0.0, 0.0, 0.0), g2, s, cfg)
         if phase == RTL_CLIMB:
@@ -154,14 +185,14 @@ def step(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[Guidanc
                 i += 1
         if i >= len(wps):
             hold_at = wps[-1] if wps else g.anchor_ned_m
-            g2 = GuidanceState(b, hold_at, g.yaw_rad, g.phase, i, True)
+            g2 = g._replace(anchor_ned_m=hold_at, mission_index=i, done=True)
             return g2, _hold(g2, s, cfg)
         wp = wps[i]
         vel = position_to_velocity(
             wp, s.pos_ned_m, (0.0, 0.0, 0.0), cfg.position_gain_per_s, cfg.cruise_speed_mps,
             cfg.climb_speed_mps, cfg.land_speed_mps * 2.0,
         )
-        g2 = g if i == g.mission_index else GuidanceState(b, g.anchor_ned_m, g.yaw_rad, g.phase, i, False)
+        g2 = g if i == g.mission_index else g._replace(mission_index=i, done=False)
         return g2, Setpoint(SetpointKind.VELOCITY, pos_ned_m=wp, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
 
     # IDLE and TERMINATE: nothing to fly; the command stage turns the motors off.

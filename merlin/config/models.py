@@ -134,7 +134,18 @@ def _default_stages() -> dict[str, EnvelopeStage]:
 
 class EnvelopeConfig(Strict):
     active_stage: str = Field("conservative", description="the stage in force for this flight")
-    stages: dict[str, EnvelopeStage] = Field(default_factory=_default_stages)
+    stages: dict[str, EnvelopeStage] = Field(
+        default_factory=_default_stages,
+        description="named stages; the built-in 'conservative' and 'expanded' are always available to"
+        " extend, and a stage given here under the same name replaces the built-in one",
+    )
+
+    @field_validator("stages")
+    @classmethod
+    def _with_builtin(cls, stages: dict[str, EnvelopeStage]) -> dict[str, EnvelopeStage]:
+        merged = _default_stages()
+        merged.update(stages)
+        return merged
 
     @model_validator(mode="after")
     def _check_stages(self) -> EnvelopeConfig:
@@ -436,6 +447,9 @@ class TrustedConfig(Strict):
     land_speed_mps: float = Field(0.8, gt=0.0)
     land_final_height_m: float = Field(3.0, ge=0.0, description="below this, descend at half speed")
     rtl_acceptance_m: float = Field(2.0, gt=0.0, description="horizontal distance counting as 'home'")
+    rtl_direct_radius_m: float = Field(
+        10.0, ge=0.0, description="RTL closer than this to home skips the climb (as PX4's RTL_MIN_DIST)"
+    )
     position_gain_per_s: float = Field(1.0, gt=0.0, description="position error to velocity, 1/s")
     takeoff_altitude_m: float = Field(10.0, gt=0.0)
     mission_ned_m: list[Annotated[list[float], Field(min_length=3, max_length=3)]] = Field(

@@ -97,9 +97,11 @@ class TrustedParams:
     land_speed_mps: float = 0.8
     land_final_height_m: float = 3.0
     rtl_acceptance_m: float = 2.0
+    rtl_direct_radius_m: float = 10.0
     position_gain_per_s: float = 1.0
     takeoff_altitude_m: float = 10.0
     max_horizontal_decel_mps2: float = 4.0
+    max_vertical_decel_mps2: float = 3.0
     hover_thrust: float = 0.5
     mission_ned_m: tuple[tuple[float, float, float], ...] = ()
     mission_acceptance_m: float = 2.0

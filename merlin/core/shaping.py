@@ -75,6 +75,7 @@ class OperatorMemory(NamedTuple):
 
     yaw_rad: float
     hold_ned_m: Vec3 | None
+    vel_cmd: Vec3 | None = None  # last velocity command, for the acceleration limit
 
 
 def operator_command(
@@ -115,6 +116,17 @@ def operator_command(
         )
     else:
         hold = None
+    # Stick steps become acceleration-limited velocity ramps (as PX4's position mode, MPC_ACC_HOR): the
+    # human asks for a speed, the trusted inner loops get there without a tilt spike.
+    prev = mem.vel_cmd if mem.vel_cmd is not None else s.vel_ned_mps
+    if all(math.isfinite(x) for x in prev):
+        lim_h = tp.max_horizontal_decel_mps2 * dt
+        lim_v = tp.max_vertical_decel_mps2 * dt
+        dn, de = vn - prev[0], ve - prev[1]
+        h = math.hypot(dn, de)
+        if h > lim_h:
+            vn, ve = prev[0] + dn * lim_h / h, prev[1] + de * lim_h / h
+        vd = prev[2] + min(max(vd - prev[2], -lim_v), lim_v)
     cmd = Command(
         CommandKind.VELOCITY,
         Authority.OPERATOR,
@@ -123,7 +135,7 @@ def operator_command(
         yaw_rate_radps=yaw_in * cfg.max_yaw_rate_radps,
         pos_target_ned_m=hold,
     )
-    return OperatorMemory(yaw, hold), cmd
+    return OperatorMemory(yaw, hold, (vn, ve, vd)), cmd
 
 
 class Blend(NamedTuple):

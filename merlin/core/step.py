@@ -450,7 +450,7 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
             g = guidance.enter(behavior, s, cfg.trusted)
             if behavior is Behavior.TAKEOFF:
                 g = g._replace(anchor_ned_m=(g.anchor_ned_m[0], g.anchor_ned_m[1], -arb.takeoff_alt_m))
-        g, g_setpoint = guidance.step(g, s, cfg.trusted)
+        g, g_setpoint = guidance.step(g, s, cfg.trusted, dt)
         if behavior is Behavior.TAKEOFF and g.done:
             arb = arb._replace(base=Behavior.HOLD)
     else:
@@ -463,7 +463,7 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     op_mem = st.operator
     source = (authority, behavior)
     if source != st.last_source and authority is Authority.OPERATOR:
-        op_mem = OperatorMemory(s.att_rpy_rad[2], None)
+        op_mem = OperatorMemory(s.att_rpy_rad[2], None, None)
     if not arb.armed or (flies_trusted and behavior is Behavior.IDLE):
         incoming = Command(CommandKind.IDLE, authority)
     elif flies_trusted and behavior is Behavior.TERMINATE:

@@ -153,8 +153,8 @@ class Reason:
             return self.text
         if self.parameter:
             return (
-                f"{self.monitor}: {self.parameter}={self.value:.4g} beyond limit {self.limit:.4g}"
-                f" for {self.duration_s:.3g} s"
+                f"{self.monitor}: {self.parameter}={self.value:.2f} beyond limit {self.limit:g}"
+                f" for {self.duration_s:.3f} s"
             )
         return self.monitor or self.code.name.lower()
 

@@ -31,6 +31,7 @@ from merlin.core.geofence import (
     CircleNE,
     Fence,
     FenceParams,
+    FenceResult,
     PolygonNE,
     check,
     circle_polygon_ne,
@@ -90,7 +91,7 @@ U_SHAPE = PolygonNE(
 
 
 @cache
-def mixed_fence(grid_cells: int = 65_536) -> Fence:
+def mixed_fence(grid_cells: int = 16_384) -> Fence:
     """An L-shaped inclusion with a hole, a second overlapping inclusion circle and two exclusions."""
     shell = ((0.0, 0.0), (600.0, 0.0), (600.0, 250.0), (250.0, 250.0), (250.0, 600.0), (0.0, 600.0))
     hole = ((60.0, 60.0), (120.0, 60.0), (120.0, 120.0), (60.0, 120.0))
@@ -104,14 +105,21 @@ def mixed_fence(grid_cells: int = 65_536) -> Fence:
     )
 
 
-def at(fence: Fence, n: float, e: float, vn: float = 0.0, ve: float = 0.0, **kw: object):  # type: ignore[no-untyped-def]
-    alt = float(kw.pop("alt", 30.0))  # type: ignore[arg-type]
-    vd = float(kw.pop("vd", 0.0))  # type: ignore[arg-type]
-    sh = float(kw.pop("sigma_h", SIG))  # type: ignore[arg-type]
-    sv = float(kw.pop("sigma_v", SIG))  # type: ignore[arg-type]
-    airborne = bool(kw.pop("airborne", True))
-    assert not kw
-    return check(fence, (n, e, -alt), (vn, ve, vd), sh, sv, airborne)
+def at(
+    fence: Fence,
+    n: float,
+    e: float,
+    vn: float = 0.0,
+    ve: float = 0.0,
+    *,
+    alt: float = 30.0,
+    vd: float = 0.0,
+    sigma_h: float = SIG,
+    sigma_v: float = SIG,
+    airborne: bool = True,
+) -> FenceResult:
+    """check() for a vehicle at (n, e) and ``alt`` m above home, moving at (vn, ve, vd)."""
+    return check(fence, (n, e, -alt), (vn, ve, vd), sigma_h, sigma_v, airborne)
 
 
 def first_trip_distance(fence: Fence, speed: float, heading: float, sigma_h: float = SIG) -> float:
@@ -225,6 +233,26 @@ def test_position_only_trips_only_outside_and_overshoots() -> None:
     # braking from that trigger ends stop_d beyond the wall: 15.5 m at 10 m/s
     assert 0.01 + stop_d(MR, 10.0) > 15.0
     assert trigger_distance_m(PO, 10.0) == 0.0
+
+
+def _fly_at_the_wall(fence: Fence, speed: float, tick_s: float = 0.02) -> float:
+    """Fly head-on at the wall of wall_fence() at 50 Hz; on the first trip react, then brake. Final north."""
+    prm = fence.params
+    n = -(trigger_distance_m(MR, speed, 0.0, SIG) + 20.0)
+    while not at(fence, n, 0.0, speed, 0.0).tripped:
+        n += speed * tick_s
+        assert n < 100.0
+    return n + speed * prm.reaction_time_s + speed * speed / (2.0 * prm.max_h_decel_mps2)
+
+
+@pytest.mark.parametrize("speed", [2.0, 5.0, 10.0, 15.0])
+def test_figure_4_projection_stays_inside_where_position_only_overshoots(speed: float) -> None:
+    """Paper Fig. 4 at four speeds: (a) projection stops inside; (b) position-only stops past the boundary."""
+    stop_projection = _fly_at_the_wall(wall_fence(), speed)
+    stop_position_only = _fly_at_the_wall(wall_fence().with_params(PO), speed)
+    assert stop_projection < -(W - speed * 0.02)  # inside, with the widening kept (less one tick)
+    assert stop_position_only > 0.0  # past the boundary
+    assert stop_position_only == pytest.approx(stop_d(MR, speed), abs=speed * 0.02 + 1e-9)
 
 
 # --------------------------------------------------------------------------------------- altitude
@@ -450,7 +478,7 @@ FAST = settings(max_examples=60, deadline=None, suppress_health_check=[HealthChe
 @FAST
 @given(
     speed=st.floats(0.0, 30.0),
-    heading_deg=st.floats(0.0, 89.5),
+    heading_deg=st.floats(-180.0, 180.0),
     margin=st.floats(0.5, 10.0),
     sigma_h=st.floats(0.0, 3.0),
     reaction=st.floats(0.0, 1.0),
@@ -466,11 +494,11 @@ def test_property_multirotor_braking_from_the_first_trigger_stops_inside(
     un, ue = math.cos(h), math.sin(h)
     w = margin + prm.sigma_k * sigma_h
     step_m = 0.02  # perpendicular advance per tick
-    dt = min(0.02, step_m / max(speed * un, 1e-9))
+    dt = min(0.02, step_m / max(speed * un, 1e-9))  # never more than step_m closer per tick
     n, e = -(trigger_distance_m(prm, speed, h, sigma_h) + 1.0), 0.0
     assert not check(fence, (n, e, -30.0), (speed * un, speed * ue, 0.0), sigma_h, SIG, True).tripped
-    if speed * un < 1e-3:
-        return  # (nearly) parallel or hovering: never approaches the wall
+    if speed < 1e-3 or un < 0.05:
+        return  # hovering, moving away, or within 3 deg of parallel (a pass along the wall, checked above)
     while not check(fence, (n, e, -30.0), (speed * un, speed * ue, 0.0), sigma_h, SIG, True).tripped:
         n, e = n + speed * un * dt, e + speed * ue * dt
         assert n < 0.0, "crossed the wall without a trigger"
@@ -594,8 +622,25 @@ def test_property_multirotor_check_equals_a_direct_shapely_reference(n, e, speed
     if abs(dist - w) < 2e-3:
         return  # on the threshold itself
     want = dist <= w
-    assert check(fence, (n, e, -30.0), (vn, ve, 0.0), sigma_h, SIG, True).tripped == want
+    r = check(fence, (n, e, -30.0), (vn, ve, 0.0), sigma_h, SIG, True)
+    assert r.tripped == want
     assert check(mixed_fence(grid_cells=0), (n, e, -30.0), (vn, ve, 0.0), sigma_h, SIG, True).tripped == want
+    if not want:
+        assert math.isnan(r.clearance_m) and r.kind == ""
+        return
+    assert r.stopping_distance_m >= r.clearance_m - 1e-9  # a trip: the value reaches the limit
+    start_dist = float(shapely.distance(forbidden, shapely.Point(n, e)))
+    if r.kind in ("inclusion", "exclusion") and start_dist > w + 1e-3 and d >= 1e-3:
+        # the limit: the longest prefix of the path that stays farther than w, by plain bisection
+        lo, hi = 0.0, d
+        while hi - lo > 1e-4:
+            mid = 0.5 * (lo + hi)
+            end = (n + mid * math.cos(hdg), e + mid * math.sin(hdg))
+            if float(shapely.distance(forbidden, shapely.LineString([(n, e), end]))) <= w:
+                hi = mid
+            else:
+                lo = mid
+        assert lo - 0.011 <= r.clearance_m <= lo + 1e-4
 
 
 # ------------------------------------------------------------------------- building from the config
@@ -700,3 +745,14 @@ def test_property_grid_precheck_changes_no_verdict(n, e, speed, hdg, sigma_h, ve
     exact = check(mixed_fence(grid_cells=0).with_params(prm), pos, vel, sigma_h, SIG, True)
     assert fast.tripped == exact.tripped and fast.kind == exact.kind
     assert fast.stopping_distance_m == exact.stopping_distance_m
+
+
+def test_fence_survives_pickling_with_prepared_geometry() -> None:
+    import pickle
+
+    f = mixed_fence()
+    g = pickle.loads(pickle.dumps(f))
+    assert shapely.is_prepared(g.allowed_area)
+    for pos, vel in [((200.0, 200.0, -30.0), (3.0, 4.0, 0.0)), ((585.0, 100.0, -30.0), (10.0, 0.0, 0.0))]:
+        assert check(g, pos, vel, SIG, SIG, True) == check(f, pos, vel, SIG, SIG, True)
+    assert check(f, (585.0, 100.0, -30.0), (10.0, 0.0, 0.0), SIG, SIG, True).tripped

@@ -1,0 +1,462 @@
+"""The closed loop: dynamics -> sensors (+ faults) -> estimate -> trusted core -> inner loops -> dynamics.
+
+One scheduler, one direction per tick (``docs/architecture.md``). The experimental controller runs beside
+the core, at its own rate, with a CPU-time budget: it never runs inside the core's tick, and what it
+returns is data the next core tick judges. Everything random draws from generators spawned from the
+scenario's seed, so the same scenario and seed give the same run, bit for bit -- with one documented
+exception: a controller that overruns its CPU budget makes the run depend on the machine (the overrun is
+logged as an event so a reviewer sees it).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from experimental_controllers.api import ControllerOutput, ExperimentalController, Observation
+from experimental_controllers.examples import make_controller
+from merlin.autopilot.multirotor_control import DEFAULT_GAINS, MOTORS_OFF, control_step, reset_from_state
+from merlin.config.loader import ConfigError, config_sha256
+from merlin.config.models import MerlinConfig
+from merlin.config.runtime import build_core_config
+from merlin.core import geofence
+from merlin.core.envelope import envelope_values
+from merlin.core.step import TrustedCore
+from merlin.core.types import (
+    Authority,
+    AuthorityRequest,
+    CommandKind,
+    Decision,
+    Event,
+    EventKind,
+    ExperimentalInput,
+    GcsCommand,
+    GcsCommandKind,
+    Inputs,
+    NavMode,
+    OperatorInput,
+    Setpoint,
+    SetpointKind,
+    VehicleState,
+)
+from sims.battery import Battery, BatteryParams, BatterySagFault
+from sims.multirotor import DEFAULT_PARAMS_PATH, Multirotor, load_multirotor_params
+from sims.scenario import Fault, Scenario
+from sims.sensor_faults import (
+    BaroDrift,
+    GpsJump,
+    GpsLoss,
+    GpsSpoofDrift,
+    ImuBiasStep,
+    ImuDrift,
+    ImuNoise,
+    ImuStuck,
+    MagStuck,
+    SensorFault,
+    SensorFaultInjector,
+)
+from sims.sensors import SensorParams, SensorSuite
+from sims.wind import DiscreteGust, WindModel, WindParams
+
+GCS_HEARTBEAT_PERIOD_S = 1.0  # a ground station's HEARTBEAT rate (QGroundControl and MAVProxy send 1 Hz)
+RC_PERIOD_S = 0.02  # 50 Hz RC frames
+_NOTIFY = {EventKind.GRANTED, EventKind.DENIED, EventKind.REVOKED, EventKind.RELEASED, EventKind.AUTHORITY,
+           EventKind.ACKNOWLEDGED, EventKind.SHADOW_VIOLATION}
+_GCS_KIND = {k.name.lower(): k for k in GcsCommandKind}
+
+
+def _end(f: Fault) -> float:
+    return math.inf if f.end_s is None else f.end_s
+
+
+def _active(f: Fault, t: float) -> bool:
+    return f.start_s <= t < _end(f)
+
+
+def sensor_faults(faults: list[Fault]) -> list[SensorFault]:
+    """The scenario's sensor faults as the simulator's fault models."""
+    out: list[SensorFault] = []
+    for f in faults:
+        end = _end(f)
+        g = tuple(f.gyro) if f.gyro else (0.0, 0.0, 0.0)
+        a = tuple(f.accel) if f.accel else (0.0, 0.0, 0.0)
+        if f.type == "gps_loss":
+            out.append(GpsLoss(f.start_s, end))
+        elif f.type == "gps_jump":
+            assert f.offset_ned_m is not None
+            out.append(GpsJump(f.start_s, tuple(f.offset_ned_m), end))  # type: ignore[arg-type]
+        elif f.type == "gps_spoof":
+            assert f.rate_mps is not None
+            d = tuple(f.direction_ned) if f.direction_ned else (1.0, 0.0, 0.0)
+            out.append(GpsSpoofDrift(f.start_s, f.rate_mps, d, end))  # type: ignore[arg-type]
+        elif f.type == "imu_stuck":
+            out.append(ImuStuck(f.start_s, f.lane, end))
+        elif f.type == "imu_bias":
+            out.append(ImuBiasStep(f.start_s, f.lane, g, a, end))  # type: ignore[arg-type]
+        elif f.type == "imu_drift":
+            out.append(ImuDrift(f.start_s, f.lane, g, a, end))  # type: ignore[arg-type]
+        elif f.type == "imu_noise":
+            sg = f.sigma if f.sigma is not None else 0.05
+            out.append(ImuNoise(f.start_s, f.lane, sg, 10.0 * sg, end))
+        elif f.type == "mag_stuck":
+            out.append(MagStuck(f.start_s, end, f.lane))
+        elif f.type == "baro_drift":
+            assert f.rate_mps is not None
+            out.append(BaroDrift(f.start_s, f.rate_mps, end))
+    return out
+
+
+class TruthPlusNoiseEstimator:
+    """A stand-in for the navigation filter: truth plus Gauss-Markov errors of realistic size.
+
+    LABELLED AS SUCH in every summary (``estimator: truth_plus_noise``). It models what matters to the
+    trusted core -- the reported uncertainty and the navigation mode -- from the GPS faults: during a GPS
+    loss the mode is INERTIAL, the position error grows as an inertial solution's does (a random walk in
+    acceleration) and sigma grows honestly with it. GPS jumps and spoofing are not modelled here (a real
+    filter's fault detection decides those): scenarios about them use ``estimator: ekf``.
+    """
+
+    POS_SIGMA_M = 0.6  # GPS-aided horizontal position error, 1 sigma (u-blox M8 class with an EKF)
+    VEL_SIGMA_MPS = 0.05
+    TAU_S = 20.0
+    INERTIAL_ACCEL_WALK = 0.03  # m/s^2 per sqrt(s): a MEMS IMU's uncompensated acceleration error growth
+
+    def __init__(self, rng: np.random.Generator, dt: float, gps_losses: list[tuple[float, float]]) -> None:
+        self.rng = rng
+        self.dt = dt
+        self.phi = math.exp(-dt / self.TAU_S)
+        self.q = self.POS_SIGMA_M * math.sqrt(1.0 - self.phi**2)
+        self.err = [float(x) * self.POS_SIGMA_M for x in rng.standard_normal(3)]
+        self.losses = gps_losses
+        self.lost_since: float | None = None
+        self.drift_v = [0.0, 0.0]
+        self.drift_p = [0.0, 0.0]
+        self._rows: list[list[float]] = []
+        self._i = 0
+
+    def _noise(self) -> list[float]:
+        if self._i >= len(self._rows):
+            self._rows = self.rng.standard_normal((4096, 5)).tolist()
+            self._i = 0
+        r = self._rows[self._i]
+        self._i += 1
+        return r
+
+    def estimate(self, t: float, truth: Any, armed: bool, battery_frac: float) -> VehicleState:
+        n = self._noise()
+        e = self.err
+        e[0] = self.phi * e[0] + self.q * n[0]
+        e[1] = self.phi * e[1] + self.q * n[1]
+        e[2] = self.phi * e[2] + self.q * n[2]
+        lost = any(a <= t < b for a, b in self.losses)
+        mode = NavMode.GPS
+        sigma = self.POS_SIGMA_M
+        inertial_s = 0.0
+        if lost:
+            if self.lost_since is None:
+                self.lost_since = t
+            inertial_s = t - self.lost_since
+            w = self.INERTIAL_ACCEL_WALK * math.sqrt(self.dt)
+            self.drift_v[0] += w * n[3]
+            self.drift_v[1] += w * n[4]
+            self.drift_p[0] += self.drift_v[0] * self.dt
+            self.drift_p[1] += self.drift_v[1] * self.dt
+            mode = NavMode.INERTIAL
+            # sigma of a random walk in acceleration integrated twice: q * t^1.5 / sqrt(3), plus the aided sigma
+            sigma = math.hypot(self.POS_SIGMA_M, self.INERTIAL_ACCEL_WALK * inertial_s**1.5 / math.sqrt(3.0))
+        else:
+            self.lost_since = None
+            self.drift_v = [0.0, 0.0]
+            self.drift_p = [0.0, 0.0]
+        p, v = truth.pos_ned_m, truth.vel_ned_mps
+        return VehicleState(
+            pos_ned_m=(p[0] + e[0] + self.drift_p[0], p[1] + e[1] + self.drift_p[1], p[2] + 0.3 * e[2]),
+            vel_ned_mps=(v[0] + self.VEL_SIGMA_MPS * n[2] + self.drift_v[0], v[1] + self.VEL_SIGMA_MPS * n[3]
+                         + self.drift_v[1], v[2] + self.VEL_SIGMA_MPS * n[4]),
+            att_rpy_rad=truth.rpy_rad,
+            rates_frd_radps=truth.omega_frd_radps,
+            accel_frd_mps2=truth.specific_force_frd_mps2,
+            airspeed_mps=truth.airspeed_mps,
+            pos_sigma_h_m=sigma,
+            pos_sigma_v_m=0.5,
+            nav_mode=mode,
+            nav_inertial_s=inertial_s,
+            armed=armed,
+            landed=truth.landed,
+            battery_frac=battery_frac,
+        )
+
+
+@dataclass
+class RunResult:
+    scenario: Scenario
+    config: MerlinConfig
+    config_sha256: str
+    events: list[dict[str, Any]]
+    log: dict[str, np.ndarray]
+    metrics: dict[str, float]
+    decisions_digest: str
+    fence_triggers: list[tuple[float, float, float]] = field(default_factory=list)  # (t, north, east)
+    controller_log: list[str] = field(default_factory=list)
+
+
+class _Log:
+    def __init__(self) -> None:
+        self.cols: dict[str, list[float]] = {}
+
+    def add(self, row: dict[str, float]) -> None:
+        for k, v in row.items():
+            self.cols.setdefault(k, []).append(v)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {k: np.asarray(v) for k, v in self.cols.items()}
+
+
+def _controller_call(
+    ctrl: ExperimentalController, obs: Observation, budget_s: float, events: list[dict[str, Any]], t: float
+) -> ControllerOutput:
+    """Run the plug-in outside the core's tick; an exception or a CPU overrun is a missed heartbeat."""
+    c0 = time.thread_time()
+    try:
+        out = ctrl.step(obs)
+    except Exception as exc:  # the plug-in is untrusted: anything it raises is its fault, not ours
+        events.append({"t": t, "type": "controller_fault", "kind": "exception", "detail": repr(exc),
+                       "traceback": traceback.format_exc(limit=3)})
+        return ControllerOutput(None, heartbeat=False)
+    used = time.thread_time() - c0
+    if used > budget_s:
+        events.append({"t": t, "type": "controller_fault", "kind": "cpu_budget",
+                       "detail": f"used {used * 1e3:.2f} ms CPU, budget {budget_s * 1e3:.2f} ms"})
+        return ControllerOutput(None, heartbeat=False)
+    if not isinstance(out, ControllerOutput):
+        events.append({"t": t, "type": "controller_fault", "kind": "bad_output", "detail": type(out).__name__})
+        return ControllerOutput(None, heartbeat=False)
+    return out
+
+
+def vehicle_params_path(name: str) -> Path:
+    p = Path(name)
+    if p.suffix in (".yaml", ".yml"):
+        return p
+    return DEFAULT_PARAMS_PATH.parent / f"{name}.yaml"
+
+
+def run_scenario(
+    sc: Scenario, cfg: MerlinConfig, progress: Callable[[float], None] | None = None, source: str = "<scenario>"
+) -> RunResult:
+    dt = sc.dt_s
+    n_ticks = round(sc.duration_s / dt)
+    root = np.random.default_rng(sc.seed)
+    rng_vehicle, rng_sensors, rng_wind, rng_est, rng_faults = root.spawn(5)
+    try:
+        params = load_multirotor_params(vehicle_params_path(sc.vehicle))
+    except FileNotFoundError:
+        raise ConfigError(source, [f"vehicle: {sc.vehicle!r} is not a file in sims/vehicles"]) from None
+    core_cfg = build_core_config(cfg, source=source)
+    core = TrustedCore(core_cfg)
+    ini = sc.initial
+    vehicle = Multirotor(params, rng_vehicle, dt_s=dt, pos_ned_m=tuple(ini.pos_ned_m),  # type: ignore[arg-type]
+                         rpy_rad=(0.0, 0.0, math.radians(ini.yaw_deg)))
+    sensors = SensorSuite(SensorParams(), rng_sensors, home_lat_deg=cfg.home.lat_deg, home_lon_deg=cfg.home.lon_deg)
+    injector = SensorFaultInjector(sensor_faults(sc.faults), rng_faults)
+    gusts = [DiscreteGust(g.start_s, g.duration_s, tuple(g.amplitude_ned_mps)) for g in sc.wind.gusts]  # type: ignore[arg-type]
+    gusts += [DiscreteGust(f.start_s, (_end(f) - f.start_s) if f.end_s else 2.0, tuple(f.amplitude_ned_mps))  # type: ignore[arg-type]
+              for f in sc.faults if f.type == "wind_gust" and f.amplitude_ned_mps]
+    wind = WindModel(WindParams(steady_ned_mps=tuple(sc.wind.steady_ned_mps),  # type: ignore[arg-type]
+                                turbulence_w20_mps=sc.wind.turbulence_w20_mps, gusts=tuple(gusts)), rng_wind, dt)
+    battery = Battery(BatteryParams(), [
+        BatterySagFault(f.start_s, _end(f), f.extra_resistance_ohm or 0.0, f.capacity_loss_frac or 0.0)
+        for f in sc.faults if f.type == "battery_sag"
+    ])
+    losses = [(f.start_s, _end(f)) for f in sc.faults if f.type == "gps_loss"]
+    est = TruthPlusNoiseEstimator(rng_est, dt, losses)
+    ctrl = make_controller(sc.controller.type, sc.controller.params) if sc.controller else None
+    ctrl_every = max(1, round(1.0 / (sc.controller.rate_hz * dt))) if sc.controller else 0
+    budget_s = sc.controller.cpu_budget_ms / 1e3 if sc.controller else 0.0
+    faults_of = {k: [f for f in sc.faults if f.type == k] for k in
+                 ("controller_crash", "controller_hang", "controller_nan", "controller_absurd", "gcs_link_loss",
+                  "rc_link_loss")}
+
+    def any_active(kind: str, t: float) -> bool:
+        return any(_active(f, t) for f in faults_of[kind])
+
+    gcs_steps = sorted(sc.gcs, key=lambda s: s.t)
+    op_steps = sorted(sc.operator, key=lambda s: s.t)
+    rc_connected = sc.rc_connected or bool(op_steps)
+    ctl = reset_from_state(VehicleState(), params.hover_thrust)
+    gains = DEFAULT_GAINS
+    log = _Log()
+    log_every = max(1, round(1.0 / (sc.log_rate_hz * dt)))
+    events: list[dict[str, Any]] = []
+    fence_triggers: list[tuple[float, float, float]] = []
+    notifications: list[Event] = []
+    hb_t: float | None = None
+    sp: Setpoint | None = None
+    sp_t: float | None = None
+    pending_reqs: tuple[AuthorityRequest, ...] = ()
+    gcs_t: float | None = None
+    rc_t: float | None = None
+    op_input = OperatorInput()
+    gi = oi = 0
+    armed = False
+    batt_frac = 1.0
+    supply = 1.0
+    motors = MOTORS_OFF
+    last_cmd_vel: tuple[float, float, float] | None = None
+    max_jump = 0.0
+    prev_auth = Authority.TRUSTED
+    min_margin = math.inf
+    max_breach = 0.0
+    import hashlib
+
+    digest = hashlib.sha256()
+    wall0 = time.perf_counter()
+    fault_state: dict[int, bool] = {}
+    decision: Decision | None = None
+    margin = math.inf
+    for k in range(n_ticks):
+        t = k * dt
+        # scenario fault edges, as events (what was injected, when)
+        for i, f in enumerate(sc.faults):
+            a = _active(f, t)
+            if a != fault_state.get(i, False):
+                fault_state[i] = a
+                events.append({"t": t, "type": "fault_start" if a else "fault_end", "fault": f.type})
+        truth = vehicle.truth()
+        frame = injector.apply(sensors.step(truth))
+        del frame  # consumed by the EKF estimator (issue 4); the stand-in estimator reads truth
+        state = est.estimate(t, truth, armed, batt_frac)
+        # links
+        if not any_active("gcs_link_loss", t) and (gcs_t is None or t - gcs_t >= GCS_HEARTBEAT_PERIOD_S - 1e-9):
+            gcs_t = t
+        if rc_connected and not any_active("rc_link_loss", t) and (rc_t is None or t - rc_t >= RC_PERIOD_S - 1e-9):
+            rc_t = t
+        while oi < len(op_steps) and op_steps[oi].t <= t + 1e-9:
+            o = op_steps[oi]
+            op_input = OperatorInput(takeover=o.takeover, roll=o.roll, pitch=o.pitch, yaw=o.yaw, throttle=o.throttle)
+            oi += 1
+        commands: list[GcsCommand] = []
+        while gi < len(gcs_steps) and gcs_steps[gi].t <= t + 1e-9:
+            g = gcs_steps[gi]
+            commands.append(GcsCommand(_GCS_KIND[g.command], g.param, gi + 1, g.force))
+            gi += 1
+        # the experimental controller, beside the core at its own rate
+        if ctrl is not None and k % ctrl_every == 0 and not any_active("controller_crash", t):
+            auth = decision.authority if decision is not None else Authority.TRUSTED
+            obs = Observation(t, state, auth, tuple(notifications))
+            notifications = []
+            out = _controller_call(ctrl, obs, budget_s, events, t)
+            if out.heartbeat:
+                hb_t = t
+            if out.setpoint is not None and not any_active("controller_hang", t):
+                s_out = out.setpoint
+                if any_active("controller_nan", t):
+                    s_out = Setpoint(SetpointKind.VELOCITY, vel_ned_mps=(math.nan, math.nan, math.nan))
+                elif any_active("controller_absurd", t):
+                    s_out = Setpoint(SetpointKind.VELOCITY, vel_ned_mps=(1.0e6, 0.0, 0.0))
+                sp, sp_t = s_out, t
+            if not any_active("controller_hang", t):
+                pending_reqs = pending_reqs + out.requests
+        inputs = Inputs(
+            state=state,
+            experimental=ExperimentalInput(hb_t, sp, sp_t, pending_reqs),
+            operator=OperatorInput(rc_t, op_input.takeover, op_input.roll, op_input.pitch, op_input.yaw,
+                                   op_input.throttle) if rc_connected else OperatorInput(),
+            gcs_link_t_s=gcs_t,
+            gcs_commands=tuple(commands),
+        )
+        pending_reqs = ()
+        decision = core.step(t, inputs)
+        armed = decision.armed
+        cmd = decision.command
+        for e in decision.events:
+            events.append(e.to_dict())
+            if e.kind in _NOTIFY:
+                notifications.append(e)
+            if e.reason.monitor.startswith("geofence") and e.kind in (EventKind.REVOKED, EventKind.MONITOR_TRIPPED):
+                fence_triggers.append((t, state.pos_ned_m[0], state.pos_ned_m[1]))
+        # command continuity at authority changes (what bumpless transfer must keep small)
+        if cmd.kind is CommandKind.VELOCITY:
+            if last_cmd_vel is not None and decision.authority is not prev_auth:
+                max_jump = max(max_jump, math.dist(last_cmd_vel, cmd.vel_ned_mps))
+            last_cmd_vel = cmd.vel_ned_mps
+        prev_auth = decision.authority
+        # inner loops and the vehicle
+        if cmd.kind is CommandKind.IDLE or cmd.kind is CommandKind.TERMINATE:
+            motors = MOTORS_OFF
+            ctl = reset_from_state(state, params.hover_thrust)
+        else:
+            motors, ctl = control_step(cmd, state, ctl, gains, dt)
+        w = wind.step(t)
+        vehicle.step(motors, w, supply)
+        bs = battery.step(vehicle.rotor_power_w, t, dt)
+        batt_frac, supply = bs.remaining_frac, bs.supply_scale
+        if k % log_every == 0:
+            # the exact margin costs a geometry query: every 5th log row (10 Hz at the default log rate)
+            if len(log.cols.get("t", ())) % 5 == 0:
+                margin = geofence.signed_margin_m(core_cfg.fence, truth.pos_ned_m, airborne=not truth.landed) \
+                    if core_cfg.fence is not None else math.inf
+            airborne = not truth.landed
+            if airborne:
+                min_margin = min(min_margin, margin)
+                max_breach = max(max_breach, -margin)
+            ev = envelope_values(state)
+            row = {
+                "t": t,
+                "truth_n": truth.pos_ned_m[0], "truth_e": truth.pos_ned_m[1], "truth_d": truth.pos_ned_m[2],
+                "truth_vn": truth.vel_ned_mps[0], "truth_ve": truth.vel_ned_mps[1], "truth_vd": truth.vel_ned_mps[2],
+                "truth_roll": truth.rpy_rad[0], "truth_pitch": truth.rpy_rad[1], "truth_yaw": truth.rpy_rad[2],
+                "est_n": state.pos_ned_m[0], "est_e": state.pos_ned_m[1], "est_d": state.pos_ned_m[2],
+                "est_vn": state.vel_ned_mps[0], "est_ve": state.vel_ned_mps[1], "est_vd": state.vel_ned_mps[2],
+                "sigma_h": state.pos_sigma_h_m, "nav_mode": float(state.nav_mode),
+                "authority": float(decision.authority), "behavior": float(decision.behavior),
+                "armed": float(decision.armed), "landed": float(truth.landed),
+                "cmd_kind": float(cmd.kind), "cmd_vn": cmd.vel_ned_mps[0], "cmd_ve": cmd.vel_ned_mps[1],
+                "cmd_vd": cmd.vel_ned_mps[2], "cmd_roll": cmd.att_rpy_rad[0], "cmd_pitch": cmd.att_rpy_rad[1],
+                "cmd_thrust": cmd.thrust, "cmd_blend": cmd.blend,
+                "sp_vn": sp.vel_ned_mps[0] if sp is not None else math.nan,
+                "sp_roll": sp.att_rpy_rad[0] if sp is not None else math.nan,
+                "m0": motors[0], "m1": motors[1], "m2": motors[2], "m3": motors[3],
+                "battery_frac": batt_frac, "wind_n": w[0], "wind_e": w[1],
+                "fence_margin": margin,
+            }
+            for lim in core_cfg.envelope:
+                row[f"env_{lim.name}"] = ev[lim.index] * lim.display_scale
+            for ms in decision.monitors:
+                row[f"mon_{ms.name}"] = float(ms.tripped)
+            log.add(row)
+        if progress is not None and k % 4000 == 0:
+            progress(t / sc.duration_s)
+    wall = time.perf_counter() - wall0
+    arrays = log.arrays()
+    for key in sorted(arrays):
+        digest.update(key.encode())
+        digest.update(np.ascontiguousarray(arrays[key]).tobytes())
+    metrics = {
+        "max_fence_breach_m": max_breach,
+        "min_fence_margin_m": min_margin if math.isfinite(min_margin) else 0.0,
+        "realtime_factor": sc.duration_s / wall if wall > 0 else math.inf,
+        "max_authority_change_command_jump_mps": max_jump,
+        "wall_time_s": wall,
+        "final_distance_from_home_m": math.hypot(vehicle.pos_ned_m[0], vehicle.pos_ned_m[1]),
+        "final_landed": float(vehicle.landed),
+        "revocations": float(decision.revocations if decision is not None else 0),
+    }
+    return RunResult(
+        scenario=sc,
+        config=cfg,
+        config_sha256=config_sha256(cfg),
+        events=events,
+        log=arrays,
+        metrics=metrics,
+        decisions_digest=digest.hexdigest(),
+        fence_triggers=fence_triggers,
+        controller_log=list(ctrl.log) if ctrl is not None else [],
+    )

@@ -1,0 +1,199 @@
+"""Scenario files: what to fly, what goes wrong, and what must be true afterwards.
+
+A scenario is one YAML file (documented in ``docs/scenarios.md``), validated by the pydantic models below.
+Errors name the file, the line, the key path, the value and what is allowed, like configuration errors.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from merlin.config.loader import ConfigError, load_config, parse_yaml, validate_model
+from merlin.config.models import MerlinConfig
+
+Vec3L = Annotated[list[float], Field(min_length=3, max_length=3)]
+
+
+class S(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Initial(S):
+    pos_ned_m: Vec3L = [0.0, 0.0, 0.0]
+    yaw_deg: float = 0.0
+
+
+class Gust(S):
+    start_s: float = Field(ge=0.0)
+    duration_s: float = Field(gt=0.0)
+    amplitude_ned_mps: Vec3L
+
+
+class Wind(S):
+    steady_ned_mps: Vec3L = [0.0, 0.0, 0.0]
+    turbulence_w20_mps: float = Field(0.0, ge=0.0, le=30.0)
+    gusts: list[Gust] = []
+
+
+class GcsStep(S):
+    t: float = Field(ge=0.0, description="scenario time, s")
+    command: Literal["arm", "disarm", "takeoff", "hold", "rtl", "land", "mission", "terminate"]
+    param: float = 0.0
+    force: bool = False
+
+
+class OperatorStep(S):
+    """From ``t`` on, the operator's RC holds these inputs (until the next step)."""
+
+    t: float = Field(ge=0.0)
+    takeover: bool = False
+    roll: float = Field(0.0, ge=-1.0, le=1.0)
+    pitch: float = Field(0.0, ge=-1.0, le=1.0)
+    yaw: float = Field(0.0, ge=-1.0, le=1.0)
+    throttle: float = Field(0.0, ge=-1.0, le=1.0)
+
+
+class ControllerSpec(S):
+    type: str = Field(description="a built-in controller name or 'package.module:Class'")
+    params: dict[str, Any] = {}
+    rate_hz: float = Field(50.0, gt=0.0, le=400.0)
+    cpu_budget_ms: float = Field(10.0, gt=0.0, description="CPU time allowed per call; over = missed heartbeat")
+
+
+FaultType = Literal[
+    "gps_loss",
+    "gps_jump",
+    "gps_spoof",
+    "imu_stuck",
+    "imu_bias",
+    "imu_drift",
+    "imu_noise",
+    "mag_stuck",
+    "baro_drift",
+    "controller_crash",
+    "controller_hang",
+    "controller_nan",
+    "controller_absurd",
+    "gcs_link_loss",
+    "rc_link_loss",
+    "battery_sag",
+    "wind_gust",
+]
+
+
+class Fault(S):
+    """One injected fault, active on ``start_s <= t < end_s``. Parameters depend on the type (see docs)."""
+
+    type: FaultType
+    start_s: float = Field(ge=0.0)
+    end_s: float | None = None
+    lane: int = Field(0, ge=0, le=2)
+    offset_ned_m: Vec3L | None = None  # gps_jump
+    rate_mps: float | None = None  # gps_spoof, baro_drift
+    direction_ned: Vec3L | None = None  # gps_spoof
+    gyro: Vec3L | None = None  # imu_bias (rad/s), imu_drift (rad/s^2)
+    accel: Vec3L | None = None  # imu_bias (m/s^2), imu_drift (m/s^3)
+    sigma: float | None = None  # imu_noise: gyro sigma rad/s (accel sigma = 10x this, m/s^2)
+    amplitude_ned_mps: Vec3L | None = None  # wind_gust
+    extra_resistance_ohm: float | None = None  # battery_sag
+    capacity_loss_frac: float | None = None  # battery_sag
+
+    @model_validator(mode="after")
+    def _params(self) -> Fault:
+        need = {
+            "gps_jump": ["offset_ned_m"],
+            "gps_spoof": ["rate_mps"],
+            "baro_drift": ["rate_mps"],
+            "wind_gust": ["amplitude_ned_mps"],
+        }.get(self.type, [])
+        missing = [k for k in need if getattr(self, k) is None]
+        if missing:
+            raise ValueError(f"fault type {self.type!r} needs {missing}")
+        if self.end_s is not None and self.end_s <= self.start_s:
+            raise ValueError(f"end_s ({self.end_s}) must be after start_s ({self.start_s})")
+        return self
+
+
+class Expectation(S):
+    """A check evaluated after the run. ``type`` selects the check; see ``docs/scenarios.md``."""
+
+    type: Literal[
+        "authority_at",
+        "revoked",
+        "never_revoked",
+        "granted",
+        "denied",
+        "no_fence_breach",
+        "min_fence_margin",
+        "max_fence_breach",
+        "landed_near_home",
+        "behavior_at",
+        "event",
+        "disarmed",
+        "max_command_jump",
+    ]
+    name: str = ""
+    t: float | None = None
+    authority: str | None = None
+    behavior: str | None = None
+    reason: str | None = None
+    parameter: str | None = None
+    after_s: float = 0.0
+    within_s: float | None = None
+    not_before_s: float | None = None
+    m: float | None = None
+    mps: float | None = None
+    event: str | None = None
+    count: int | None = None
+    duration_s: float | None = None  # revoked: the exceedance duration the reason must carry (to 1 µs)
+
+
+class Scenario(S):
+    name: str
+    description: str = ""
+    duration_s: float = Field(gt=0.0, le=7200.0)
+    seed: int = 1
+    dt_s: float = Field(0.0025, gt=0.0, le=0.01, description="simulation and core tick period")
+    vehicle: str = Field("quadrotor_default", description="a file in sims/vehicles (without .yaml) or a path")
+    config: str | dict[str, Any] = Field(
+        "default", description="'default', a path relative to the scenario file, or an inline mapping"
+    )
+    estimator: Literal["truth_plus_noise", "ekf"] = "truth_plus_noise"
+    initial: Initial = Initial()
+    wind: Wind = Wind()
+    gcs: list[GcsStep] = []
+    operator: list[OperatorStep] = []
+    rc_connected: bool = False
+    controller: ControllerSpec | None = None
+    faults: list[Fault] = []
+    expectations: list[Expectation] = []
+    log_rate_hz: float = Field(50.0, gt=0.0, le=400.0)
+
+
+def load_scenario(path: str | Path, seed: int | None = None) -> tuple[Scenario, MerlinConfig]:
+    """Load and validate a scenario file and the configuration it names."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(str(p), [f"cannot read the scenario: {exc.strerror or exc}"]) from None
+    data, lines = parse_yaml(text, str(p))
+    sc = validate_model(Scenario, data, str(p), lines)
+    if seed is not None:
+        sc = sc.model_copy(update={"seed": seed})
+    cfg = resolve_config(sc, p.parent, str(p), lines)
+    return sc, cfg
+
+
+def resolve_config(sc: Scenario, base: Path, source: str, lines: Any = None) -> MerlinConfig:
+    if isinstance(sc.config, dict):
+        return validate_model(MerlinConfig, sc.config, f"{source} (config:)", {})
+    if sc.config == "default":
+        return MerlinConfig()
+    cp = (base / sc.config).resolve()
+    if not cp.exists():
+        raise ConfigError(source, [f"config: file {sc.config!r} not found (looked in {base.name}/)"])
+    return load_config(cp)
