@@ -75,6 +75,15 @@ class ExperimentalController(ABC):
         unknown = sorted(set(params) - set(allowed))
         if unknown:
             raise ParamError(f"unknown parameter(s) {unknown} for controller {self.name!r}; allowed: {sorted(allowed)}")
+        for k, v in params.items():
+            d = allowed[k]
+            numeric = isinstance(d, (int, float)) and not isinstance(d, bool)
+            if numeric and (isinstance(v, bool) or not isinstance(v, (int, float))):
+                raise ParamError(f"parameter {k!r} of controller {self.name!r} must be a number, got {v!r}")
+            if isinstance(d, bool) and not isinstance(v, bool):
+                raise ParamError(f"parameter {k!r} of controller {self.name!r} must be true or false, got {v!r}")
+            if isinstance(d, list) and not isinstance(v, list):
+                raise ParamError(f"parameter {k!r} of controller {self.name!r} must be a list, got {v!r}")
         self.params: dict[str, Any] = {**allowed, **params}
         for k, v in self.params.items():
             if isinstance(v, float) and not math.isfinite(v) and k not in self.nan_allowed():

@@ -52,6 +52,7 @@ def summary_dict(r: RunResult, verdicts: list[Verdict]) -> dict[str, Any]:
         "expectations": [v.to_dict() for v in verdicts],
         "events": r.events,
         "metrics": {k: v for k, v in r.metrics.items() if k != "wall_time_s"},
+        # wall-clock figures: the only fields that differ between two runs of the same scenario and seed
         "timing": {"wall_time_s": r.metrics["wall_time_s"], "realtime_factor": r.metrics["realtime_factor"]},
         "log_digest_sha256": r.decisions_digest,
         "fence_triggers": [{"t": t, "north_m": n, "east_m": e} for t, n, e in r.fence_triggers],

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from experimental_controllers.api import ControllerOutput, ExperimentalController, Observation
+from experimental_controllers.api import ControllerOutput, ExperimentalController, Observation, ParamError
 from experimental_controllers.examples import make_controller
 from merlin.autopilot.multirotor_control import DEFAULT_GAINS, MOTORS_OFF, control_step, reset_from_state
 from merlin.config.loader import ConfigError, config_sha256
@@ -248,36 +248,105 @@ def vehicle_params_path(name: str) -> Path:
     return DEFAULT_PARAMS_PATH.parent / f"{name}.yaml"
 
 
+class ClosedLoop:
+    """The vehicle side of the loop, one tick per :meth:`step`: dynamics -> sensors (+ sensor faults) ->
+    estimate -> trusted core -> inner loops -> dynamics.
+
+    Whoever drives it supplies what arrives from outside the vehicle at each tick -- the experimental
+    controller's heartbeat/setpoint/requests, the operator's RC, the ground station's heartbeat and
+    commands -- as :class:`merlin.core.types.Inputs` fields. ``run_scenario`` drives it from a scenario
+    script; ``merlin serve`` drives it in real time from MAVLink links.
+    """
+
+    def __init__(self, sc: Scenario, cfg: MerlinConfig, source: str = "<scenario>") -> None:
+        self.sc = sc
+        self.cfg = cfg
+        self.dt = dt = sc.dt_s
+        root = np.random.default_rng(sc.seed)
+        rng_vehicle, rng_sensors, rng_wind, rng_est, rng_faults = root.spawn(5)
+        try:
+            self.params = load_multirotor_params(vehicle_params_path(sc.vehicle))
+        except FileNotFoundError:
+            raise ConfigError(source, [f"vehicle: {sc.vehicle!r} is not a file in sims/vehicles"]) from None
+        self.core_cfg = build_core_config(cfg, source=source)
+        self.core = TrustedCore(self.core_cfg)
+        ini = sc.initial
+        self.vehicle = Multirotor(self.params, rng_vehicle, dt_s=dt, pos_ned_m=tuple(ini.pos_ned_m),  # type: ignore[arg-type]
+                                  rpy_rad=(0.0, 0.0, math.radians(ini.yaw_deg)))
+        self.sensors = SensorSuite(SensorParams(), rng_sensors, home_lat_deg=cfg.home.lat_deg,
+                                   home_lon_deg=cfg.home.lon_deg)
+        self.injector = SensorFaultInjector(sensor_faults(sc.faults), rng_faults)
+        gusts = [DiscreteGust(g.start_s, g.duration_s, tuple(g.amplitude_ned_mps)) for g in sc.wind.gusts]  # type: ignore[arg-type]
+        gusts += [DiscreteGust(f.start_s, (_end(f) - f.start_s) if f.end_s else 2.0, tuple(f.amplitude_ned_mps))  # type: ignore[arg-type]
+                  for f in sc.faults if f.type == "wind_gust" and f.amplitude_ned_mps]
+        self.wind = WindModel(WindParams(steady_ned_mps=tuple(sc.wind.steady_ned_mps),  # type: ignore[arg-type]
+                                         turbulence_w20_mps=sc.wind.turbulence_w20_mps, gusts=tuple(gusts)),
+                              rng_wind, dt)
+        self.battery = Battery(BatteryParams(), [
+            BatterySagFault(f.start_s, _end(f), f.extra_resistance_ohm or 0.0, f.capacity_loss_frac or 0.0)
+            for f in sc.faults if f.type == "battery_sag"
+        ])
+        losses = [(f.start_s, _end(f)) for f in sc.faults if f.type == "gps_loss"]
+        self.estimator = TruthPlusNoiseEstimator(rng_est, dt, losses)
+        self.ctl = reset_from_state(VehicleState(), self.params.hover_thrust)
+        self.gains = DEFAULT_GAINS
+        self.k = 0
+        self.armed = False
+        self.batt_frac = 1.0
+        self.supply = 1.0
+        self.motors = MOTORS_OFF
+        self.truth = self.vehicle.truth()
+        self.state = VehicleState()
+        self.decision: Decision | None = None
+        self.wind_ned: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self.frame: Any = None
+
+    @property
+    def t(self) -> float:
+        return self.k * self.dt
+
+    def sense(self) -> VehicleState:
+        """First half of a tick: read the truth, sample the sensors, form the estimate the core will see."""
+        t = self.t
+        self.truth = self.vehicle.truth()
+        # the sensor frame feeds the fusion EKF (issue 4); the stand-in estimator reads the truth
+        self.frame = self.injector.apply(self.sensors.step(self.truth))
+        self.state = self.estimator.estimate(t, self.truth, self.armed, self.batt_frac)
+        return self.state
+
+    def act(self, inputs: Inputs) -> Decision:
+        """Second half: the core's tick on ``inputs`` (whose ``state`` must be :meth:`sense`'s), then the
+        inner loops and the dynamics advance one period."""
+        t = self.t
+        decision = self.core.step(t, inputs)
+        self.decision = decision
+        self.armed = decision.armed
+        cmd = decision.command
+        if cmd.kind is CommandKind.IDLE or cmd.kind is CommandKind.TERMINATE:
+            self.motors = MOTORS_OFF
+            self.ctl = reset_from_state(inputs.state, self.params.hover_thrust)
+        else:
+            self.motors, self.ctl = control_step(cmd, inputs.state, self.ctl, self.gains, self.dt)
+        self.wind_ned = self.wind.step(t)
+        self.vehicle.step(self.motors, self.wind_ned, self.supply)
+        bs = self.battery.step(self.vehicle.rotor_power_w, t, self.dt)
+        self.batt_frac, self.supply = bs.remaining_frac, bs.supply_scale
+        self.k += 1
+        return decision
+
+
 def run_scenario(
     sc: Scenario, cfg: MerlinConfig, progress: Callable[[float], None] | None = None, source: str = "<scenario>"
 ) -> RunResult:
-    dt = sc.dt_s
+    loop = ClosedLoop(sc, cfg, source)
+    dt = loop.dt
     n_ticks = round(sc.duration_s / dt)
-    root = np.random.default_rng(sc.seed)
-    rng_vehicle, rng_sensors, rng_wind, rng_est, rng_faults = root.spawn(5)
+    core_cfg = loop.core_cfg
     try:
-        params = load_multirotor_params(vehicle_params_path(sc.vehicle))
-    except FileNotFoundError:
-        raise ConfigError(source, [f"vehicle: {sc.vehicle!r} is not a file in sims/vehicles"]) from None
-    core_cfg = build_core_config(cfg, source=source)
-    core = TrustedCore(core_cfg)
-    ini = sc.initial
-    vehicle = Multirotor(params, rng_vehicle, dt_s=dt, pos_ned_m=tuple(ini.pos_ned_m),  # type: ignore[arg-type]
-                         rpy_rad=(0.0, 0.0, math.radians(ini.yaw_deg)))
-    sensors = SensorSuite(SensorParams(), rng_sensors, home_lat_deg=cfg.home.lat_deg, home_lon_deg=cfg.home.lon_deg)
-    injector = SensorFaultInjector(sensor_faults(sc.faults), rng_faults)
-    gusts = [DiscreteGust(g.start_s, g.duration_s, tuple(g.amplitude_ned_mps)) for g in sc.wind.gusts]  # type: ignore[arg-type]
-    gusts += [DiscreteGust(f.start_s, (_end(f) - f.start_s) if f.end_s else 2.0, tuple(f.amplitude_ned_mps))  # type: ignore[arg-type]
-              for f in sc.faults if f.type == "wind_gust" and f.amplitude_ned_mps]
-    wind = WindModel(WindParams(steady_ned_mps=tuple(sc.wind.steady_ned_mps),  # type: ignore[arg-type]
-                                turbulence_w20_mps=sc.wind.turbulence_w20_mps, gusts=tuple(gusts)), rng_wind, dt)
-    battery = Battery(BatteryParams(), [
-        BatterySagFault(f.start_s, _end(f), f.extra_resistance_ohm or 0.0, f.capacity_loss_frac or 0.0)
-        for f in sc.faults if f.type == "battery_sag"
-    ])
-    losses = [(f.start_s, _end(f)) for f in sc.faults if f.type == "gps_loss"]
-    est = TruthPlusNoiseEstimator(rng_est, dt, losses)
-    ctrl = make_controller(sc.controller.type, sc.controller.params) if sc.controller else None
+        ctrl = make_controller(sc.controller.type, sc.controller.params) if sc.controller else None
+    except (ParamError, ImportError, AttributeError, TypeError, ValueError) as exc:
+        assert sc.controller is not None
+        raise ConfigError(source, [f"controller.params / controller.type {sc.controller.type!r}: {exc}"]) from None
     ctrl_every = max(1, round(1.0 / (sc.controller.rate_hz * dt))) if sc.controller else 0
     budget_s = sc.controller.cpu_budget_ms / 1e3 if sc.controller else 0.0
     faults_of = {k: [f for f in sc.faults if f.type == k] for k in
@@ -290,8 +359,6 @@ def run_scenario(
     gcs_steps = sorted(sc.gcs, key=lambda s: s.t)
     op_steps = sorted(sc.operator, key=lambda s: s.t)
     rc_connected = sc.rc_connected or bool(op_steps)
-    ctl = reset_from_state(VehicleState(), params.hover_thrust)
-    gains = DEFAULT_GAINS
     log = _Log()
     log_every = max(1, round(1.0 / (sc.log_rate_hz * dt)))
     events: list[dict[str, Any]] = []
@@ -305,10 +372,6 @@ def run_scenario(
     rc_t: float | None = None
     op_input = OperatorInput()
     gi = oi = 0
-    armed = False
-    batt_frac = 1.0
-    supply = 1.0
-    motors = MOTORS_OFF
     last_cmd_vel: tuple[float, float, float] | None = None
     max_jump = 0.0
     prev_auth = Authority.TRUSTED
@@ -329,10 +392,8 @@ def run_scenario(
             if a != fault_state.get(i, False):
                 fault_state[i] = a
                 events.append({"t": t, "type": "fault_start" if a else "fault_end", "fault": f.type})
-        truth = vehicle.truth()
-        frame = injector.apply(sensors.step(truth))
-        del frame  # consumed by the EKF estimator (issue 4); the stand-in estimator reads truth
-        state = est.estimate(t, truth, armed, batt_frac)
+        state = loop.sense()
+        truth = loop.truth
         # links
         if not any_active("gcs_link_loss", t) and (gcs_t is None or t - gcs_t >= GCS_HEARTBEAT_PERIOD_S - 1e-9):
             gcs_t = t
@@ -373,8 +434,7 @@ def run_scenario(
             gcs_commands=tuple(commands),
         )
         pending_reqs = ()
-        decision = core.step(t, inputs)
-        armed = decision.armed
+        decision = loop.act(inputs)
         cmd = decision.command
         for e in decision.events:
             events.append(e.to_dict())
@@ -388,16 +448,7 @@ def run_scenario(
                 max_jump = max(max_jump, math.dist(last_cmd_vel, cmd.vel_ned_mps))
             last_cmd_vel = cmd.vel_ned_mps
         prev_auth = decision.authority
-        # inner loops and the vehicle
-        if cmd.kind is CommandKind.IDLE or cmd.kind is CommandKind.TERMINATE:
-            motors = MOTORS_OFF
-            ctl = reset_from_state(state, params.hover_thrust)
-        else:
-            motors, ctl = control_step(cmd, state, ctl, gains, dt)
-        w = wind.step(t)
-        vehicle.step(motors, w, supply)
-        bs = battery.step(vehicle.rotor_power_w, t, dt)
-        batt_frac, supply = bs.remaining_frac, bs.supply_scale
+        motors, w, batt_frac = loop.motors, loop.wind_ned, loop.batt_frac
         if k % log_every == 0:
             # the exact margin costs a geometry query: every 5th log row (10 Hz at the default log rate)
             if len(log.cols.get("t", ())) % 5 == 0:
@@ -445,8 +496,8 @@ def run_scenario(
         "realtime_factor": sc.duration_s / wall if wall > 0 else math.inf,
         "max_authority_change_command_jump_mps": max_jump,
         "wall_time_s": wall,
-        "final_distance_from_home_m": math.hypot(vehicle.pos_ned_m[0], vehicle.pos_ned_m[1]),
-        "final_landed": float(vehicle.landed),
+        "final_distance_from_home_m": math.hypot(loop.vehicle.pos_ned_m[0], loop.vehicle.pos_ned_m[1]),
+        "final_landed": float(loop.vehicle.landed),
         "revocations": float(decision.revocations if decision is not None else 0),
     }
     return RunResult(

@@ -84,7 +84,7 @@ DEFAULT_GRID_CELLS = 16_384
 #: clipped to the block grown by the level on every side. A path whose reach plus widening fits in a
 #: level is tested against that small clipped geometry instead of the whole fence (same answer, less
 #: GEOS work). A level needing more than ``_MAX_BLOCKS_PER_LEVEL`` blocks is skipped.
-_LOCAL_LEVELS_M = (32.0, 64.0, 128.0, 256.0)
+_LOCAL_LEVELS_M = (64.0, 128.0, 256.0)
 _MAX_BLOCKS_PER_LEVEL = 4096
 #: Bisection resolution of the clearance reported on a trip (absolute, and relative to the path length).
 _CLEARANCE_RESOLUTION_M = 0.01
@@ -443,23 +443,19 @@ def _build_local_levels(forbidden: Any, box: tuple[float, float, float, float]) 
         nj = math.ceil((e1 - e0) / reach)
         if ni * nj > _MAX_BLOCKS_PER_LEVEL:
             continue
-        tiles: list[Any] = []
-        for i in range(ni):
-            for j in range(nj):
-                bn, be = n0 + i * reach, e0 + j * reach
-                # Grown by the reach, and by a millimetre so rounding at the edge never loses a point.
-                g = shapely.clip_by_rect(
-                    forbidden,
-                    bn - reach - 1e-3,
-                    be - reach - 1e-3,
-                    bn + 2.0 * reach + 1e-3,
-                    be + 2.0 * reach + 1e-3,
-                )
-                if shapely.is_empty(g):
-                    tiles.append(None)
-                else:
-                    shapely.prepare(g)
-                    tiles.append(g)
+        # Each block grown by the reach, and by a millimetre so rounding at the edge never loses a point.
+        bi, bj = np.meshgrid(np.arange(ni), np.arange(nj), indexing="ij")
+        lo_n = n0 + bi.ravel() * reach - reach - 1e-3
+        lo_e = e0 + bj.ravel() * reach - reach - 1e-3
+        rects = shapely.box(lo_n, lo_e, lo_n + 3.0 * reach + 2e-3, lo_e + 3.0 * reach + 2e-3)
+        touching = shapely.intersects(forbidden, rects)
+        tiles: list[Any] = [None] * (ni * nj)
+        for k in np.flatnonzero(touching).tolist():
+            xmin, ymin, xmax, ymax = shapely.bounds(rects[k]).tolist()
+            g = shapely.clip_by_rect(forbidden, xmin, ymin, xmax, ymax)
+            if not shapely.is_empty(g):
+                shapely.prepare(g)
+                tiles[k] = g
         levels.append(_LocalLevel(reach, 1.0 / reach, ni, nj, tuple(tiles)))
     return tuple(levels)
 

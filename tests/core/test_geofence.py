@@ -182,6 +182,25 @@ def test_trigger_distance_matches_check_on_a_straight_wall(speed: float, heading
         assert want == pytest.approx(stop_d(MR, speed) * math.cos(math.radians(heading_deg)) + W)
 
 
+@settings(max_examples=200, deadline=None)
+@given(
+    v1=st.floats(0.0, 60.0),
+    v2=st.floats(0.0, 60.0),
+    heading=st.floats(-math.pi, math.pi),
+    vehicle=st.sampled_from(["multirotor", "fixed_wing"]),
+)
+def test_property_trigger_distance_grows_with_speed(
+    v1: float, v2: float, heading: float, vehicle: str
+) -> None:
+    prm = FenceParams(vehicle=vehicle)  # type: ignore[arg-type]
+    lo, hi = sorted((v1, v2))
+    w = prm.margin_m + prm.sigma_k * SIG
+    assert w <= trigger_distance_m(prm, lo, heading, SIG) <= trigger_distance_m(prm, hi, heading, SIG) + 1e-9
+    assert (
+        trigger_distance_m(prm, hi, heading, SIG) <= trigger_distance_m(prm, hi, 0.0, SIG) + 1e-9
+    )  # head-on
+
+
 def test_head_on_trip_reports_value_and_limit() -> None:
     # 10 m/s towards the wall 18 m away: stopping distance 15.5 m, available 18 - 6 = 12 m.
     r = at(wall_fence(), -18.0, 0.0, 10.0, 0.0)

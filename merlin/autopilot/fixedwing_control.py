@@ -1,0 +1,399 @@
+"""Merlin's fixed-wing inner loops: total-energy speed/height control and attitude loops to the surfaces.
+
+Pure and deterministic: :func:`control_step` takes the parameters, the explicit state, the vehicle state
+and the targets, and returns the next state and the surface command. Nothing is hidden in an object; the
+state is a frozen dataclass that can be copied, logged and replayed.
+
+Speed and height: the total energy control system (TECS) of Lambregts (1983, "Vertical flight path and
+speed control autopilot design using total energy principles", AIAA 83-2239). With the specific energy
+rates normalised by g and the airspeed,
+
+    total    STE' = h'/V + V'/g        (the engine changes it: throttle)
+    balance  SEB' = w_h h'/V - w_v V'/g (the elevator trades one for the other: pitch)
+
+throttle follows the total-energy-rate error (feed-forward plus PI) and the pitch target follows the
+balance-rate error (feed-forward plus PI). The weights ``w_h + w_v = 2`` are 1 each in normal flight; below
+the minimum airspeed the height weight fades to 0 so pitch controls speed alone and the throttle goes to
+full, as in PX4's TECS underspeed protection: a stall is prevented by giving up height, never speed.
+
+Attitude: roll and pitch setpoints are slewed at a bounded rate (bumpless and gentle to the airframe),
+tracked by PI + rate damping loops whose proportional and damping gains scale with cruise/airspeed (surface
+effectiveness grows with dynamic pressure). A coordinated turn's body rates are fed forward; the rudder
+damps yaw about the turn rate and drives lateral specific force (sideslip) to zero with an integrator.
+
+Conventions of :class:`SurfaceCommand` are the pilot's: aileron > 0 rolls right, elevator > 0 pitches the
+nose up, rudder > 0 yaws the nose right, throttle 0..1.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from merlin.core.types import VehicleState
+
+G_MPS2 = 9.80665
+
+
+@dataclass(frozen=True, slots=True)
+class SurfaceCommand:
+    """Normalised actuator demands in the pilot's conventions."""
+
+    aileron: float = 0.0  # [-1, 1], > 0 rolls right
+    elevator: float = 0.0  # [-1, 1], > 0 pulls the nose up
+    rudder: float = 0.0  # [-1, 1], > 0 yaws the nose right
+    throttle: float = 0.0  # [0, 1]
+
+    def clipped(self) -> SurfaceCommand:
+        return SurfaceCommand(
+            aileron=_clip(self.aileron, -1.0, 1.0),
+            elevator=_clip(self.elevator, -1.0, 1.0),
+            rudder=_clip(self.rudder, -1.0, 1.0),
+            throttle=_clip(self.throttle, 0.0, 1.0),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class FixedWingControlParams:
+    """Limits and gains. Defaults are tuned for the Aerosonde model of ``sims/aircraft/aerosonde``."""
+
+    # ---- limits (the autopilot's own, inside the envelope the trusted core enforces)
+    airspeed_min_mps: float = 18.5  # 1.2 x the model's 1 g stall speed of 15.5 m/s
+    airspeed_max_mps: float = 30.0
+    airspeed_cruise_mps: float = 22.0
+    bank_max_rad: float = math.radians(35.0)
+    pitch_min_rad: float = math.radians(-20.0)
+    pitch_max_rad: float = math.radians(20.0)
+    load_factor_max: float = 2.0  # also caps the bank: n = 1/cos(bank) in a level turn
+    climb_max_mps: float = 4.0
+    sink_max_mps: float = 4.0
+    accel_max_mps2: float = 1.5  # speed-change demand limit
+    throttle_min: float = 0.0
+    throttle_max: float = 1.0
+    # The throttle is made bumpless by slewing from the value taken over, not through the integrator:
+    # carrying an experimental controller's idle into TECS's integrator would starve a stall recovery.
+    throttle_slew_per_s: float = 1.0
+    # ---- trims (the model's trim at cruise, from sims.fixedwing.FixedWingSim's trim at 22 m/s)
+    throttle_trim: float = 0.70
+    elevator_trim: float = 0.41
+    # ---- TECS
+    height_gain_per_s: float = 0.25  # height error -> climb-rate demand
+    speed_gain_per_s: float = 0.6  # airspeed error -> acceleration demand
+    tecs_throttle_ff: float = 1.2  # throttle per unit total-energy-rate demand (STE' ~ flight-path angle)
+    tecs_throttle_p: float = 1.5
+    tecs_throttle_i_per_s: float = 0.5
+    tecs_pitch_ff: float = 1.0  # pitch (rad) per unit balance-rate demand
+    tecs_pitch_p: float = 1.0
+    tecs_pitch_i_per_s: float = 0.3
+    underspeed_band_mps: float = 1.5  # below airspeed_min, the height weight fades to 0 over this band
+    # Stall protection without an angle-of-attack vane: alpha ~ theta - gamma (still air), so the pitch
+    # target is held below gamma + alpha_protect (the model stalls at 23.5 deg; trim at 18.5 m/s is 16 deg).
+    alpha_protect_rad: float = math.radians(17.0)
+    bank_full_margin_mps: float = 4.0  # full bank only this far above airspeed_min; wings level below it
+    # ---- attitude loops (normalised surface per rad and per rad/s)
+    roll_sp_rate_radps: float = math.radians(60.0)
+    pitch_sp_rate_radps: float = math.radians(30.0)
+    roll_p: float = 1.2
+    roll_d: float = 0.12
+    roll_i_per_s: float = 0.3
+    pitch_p: float = 1.6
+    pitch_d: float = 0.35
+    pitch_i_per_s: float = 0.8
+    yaw_d: float = 0.3
+    sideslip_p: float = 0.05  # rudder per m/s^2 of lateral specific force
+    sideslip_i_per_s: float = 0.05
+    # Beyond full travel so that any surface position, with the P and D terms opposing, can be taken over
+    # without a bump (the outputs themselves are clipped to their travel).
+    integrator_max: float = 1.5
+    # The accelerometer sees thrust and lift changes in the same tick the surfaces move, so an unfiltered
+    # speed derivative closes an algebraic loop through TECS (a period-2 chatter); PX4's TECS filters it too.
+    speed_rate_tau_s: float = 0.2
+    scaler_min: float = 0.6
+    scaler_max: float = 1.8
+
+
+@dataclass(frozen=True, slots=True)
+class FixedWingTargets:
+    """What guidance asks of the inner loops.
+
+    ``height_m`` is above home; ``None`` flies ``climb_rate_mps`` as the demand (a velocity command),
+    otherwise it is a feed-forward added to the height loop. ``roll_rad`` is the lateral demand (guidance
+    turns its lateral acceleration into a bank). ``pitch_rad`` and ``throttle`` bypass TECS (an attitude
+    command); both must be given together.
+    """
+
+    airspeed_mps: float
+    height_m: float | None
+    climb_rate_mps: float = 0.0
+    roll_rad: float = 0.0
+    pitch_rad: float | None = None
+    throttle: float | None = None
+
+    def __post_init__(self) -> None:
+        if (self.pitch_rad is None) != (self.throttle is None):
+            raise ValueError("pitch_rad and throttle bypass TECS together: give both or neither")
+
+
+@dataclass(frozen=True, slots=True)
+class FixedWingControlState:
+    """Everything the loops remember between ticks."""
+
+    throttle_integ: float = 0.0
+    pitch_tecs_integ_rad: float = 0.0
+    roll_sp_rad: float = 0.0
+    pitch_sp_rad: float = 0.0
+    aileron_integ: float = 0.0
+    elevator_integ: float = 0.0
+    rudder_integ: float = 0.0
+    speed_rate_mps2: float = 0.0  # low-passed dV/dt
+    throttle: float = 0.0  # the last throttle command (slewed)
+    initialized: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class ControlOutput:
+    """The surfaces and what produced them (for logs and tests)."""
+
+    surfaces: SurfaceCommand
+    roll_sp_rad: float
+    pitch_sp_rad: float
+    pitch_target_rad: float
+    ste_rate_error: float
+    seb_rate_error: float
+    height_weight: float  # 1 normal, 0 when underspeed protection gives pitch to speed alone
+    underspeed: bool
+
+
+def _clip(x: float, lo: float, hi: float) -> float:
+    return lo if x < lo else hi if x > hi else x
+
+
+def _slew(current: float, target: float, max_step: float) -> float:
+    return current + _clip(target - current, -max_step, max_step)
+
+
+def bank_limit_rad(p: FixedWingControlParams) -> float:
+    """The bank the loops allow: the bank limit, and the load factor's bank in a level turn."""
+    return min(p.bank_max_rad, math.acos(1.0 / max(p.load_factor_max, 1.0 + 1e-9)))
+
+
+@dataclass(frozen=True, slots=True)
+class _Energy:
+    ste_d: float
+    ste: float
+    seb_d: float
+    seb: float
+    w_h: float
+    underspeed: bool
+
+
+def _speed_rate(s: VehicleState) -> float:
+    """dV/dt along the velocity: the accelerometer's specific force rotated to NED, plus gravity.
+
+    Body-x specific force alone is not enough: at an angle of attack alpha it carries L sin(alpha) of the
+    lift, which would read as an acceleration of about alpha g and destabilise the energy balance.
+    """
+    phi, theta, psi = s.att_rpy_rad
+    fx, fy, fz = s.accel_frd_mps2
+    cf, sf = math.cos(phi), math.sin(phi)
+    ct, st = math.cos(theta), math.sin(theta)
+    cp, sp = math.cos(psi), math.sin(psi)
+    # Body FRD -> NED (ZYX Euler angles), then a = R f + g e_down.
+    an = ct * cp * fx + (sf * st * cp - cf * sp) * fy + (cf * st * cp + sf * sp) * fz
+    ae = ct * sp * fx + (sf * st * sp + cf * cp) * fy + (cf * st * sp - sf * cp) * fz
+    ad = -st * fx + sf * ct * fy + cf * ct * fz + G_MPS2
+    vn, ve, vd = s.vel_ned_mps
+    speed = math.sqrt(vn * vn + ve * ve + vd * vd)
+    if speed < 1.0:
+        return 0.0
+    return (an * vn + ae * ve + ad * vd) / speed
+
+
+def _energy(p: FixedWingControlParams, s: VehicleState, t: FixedWingTargets, v_rate: float) -> _Energy:
+    v = max(s.airspeed_mps, 3.0)
+    h = s.alt_m
+    h_rate = -s.vel_ned_mps[2]
+
+    v_d = _clip(t.airspeed_mps, p.airspeed_min_mps, p.airspeed_max_mps)
+    if t.height_m is None:
+        h_rate_d = t.climb_rate_mps
+    else:
+        h_rate_d = p.height_gain_per_s * (t.height_m - h) + t.climb_rate_mps
+    h_rate_d = _clip(h_rate_d, -p.sink_max_mps, p.climb_max_mps)
+    v_rate_d = _clip(p.speed_gain_per_s * (v_d - v), -p.accel_max_mps2, p.accel_max_mps2)
+
+    # Underspeed: fade the height weight to 0 across the band below the minimum airspeed.
+    w_h = _clip(
+        (s.airspeed_mps - (p.airspeed_min_mps - p.underspeed_band_mps)) / p.underspeed_band_mps, 0.0, 1.0
+    )
+    underspeed = w_h < 1.0
+    if underspeed:
+        h_rate_d = min(h_rate_d, 0.0)  # no climbing while slow
+    w_v = 2.0 - w_h
+    return _Energy(
+        ste_d=h_rate_d / v + v_rate_d / G_MPS2,
+        ste=h_rate / v + v_rate / G_MPS2,
+        seb_d=w_h * h_rate_d / v - w_v * v_rate_d / G_MPS2,
+        seb=w_h * h_rate / v - w_v * v_rate / G_MPS2,
+        w_h=w_h,
+        underspeed=underspeed,
+    )
+
+
+def _scaler(p: FixedWingControlParams, s: VehicleState) -> float:
+    return _clip(p.airspeed_cruise_mps / max(s.airspeed_mps, 1.0), p.scaler_min, p.scaler_max)
+
+
+def _turn_rates(s: VehicleState) -> tuple[float, float]:
+    """Body pitch and yaw rates of a coordinated level turn at the current bank (q, r)."""
+    phi, theta = s.att_rpy_rad[0], s.att_rpy_rad[1]
+    v = max(s.airspeed_mps, 5.0)
+    psi_rate = G_MPS2 * math.tan(_clip(phi, -1.2, 1.2)) / v
+    return psi_rate * math.sin(phi) * math.cos(theta), psi_rate * math.cos(phi) * math.cos(theta)
+
+
+def reset_from_state(
+    p: FixedWingControlParams,
+    s: VehicleState,
+    surfaces: SurfaceCommand,
+    targets: FixedWingTargets | None = None,
+) -> FixedWingControlState:
+    """Initialise the loops so the first command equals ``surfaces`` (bumpless transfer).
+
+    The attitude setpoints start at the current attitude (then slew towards the targets at their rate
+    limits), the surface integrators are set to the surface value the proportional and damping terms
+    leave over, and the throttle slews from its current value. TECS's integrators start from physical
+    estimates instead of the taken-over values: the throttle integrator at zero (the trim throttle) and the
+    pitch integrator, which holds the trim angle of attack, at the current theta - gamma within
+    [0, alpha_protect / 2]. ``targets`` defaults to holding the current height and airspeed; pass the
+    targets guidance will ask for at the switch, for a first command equal to ``surfaces``.
+    """
+    if targets is None:
+        targets = FixedWingTargets(airspeed_mps=s.airspeed_mps, height_m=s.alt_m)
+    phi, theta = s.att_rpy_rad[0], s.att_rpy_rad[1]
+    pr, qr, rr = s.rates_frd_radps
+    q_turn, r_turn = _turn_rates(s)
+    k = _scaler(p, s)
+    v_rate = _speed_rate(s)
+    del targets  # the first command equals ``surfaces`` whatever the targets (see the docstring)
+    speed = math.sqrt(sum(c * c for c in s.vel_ned_mps))
+    gamma = math.asin(_clip(-s.vel_ned_mps[2] / speed, -1.0, 1.0)) if speed > 3.0 else 0.0
+    return FixedWingControlState(
+        throttle_integ=0.0,
+        pitch_tecs_integ_rad=_clip(theta - gamma, 0.0, 0.5 * p.alpha_protect_rad),
+        throttle=surfaces.throttle,
+        roll_sp_rad=phi,
+        pitch_sp_rad=theta,
+        aileron_integ=surfaces.aileron - k * (-p.roll_d * pr),
+        elevator_integ=surfaces.elevator - k * (p.pitch_d * (qr - q_turn) * -1.0),
+        rudder_integ=surfaces.rudder - k * (-p.yaw_d * (rr - r_turn) - p.sideslip_p * s.accel_frd_mps2[1]),
+        speed_rate_mps2=v_rate,
+        initialized=True,
+    )
+
+
+def initial_state(p: FixedWingControlParams) -> FixedWingControlState:
+    """A cold start at the cruise trim (use :func:`reset_from_state` when taking over a flying aircraft)."""
+    return FixedWingControlState(elevator_integ=p.elevator_trim, throttle=p.throttle_trim, initialized=True)
+
+
+def control_step(
+    p: FixedWingControlParams,
+    state: FixedWingControlState,
+    s: VehicleState,
+    targets: FixedWingTargets,
+    dt_s: float,
+) -> tuple[FixedWingControlState, ControlOutput]:
+    """One tick of the inner loops: TECS to pitch/throttle targets, then attitude loops to the surfaces."""
+    phi, theta = s.att_rpy_rad[0], s.att_rpy_rad[1]
+    pr, qr, rr = s.rates_frd_radps
+    k = _scaler(p, s)
+    imax = p.integrator_max
+
+    # ---- speed and height: TECS, or the attitude command's pitch/throttle
+    v_rate = state.speed_rate_mps2 + dt_s / (p.speed_rate_tau_s + dt_s) * (
+        _speed_rate(s) - state.speed_rate_mps2
+    )
+    e = _energy(p, s, targets, v_rate)
+    ste_err = e.ste_d - e.ste
+    seb_err = e.seb_d - e.seb
+    if targets.pitch_rad is not None and targets.throttle is not None:
+        pitch_target = targets.pitch_rad
+        throttle = targets.throttle
+        throttle_integ, pitch_integ = state.throttle_integ, state.pitch_tecs_integ_rad
+    else:
+        throttle_unsat = (
+            p.throttle_trim
+            + p.tecs_throttle_ff * e.ste_d
+            + p.tecs_throttle_p * ste_err
+            + state.throttle_integ
+        )
+        throttle = _clip(throttle_unsat, p.throttle_min, p.throttle_max)
+        saturated_same_way = (throttle_unsat > p.throttle_max and ste_err > 0) or (
+            throttle_unsat < p.throttle_min and ste_err < 0
+        )
+        throttle_integ = state.throttle_integ
+        if not saturated_same_way:
+            throttle_integ = _clip(throttle_integ + p.tecs_throttle_i_per_s * ste_err * dt_s, -imax, imax)
+        if e.underspeed:
+            # Underspeed protection: full power in proportion to how deep into the band we are.
+            throttle = max(throttle, p.throttle_min + (1.0 - e.w_h) * (p.throttle_max - p.throttle_min))
+        pitch_unsat = p.tecs_pitch_ff * e.seb_d + p.tecs_pitch_p * seb_err + state.pitch_tecs_integ_rad
+        pitch_target = _clip(pitch_unsat, p.pitch_min_rad, p.pitch_max_rad)
+        pitch_integ = state.pitch_tecs_integ_rad
+        if not (
+            (pitch_unsat > p.pitch_max_rad and seb_err > 0) or (pitch_unsat < p.pitch_min_rad and seb_err < 0)
+        ):
+            pitch_integ = pitch_integ + p.tecs_pitch_i_per_s * seb_err * dt_s
+        # The integrator holds the trim angle of attack: keep it within the reachable pitch range.
+        pitch_integ = _clip(pitch_integ, p.pitch_min_rad, p.pitch_max_rad)
+    throttle = _slew(state.throttle, throttle, p.throttle_slew_per_s * dt_s)
+    pitch_target = _clip(pitch_target, p.pitch_min_rad, p.pitch_max_rad)
+    v_ground = math.sqrt(sum(c * c for c in s.vel_ned_mps))
+    if v_ground > 3.0:
+        gamma = math.asin(_clip(-s.vel_ned_mps[2] / v_ground, -1.0, 1.0))
+        pitch_target = min(pitch_target, gamma + p.alpha_protect_rad * math.cos(phi))
+
+    # ---- setpoint slewing (bumpless, and gentle on the airframe)
+    # Near the minimum airspeed the bank is reduced (stall speed grows as 1/sqrt(cos bank)): wings level
+    # first, then turn, as in a stall recovery.
+    bank = bank_limit_rad(p) * _clip((s.airspeed_mps - p.airspeed_min_mps) / p.bank_full_margin_mps, 0.0, 1.0)
+    roll_sp = _slew(state.roll_sp_rad, _clip(targets.roll_rad, -bank, bank), p.roll_sp_rate_radps * dt_s)
+    pitch_sp = _slew(state.pitch_sp_rad, pitch_target, p.pitch_sp_rate_radps * dt_s)
+
+    # ---- attitude loops
+    q_turn, r_turn = _turn_rates(s)
+    roll_err = roll_sp - phi
+    pitch_err = pitch_sp - theta
+    aileron_integ = _clip(state.aileron_integ + p.roll_i_per_s * roll_err * dt_s, -imax, imax)
+    elevator_integ = _clip(state.elevator_integ + p.pitch_i_per_s * pitch_err * dt_s, -imax, imax)
+    ay = s.accel_frd_mps2[1]
+    rudder_integ = _clip(state.rudder_integ - p.sideslip_i_per_s * ay * dt_s, -imax, imax)
+
+    aileron = k * (p.roll_p * roll_err - p.roll_d * pr) + aileron_integ
+    elevator = k * (p.pitch_p * pitch_err - p.pitch_d * (qr - q_turn)) + elevator_integ
+    rudder = k * (-p.yaw_d * (rr - r_turn) - p.sideslip_p * ay) + rudder_integ
+    surfaces = SurfaceCommand(aileron=aileron, elevator=elevator, rudder=rudder, throttle=throttle).clipped()
+
+    new_state = FixedWingControlState(
+        throttle_integ=throttle_integ,
+        pitch_tecs_integ_rad=pitch_integ,
+        roll_sp_rad=roll_sp,
+        pitch_sp_rad=pitch_sp,
+        aileron_integ=aileron_integ,
+        elevator_integ=elevator_integ,
+        rudder_integ=rudder_integ,
+        speed_rate_mps2=v_rate,
+        throttle=throttle,
+        initialized=True,
+    )
+    return new_state, ControlOutput(
+        surfaces=surfaces,
+        roll_sp_rad=roll_sp,
+        pitch_sp_rad=pitch_sp,
+        pitch_target_rad=pitch_target,
+        ste_rate_error=ste_err,
+        seb_rate_error=seb_err,
+        height_weight=e.w_h,
+        underspeed=e.underspeed,
+    )

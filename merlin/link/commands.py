@@ -1,0 +1,225 @@
+"""Standard MAVLink commands (COMMAND_LONG / COMMAND_INT) as Merlin intents, and the standard OFFBOARD flow
+as the positive exchange.
+
+:func:`interpret_command` is a pure mapping from a validated :class:`~merlin.link.inbound.CommandIn` to
+what it asks for: a core :class:`~merlin.core.types.GcsCommand`, an authority request, a message request,
+or a refusal with the MAV_RESULT to acknowledge it with. How the standard flow maps onto the exchange
+(icd/ICD.md, "Standard MAVLink mapping"): MAV_CMD_DO_SET_MODE to OFFBOARD (what MAVSDK's
+``offboard.start()`` sends) is a REQUEST; the COMMAND_ACK is sent when the core answers (ACCEPTED with the
+grant, DENIED or TEMPORARILY_REJECTED with the denial); the controller's next valid setpoint after the
+grant is its acknowledgement. :class:`OffboardModeBridge` keeps that bookkeeping for the serve process.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+
+from merlin.core.types import (
+    AuthorityRequest,
+    Event,
+    EventKind,
+    GcsCommand,
+    GcsCommandKind,
+    ReasonCode,
+    RequestKind,
+)
+from merlin.link import inbound as i
+from merlin.link import outbound as o
+from merlin.link.px4_modes import MODE_COMMANDS, OFFBOARD, Px4MainMode, Px4Mode
+
+MAV_CMD_NAV_LOITER_UNLIM = 17
+MAV_CMD_NAV_RETURN_TO_LAUNCH = 20
+MAV_CMD_NAV_LAND = 21
+MAV_CMD_NAV_TAKEOFF = 22
+MAV_CMD_DO_SET_MODE = 176
+MAV_CMD_DO_FLIGHTTERMINATION = 185
+MAV_CMD_MISSION_START = 300
+MAV_CMD_COMPONENT_ARM_DISARM = 400
+MAV_CMD_GET_HOME_POSITION = 410
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
+MAV_CMD_REQUEST_MESSAGE = 512
+MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES = 520
+
+MAV_RESULT_ACCEPTED = 0
+MAV_RESULT_TEMPORARILY_REJECTED = 1
+MAV_RESULT_DENIED = 2
+MAV_RESULT_UNSUPPORTED = 3
+MAV_RESULT_FAILED = 4
+
+MAVLINK_MSG_ID_AUTOPILOT_VERSION = 148
+MAVLINK_MSG_ID_HOME_POSITION = 242
+ARM_FORCE_MAGIC = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2: arm/disarm without checks
+
+
+class LinkRole(Enum):
+    CONTROLLER = "controller"  # the experimental controller's link (offboard API port)
+    GCS = "gcs"  # a ground station
+
+
+@dataclass(frozen=True, slots=True)
+class RequestMessage:
+    """Send one message now (MAV_CMD_REQUEST_MESSAGE and its older single-purpose forms)."""
+
+    message_id: int
+
+
+@dataclass(frozen=True, slots=True)
+class SetMessageInterval:
+    """MAV_CMD_SET_MESSAGE_INTERVAL: ``interval_s`` None restores the default, 0 stops the stream."""
+
+    message_id: int
+    interval_s: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class Refused:
+    result: int  # MAV_RESULT
+    detail: str
+
+
+Intent = GcsCommand | AuthorityRequest | RequestMessage | SetMessageInterval | Refused
+
+
+def interpret_command(
+    cmd: i.CommandIn, role: LinkRole, home_alt_amsl_m: float, t_s: float = 0.0
+) -> tuple[Intent, ...]:
+    """What a command asks for. Several intents are returned in order (a controller leaving OFFBOARD for
+    another mode first RELEASEs, then asks for the behaviour)."""
+    p = cmd.params
+    c = cmd.command
+    if c == MAV_CMD_COMPONENT_ARM_DISARM:
+        if p[0] == 1.0:
+            return (GcsCommand(GcsCommandKind.ARM, force=p[1] == ARM_FORCE_MAGIC),)
+        if p[0] == 0.0:
+            return (GcsCommand(GcsCommandKind.DISARM, force=p[1] == ARM_FORCE_MAGIC),)
+        return (Refused(MAV_RESULT_DENIED, f"ARM_DISARM param1={p[0]}: 1 arms, 0 disarms"),)
+    if c == MAV_CMD_NAV_TAKEOFF:
+        # param7 is the takeoff altitude above mean sea level (PX4); NaN asks for the configured default.
+        if math.isnan(p[6]):
+            return (GcsCommand(GcsCommandKind.TAKEOFF, param=math.nan),)
+        height = p[6] - home_alt_amsl_m
+        if not height > 0.0:
+            return (Refused(MAV_RESULT_DENIED, f"takeoff altitude {p[6]:.1f} m AMSL is not above home "
+                                               f"({home_alt_amsl_m:.1f} m AMSL)"),)
+        return (GcsCommand(GcsCommandKind.TAKEOFF, param=height),)
+    simple = {
+        MAV_CMD_NAV_LAND: GcsCommandKind.LAND,
+        MAV_CMD_NAV_RETURN_TO_LAUNCH: GcsCommandKind.RTL,
+        MAV_CMD_NAV_LOITER_UNLIM: GcsCommandKind.HOLD,
+        MAV_CMD_MISSION_START: GcsCommandKind.MISSION,
+    }
+    if c in simple:
+        return _behaviour(simple[c], role, t_s)
+    if c == MAV_CMD_DO_FLIGHTTERMINATION:
+        if p[0] >= 0.5:
+            return (GcsCommand(GcsCommandKind.TERMINATE),)
+        return (Refused(MAV_RESULT_UNSUPPORTED, "flight termination cannot be reset in flight"),)
+    if c == MAV_CMD_DO_SET_MODE:
+        return _set_mode(p, role, t_s)
+    if c == MAV_CMD_REQUEST_MESSAGE:
+        return (RequestMessage(int(p[0])),) if _is_msg_id(p[0]) else (Refused(MAV_RESULT_DENIED, "bad message id"),)
+    if c == MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
+        return (RequestMessage(MAVLINK_MSG_ID_AUTOPILOT_VERSION),)
+    if c == MAV_CMD_GET_HOME_POSITION:
+        return (RequestMessage(MAVLINK_MSG_ID_HOME_POSITION),)
+    if c == MAV_CMD_SET_MESSAGE_INTERVAL:
+        if not _is_msg_id(p[0]) or math.isnan(p[1]):
+            return (Refused(MAV_RESULT_DENIED, "SET_MESSAGE_INTERVAL needs a message id and an interval"),)
+        interval = None if p[1] == 0 else (0.0 if p[1] < 0 else p[1] / 1e6)
+        return (SetMessageInterval(int(p[0]), interval),)
+    return (Refused(MAV_RESULT_UNSUPPORTED, f"command {c} is not implemented"),)
+
+
+def _is_msg_id(v: float) -> bool:
+    return math.isfinite(v) and v == int(v) and 0 <= v < 2**24
+
+
+def _behaviour(kind: GcsCommandKind, role: LinkRole, t_s: float) -> tuple[Intent, ...]:
+    if role is LinkRole.CONTROLLER:
+        return (AuthorityRequest(RequestKind.RELEASE, t_s=t_s), GcsCommand(kind))
+    return (GcsCommand(kind),)
+
+
+def _set_mode(p: tuple[float, ...], role: LinkRole, t_s: float) -> tuple[Intent, ...]:
+    if not (math.isfinite(p[0]) and int(p[0]) & 1):
+        return (Refused(MAV_RESULT_DENIED, "DO_SET_MODE needs MAV_MODE_FLAG_CUSTOM_MODE_ENABLED and a PX4 mode"),)
+    main = int(p[1]) if math.isfinite(p[1]) else -1
+    sub = int(p[2]) if math.isfinite(p[2]) else 0
+    try:
+        mode = Px4Mode(Px4MainMode(main), sub if main == Px4MainMode.AUTO else 0)
+    except ValueError:
+        return (Refused(MAV_RESULT_DENIED, f"unknown PX4 main mode {main}"),)
+    if mode == OFFBOARD:
+        return (AuthorityRequest(RequestKind.REQUEST, t_s=t_s),)
+    kind = MODE_COMMANDS.get(mode)
+    if kind is None:
+        return (Refused(MAV_RESULT_DENIED,
+                        f"mode {mode.name()} cannot be commanded; the operator takes over with the RC switch"),)
+    return _behaviour(kind, role, t_s)
+
+
+def command_ack(cmd: i.CommandIn, sender: tuple[int, int], result: int) -> o.CommandAckOut:
+    return o.CommandAckOut(cmd.command, result, sender[0], sender[1])
+
+
+# ------------------------------------------------------------------------------- standard OFFBOARD
+
+
+@dataclass(frozen=True, slots=True)
+class _Pending:
+    sender: tuple[int, int]
+    command: int
+    grant_seq: int = 0  # nonzero once granted: the next setpoint acknowledges it
+
+
+class OffboardModeBridge:
+    """Maps a standard OFFBOARD mode command onto REQUEST -> GRANT -> ACK for controllers that do not speak
+    the dialect. One exchange at a time, as in the core.
+
+    Use: when :func:`interpret_command` yields a REQUEST from a DO_SET_MODE, call :meth:`requested`; pass
+    every core exchange event to :meth:`on_event` (it returns the COMMAND_ACK to send); pass every valid
+    setpoint received on the controller link to :meth:`on_setpoint` (it returns the ACK request to feed to
+    the core, once, after a grant).
+    """
+
+    def __init__(self) -> None:
+        self._pending: _Pending | None = None
+
+    @property
+    def waiting(self) -> bool:
+        return self._pending is not None
+
+    def requested(self, cmd: i.CommandIn, sender: tuple[int, int]) -> None:
+        self._pending = _Pending(sender, cmd.command)
+
+    def on_event(self, event: Event) -> list[o.OutMessage]:
+        p = self._pending
+        if p is None:
+            return []
+        if event.kind is EventKind.GRANTED and p.grant_seq == 0:
+            self._pending = _Pending(p.sender, p.command, event.seq)
+            return [o.CommandAckOut(p.command, MAV_RESULT_ACCEPTED, p.sender[0], p.sender[1])]
+        if event.kind is EventKind.DENIED:
+            if p.grant_seq:
+                if event.seq == p.grant_seq:  # the grant lapsed (ACK_TIMEOUT); the DENY message says why
+                    self._pending = None
+                return []  # (a SEQUENCE_MISMATCH from some other ACK leaves our grant pending, as the core does)
+            if event.seq != 0:
+                return []
+            self._pending = None
+            temporary = event.reason.code in (ReasonCode.COOLDOWN, ReasonCode.BUSY,
+                                              ReasonCode.HEARTBEAT_NOT_ESTABLISHED, ReasonCode.SETPOINT_INCONSISTENT)
+            result = MAV_RESULT_TEMPORARILY_REJECTED if temporary else MAV_RESULT_DENIED
+            return [o.CommandAckOut(p.command, result, p.sender[0], p.sender[1])]
+        if event.kind is EventKind.ACKNOWLEDGED:
+            self._pending = None
+        return []
+
+    def on_setpoint(self, t_s: float) -> AuthorityRequest | None:
+        p = self._pending
+        if p is None or p.grant_seq == 0:
+            return None
+        self._pending = None
+        return AuthorityRequest(RequestKind.ACK, seq=p.grant_seq, t_s=t_s)

@@ -1,0 +1,135 @@
+"""MAVLink 2 message signing: keys, verification and replay protection, per link.
+
+The scheme is MAVLink's (mavlink.io, "Message Signing"): a 13-byte block ``link_id | timestamp (48 bit,
+10 us units since 2015-01-01 UTC) | signature``, where the signature is the first 6 bytes of
+``SHA-256(secret_key + frame_without_signature)``. Replay protection: for each stream ``(link_id,
+system_id, component_id)`` the timestamp must strictly increase, and a stream seen for the first time is
+accepted only if its timestamp is at most one minute behind the receiver's current timestamp.
+
+Unlike pymavlink's ``check_signature`` (which records a stream's timestamp before checking the
+signature, so one forged frame with a far-future timestamp silences the genuine stream), the stream
+timestamp here is advanced only by frames whose signature verifies.
+
+Keys come from a file (64 hex digits, or exactly 32 raw bytes), from a passphrase hashed with SHA-256
+as MAVProxy's ``signing setup`` does, or are provisioned in flight with SETUP_SIGNING (see
+:class:`merlin.link.security.LinkSecurity`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+from dataclasses import dataclass
+from enum import Enum
+from pathlib import Path
+
+from merlin.link.frames import Frame
+
+KEY_LEN = 32
+#: 2015-01-01T00:00:00Z as a Unix time: the signing timestamp epoch.
+SIGNING_EPOCH_UNIX_S = 1420070400
+#: A new stream may lag the receiver's timestamp by at most one minute (in 10 us units).
+NEW_STREAM_WINDOW = 60 * 100_000
+
+
+class KeyFileError(ValueError):
+    pass
+
+
+def signing_timestamp(unix_s: float) -> int:
+    """The signing timestamp (10 us units since 2015-01-01 UTC) of a Unix time."""
+    return max(0, int((unix_s - SIGNING_EPOCH_UNIX_S) * 100_000))
+
+
+def key_from_passphrase(passphrase: str) -> bytes:
+    """The 32-byte key MAVProxy's ``signing setup <passphrase>`` derives (SHA-256 of the text)."""
+    return hashlib.sha256(passphrase.encode("utf-8")).digest()
+
+
+def load_key_file(path: Path) -> bytes:
+    """Read a key file: 64 hex digits (whitespace ignored) or exactly 32 raw bytes."""
+    data = Path(path).read_bytes()
+    text = data.strip()
+    if len(text) == 2 * KEY_LEN:
+        try:
+            return bytes.fromhex(text.decode("ascii"))
+        except (UnicodeDecodeError, ValueError):
+            pass
+    if len(data) == KEY_LEN:
+        return data
+    raise KeyFileError(
+        f"{path}: a MAVLink signing key file holds 64 hex digits or exactly 32 bytes, got {len(data)} bytes"
+    )
+
+
+def write_key_file(path: Path, key: bytes) -> None:
+    """Write a key as hex, readable by the owner only."""
+    if len(key) != KEY_LEN:
+        raise KeyFileError(f"a MAVLink signing key is {KEY_LEN} bytes, got {len(key)}")
+    p = Path(path)
+    tmp = p.with_name(p.name + ".tmp")
+    tmp.write_text(key.hex() + "\n")
+    tmp.chmod(0o600)
+    tmp.replace(p)
+
+
+def signature_valid(frame: Frame, key: bytes) -> bool:
+    if not frame.signed:
+        return False
+    digest = hashlib.sha256(key + frame.raw[:-6]).digest()[:6]
+    return hmac.compare_digest(digest, frame.raw[-6:])
+
+
+class SignatureCheck(Enum):
+    OK = "ok"
+    UNSIGNED = "unsigned"
+    NO_KEY = "no_key"  # signed, but this link has no key to verify it with
+    BAD_SIGNATURE = "bad_signature"
+    REPLAY = "replay"  # timestamp not newer than the stream's last, or a new stream too old
+
+
+@dataclass(frozen=True, slots=True)
+class StreamKey:
+    link_id: int
+    system_id: int
+    component_id: int
+
+
+class SigningState:
+    """Verification state of one link: the key, the current timestamp and each stream's last timestamp."""
+
+    def __init__(self, key: bytes | None) -> None:
+        if key is not None and len(key) != KEY_LEN:
+            raise KeyFileError(f"a MAVLink signing key is {KEY_LEN} bytes, got {len(key)}")
+        self.key = key
+        self.timestamp = 0
+        self._streams: dict[StreamKey, int] = {}
+
+    def set_key(self, key: bytes, initial_timestamp: int = 0) -> None:
+        if len(key) != KEY_LEN:
+            raise KeyFileError(f"a MAVLink signing key is {KEY_LEN} bytes, got {len(key)}")
+        self.key = key
+        self.timestamp = max(self.timestamp, initial_timestamp)
+
+    def advance_clock(self, unix_s: float) -> None:
+        self.timestamp = max(self.timestamp, signing_timestamp(unix_s))
+
+    def check(self, frame: Frame) -> SignatureCheck:
+        """Verify ``frame``; on OK the stream's timestamp advances (so the same frame is a replay next)."""
+        if not frame.signed:
+            return SignatureCheck.UNSIGNED
+        if self.key is None:
+            return SignatureCheck.NO_KEY
+        if not signature_valid(frame, self.key):
+            return SignatureCheck.BAD_SIGNATURE
+        ts = frame.sign_timestamp
+        stream = StreamKey(frame.link_id, frame.system_id, frame.component_id)
+        last = self._streams.get(stream)
+        if last is not None:
+            if ts <= last:
+                return SignatureCheck.REPLAY
+        elif ts + NEW_STREAM_WINDOW < self.timestamp:
+            return SignatureCheck.REPLAY
+        self._streams[stream] = ts
+        self.timestamp = max(self.timestamp, ts)
+        return SignatureCheck.OK

@@ -1,0 +1,518 @@
+"""Simulated sensors: three IMU lanes, GPS with latency, barometer, magnetometer; a camera interface.
+
+Every model reads the simulator's truth and returns the sample types of :mod:`merlin.measurements`
+exactly. Each lane owns an independent random stream spawned from the ``numpy.random.Generator`` the
+caller passes in (``Generator.spawn``), so a run is reproducible from one seed and the lanes' noises
+and biases are statistically independent, as redundant units should be.
+
+Noise conventions (continuous-time densities, as in IMU datasheets and Kalibr's noise model): white
+noise of density ``N`` sampled at ``f`` Hz has a per-sample standard deviation ``N sqrt(f)``; a bias
+random walk of density ``Nb`` grows by ``Nb sqrt(dt)`` per sample. Default numbers and their sources are
+in the parameter dataclasses below.
+
+Random numbers are drawn in blocks (one numpy call per 1024 samples) and read back as Python floats:
+drawing one normal at a time through numpy costs ~0.3 us each, 36 per tick for three IMU lanes. The
+IMU bias walks are integrated per block too (``numpy.cumsum``), since they do not depend on the truth.
+
+GPS samples carry their *time of validity* in ``t_s`` and arrive ``latency_s`` later; an estimator must
+fuse them against its delayed state, as PX4's EKF2 does with ``EKF2_GPS_DELAY``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple, Protocol
+
+import numpy as np
+
+from merlin.config.loader import ConfigError
+from merlin.core.types import Vec3
+from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
+
+_BLOCK = 1024
+_EPS_S = 1e-9
+
+
+class TruthLike(Protocol):
+    """What the sensors read from the simulator. Both ``sims.multirotor.Multirotor`` (the live stepper,
+    cheapest) and ``sims.multirotor.MultirotorTruth`` (a frozen snapshot) provide it."""
+
+    @property
+    def t_s(self) -> float: ...
+    @property
+    def pos_ned_m(self) -> Vec3: ...
+    @property
+    def vel_ned_mps(self) -> Vec3: ...
+    @property
+    def quat_wxyz(self) -> tuple[float, float, float, float]: ...
+    @property
+    def omega_frd_radps(self) -> Vec3: ...
+    @property
+    def specific_force_frd_mps2(self) -> Vec3: ...
+
+
+class DownwardCamera(Protocol):
+    """A nadir camera for visual odometry: the interface the closed-loop runner calls. Implemented
+    elsewhere (``sims/camera.py`` renders a textured ground plane).
+
+    ``render`` returns the image seen at time ``t_s`` from the truth state (read ``pos_ned_m``,
+    ``quat_wxyz`` / ``rpy_rad`` and ``vel_ned_mps`` from it): a ``uint8`` array of shape (height, width)
+    or (height, width, 3), optical axis along body +z (down).
+    """
+
+    def render(self, truth_state: TruthLike, t_s: float) -> np.ndarray[Any, np.dtype[np.uint8]]: ...
+
+
+def _check_params(obj: object, positive: tuple[str, ...]) -> None:
+    """Rates must be positive and every sigma/density non-negative and finite: a bad number is a bug in
+    the caller's scenario, reported with the field and the value."""
+    for name in obj.__dataclass_fields__:  # type: ignore[attr-defined]
+        v = getattr(obj, name)
+        if isinstance(v, bool) or not isinstance(v, int | float):
+            continue
+        if not math.isfinite(v) or v < 0.0 or (name in positive and v <= 0.0):
+            need = "> 0" if name in positive else ">= 0"
+            raise ValueError(f"{type(obj).__name__}.{name} = {v!r}: must be finite and {need}")
+
+
+# ----------------------------------------------------------------------------------------- parameters
+
+
+@dataclass(frozen=True, slots=True)
+class ImuParams:
+    """One IMU lane (gyro + accelerometer). Defaults: an ICM-20689 / BMI088-class MEMS IMU as fitted to
+    Pixhawk-class flight controllers, after the usual factory/thermal calibration."""
+
+    rate_hz: float = 400.0
+    # ICM-20689 datasheet: gyro rate noise 0.008 deg/s/sqrt(Hz); BMI088: 0.014. Take 0.008 deg -> rad.
+    gyro_noise_density_radps_per_rthz: float = 1.4e-4
+    # In-run bias instability of this class is a few deg/h to ~10 deg/h; a random walk of 4e-5
+    # rad/s^2/sqrt(Hz) wanders ~0.06 deg/s in 10 min, in line with PX4 EKF2_GYR_B_NOISE = 1e-3 rad/s^2
+    # being a deliberately loose filter bound.
+    gyro_bias_rw_radps2_per_rthz: float = 4.0e-5
+    # Residual turn-on bias after calibration, one sigma per axis (datasheets: +-5 deg/s uncalibrated).
+    gyro_turn_on_bias_sigma_radps: float = 0.005
+    # ICM-20689 datasheet: accelerometer noise 100 ug/sqrt(Hz); BMI088: 160-190. Take ~120 ug.
+    accel_noise_density_mps2_per_rthz: float = 1.2e-3
+    accel_bias_rw_mps3_per_rthz: float = 1.0e-3
+    # Residual offset after calibration, one sigma per axis (datasheets: +-25-60 mg uncalibrated).
+    accel_turn_on_bias_sigma_mps2: float = 0.05
+    gyro_range_radps: float = math.radians(2000.0)  # full-scale range +-2000 deg/s
+    accel_range_mps2: float = 16.0 * 9.80665  # +-16 g
+
+    def __post_init__(self) -> None:
+        _check_params(self, ("rate_hz", "gyro_range_radps", "accel_range_mps2"))
+
+
+@dataclass(frozen=True, slots=True)
+class GpsParams:
+    """A u-blox M8/M9-class single-band receiver. Position error = slow Gauss-Markov wander (the
+    dominant, correlated part: ionosphere, multipath, orbit errors) + small white noise."""
+
+    rate_hz: float = 10.0  # M8N: up to 10 Hz navigation rate; M9N up to 25 Hz
+    latency_s: float = 0.11  # PX4 EKF2_GPS_DELAY default 110 ms (receiver + transport delay)
+    # M8N datasheet: 2.5 m CEP horizontal (M9N 1.5 m), i.e. ~1-2 m one sigma per axis, mostly slow.
+    pos_h_markov_sigma_m: float = 1.0
+    pos_v_markov_sigma_m: float = 2.0
+    pos_markov_tau_s: float = 60.0
+    pos_h_white_sigma_m: float = 0.15
+    pos_v_white_sigma_m: float = 0.3
+    # M8N datasheet: velocity accuracy 0.05 m/s (50 % at 30 m/s); vertical typically ~2x worse.
+    vel_h_sigma_mps: float = 0.05
+    vel_v_sigma_mps: float = 0.10
+    satellites: int = 14
+    fix_type: int = 3
+
+    def __post_init__(self) -> None:
+        _check_params(self, ("rate_hz", "pos_markov_tau_s"))
+
+
+@dataclass(frozen=True, slots=True)
+class BaroParams:
+    """An MS5611-class barometer (PX4 default on Pixhawk 1-4)."""
+
+    rate_hz: float = 50.0
+    # MS5611 datasheet: 0.012 mbar RMS at OSR 4096 ~ 0.1 m.
+    noise_sigma_m: float = 0.1
+    # Thermal / weather drift as a random walk: ~0.5 m after 10 min.
+    drift_rw_m_per_rts: float = 0.02
+
+    def __post_init__(self) -> None:
+        _check_params(self, ("rate_hz",))
+
+
+@dataclass(frozen=True, slots=True)
+class MagParams:
+    """An IST8310 / HMC5883L-class magnetometer. The earth field comes from a centred-dipole model of
+    IGRF-13 (epoch 2020) at the home position unless ``field_ned_gauss`` is given."""
+
+    rate_hz: float = 100.0
+    noise_sigma_gauss: float = 0.003  # HMC5883L datasheet: 2 mG noise floor; IST8310 ~0.3 uT
+    field_ned_gauss: Vec3 | None = None
+
+    def __post_init__(self) -> None:
+        _check_params(self, ("rate_hz",))
+
+
+@dataclass(frozen=True, slots=True)
+class SensorParams:
+    imu: ImuParams = field(default_factory=ImuParams)
+    imu_lanes: int = 3
+    gps: GpsParams = field(default_factory=GpsParams)
+    baro: BaroParams = field(default_factory=BaroParams)
+    mag: MagParams = field(default_factory=MagParams)
+
+
+# ------------------------------------------------------------------------------------------ earth field
+
+# IGRF-13 Gauss coefficients of degree 1 for epoch 2020.0, nT (Alken et al., Earth Planets Space 73:49,
+# 2021, Table 2). The centred dipole reproduces the real field to ~10-20 % in magnitude and a few
+# degrees in declination: enough for heading in a simulator, not for navigation charts.
+IGRF13_2020_G10_NT = -29404.8
+IGRF13_2020_G11_NT = -1450.9
+IGRF13_2020_H11_NT = 4652.5
+
+
+def dipole_field_ned_gauss(lat_deg: float, lon_deg: float) -> Vec3:
+    """Earth's magnetic field at the surface, NED, gauss, from the IGRF-13 centred dipole."""
+    g10, g11, h11 = IGRF13_2020_G10_NT, IGRF13_2020_G11_NT, IGRF13_2020_H11_NT
+    b0 = math.sqrt(g10 * g10 + g11 * g11 + h11 * h11)
+    # unit vector to the (boreal) geomagnetic pole, ECEF
+    px, py, pz = -g11 / b0, -h11 / b0, -g10 / b0
+    lat, lon = math.radians(lat_deg), math.radians(lon_deg)
+    rx, ry, rz = math.cos(lat) * math.cos(lon), math.cos(lat) * math.sin(lon), math.sin(lat)
+    cos_t = px * rx + py * ry + pz * rz  # cosine of the geomagnetic colatitude
+    sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
+    # horizontal direction of the pole in the local frame
+    nx, ny, nz = -math.sin(lat) * math.cos(lon), -math.sin(lat) * math.sin(lon), math.cos(lat)
+    ex, ey = -math.sin(lon), math.cos(lon)
+    decl = math.atan2(px * ex + py * ey, px * nx + py * ny + pz * nz)
+    bh = b0 * sin_t * 1e-5  # nT -> gauss
+    return (bh * math.cos(decl), bh * math.sin(decl), 2.0 * b0 * cos_t * 1e-5)
+
+
+# -------------------------------------------------------------------------------------------- models
+
+
+def normal_rows(rng: np.random.Generator, width: int) -> Callable[[], list[float]]:
+    """A function returning the next row of ``width`` standard normals from ``rng``. Rows are drawn
+    1024 at a time and handed out as Python float lists (one generator resume per call: ~0.1 us)."""
+
+    def rows() -> Iterator[list[float]]:
+        while True:
+            yield from rng.standard_normal((_BLOCK, width)).tolist()
+
+    return rows().__next__
+
+
+class ImuLane:
+    """One gyro + accelerometer unit with its own bias and random stream.
+
+    The error of a sample (bias random walk + white noise) does not depend on the truth, so it is
+    generated a block of 1024 samples at a time with numpy (cumulative sum for the walk) and each
+    sample only adds one precomputed row to the truth: ~3x cheaper per sample than updating the bias
+    in Python.
+    """
+
+    __slots__ = ("_b_last", "_kbias", "_knoise", "_lane", "_limits", "_next", "_row", "p", "rng")
+
+    def __init__(self, params: ImuParams, rng: np.random.Generator, lane: int) -> None:
+        self.p = params
+        self.rng = rng
+        self._lane = lane
+        b = rng.standard_normal(6)
+        self._b_last = b * np.array(
+            [params.gyro_turn_on_bias_sigma_radps] * 3 + [params.accel_turn_on_bias_sigma_mps2] * 3
+        )
+        rt = math.sqrt(params.rate_hz)
+        self._knoise = np.array(
+            [params.gyro_noise_density_radps_per_rthz * rt] * 3
+            + [params.accel_noise_density_mps2_per_rthz * rt] * 3
+        )
+        self._kbias = np.array(
+            [params.gyro_bias_rw_radps2_per_rthz / rt] * 3 + [params.accel_bias_rw_mps3_per_rthz / rt] * 3
+        )
+        # truth magnitudes below these cannot clip, whatever the error (50 sigma of margin)
+        self._limits = (
+            params.gyro_range_radps - 50.0 * float(self._knoise[0]) - 1.0,
+            params.accel_range_mps2 - 50.0 * float(self._knoise[3]) - 5.0,
+        )
+        self._row: list[float] = [0.0] * 6 + [float(x) for x in self._b_last]
+        self._next = self._rows().__next__
+
+    def _rows(self) -> Iterator[list[float]]:
+        """Rows of (gyro error x3, accel error x3, gyro bias x3, accel bias x3), 1024 at a time."""
+        while True:
+            steps = self.rng.standard_normal((_BLOCK, 6)) * self._kbias
+            white = self.rng.standard_normal((_BLOCK, 6)) * self._knoise
+            bias = self._b_last + np.cumsum(steps, axis=0)
+            self._b_last = bias[-1]
+            yield from np.hstack((bias + white, bias)).tolist()
+
+    @property
+    def gyro_bias_radps(self) -> Vec3:
+        r = self._row
+        return (r[6], r[7], r[8])
+
+    @property
+    def accel_bias_mps2(self) -> Vec3:
+        r = self._row
+        return (r[9], r[10], r[11])
+
+    def sample(self, t_s: float, omega: Vec3, sf: Vec3) -> ImuSample:
+        e = self._row = self._next()
+        wx, wy, wz = omega
+        fx, fy, fz = sf
+        gl, al = self._limits
+        if (
+            -gl < wx < gl
+            and -gl < wy < gl
+            and -gl < wz < gl
+            and -al < fx < al
+            and -al < fy < al
+            and -al < fz < al
+        ):
+            return ImuSample(
+                t_s, (wx + e[0], wy + e[1], wz + e[2]), (fx + e[3], fy + e[4], fz + e[5]), self._lane
+            )
+        gr, ar = self.p.gyro_range_radps, self.p.accel_range_mps2  # near full scale: clip
+        g = [min(gr, max(-gr, v)) for v in (wx + e[0], wy + e[1], wz + e[2])]
+        a = [min(ar, max(-ar, v)) for v in (fx + e[3], fy + e[4], fz + e[5])]
+        return ImuSample(t_s, (g[0], g[1], g[2]), (a[0], a[1], a[2]), self._lane)
+
+
+class Gps:
+    """GPS receiver: samples the truth at its rate, delivers each fix ``latency_s`` later.
+
+    The sample's ``t_s`` is its time of validity (when the position was true), as a receiver's
+    time-of-week stamp is; it reaches the vehicle ``latency_s`` after that.
+    """
+
+    __slots__ = ("_buf", "_e", "_n", "_next_s", "p")
+
+    def __init__(self, params: GpsParams, rng: np.random.Generator, t0_s: float = 0.0) -> None:
+        self.p = params
+        self._n = normal_rows(rng, 9)
+        first = rng.standard_normal(3)
+        # the slow wander starts in its stationary distribution
+        self._e = [
+            float(first[0]) * params.pos_h_markov_sigma_m,
+            float(first[1]) * params.pos_h_markov_sigma_m,
+            float(first[2]) * params.pos_v_markov_sigma_m,
+        ]
+        self._buf: deque[tuple[float, GpsSample]] = deque()
+        self._next_s = t0_s
+
+    @property
+    def markov_error_ned_m(self) -> Vec3:
+        return (self._e[0], self._e[1], self._e[2])
+
+    def step(self, t_s: float, pos: Vec3, vel: Vec3) -> GpsSample | None:
+        p = self.p
+        if t_s >= self._next_s - _EPS_S:
+            period = 1.0 / p.rate_hz
+            self._next_s += period
+            if self._next_s <= t_s:  # the caller skipped time: resynchronise
+                self._next_s = t_s + period
+            n = self._n()
+            phi = math.exp(-period / p.pos_markov_tau_s)
+            q = math.sqrt(1.0 - phi * phi)
+            e = self._e
+            e[0] = phi * e[0] + q * p.pos_h_markov_sigma_m * n[0]
+            e[1] = phi * e[1] + q * p.pos_h_markov_sigma_m * n[1]
+            e[2] = phi * e[2] + q * p.pos_v_markov_sigma_m * n[2]
+            wh, wv = p.pos_h_white_sigma_m, p.pos_v_white_sigma_m
+            vh, vv = p.vel_h_sigma_mps, p.vel_v_sigma_mps
+            sample = GpsSample(
+                t_s=t_s,
+                pos_ned_m=(pos[0] + e[0] + wh * n[3], pos[1] + e[1] + wh * n[4], pos[2] + e[2] + wv * n[5]),
+                vel_ned_mps=(vel[0] + vh * n[6], vel[1] + vh * n[7], vel[2] + vv * n[8]),
+                fix_type=p.fix_type,
+                satellites=p.satellites,
+                eph_m=math.hypot(p.pos_h_markov_sigma_m, wh),
+                epv_m=math.hypot(p.pos_v_markov_sigma_m, wv),
+            )
+            self._buf.append((t_s + p.latency_s, sample))
+        out = None
+        buf = self._buf
+        while buf and buf[0][0] <= t_s + _EPS_S:
+            out = buf.popleft()[1]
+        return out
+
+
+class Baro:
+    __slots__ = ("_drift", "_ground", "_n", "_next_s", "p")
+
+    def __init__(self, params: BaroParams, rng: np.random.Generator, ground_down_m: float = 0.0) -> None:
+        self.p = params
+        self._n = normal_rows(rng, 2)
+        self._drift = 0.0
+        self._ground = ground_down_m
+        self._next_s = 0.0
+
+    def step(self, t_s: float, pos: Vec3) -> BaroSample | None:
+        if t_s < self._next_s - _EPS_S:
+            return None
+        p = self.p
+        period = 1.0 / p.rate_hz
+        self._next_s = max(self._next_s + period, t_s + 0.5 * period)
+        n = self._n()
+        self._drift += p.drift_rw_m_per_rts * math.sqrt(period) * n[1]
+        return BaroSample(t_s, self._ground - pos[2] + self._drift + p.noise_sigma_m * n[0])
+
+
+class Mag:
+    __slots__ = ("_field", "_n", "_next_s", "p")
+
+    def __init__(self, params: MagParams, rng: np.random.Generator, field_ned_gauss: Vec3) -> None:
+        self.p = params
+        self._n = normal_rows(rng, 3)
+        self._field = field_ned_gauss
+        self._next_s = 0.0
+
+    def step(self, t_s: float, q: tuple[float, float, float, float]) -> MagSample | None:
+        if t_s < self._next_s - _EPS_S:
+            return None
+        p = self.p
+        period = 1.0 / p.rate_hz
+        self._next_s = max(self._next_s + period, t_s + 0.5 * period)
+        n = self._n()
+        qw, qx, qy, qz = q
+        x, y, z = self._field
+        s = p.noise_sigma_gauss
+        # NED -> FRD: R^T v
+        return MagSample(
+            t_s,
+            (
+                (1.0 - 2.0 * (qy * qy + qz * qz)) * x
+                + 2.0 * (qx * qy + qw * qz) * y
+                + 2.0 * (qx * qz - qw * qy) * z
+                + s * n[0],
+                2.0 * (qx * qy - qw * qz) * x
+                + (1.0 - 2.0 * (qx * qx + qz * qz)) * y
+                + 2.0 * (qy * qz + qw * qx) * z
+                + s * n[1],
+                2.0 * (qx * qz + qw * qy) * x
+                + 2.0 * (qy * qz - qw * qx) * y
+                + (1.0 - 2.0 * (qx * qx + qy * qy)) * z
+                + s * n[2],
+            ),
+        )
+
+
+class SensorFrame(NamedTuple):
+    """All samples produced at one tick. ``imu`` holds one sample per lane, or is empty between IMU
+    samples; the others are None when no sample arrived at this tick.
+
+    An immutable ``NamedTuple`` (not a frozen dataclass) because one is built every 400 Hz tick: ~3x
+    cheaper (``docs/benchmarks/sim.md``)."""
+
+    t_s: float
+    imu: tuple[ImuSample, ...] = ()
+    gps: GpsSample | None = None
+    baro: BaroSample | None = None
+    mag: MagSample | None = None
+
+
+class SensorSuite:
+    """Every simulated sensor of the vehicle; ``step(truth)`` once per simulation tick.
+
+    ``rng`` is split with ``Generator.spawn`` into one independent stream per lane / sensor, in a fixed
+    order (IMU lanes 0..n-1, GPS, baro, mag), so adding draws in one sensor never shifts another's.
+    """
+
+    __slots__ = ("_imu_due_s", "_imu_period_s", "baro", "gps", "imu_lanes", "mag", "params")
+
+    def __init__(
+        self,
+        params: SensorParams,
+        rng: np.random.Generator,
+        *,
+        home_lat_deg: float = 29.6516,
+        home_lon_deg: float = -82.3248,
+        ground_down_m: float = 0.0,
+    ) -> None:
+        self.params = params
+        streams = rng.spawn(params.imu_lanes + 3)
+        self.imu_lanes = tuple(ImuLane(params.imu, streams[i], i) for i in range(params.imu_lanes))
+        self.gps = Gps(params.gps, streams[params.imu_lanes])
+        self.baro = Baro(params.baro, streams[params.imu_lanes + 1], ground_down_m)
+        fld = params.mag.field_ned_gauss or dipole_field_ned_gauss(home_lat_deg, home_lon_deg)
+        self.mag = Mag(params.mag, streams[params.imu_lanes + 2], fld)
+        self._imu_period_s = 1.0 / params.imu.rate_hz
+        self._imu_due_s = 0.0
+
+    def step(self, truth: TruthLike) -> SensorFrame:
+        t = truth.t_s
+        imu: tuple[ImuSample, ...] = ()
+        if t >= self._imu_due_s - _EPS_S:
+            self._imu_due_s = max(self._imu_due_s + self._imu_period_s, t + 0.5 * self._imu_period_s)
+            w = truth.omega_frd_radps
+            f = truth.specific_force_frd_mps2
+            # a list comprehension, not a generator expression: faster at this size
+            imu = tuple([lane.sample(t, w, f) for lane in self.imu_lanes])
+        pos = truth.pos_ned_m
+        return SensorFrame(
+            t,
+            imu,
+            self.gps.step(t, pos, truth.vel_ned_mps),
+            self.baro.step(t, pos),
+            self.mag.step(t, truth.quat_wxyz),
+        )
+
+
+# ------------------------------------------------------------------------------------- configuration
+
+_SECTIONS: dict[str, type] = {"imu": ImuParams, "gps": GpsParams, "baro": BaroParams, "mag": MagParams}
+
+
+def sensor_params_from_mapping(data: Any, source: str = "<sensor params>") -> SensorParams:
+    """Sensor parameters from a mapping of overrides, e.g. ``{"imu": {"rate_hz": 200}, "imu_lanes": 2}``:
+    omitted keys keep their documented defaults. Problems raise ``ConfigError`` naming key and value."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(source, [f"(top level): expected a mapping of keys, got {type(data).__name__}"])
+    problems: list[str] = []
+    built: dict[str, Any] = {}
+    for key, value in data.items():
+        if key == "imu_lanes":
+            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 8:
+                problems.append(f"imu_lanes: value {value!r}; allowed: an integer 1..8")
+            else:
+                built[key] = value
+            continue
+        cls = _SECTIONS.get(key)
+        if cls is None:
+            problems.append(f"{key}: unknown key; value {value!r}; allowed: imu, imu_lanes, gps, baro, mag")
+            continue
+        if not isinstance(value, dict):
+            problems.append(f"{key}: value {value!r}; allowed: a mapping of {cls.__name__} fields")
+            continue
+        fields_ = cls.__dataclass_fields__  # type: ignore[attr-defined]
+        kwargs: dict[str, Any] = {}
+        for k, v in value.items():
+            if k not in fields_:
+                problems.append(f"{key}.{k}: unknown key; value {v!r}; allowed: {', '.join(fields_)}")
+            elif k == "field_ned_gauss":
+                ok = (
+                    isinstance(v, list | tuple) and len(v) == 3 and all(isinstance(x, int | float) for x in v)
+                )
+                if ok:
+                    kwargs[k] = tuple(float(x) for x in v)
+                else:
+                    problems.append(f"{key}.{k}: value {v!r}; allowed: three numbers (N, E, D gauss)")
+            elif isinstance(v, bool) or not isinstance(v, int | float):
+                problems.append(f"{key}.{k}: value {v!r} is not a number")
+            else:
+                kwargs[k] = v
+        try:
+            built[key] = cls(**kwargs)
+        except ValueError as exc:
+            problems.append(f"{key}: {exc}")
+    if problems:
+        raise ConfigError(source, problems)
+    return SensorParams(**built)
