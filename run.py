@@ -72,13 +72,20 @@ def cmd_test(py: Path, extra: list[str]) -> int:
     env.setdefault("MPLBACKEND", "Agg")
     checks = [
         [py, "-m", "ruff", "check", "merlin", "sims", "experimental_controllers", "tests", "benchmarks", "run.py"],
-        [py, "-m", "mypy", "merlin/core"],
+        [py, "-m", "mypy", "merlin/core", "merlin/autopilot/guidance.py"],
+        [py, "-m", "merlin.cli", "config-docs", "--check"],
     ]
     for cmd in checks:
         rc = _run(cmd, env=env)
         if rc != 0:
             print(f"run.py: check failed: {' '.join(map(str, cmd))}", flush=True)
             return rc
+    # The arbiter is the heart of the trusted core: every branch of it must be exercised by its tests.
+    rc = _run([py, "-m", "pytest", "-q", "-p", "no:xdist", "tests/core/test_arbiter.py", "--cov=merlin.core.arbiter",
+               "--cov-branch", "--cov-report=term-missing", "--cov-fail-under=100"], env=env)
+    if rc != 0:
+        print("run.py: the arbiter's branch coverage is below 100 %", flush=True)
+        return rc
     workers = "2" if (os.cpu_count() or 1) >= 2 else "1"
     return _run([py, "-m", "pytest", "-n", workers, "-q", *extra], env=env)
 

@@ -113,17 +113,18 @@ def plot_ground_track(r: RunResult, out: Path) -> Path:
     for a, c in colors.items():
         m = auth == a
         if m.any():
-            ax.scatter(L["truth_e"][m], L["truth_n"][m], s=2, color=c, label=f"{Authority(a).name.lower()}")
+            ax.scatter(L["truth_e"][m], L["truth_n"][m], s=2, color=c)
+            ax.plot([], [], marker="o", ls="none", color=c, label=Authority(a).name.lower())
     if r.fence_triggers:
         tn = [x[1] for x in r.fence_triggers]
         te = [x[2] for x in r.fence_triggers]
         ax.scatter(te, tn, marker="x", s=80, color="k", zorder=5, label="fence triggered")
-    ax.plot([0], [0], marker="^", color="k", ms=8, label="home")
+    ax.plot([0], [0], marker="^", color="k", ms=6, ls="none", label="home")
     ax.set_xlabel("east [m]")
     ax.set_ylabel("north [m]")
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(alpha=0.3)
-    ax.legend(loc="best", fontsize=8, markerscale=3)
+    ax.legend(loc="best", fontsize=8)
     ax.set_title(f"{r.scenario.name}: ground track (truth)")
     p = out / "ground_track.png"
     fig.savefig(p, dpi=110, bbox_inches="tight")

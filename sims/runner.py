@@ -302,6 +302,11 @@ class ClosedLoop:
         self.frame: Any = None
 
     @property
+    def actuators(self) -> tuple[float, float, float, float]:
+        """What the inner loops drive, for the log: the four motor commands 0..1."""
+        return self.motors  # type: ignore[return-value]
+
+    @property
     def t(self) -> float:
         return self.k * self.dt
 
@@ -335,10 +340,23 @@ class ClosedLoop:
         return decision
 
 
+#: Vehicle files flown by JSBSim through :mod:`sims.fixedwing_loop` rather than the multirotor model.
+FIXED_WING_VEHICLES = ("aerosonde",)
+
+
+def make_loop(sc: Scenario, cfg: MerlinConfig, source: str = "<scenario>") -> ClosedLoop:
+    """The vehicle side for a scenario: the multirotor :class:`ClosedLoop`, or the JSBSim fixed wing's."""
+    if sc.vehicle in FIXED_WING_VEHICLES:
+        from sims.fixedwing_loop import FixedWingLoop
+
+        return FixedWingLoop(sc, cfg, source)
+    return ClosedLoop(sc, cfg, source)
+
+
 def run_scenario(
     sc: Scenario, cfg: MerlinConfig, progress: Callable[[float], None] | None = None, source: str = "<scenario>"
 ) -> RunResult:
-    loop = ClosedLoop(sc, cfg, source)
+    loop = make_loop(sc, cfg, source)
     dt = loop.dt
     n_ticks = round(sc.duration_s / dt)
     core_cfg = loop.core_cfg
@@ -448,7 +466,7 @@ def run_scenario(
                 max_jump = max(max_jump, math.dist(last_cmd_vel, cmd.vel_ned_mps))
             last_cmd_vel = cmd.vel_ned_mps
         prev_auth = decision.authority
-        motors, w, batt_frac = loop.motors, loop.wind_ned, loop.batt_frac
+        motors, w, batt_frac = loop.actuators, loop.wind_ned, loop.batt_frac
         if k % log_every == 0:
             # the exact margin costs a geometry query: every 5th log row (10 Hz at the default log rate)
             if len(log.cols.get("t", ())) % 5 == 0:
@@ -496,8 +514,8 @@ def run_scenario(
         "realtime_factor": sc.duration_s / wall if wall > 0 else math.inf,
         "max_authority_change_command_jump_mps": max_jump,
         "wall_time_s": wall,
-        "final_distance_from_home_m": math.hypot(loop.vehicle.pos_ned_m[0], loop.vehicle.pos_ned_m[1]),
-        "final_landed": float(loop.vehicle.landed),
+        "final_distance_from_home_m": math.hypot(loop.truth.pos_ned_m[0], loop.truth.pos_ned_m[1]),
+        "final_landed": float(loop.truth.landed),
         "revocations": float(decision.revocations if decision is not None else 0),
     }
     return RunResult(

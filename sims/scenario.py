@@ -24,6 +24,7 @@ class S(BaseModel):
 class Initial(S):
     pos_ned_m: Vec3L = [0.0, 0.0, 0.0]
     yaw_deg: float = 0.0
+    airspeed_mps: float | None = Field(None, gt=0.0, description="fixed wing: start flying at this airspeed")
 
 
 class Gust(S):

@@ -44,6 +44,7 @@ ENVELOPE_PARAMETERS: tuple[str, ...] = (
     "accel_x_mps2",
     "accel_y_mps2",
     "accel_z_mps2",
+    "alpha_deg",  # angle of attack: beyond Table 2, for fixed wing (the paper's "stall speed" case)
 )
 
 
@@ -93,6 +94,7 @@ class EnvelopeStage(Strict):
     accel_x_mps2: Limit | None = None
     accel_y_mps2: Limit | None = None
     accel_z_mps2: Limit | None = None
+    alpha_deg: Limit | None = None
 
 
 def _default_stages() -> dict[str, EnvelopeStage]:
@@ -115,6 +117,7 @@ def _default_stages() -> dict[str, EnvelopeStage]:
         accel_x_mps2=Limit(min=-15.0, max=15.0, duration_s=0.2),
         accel_y_mps2=Limit(min=-15.0, max=15.0, duration_s=0.2),
         accel_z_mps2=Limit(min=-25.0, max=5.0, duration_s=0.2),
+        alpha_deg=Limit(min=-8.0, max=15.0, duration_s=0.2, enabled=False),
     )
     expanded = EnvelopeStage(
         extends="conservative",

@@ -22,7 +22,9 @@ from merlin.core.envelope import PARAMETER_INDEX
 from merlin.core.types import Action
 
 _DEG = math.pi / 180.0
-_ANGLE_PARAMS = {"roll_deg", "pitch_deg", "yaw_deg", "roll_rate_degps", "pitch_rate_degps", "yaw_rate_degps"}
+_ANGLE_PARAMS = {
+    "roll_deg", "pitch_deg", "yaw_deg", "roll_rate_degps", "pitch_rate_degps", "yaw_rate_degps", "alpha_deg",
+}
 
 
 def envelope_limits(cfg: MerlinConfig, stage: str | None = None) -> tuple[EnvelopeLimit, ...]:

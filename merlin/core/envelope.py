@@ -38,6 +38,7 @@ PARAMETER_INDEX: dict[str, int] = {
     "accel_x_mps2": 11,
     "accel_y_mps2": 12,
     "accel_z_mps2": 13,
+    "alpha_deg": 14,
 }
 N_PARAMETERS = len(PARAMETER_INDEX)
 NAN = float("nan")
@@ -61,6 +62,7 @@ def envelope_values(s: VehicleState) -> tuple[float, ...]:
         f[0],
         f[1],
         f[2],
+        s.alpha_rad,
     )
 
 
@@ -74,10 +76,10 @@ def commanded_values(sp: Setpoint, s: VehicleState) -> tuple[float, ...]:
     n = NAN
     if sp.kind is SetpointKind.ATTITUDE:
         r = sp.att_rpy_rad
-        return (n, n, n, n, n, r[0], r[1], r[2], n, n, n, n, n, n)
+        return (n, n, n, n, n, r[0], r[1], r[2], n, n, n, n, n, n, n)
     vel = sp.vel_ned_mps
     alt = -sp.pos_ned_m[2] if sp.kind is SetpointKind.POSITION else n
-    return (n, alt, vel[0], vel[1], vel[2], n, n, n, n, n, n, n, n, n)
+    return (n, alt, vel[0], vel[1], vel[2], n, n, n, n, n, n, n, n, n, n)
 
 
 def _wrap_pi(x: float) -> float:

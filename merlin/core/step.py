@@ -118,6 +118,7 @@ def _state_ok(s: VehicleState) -> bool:
             and 0.0 <= s.airspeed_mps <= lv
             and 0.0 <= s.pos_sigma_h_m <= lp and 0.0 <= s.pos_sigma_v_m <= lp
             and 0.0 <= s.nav_inertial_s <= 1.0e7 and 0.0 <= s.battery_frac <= 1.0
+            and -math.pi <= s.alpha_rad <= math.pi
             and isinstance(s.nav_mode, NavMode)
             and type(p[0]) is not bool
         )
@@ -149,6 +150,7 @@ def validate_state(s: VehicleState) -> Reason | None:
         ("pos_sigma_v_m", s.pos_sigma_v_m, 0.0, MAX_ABS_POSITION_M),
         ("nav_inertial_s", s.nav_inertial_s, 0.0, 1.0e7),
         ("battery_frac", s.battery_frac, 0.0, 1.0),
+        ("alpha_rad", s.alpha_rad, -math.pi, math.pi),
     )
     for name, x, lo, hi in scalars:
         if not isinstance(x, (int, float)) or not math.isfinite(x) or x < lo or x > hi:

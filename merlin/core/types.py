@@ -186,6 +186,7 @@ class VehicleState:
     armed: bool = False
     landed: bool = True
     battery_frac: float = 1.0
+    alpha_rad: float = 0.0  # angle of attack (fixed wing); 0 where it does not apply
 
     @property
     def alt_m(self) -> float:

@@ -36,6 +36,7 @@ ENVELOPE_PARAM_ABBR: dict[str, str] = {
     "accel_x_mps2": "AX",
     "accel_y_mps2": "AY",
     "accel_z_mps2": "AZ",
+    "alpha_deg": "AOA",
 }
 assert set(ENVELOPE_PARAM_ABBR) == set(ENVELOPE_PARAMETERS)
 

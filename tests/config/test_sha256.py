@@ -67,6 +67,7 @@ envelope:
       accel_x_mps2:     {min: -15.0,  max: 15.0,  duration_s: 0.2}
       accel_y_mps2:     {min: -15.0,  max: 15.0,  duration_s: 0.2}
       accel_z_mps2:     {min: -25.0,  max: 5.0,   duration_s: 0.2}
+      alpha_deg:        {min: -8.0,   max: 15.0,  duration_s: 0.2, enabled: false}
   active_stage: trial
 name: sha-test
 """

@@ -124,10 +124,10 @@ def test_envelope_preset_is_a_valid_config_and_respects_the_stall() -> None:
     v_stall = math.sqrt(2 * 13.5 * G_MPS2 / (1.225 * 0.55 * cl_max))
     assert v_stall == pytest.approx(15.5, abs=0.1)
     assert limits["airspeed_mps"].min >= 1.19 * v_stall
-    assert data["proposed_parameters"]["alpha_deg"]["max"] < alpha_stall_deg
-    # n = -a_z/g: the z limit and the proposed load-factor limit say the same thing.
-    n = data["proposed_parameters"]["load_factor"]
-    assert limits["accel_z_mps2"].min == pytest.approx(-n["max"] * G_MPS2, abs=0.1)
+    assert limits["alpha_deg"].enabled and limits["alpha_deg"].max < alpha_stall_deg
+    # n = -a_z/g: the z limit is the load-factor limit n in [-1, 2.5]
+    assert limits["accel_z_mps2"].min == pytest.approx(-2.5 * G_MPS2, abs=0.1)
+    assert limits["accel_z_mps2"].max == pytest.approx(1.0 * G_MPS2, abs=0.1)
 
 
 def test_wings_level_stall_is_the_models() -> None:

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from merlin.config.models import EnvelopeConfig
+from merlin.config.models import ENVELOPE_PARAMETERS, EnvelopeConfig
 from merlin.core.types import Authority, Behavior, Event, EventKind, Reason, ReasonCode, VehicleState
 from merlin.geodesy import LocalFrame
 from merlin.link import outbound as o
@@ -66,7 +66,7 @@ def test_envelope_status_units_and_states() -> None:
     fast = VehicleState(vel_ned_mps=(9.0, 0.0, 0.0), pos_ned_m=(0.0, 0.0, -10.0))
     vn = {s.parameter: s for s in o.envelope_status_from(5, fast, limits, "c", {"vel_n_mps": 0.2})}[2]
     assert vn.state == o.ENVELOPE_EXCEEDING and vn.exceedance_elapsed_s == 0.2 and vn.exceedance_duration_s == 0.5
-    assert len(st) == 14 and {s.parameter_count for s in st.values()} == {14}
+    assert len(st) == len(ENVELOPE_PARAMETERS) and {s.parameter_count for s in st.values()} == {len(ENVELOPE_PARAMETERS)}
 
 
 def test_autopilot_version_carries_icd_version_and_dialect_hash() -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from merlin.config.models import EnvelopeConfig
+from merlin.config.models import ENVELOPE_PARAMETERS, EnvelopeConfig
 from merlin.link import inbound as i
 from merlin.link import outbound as o
 from merlin.link.params import ParamProtocol, envelope_params
@@ -23,7 +23,7 @@ def _proto(validator: object = None) -> ParamProtocol:
 def test_envelope_params_ids_fit_and_are_unique() -> None:
     params = envelope_params(EnvelopeConfig().effective())
     names = [n for n, _ in params]
-    assert len(names) == 14 * 4 == len(set(names))
+    assert len(names) == len(ENVELOPE_PARAMETERS) * 4 == len(set(names))
     assert all(len(n) <= 16 for n in names)
     assert dict(params)["ENV_ROLL_MAX"] == 30.0 and dict(params)["ENV_AIRSPD_EN"] == 0.0
 
@@ -31,10 +31,10 @@ def test_envelope_params_ids_fit_and_are_unique() -> None:
 def test_request_list_and_read() -> None:
     p = _proto()
     out = p.handle(_rx(i.ParamRequestListIn(1, 1)))
-    assert len(out) == len(p) == 56
+    assert len(out) == len(p) == len(ENVELOPE_PARAMETERS) * 4
     assert all(isinstance(v, o.ParamValueOut) for v in out)
-    assert [v.param_index for v in out] == list(range(56))  # type: ignore[union-attr]
-    assert {v.param_count for v in out} == {56}  # type: ignore[union-attr]
+    assert [v.param_index for v in out] == list(range(len(ENVELOPE_PARAMETERS) * 4))  # type: ignore[union-attr]
+    assert {v.param_count for v in out} == {len(ENVELOPE_PARAMETERS) * 4}  # type: ignore[union-attr]
     by_name = p.handle(_rx(i.ParamRequestReadIn(1, 1, "ENV_ROLL_MAX", -1)))
     assert by_name[0].value == 30.0  # type: ignore[union-attr]
     by_index = p.handle(_rx(i.ParamRequestReadIn(1, 1, "", by_name[0].param_index)))  # type: ignore[union-attr]
