@@ -4,6 +4,7 @@ command and is blended in; a naive switch jumps. Checked in the core and in clos
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import replace
 
@@ -34,7 +35,7 @@ def test_grant_is_blended_and_a_naive_switch_jumps() -> None:
     naive_jump, naive_ramp = _switch_jump(MerlinConfig(handover=NAIVE))
     assert naive_jump > 2.4  # the whole setpoint step lands on one tick
     assert jump <= MerlinConfig().handover.max_accel_mps2 * DT + 1e-9  # at most one tick of the slew limit
-    steps = [b - a for a, b in zip(ramp, ramp[1:], strict=False)]
+    steps = [b - a for a, b in itertools.pairwise(ramp)]
     assert max(steps) <= MerlinConfig().handover.max_accel_mps2 * DT + 1e-9
     assert abs(ramp[-1] - 2.5) < 1e-9  # and the experimental command is fully in force after the window
     assert naive_ramp[0] == 2.5
