@@ -163,3 +163,18 @@ def test_controller_exception_is_a_missed_heartbeat_not_a_crash(tmp_path: Path) 
     rev = [e for e in r.events if e["type"] == "revoked"]
     assert rev and rev[0]["reason"] == "controller_heartbeat"
     assert math.isclose(rev[0]["t"], 20.0 + 0.5, abs_tol=0.03)
+
+
+def test_controller_over_its_cpu_budget_is_a_missed_heartbeat(tmp_path: Path) -> None:
+    text = (SCENARIOS / "controller_crash.yaml").read_text().replace(
+        "type: waypoint_tracker", "type: tests.scenarios.busy_controller:Busy"
+    ).replace("  - {type: controller_crash, start_s: 20.0}\n", "").replace("faults:\n", "faults: []\n")
+    p = tmp_path / "busy.yaml"
+    p.write_text(text)
+    sc, cfg = load_scenario(p)
+    sc = sc.model_copy(update={"duration_s": 22.0, "expectations": []})
+    r = run_scenario(sc, cfg)
+    faults = [e for e in r.events if e["type"] == "controller_fault"]
+    assert faults and all(f["kind"] == "cpu_budget" for f in faults) and faults[0]["t"] >= 20.0
+    rev = [e for e in r.events if e["type"] == "revoked"]
+    assert rev and rev[0]["reason"] == "controller_heartbeat" and rev[0]["t"] <= 20.0 + 0.5 + 0.03

@@ -1,0 +1,136 @@
+"""``merlin serve``: fly the simulated vehicle under the trusted core in real time, speaking MAVLink over UDP
+like PX4 SITL (GCS: bind 18570, send to 127.0.0.1:14550; offboard API: bind 14580, send to
+127.0.0.1:14540), answering whoever replies. With no arguments it uses the built-in configuration.
+
+Exit codes: 0 stopped normally (duration elapsed, SIGINT or SIGTERM), 2 invalid input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Any
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser("serve", help="run the simulated vehicle and the trusted core in real time over MAVLink")
+    p.add_argument("--config", default=None, help="configuration YAML (default: the built-in MerlinConfig())")
+    p.add_argument("--rate-hz", type=float, default=250.0, help="core and simulation tick rate (default 250)")
+    p.add_argument("--speedup", type=float, default=1.0, help="run faster than real time (tests), default 1")
+    p.add_argument("--sysid", type=int, default=1, help="Merlin's MAVLink system id (default 1)")
+    p.add_argument("--compid", type=int, default=1, help="Merlin's component id (default 1, AUTOPILOT1)")
+    p.add_argument("--gcs-port", type=int, default=14550, help="ground-station remote UDP port (default 14550)")
+    p.add_argument("--gcs-bind-port", type=int, default=18570, help="local UDP port of the GCS link (18570)")
+    p.add_argument("--offboard-port", type=int, default=14540, help="offboard-API remote UDP port (default 14540)")
+    p.add_argument("--offboard-bind-port", type=int, default=14580, help="local UDP port of the controller link")
+    p.add_argument("--remote-host", default="127.0.0.1", help="where telemetry goes until a peer replies")
+    p.add_argument("--no-gcs", action="store_true", help="no ground-station link")
+    p.add_argument("--serial", default=None, metavar="DEV:BAUD",
+                   help="put the controller link on a serial device instead of UDP, e.g. /dev/ttyUSB0:921600")
+    p.add_argument("--signing-key", default=None, metavar="FILE",
+                   help="32-byte signing key file (64 hex digits or 32 bytes) for both links")
+    p.add_argument("--allow-unsigned-provisioning", action="store_true",
+                   help="accept a first SETUP_SIGNING in the clear (bench links only)")
+    p.add_argument("--controller-sysids", default=None, help="allow-list of controller system ids, e.g. 1,42")
+    p.add_argument("--gcs-sysids", default=None, help="allow-list of ground-station system ids, e.g. 255")
+    p.add_argument("--out", default=None, help="directory for flight.tlog and events.jsonl "
+                                               "(default out/serve/<UTC timestamp>)")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
+    p.add_argument("--no-gc-tuning", action="store_true", help="leave Python's garbage collector automatic")
+    p.add_argument("--realtime-priority", type=int, default=0, metavar="N",
+                   help="run the tick scheduler SCHED_FIFO at priority N (Linux, needs the privilege); 0 off")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=run)
+
+
+def _ids(text: str | None, what: str) -> frozenset[int] | None:
+    from merlin.config.loader import ConfigError
+
+    if text is None:
+        return None
+    try:
+        ids = frozenset(int(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise ConfigError("--" + what, [f"{text!r}: expected comma-separated integers 1..255"]) from None
+    if not ids or not all(1 <= x <= 255 for x in ids):
+        raise ConfigError("--" + what, [f"{text!r}: expected comma-separated integers 1..255"])
+    return ids
+
+
+def options_from_args(args: argparse.Namespace) -> Any:
+    from merlin.config.loader import ConfigError, load_config
+    from merlin.config.models import MerlinConfig
+    from merlin.link.security import LinkPolicy
+    from merlin.link.signing import KeyFileError, load_key_file
+    from merlin.serve.server import ServeOptions, UdpLinkSpec
+
+    problems = []
+    if not 100.0 <= args.rate_hz <= 1000.0:  # the simulation step (1/rate) is at most 10 ms
+        problems.append(f"--rate-hz {args.rate_hz}: allowed 100..1000")
+    if not 0.1 <= args.speedup <= 20.0:
+        problems.append(f"--speedup {args.speedup}: allowed 0.1..20")
+    if not 1 <= args.sysid <= 255:
+        problems.append(f"--sysid {args.sysid}: allowed 1..255")
+    for name in ("gcs_port", "gcs_bind_port", "offboard_port", "offboard_bind_port"):
+        v = getattr(args, name)
+        if not 0 <= v <= 65535:
+            problems.append(f"--{name.replace('_', '-')} {v}: allowed 0..65535")
+    if not 0 <= args.realtime_priority <= 99:
+        problems.append(f"--realtime-priority {args.realtime_priority}: allowed 0..99")
+    if args.duration is not None and not args.duration > 0:
+        problems.append(f"--duration {args.duration}: must be > 0")
+    serial = None
+    if args.serial:
+        dev, _, baud = args.serial.rpartition(":")
+        if not dev or not baud.isdigit():
+            problems.append(f"--serial {args.serial!r}: expected DEVICE:BAUD, e.g. /dev/ttyUSB0:921600")
+        else:
+            serial = (dev, int(baud))
+    if problems:
+        raise ConfigError("command line", problems)
+    cfg = load_config(args.config) if args.config else MerlinConfig()
+    key = None
+    key_file = Path(args.signing_key) if args.signing_key else None
+    if key_file is not None and key_file.exists():
+        try:
+            key = load_key_file(key_file)
+        except (KeyFileError, OSError) as exc:
+            raise ConfigError(str(key_file), [f"signing key: {exc}"]) from None
+    common = {"signing_key": key, "allow_unsigned_provisioning": args.allow_unsigned_provisioning}
+    cpol = LinkPolicy(name="controller", allowed_system_ids=_ids(args.controller_sysids, "controller-sysids"),
+                      **common)
+    gpol = LinkPolicy(name="gcs", allowed_system_ids=_ids(args.gcs_sysids, "gcs-sysids"),
+                      **common)
+    out = Path(args.out) if args.out else Path("out/serve") / dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+    host = args.remote_host
+    return ServeOptions(
+        config=cfg, config_source=args.config or "<built-in default>", rate_hz=args.rate_hz, speedup=args.speedup,
+        system_id=args.sysid, component_id=args.compid,
+        gcs=None if args.no_gcs else UdpLinkSpec(("0.0.0.0", args.gcs_bind_port), (host, args.gcs_port)),
+        controller=UdpLinkSpec(("0.0.0.0", args.offboard_bind_port), (host, args.offboard_port)),
+        serial=serial, out_dir=out, duration_s=args.duration, controller_policy=cpol, gcs_policy=gpol,
+        key_file=key_file, tune_gc=not args.no_gc_tuning, realtime_priority=args.realtime_priority,
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    from merlin.serve.server import Server, install_signal_handlers
+
+    opts = options_from_args(args)
+    logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    server = Server(opts)
+    install_signal_handlers(server)
+    if not args.quiet:
+        links = ", ".join(f"{ls.name}: {getattr(ls.endpoint.transport, 'local_address', '?')} -> "
+                          f"{ls.endpoint.remote}" for ls in server.links)
+        print(f"merlin serve: {opts.rate_hz:g} Hz, {links}; logs in {opts.out_dir}", flush=True)
+    summary = server.run()
+    if not args.quiet:
+        json.dump(summary["timing"], sys.stdout, indent=1)
+        print(flush=True)
+    return 0

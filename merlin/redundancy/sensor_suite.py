@@ -1,0 +1,90 @@
+"""The sensor stage a 400 Hz runner calls: typed lane samples in, voted typed samples out.
+
+sensors -> **voter** -> estimator (docs/architecture.md's one direction of flow). Each tick the runner
+hands the newest sample of every lane (``None`` for a lane that never produced one); the suite votes each
+channel, runs the IMU through the degradation chain (triplex -> duplex PF FDI -> simplex), and returns the
+voted samples in the same types the estimator reads (``lane = -1`` marks a voted sample), the redundancy
+level per channel, the nav health to hand on, and this tick's fault reports.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
+from merlin.redundancy.degradation import NAV_HEALTH, ImuDegradationChain
+from merlin.redundancy.duplex_fdi import MERLIN, FdiConfig
+from merlin.redundancy.events import FaultReport, RedundancyLevel
+from merlin.redundancy.sensor_voter import (
+    BARO_SPEC,
+    GPS_SPEC,
+    MAG_SPEC,
+    TriplexVoter,
+    VotedOutput,
+    baro_lane,
+    gps_lane,
+    imu_lane,
+    mag_lane,
+)
+
+VOTED_LANE = -1
+
+
+@dataclass(frozen=True, slots=True)
+class VotedSensors:
+    t_s: float
+    imu: ImuSample | None
+    mag: MagSample | None
+    baro: BaroSample | None
+    gps: GpsSample | None
+    levels: tuple[tuple[str, RedundancyLevel], ...]
+    nav_health: float  # the worst of the IMU chain's and the other channels' health, 0..1
+    events: tuple[FaultReport, ...]
+
+
+def _v3(vals: tuple[float, ...], i: int) -> tuple[float, float, float]:
+    return (vals[i], vals[i + 1], vals[i + 2])
+
+
+class SensorSuiteVoter:
+    def __init__(self, rng: np.random.Generator, fdi_config: FdiConfig = MERLIN) -> None:
+        self.imu = ImuDegradationChain(rng, fdi_config)
+        self.mag = TriplexVoter(MAG_SPEC)
+        self.baro = TriplexVoter(BARO_SPEC)
+        self.gps = TriplexVoter(GPS_SPEC)
+        self._last_gps: dict[int, GpsSample] = {}
+
+    def step(self, t_s: float, imu: tuple[ImuSample | None, ...], mag: tuple[MagSample | None, ...],
+             baro: tuple[BaroSample | None, ...], gps: tuple[GpsSample | None, ...]) -> VotedSensors:
+        mag_vecs = tuple(None if m is None else m.field_frd_gauss for m in mag)
+        chain = self.imu.step(t_s, tuple(None if s is None else imu_lane(s) for s in imu), mag_vecs)
+        m_out, m_ev = self.mag.step(t_s, tuple(None if s is None else mag_lane(s) for s in mag))
+        b_out, b_ev = self.baro.step(t_s, tuple(None if s is None else baro_lane(s) for s in baro))
+        g_out, g_ev = self.gps.step(t_s, tuple(None if s is None else gps_lane(s) for s in gps))
+
+        imu_v = None
+        if chain.imu.values is not None and chain.imu.valid:
+            imu_v = ImuSample(t_s, _v3(chain.imu.values, 0), _v3(chain.imu.values, 3), VOTED_LANE)
+        mag_v = None if not m_out.valid or m_out.values is None else MagSample(
+            t_s, _v3(m_out.values, 0), VOTED_LANE)
+        baro_v = None if not b_out.valid or b_out.values is None else BaroSample(t_s, m_or(b_out), VOTED_LANE)
+        gps_v = None
+        if g_out.valid and g_out.values is not None:
+            used = [gps[i] for i in g_out.lanes_used if gps[i] is not None]
+            fix = min(s.fix_type for s in used) if used else 0  # type: ignore[union-attr]
+            sats = min(s.satellites for s in used) if used else 0  # type: ignore[union-attr]
+            eph = max(s.eph_m for s in used) if used else 99.0  # type: ignore[union-attr]
+            epv = max(s.epv_m for s in used) if used else 99.0  # type: ignore[union-attr]
+            gps_v = GpsSample(t_s, _v3(g_out.values, 0), _v3(g_out.values, 3), fix, sats, eph, epv, VOTED_LANE)
+        levels = (("imu", chain.level), ("mag", m_out.level), ("baro", b_out.level), ("gps", g_out.level))
+        health = min(chain.nav_health, *(NAV_HEALTH[o.level] for o in (m_out, b_out, g_out)))
+        return VotedSensors(t_s, imu_v, mag_v, baro_v, gps_v, levels, health,
+                            (*chain.events, *m_ev, *b_ev, *g_ev))
+
+
+def m_or(out: VotedOutput) -> float:
+    """The scalar of a one-component channel (the barometer's altitude)."""
+    assert out.values is not None
+    return out.values[0]

@@ -1,0 +1,373 @@
+"""Triplex sensor voter: per-lane validation, mid-value select, miscompare persistence, latched isolation.
+
+One :class:`ChannelSpec` describes one redundant channel (the IMU's gyro+accelerometer, the magnetometer,
+the barometer, GPS); :func:`vote_step` is the pure tick and :class:`TriplexVoter` the thin stateful
+wrapper a 400 Hz runner calls (``voter.step(t, samples) -> (VotedOutput, events)``).
+
+The scheme is the classic one the seed thesis describes for hard-over and slow-over faults: "detected and
+isolated using the middle value read from the three outputs when compared with a threshold value imposed
+by the system designer" (seed 000 §2.2.3), with the PX4 sensor voter's timeout and error-state handling
+(seed 000 §4.1, Fig 4.3). The thesis gives no threshold, persistence or timeout for sensor lanes; the
+values in :data:`CHANNEL_SPECS` are Merlin's, derived from the noise model in
+:mod:`merlin.redundancy.synthetic` (see each comment) and checked by the false-isolation benchmark.
+
+Tick, in order (one direction of flow, nothing reaches back):
+
+1. validate each lane's newest sample: timeout, non-finite, range, stuck (bit-identical values), GPS fix;
+2. the candidates are the lanes neither isolated nor currently invalid;
+3. mid-value select per component over the candidates (three: median; two: mean, as seed 003 §2 does
+   for its duplex; one: that lane);
+4. with three candidates, a lane whose distance to the mid-value exceeds its threshold on any component
+   miscompares; with two there is no majority, so a disagreement is only reported (DUPLEX_MISCOMPARE)
+   and the caller's duplex arbiter (the particle-filter FDI of seed 003) decides through
+   ``duplex_fault_lane``;
+5. a per-lane persistence integrator rises by the tick's dt while the lane is invalid or miscompares and
+   falls by ``decay`` x dt while it is clean; reaching ``persistence_s`` isolates the lane, latched;
+6. optional reintegration: an isolated lane that stays valid and within threshold of the others for
+   ``reintegration_s`` comes back (off by default, as the issue asks).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
+from merlin.redundancy.events import FaultKind, FaultReport, RedundancyLevel
+
+N_LANES = 3
+_EPS_S = 1e-9  # float slack when comparing accumulated dt sums with a persistence window
+
+
+@dataclass(frozen=True, slots=True)
+class ChannelSpec:
+    """Limits of one redundant channel. Every value is per component, in SI units."""
+
+    name: str
+    components: tuple[str, ...]
+    miscompare: tuple[float, ...]  # allowed distance of a lane from the mid-value
+    range_min: tuple[float, ...]
+    range_max: tuple[float, ...]
+    timeout_s: float  # no new sample for longer than this: the lane is invalid
+    stuck_samples: int  # this many consecutive bit-identical new samples: stuck (0 disables)
+    persistence_s: float  # time a lane must be invalid or miscompare before it is isolated
+    decay: float = 1.0  # the integrator falls at decay x dt while clean (large: reset on clear)
+    reintegration_s: float | None = None  # clean time after which an isolated lane returns; None: never
+    min_fix_type: int = 0  # GPS only: a fix type below this makes the lane invalid
+
+    def __post_init__(self) -> None:
+        n = len(self.components)
+        for label, vals in (("miscompare", self.miscompare), ("range_min", self.range_min),
+                            ("range_max", self.range_max)):
+            if len(vals) != n:
+                raise ValueError(f"{self.name}: {label} has {len(vals)} values for {n} components")
+        if self.persistence_s <= 0.0 or self.timeout_s <= 0.0:
+            raise ValueError(f"{self.name}: persistence_s and timeout_s must be positive")
+
+
+@dataclass(frozen=True, slots=True)
+class LaneSample:
+    """One lane's newest measurement as the voter sees it (built from the typed samples below)."""
+
+    t_s: float
+    values: tuple[float, ...]
+    fix_type: int = 99  # only GPS lanes set it
+
+
+@dataclass(frozen=True, slots=True)
+class LaneState:
+    last_t_s: float | None = None  # time of validity of the newest sample seen
+    last_values: tuple[float, ...] | None = None
+    identical: int = 0  # consecutive new samples identical to their predecessor
+    fault: FaultKind | None = None  # current validation fault, None when valid
+    miscompare: bool = False
+    counter_s: float = 0.0  # persistence integrator
+    isolated: bool = False
+    isolated_t_s: float | None = None
+    clean_s: float = 0.0  # time valid and within threshold while isolated (reintegration)
+
+
+@dataclass(frozen=True, slots=True)
+class VoterState:
+    lanes: tuple[LaneState, ...] = (LaneState(), LaneState(), LaneState())
+    t_s: float | None = None
+    level: RedundancyLevel = RedundancyLevel.TRIPLEX
+    output: tuple[float, ...] | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class VotedOutput:
+    t_s: float
+    values: tuple[float, ...] | None  # None only before any lane ever delivered a valid sample
+    valid: bool  # False when no lane contributed this tick (values then hold the last good output)
+    level: RedundancyLevel
+    lanes_used: tuple[int, ...]
+    duplex_miscompare: bool = False  # two candidates disagree: the caller's duplex FDI must decide
+
+
+# --------------------------------------------------------------------------------------------- adapters
+
+
+def imu_lane(s: ImuSample) -> LaneSample:
+    return LaneSample(s.t_s, (*s.gyro_frd_radps, *s.accel_frd_mps2))
+
+
+def mag_lane(s: MagSample) -> LaneSample:
+    return LaneSample(s.t_s, s.field_frd_gauss)
+
+
+def baro_lane(s: BaroSample) -> LaneSample:
+    return LaneSample(s.t_s, (s.alt_m,))
+
+
+def gps_lane(s: GpsSample) -> LaneSample:
+    return LaneSample(s.t_s, (*s.pos_ned_m, *s.vel_ned_mps), fix_type=s.fix_type)
+
+
+# ------------------------------------------------------------------------------------------- the tick
+
+
+def _validate(spec: ChannelSpec, lane: LaneState, t_s: float, sample: LaneSample | None) -> LaneState:
+    """Return the lane's state after looking at its newest sample (validation only)."""
+    last_t, last_vals, identical = lane.last_t_s, lane.last_values, lane.identical
+    fault: FaultKind | None = None
+    if sample is not None and (last_t is None or sample.t_s > last_t):
+        vals = sample.values
+        if last_vals is not None and vals == last_vals:
+            identical += 1
+        else:
+            identical = 0
+        last_t, last_vals = sample.t_s, vals
+        # one pass: NaN fails every comparison, so a non-finite value also fails the range test
+        in_range = True
+        for v, lo, hi in zip(vals, spec.range_min, spec.range_max, strict=True):
+            if not lo <= v <= hi:
+                in_range = False
+                break
+        if not in_range:
+            fault = FaultKind.NON_FINITE if not all(math.isfinite(v) for v in vals) else FaultKind.RANGE
+        elif sample.fix_type < spec.min_fix_type:
+            fault = FaultKind.INVALID_FIX
+    elif lane.fault in (FaultKind.NON_FINITE, FaultKind.RANGE, FaultKind.INVALID_FIX):
+        fault = lane.fault  # no new sample: the newest one is still bad
+    if fault is None and spec.stuck_samples and identical >= spec.stuck_samples:
+        fault = FaultKind.STUCK
+    if last_t is None or t_s - last_t > spec.timeout_s:
+        fault = FaultKind.TIMEOUT
+    return LaneState(last_t, last_vals, identical, fault, lane.miscompare, lane.counter_s, lane.isolated,
+                     lane.isolated_t_s, lane.clean_s)
+
+
+def _median3(x: float, y: float, z: float) -> float:
+    """Exact median of three (returns one of the inputs, bit for bit)."""
+    lo, hi = (x, y) if x <= y else (y, x)
+    return lo if z < lo else (hi if z > hi else z)
+
+
+def _mid_value(vectors: list[tuple[float, ...]]) -> tuple[float, ...]:
+    n = len(vectors)
+    if n == 3:
+        a, b, c = vectors
+        return tuple(map(_median3, a, b, c))
+    if n == 2:
+        a, b = vectors
+        return tuple(0.5 * (x + y) for x, y in zip(a, b, strict=True))
+    return vectors[0]
+
+
+def _worst_excess(spec: ChannelSpec, vals: tuple[float, ...], ref: tuple[float, ...]) -> tuple[int, float]:
+    """The component with the largest distance/threshold ratio, and that distance."""
+    worst, worst_ratio, worst_dist = 0, -1.0, 0.0
+    for i, (v, r, thr) in enumerate(zip(vals, ref, spec.miscompare, strict=True)):
+        d = abs(v - r)
+        ratio = d / thr
+        if ratio > worst_ratio:
+            worst, worst_ratio, worst_dist = i, ratio, d
+    return worst, worst_dist
+
+
+def _level(lanes: tuple[LaneState, ...]) -> RedundancyLevel:
+    return RedundancyLevel(sum(1 for ln in lanes if not ln.isolated))
+
+
+def vote_step(
+    spec: ChannelSpec,
+    state: VoterState,
+    t_s: float,
+    samples: tuple[LaneSample | None, ...],
+    duplex_fault_lane: int | None = None,
+) -> tuple[VoterState, VotedOutput, tuple[FaultReport, ...]]:
+    """One voter tick. ``samples[i]`` is lane i's newest sample (None if it never produced one).
+
+    ``duplex_fault_lane``: the lane an external duplex arbiter (seed 003's PF FDI) has found faulty;
+    honoured only when exactly two lanes remain, because with three the majority decides.
+    """
+    if len(samples) != N_LANES:
+        raise ValueError(f"{spec.name}: expected {N_LANES} lane samples, got {len(samples)}")
+    events: list[FaultReport] = []
+    dt = 0.0 if state.t_s is None else max(0.0, t_s - state.t_s)
+    name = spec.name
+
+    lanes = [_validate(spec, ln, t_s, s) for ln, s in zip(state.lanes, samples, strict=True)]
+    for i, (old, new) in enumerate(zip(state.lanes, lanes, strict=True)):
+        if new.fault is not None and new.fault is not old.fault and not new.isolated:
+            events.append(FaultReport(t_s, new.fault, name, i, float(new.identical), spec.timeout_s
+                                      if new.fault is FaultKind.TIMEOUT else 0.0))
+        elif new.fault is None and old.fault is not None and not new.isolated:
+            events.append(FaultReport(t_s, FaultKind.VALIDATION_CLEARED, name, i, detail=old.fault.value))
+
+    cand = [i for i, ln in enumerate(lanes) if not ln.isolated and ln.fault is None]
+    vecs = [lanes[i].last_values for i in cand]
+    mid = _mid_value(vecs) if cand else None  # type: ignore[arg-type]
+
+    duplex_mis = False
+    if mid is not None and len(cand) == 2:
+        a, b = vecs
+        comp, dist = _worst_excess(spec, a, b)  # type: ignore[arg-type]
+        duplex_mis = dist > spec.miscompare[comp]
+        if duplex_mis and not state.lanes[cand[0]].miscompare:
+            events.append(FaultReport(t_s, FaultKind.DUPLEX_MISCOMPARE, f"{name}.{spec.components[comp]}", -1,
+                                      dist, spec.miscompare[comp], detail=f"lanes {cand[0]} and {cand[1]}"))
+
+    for i, ln in enumerate(lanes):
+        if ln.isolated:
+            continue
+        mis = False
+        if mid is not None and len(cand) == 3 and i in cand:
+            comp, dist = _worst_excess(spec, ln.last_values, mid)  # type: ignore[arg-type]
+            mis = dist > spec.miscompare[comp]
+            if mis and not ln.miscompare:
+                events.append(FaultReport(t_s, FaultKind.MISCOMPARE, f"{name}.{spec.components[comp]}", i,
+                                          dist, spec.miscompare[comp]))
+            elif not mis and ln.miscompare:
+                events.append(FaultReport(t_s, FaultKind.MISCOMPARE_CLEARED, name, i))
+        elif len(cand) == 2 and i in cand:
+            mis = duplex_mis  # remembered only to report the duplex miscompare once per episode
+        bad = ln.fault is not None or (mis and len(cand) == 3)
+        counter = ln.counter_s + dt if bad else max(0.0, ln.counter_s - spec.decay * dt)
+        if ln.fault is FaultKind.STUCK:
+            # the run of identical samples is itself the persistence: stuck_samples is sized so that it
+            # spans no more than persistence_s at the channel's rate (see CHANNEL_SPECS)
+            counter = max(counter, spec.persistence_s)
+        if mis != ln.miscompare or counter != ln.counter_s:
+            lanes[i] = LaneState(ln.last_t_s, ln.last_values, ln.identical, ln.fault, mis, counter, ln.isolated,
+                                 ln.isolated_t_s, ln.clean_s)
+
+    # isolation (latched). Never isolate the last lane on persistence alone: with nothing to compare, a
+    # validation fault only removes it from this tick's vote (the output goes invalid instead).
+    for i, ln in enumerate(lanes):
+        if ln.isolated or ln.counter_s < spec.persistence_s - _EPS_S:
+            continue
+        if sum(1 for x in lanes if not x.isolated) <= 1:
+            continue
+        reason = ln.fault.value if ln.fault is not None else FaultKind.MISCOMPARE.value
+        lanes[i] = replace(ln, isolated=True, isolated_t_s=t_s, clean_s=0.0)
+        events.append(FaultReport(t_s, FaultKind.ISOLATED, name, i, ln.counter_s, spec.persistence_s,
+                                  detail=reason))
+    if duplex_fault_lane is not None and _level(tuple(lanes)) == RedundancyLevel.DUPLEX:
+        ln = lanes[duplex_fault_lane]
+        if not ln.isolated:
+            lanes[duplex_fault_lane] = replace(ln, isolated=True, isolated_t_s=t_s, clean_s=0.0)
+            events.append(FaultReport(t_s, FaultKind.ISOLATED, name, duplex_fault_lane,
+                                      detail="duplex FDI verdict"))
+
+    # optional reintegration (issue item 1: "off by default")
+    if spec.reintegration_s is not None:
+        healthy = [i for i, ln in enumerate(lanes) if not ln.isolated and ln.fault is None]
+        ref = _mid_value([lanes[i].last_values for i in healthy]) if healthy else None  # type: ignore[misc]
+        for i, ln in enumerate(lanes):
+            if not ln.isolated:
+                continue
+            ok = ref is not None and ln.fault is None
+            if ok:
+                comp, dist = _worst_excess(spec, ln.last_values, ref)  # type: ignore[arg-type]
+                ok = dist <= spec.miscompare[comp]
+            clean = ln.clean_s + dt if ok else 0.0
+            if clean >= spec.reintegration_s - _EPS_S:
+                lanes[i] = replace(ln, isolated=False, isolated_t_s=None, clean_s=0.0, counter_s=0.0,
+                                   miscompare=False)
+                events.append(FaultReport(t_s, FaultKind.REINTEGRATED, name, i, clean, spec.reintegration_s))
+            else:
+                lanes[i] = replace(ln, clean_s=clean)
+
+    lanes_t = tuple(lanes)
+    level = _level(lanes_t)
+    if level < state.level:
+        events.append(FaultReport(t_s, FaultKind.DEGRADED, name, -1, float(level), float(state.level),
+                                  detail=f"{state.level.name} -> {level.name}"))
+    used = tuple(i for i in cand if not lanes_t[i].isolated)
+    values = _mid_value([lanes_t[i].last_values for i in used]) if used else state.output  # type: ignore[misc]
+    out = VotedOutput(t_s, values, bool(used), level, used, duplex_mis)
+    return VoterState(lanes_t, t_s, level, values), out, tuple(events)
+
+
+class TriplexVoter:
+    """Stateful wrapper around :func:`vote_step` for the real-time runner."""
+
+    def __init__(self, spec: ChannelSpec) -> None:
+        self.spec = spec
+        self.state = VoterState()
+
+    def step(
+        self, t_s: float, samples: tuple[LaneSample | None, ...], duplex_fault_lane: int | None = None
+    ) -> tuple[VotedOutput, tuple[FaultReport, ...]]:
+        self.state, out, events = vote_step(self.spec, self.state, t_s, samples, duplex_fault_lane)
+        return out, events
+
+
+# ------------------------------------------------------------------------------------ channel presets
+# Merlin's limits (no seed gives sensor-lane thresholds). Each miscompare threshold is set against the
+# nominal model of merlin.redundancy.synthetic.NOMINAL_NOISE: threshold >= max inter-lane bias difference
+# + 6 x the standard deviation of a lane's distance to the median, so a nominal sample exceeds it with
+# probability < 1e-8 and persistence makes a false isolation practically impossible; the benchmark
+# bench_redundancy.py counts them over 1e6 samples per channel.
+
+_G = 9.80665
+
+IMU_SPEC = ChannelSpec(
+    name="imu",
+    components=("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"),
+    # gyro: sigma 0.01 rad/s, biases within +-0.005 rad/s; accel: sigma 0.15 m/s2, biases +-0.1 m/s2
+    miscompare=(0.1, 0.1, 0.1, 1.5, 1.5, 1.5),
+    range_min=(-34.9, -34.9, -34.9, -16 * _G, -16 * _G, -16 * _G),  # +-2000 deg/s, +-16 g full scale
+    range_max=(34.9, 34.9, 34.9, 16 * _G, 16 * _G, 16 * _G),
+    timeout_s=0.02,  # 8 samples at 400 Hz
+    stuck_samples=20,
+    persistence_s=0.05,  # 20 ticks at 400 Hz
+)
+
+MAG_SPEC = ChannelSpec(
+    name="mag",
+    components=("x", "y", "z"),
+    miscompare=(0.12, 0.12, 0.12),  # sigma 0.005 G, calibration residuals +-0.03 G
+    range_min=(-4.0, -4.0, -4.0),
+    range_max=(4.0, 4.0, 4.0),
+    timeout_s=0.1,
+    stuck_samples=10,
+    persistence_s=0.2,
+)
+
+BARO_SPEC = ChannelSpec(
+    name="baro",
+    components=("alt",),
+    miscompare=(3.5,),  # sigma 0.3 m, offsets +-0.5 m
+    range_min=(-500.0,),
+    range_max=(10000.0,),
+    timeout_s=0.2,
+    stuck_samples=25,
+    persistence_s=0.5,
+)
+
+GPS_SPEC = ChannelSpec(
+    name="gps",
+    components=("pos_n", "pos_e", "pos_d", "vel_n", "vel_e", "vel_d"),
+    miscompare=(6.0, 6.0, 9.0, 1.2, 1.2, 1.5),  # sigma 0.5/0.5/0.8 m, 0.1/0.1/0.15 m/s, offsets 1 m
+    range_min=(-1e5, -1e5, -1e4, -100.0, -100.0, -100.0),
+    range_max=(1e5, 1e5, 1e4, 100.0, 100.0, 100.0),
+    timeout_s=0.5,  # 2.5 periods at 5 Hz
+    stuck_samples=5,
+    persistence_s=1.0,
+    min_fix_type=3,
+)
+
+CHANNEL_SPECS: dict[str, ChannelSpec] = {s.name: s for s in (IMU_SPEC, MAG_SPEC, BARO_SPEC, GPS_SPEC)}

@@ -1,0 +1,744 @@
+"""``merlin serve``: the simulated vehicle and the trusted core in real time, speaking MAVLink like PX4 SITL.
+
+This is the imperative shell around the pure core. One scheduler (the calling thread) drives the tick
+with absolute deadlines from ``time.monotonic_ns``; between ticks it waits on the links' sockets with the
+time that remains, never past the next deadline, and decodes what arrives (bounded per wake-up so a
+flood cannot hold the tick). At each tick it turns what arrived into the core's :class:`Inputs`, runs one
+:class:`sims.runner.ClosedLoop` tick (``sense`` then ``act``), answers the exchange events, and sends the
+telemetry streams that are due: each stream has its own phase (:mod:`merlin.serve.streams`), so they
+never pile onto one control tick.
+
+Setpoints are coalesced: only the latest valid setpoint received before a tick matters to the core
+(icd/ICD.md section 7), so a controller streaming faster than the tick is simply sampled.
+
+Inputs (icd/ICD.md sections 4.2, 6, 8): controller HEARTBEAT (and, for controllers that heartbeat at
+1 Hz like MAVSDK, any valid setpoint) -> the controller's liveness; SET_POSITION_TARGET_* /
+SET_ATTITUDE_TARGET -> setpoint; MERLIN_AUTHORITY_REQUEST/ACK and the standard OFFBOARD mode command
+(:class:`OffboardModeBridge`) -> exchange; GCS HEARTBEAT -> ground-station link time; MANUAL_CONTROL ->
+operator RC; COMMAND_LONG/INT -> :func:`interpret_command`; mission (fence) and parameter protocols.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import gc
+import logging
+import math
+import os
+import select
+import signal
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from merlin.config.models import MerlinConfig
+from merlin.config.runtime import build_core_config
+from merlin.core.step import TrustedCore
+from merlin.core.types import (
+    Authority,
+    AuthorityRequest,
+    Decision,
+    Event,
+    EventKind,
+    ExperimentalInput,
+    GcsCommand,
+    Inputs,
+    NavMode,
+    OperatorInput,
+    ReasonCode,
+    RequestKind,
+    Setpoint,
+)
+from merlin.geodesy import LocalFrame
+from merlin.link import inbound as i
+from merlin.link import outbound as o
+from merlin.link.commands import (
+    MAV_RESULT_ACCEPTED,
+    MAV_RESULT_DENIED,
+    MAVLINK_MSG_ID_AUTOPILOT_VERSION,
+    MAVLINK_MSG_ID_HOME_POSITION,
+    LinkRole,
+    OffboardModeBridge,
+    Refused,
+    RequestMessage,
+    SetMessageInterval,
+    command_ack,
+    interpret_command,
+)
+from merlin.link.endpoint import MavlinkEndpoint
+from merlin.link.fence_protocol import FenceDescription, FenceProtocol
+from merlin.link.params import ParamProtocol, envelope_params
+from merlin.link.security import LinkPolicy
+from merlin.link.signing import write_key_file
+from merlin.link.tlog import TlogWriter
+from merlin.serve.records import EventLog, TickStats
+from merlin.serve.streams import CONTROLLER_RATES_HZ, GCS_RATES_HZ, Stream, plan_streams, replan
+
+log = logging.getLogger("merlin.serve")
+
+MAV_TYPE_GCS = 6
+# MAV_SYS_STATUS_SENSOR bits (common.xml): 3D gyro, accel, mag, absolute pressure, GPS, pre-arm check
+SENSOR_GPS = 32
+SENSORS_PRESENT = 1 | 2 | 4 | 8 | SENSOR_GPS | (1 << 28)
+REVOKE_REPEATS_S = (1.0, 2.0)  # MERLIN_AUTHORITY_REVOKE is re-sent 1 s and 2 s after (ICD 4.3)
+RESYNC_TICKS = 200  # more than this far behind, the schedule is re-anchored instead of caught up
+MAX_DATAGRAMS_PER_READ = 64  # per link per wake-up: a flood waits in the socket buffer, not in the tick
+FSYNC_INTERVAL_S = 1.0
+BULK_PER_TICK = 2  # bulk messages per link per tick (an encode costs ~0.1 ms, docs/benchmarks/link.md)
+GC_EVERY_TICKS = 1000  # a young-generation collection, done by hand right after a tick
+
+
+@dataclass(frozen=True, slots=True)
+class UdpLinkSpec:
+    bind: tuple[str, int]
+    remote: tuple[str, int]
+
+
+@dataclass(frozen=True, slots=True)
+class ServeOptions:
+    config: MerlinConfig = field(default_factory=MerlinConfig)
+    config_source: str = "<built-in default>"
+    rate_hz: float = 250.0
+    speedup: float = 1.0
+    system_id: int = 1
+    component_id: int = 1
+    gcs: UdpLinkSpec | None = UdpLinkSpec(("0.0.0.0", 18570), ("127.0.0.1", 14550))
+    controller: UdpLinkSpec | None = UdpLinkSpec(("0.0.0.0", 14580), ("127.0.0.1", 14540))
+    serial: tuple[str, int] | None = None  # (device, baud): the controller link on a serial port instead
+    out_dir: Path = Path("out/serve")
+    duration_s: float | None = None
+    controller_policy: LinkPolicy = field(default_factory=lambda: LinkPolicy(name="controller"))
+    gcs_policy: LinkPolicy = field(default_factory=lambda: LinkPolicy(name="gcs"))
+    key_file: Path | None = None  # where SETUP_SIGNING-provisioned keys are persisted
+    setpoint_liveness: bool = True  # a valid setpoint also counts as controller liveness (see module doc)
+    tune_gc: bool = True
+    realtime_priority: int = 0  # >0: run the scheduler thread SCHED_FIFO at this priority (Linux), as the FCU does
+
+
+@dataclass
+class _LinkState:
+    name: str
+    role: LinkRole
+    endpoint: MavlinkEndpoint
+    # bulk messages (the envelope burst, a parameter list) are sent a few per tick, never all in one
+    bulk: deque[o.OutMessage] = field(default_factory=deque)
+
+
+@dataclass
+class _Pending:
+    """What arrived since the previous tick, already decoded; becomes the tick's Inputs."""
+
+    # (t, SetpointIn | GlobalSetpointIn | AttitudeTargetIn, monotonic ns of its arrival)
+    setpoint: tuple[float, Any, int] | None = None
+    coalesced: int = 0  # setpoints superseded by a later one before the tick
+    requests: list[AuthorityRequest] = field(default_factory=list)
+    commands: list[GcsCommand] = field(default_factory=list)
+
+
+class Server:
+    """One ``merlin serve`` process: see the module doc. ``run()`` returns when the duration elapses or
+    ``stop()`` is called (SIGINT/SIGTERM)."""
+
+    def __init__(self, opts: ServeOptions) -> None:
+        from sims.runner import ClosedLoop
+        from sims.scenario import Scenario
+
+        self.opts = opts
+        self.cfg = opts.config
+        self.dt = 1.0 / opts.rate_hz
+        sc = Scenario.model_validate({"name": "serve", "duration_s": 7200.0, "dt_s": self.dt})
+        self.loop = ClosedLoop(sc, self.cfg, opts.config_source)
+        h = self.cfg.home
+        self.frame = LocalFrame(h.lat_deg, h.lon_deg, h.alt_amsl_m)
+        opts.out_dir.mkdir(parents=True, exist_ok=True)
+        # fsync (power-loss safety) happens in a helper thread, never in the tick: on a busy disk one fsync
+        # takes tens of milliseconds. A killed process loses nothing either way (one write(2) per record).
+        self.tlog = TlogWriter(opts.out_dir / "flight.tlog", fsync_interval_s=None)
+        self.events = EventLog(opts.out_dir / "events.jsonl")
+        self._syncer = threading.Thread(target=self._sync_files, name="serve-fsync", daemon=True)
+        self.links: list[_LinkState] = []
+        sid, cid = opts.system_id, opts.component_id
+        if opts.serial is not None:
+            ep = MavlinkEndpoint.serial(opts.controller_policy, opts.serial[0], opts.serial[1], sid, cid, self.tlog,
+                                        key_file=opts.key_file)
+            self.links.append(_LinkState("controller", LinkRole.CONTROLLER, ep))
+        elif opts.controller is not None:
+            ep = MavlinkEndpoint.udp(opts.controller_policy, opts.controller.bind, opts.controller.remote, sid, cid,
+                                     self.tlog, key_file=opts.key_file)
+            self.links.append(_LinkState("controller", LinkRole.CONTROLLER, ep))
+        if opts.gcs is not None:
+            ep = MavlinkEndpoint.udp(opts.gcs_policy, opts.gcs.bind, opts.gcs.remote, sid, cid, self.tlog,
+                                     key_file=opts.key_file)
+            self.links.append(_LinkState("gcs", LinkRole.GCS, ep))
+        self.tick_hz = opts.rate_hz
+        self.defaults = {"controller": CONTROLLER_RATES_HZ, "gcs": GCS_RATES_HZ}
+        self.streams: tuple[Stream, ...] = plan_streams(
+            {ls.name: self.defaults[ls.name] for ls in self.links}, self.tick_hz)
+        self.bridge = OffboardModeBridge()
+        self.fence = FenceProtocol(sid, cid, FenceDescription.from_config(self.cfg.geofence, self.frame))
+        self._fence_link: _LinkState | None = None
+        self.limits = self.cfg.envelope.resolve(self.cfg.envelope.active_stage)
+        self.params = ParamProtocol(envelope_params(self.limits))
+        self.pending = _Pending()
+        self.hb_t: float | None = None
+        self.gcs_t: float | None = None
+        self.rc_t: float | None = None
+        self.op = OperatorInput()
+        self.sp: Setpoint | None = None
+        self.sp_t: float | None = None
+        self.decision: Decision | None = None
+        self._cmd_seq = 0
+        self._cmd_waiting: dict[int, tuple[_LinkState, i.CommandIn, tuple[int, int]]] = {}
+        self._request_ids: list[tuple[_LinkState, int, tuple[int, int]]] = []  # dialect requests awaiting answer
+        self._exchange_peer: tuple[_LinkState, tuple[int, int]] | None = None
+        self._grant_seq_active = 0
+        self._revoke_repeats: list[tuple[float, o.OutMessage]] = []
+        self._last_reason = ReasonCode.NONE
+        self._last_revoke_t: float | None = None
+        self._controller_sender: tuple[int, int] | None = None
+        self._stop = False
+        self._t0_ns = time.monotonic_ns()
+        self.stats = TickStats(period_ns=round(self.dt / opts.speedup * 1e9))
+        self.on_tick: Callable[[Server], None] | None = None  # test/benchmark hook, after each tick
+
+    # ---------------------------------------------------------------------------------- time
+
+    @property
+    def t(self) -> float:
+        """The core's clock: the time of the next tick."""
+        return self.loop.t
+
+    def _boot_ms(self) -> int:
+        return int(self.loop.t * 1000.0) & 0xFFFFFFFF
+
+    # ------------------------------------------------------------------------------- sending
+
+    def _send(self, ls: _LinkState, msg: o.OutMessage) -> None:
+        ls.endpoint.send(msg)
+
+    def _broadcast(self, msg: o.OutMessage) -> None:
+        for ls in self.links:
+            ls.endpoint.send(msg)
+
+    def _controller_link(self) -> _LinkState | None:
+        for ls in self.links:
+            if ls.role is LinkRole.CONTROLLER:
+                return ls
+        return None
+
+    # ------------------------------------------------------------------------------- input
+
+    def _on_received(self, ls: _LinkState, rx: i.Received) -> None:
+        m = rx.msg
+        t = rx.t_s
+        sender = (rx.system_id, rx.component_id)
+        if isinstance(m, i.HeartbeatIn):
+            if ls.role is LinkRole.CONTROLLER and m.mav_type != MAV_TYPE_GCS:
+                self.hb_t = t
+                self._controller_sender = sender
+            elif ls.role is LinkRole.GCS or m.mav_type == MAV_TYPE_GCS:
+                self.gcs_t = t
+            return
+        if isinstance(m, (i.SetpointIn, i.GlobalSetpointIn, i.AttitudeTargetIn)):
+            if ls.role is not LinkRole.CONTROLLER:
+                return  # setpoints are the controller's (ICD 4.2); a GCS flies through MANUAL_CONTROL
+            if self.pending.setpoint is not None:
+                self.pending.coalesced += 1
+            self.pending.setpoint = (t, m, time.monotonic_ns())
+            if self.opts.setpoint_liveness:
+                self.hb_t = t
+            ack = self.bridge.on_setpoint(t)
+            if ack is not None:
+                self.pending.requests.append(ack)
+            return
+        if isinstance(m, i.AuthorityRequestIn):
+            self.pending.requests.append(m.to_core(t))
+            if m.kind is not RequestKind.RELEASE:
+                self._request_ids.append((ls, m.request_id, sender))
+                self._exchange_peer = (ls, sender)
+            return
+        if isinstance(m, i.AuthorityAckIn):
+            self.pending.requests.append(m.to_core(t))
+            return
+        if isinstance(m, i.ManualControlIn):
+            self.rc_t = t
+            self.op = OperatorInput(t, bool(m.buttons & 1), m.roll, m.pitch, m.yaw, m.throttle)
+            return
+        if isinstance(m, i.CommandIn):
+            self._on_command(ls, rx, m, sender)
+            return
+        if isinstance(m, (i.ParamRequestListIn, i.ParamRequestReadIn, i.ParamSetIn)):
+            ls.bulk.extend(self.params.handle(rx))
+            return
+        if isinstance(m, i.MissionClearAllIn):
+            for out in self.fence.handle_clear_all(sender):
+                self._send(ls, out)
+            return
+        if hasattr(m, "mission_type"):
+            self._fence_link = ls
+            for out in self.fence.handle(rx, t):
+                self._send(ls, out)
+            self._apply_fence_results()
+
+    def _on_command(self, ls: _LinkState, rx: i.Received, m: i.CommandIn, sender: tuple[int, int]) -> None:
+        intents = interpret_command(m, ls.role, self.frame.alt0_amsl_m, rx.t_s)
+        acked = False
+        for intent in intents:
+            if isinstance(intent, GcsCommand):
+                self._cmd_seq += 1
+                self.pending.commands.append(replace(intent, seq=self._cmd_seq))
+                self._cmd_waiting[self._cmd_seq] = (ls, m, sender)
+                acked = True
+            elif isinstance(intent, AuthorityRequest):
+                self.pending.requests.append(intent)
+                if intent.kind is RequestKind.REQUEST:
+                    self.bridge.requested(m, sender)
+                    self._exchange_peer = (ls, sender)
+                    acked = True
+            elif isinstance(intent, RequestMessage):
+                self._send(ls, command_ack(m, sender, MAV_RESULT_ACCEPTED))
+                self._send_requested(ls, intent.message_id)
+                acked = True
+            elif isinstance(intent, SetMessageInterval):
+                self._set_interval(ls, m, sender, intent)
+                acked = True
+            elif isinstance(intent, Refused):
+                self._send(ls, command_ack(m, sender, intent.result))
+                self.events.write({"t": rx.t_s, "type": "command_refused", "link": ls.name, "command": m.command,
+                                   "detail": intent.detail})
+                acked = True
+        if not acked:  # a RELEASE alone (cannot happen with today's mapping) still gets an answer
+            self._send(ls, command_ack(m, sender, MAV_RESULT_ACCEPTED))
+
+    def _set_interval(self, ls: _LinkState, m: i.CommandIn, sender: tuple[int, int],
+                      intent: SetMessageInterval) -> None:
+        name = self._message_name(intent.message_id)
+        rate = None if intent.interval_s is None else (0.0 if intent.interval_s == 0 else 1.0 / intent.interval_s)
+        new = replan(self.streams, ls.name, name, rate, self.defaults[ls.name], self.tick_hz) if name else None
+        if new is None:
+            self._send(ls, command_ack(m, sender, MAV_RESULT_DENIED))
+            return
+        self.streams = new
+        self._send(ls, command_ack(m, sender, MAV_RESULT_ACCEPTED))
+
+    def _message_name(self, msg_id: int) -> str | None:
+        ls_mod = self.links[0].endpoint.link.mod if self.links else None
+        if ls_mod is None:
+            return None
+        cls = ls_mod.mavlink_map.get(msg_id)
+        return None if cls is None else str(cls.msgname)
+
+    def _send_requested(self, ls: _LinkState, msg_id: int) -> None:
+        if msg_id == MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+            parts = [*_package_version(), 0, 0, 0]
+            self._send(ls, o.autopilot_version((parts[0], parts[1], parts[2]), uid=self.opts.system_id))
+        elif msg_id == MAVLINK_MSG_ID_HOME_POSITION:
+            self._send(ls, o.home_position_from_frame(self.frame))
+        else:
+            name = self._message_name(msg_id)
+            if name is not None:
+                for msg in self._stream_messages(name, ls):
+                    self._send(ls, msg)
+
+    def _apply_fence_results(self) -> None:
+        for res in self.fence.take_results():
+            self.events.write({"t": self.t, "type": "fence_transfer", "upload": res.upload, "result": res.result,
+                               "detail": res.detail})
+            if res.upload and res.fence is not None and res.result == 0:
+                geo = res.fence.apply_to(self.cfg.geofence)
+                self.cfg = self.cfg.model_copy(update={"geofence": geo})
+                core_cfg = build_core_config(self.cfg, source="fence upload")
+                # uploads are refused while armed (ICD 8.1), so the core is on the ground: its state carries over
+                self.loop.core = TrustedCore(core_cfg, self.loop.core.state)
+                self.loop.core_cfg = core_cfg
+                self.events.write({"t": self.t, "type": "fence_applied",
+                                   "polygons": len(res.fence.polygons), "circles": len(res.fence.circles)})
+
+    # ---------------------------------------------------------------------------------- tick
+
+    def _tick(self) -> None:
+        t = self.t
+        state = self.loop.sense()
+        p = self.pending
+        self.pending = _Pending()
+        sp_arrival_ns = 0
+        if p.setpoint is not None:
+            sp_t, m, sp_arrival_ns = p.setpoint
+            self.stats.coalesced += p.coalesced
+            yaw = state.att_rpy_rad[2]
+            if isinstance(m, i.SetpointIn):
+                self.sp = m.to_setpoint(state.pos_ned_m, yaw)
+            elif isinstance(m, i.GlobalSetpointIn):
+                self.sp = m.to_setpoint(self.frame, yaw)
+            else:
+                self.sp = m.to_setpoint()
+            self.sp_t = sp_t
+        inputs = Inputs(
+            state=state,
+            experimental=ExperimentalInput(self.hb_t, self.sp, self.sp_t, tuple(p.requests)),
+            operator=replace(self.op, link_t_s=self.rc_t) if self.rc_t is not None else OperatorInput(),
+            gcs_link_t_s=self.gcs_t,
+            gcs_commands=tuple(p.commands),
+        )
+        prev = self.decision
+        d = self.loop.act(inputs)
+        if sp_arrival_ns:
+            self.stats.record_setpoint_latency(time.monotonic_ns() - sp_arrival_ns)
+        self.decision = d
+        for e in d.events:
+            self._on_event(e, d)
+        changed = prev is None or (prev.authority, prev.behavior, prev.armed) != (d.authority, d.behavior, d.armed)
+        if changed:
+            hb = o.heartbeat_from_decision(d)
+            self._broadcast(hb)
+            self._broadcast(self._authority_status(d))
+        if self._revoke_repeats and self._revoke_repeats[0][0] <= t:
+            due = [m for (tt, m) in self._revoke_repeats if tt <= t]
+            self._revoke_repeats = [(tt, m) for (tt, m) in self._revoke_repeats if tt > t]
+            for msg in due:
+                self._broadcast(msg)
+        self.fence.accept_uploads = not d.armed
+        self.params.read_only = True  # the envelope is fixed for a serve session (see docs/connecting.md)
+        if self.fence.busy:
+            outs = self.fence.tick(t)
+            if outs and self._fence_link is not None:
+                for out in outs:
+                    self._send(self._fence_link, out)
+            self._apply_fence_results()
+        k = self.loop.k
+        for s in self.streams:
+            if k % s.period_ticks == s.phase_ticks:
+                ls = self._link(s.link)
+                if ls is not None:
+                    msgs = self._stream_messages(s.name, ls)
+                    if s.name == "MERLIN_ENVELOPE_STATUS":
+                        ls.bulk.extend(msgs)
+                    else:
+                        for msg in msgs:
+                            self._send(ls, msg)
+        for ls in self.links:
+            for _ in range(min(BULK_PER_TICK, len(ls.bulk))):
+                self._send(ls, ls.bulk.popleft())
+
+    def _link(self, name: str) -> _LinkState | None:
+        for ls in self.links:
+            if ls.name == name:
+                return ls
+        return None
+
+    def _authority_status(self, d: Decision) -> o.AuthorityStatusOut:
+        t = self.t
+        hc = self.cfg.handover
+        cooldown = 0.0
+        if self._last_revoke_t is not None:
+            cooldown = max(0.0, hc.cooldown_s - (t - self._last_revoke_t))
+        wd = self.cfg.watchdogs
+        hb_ok = self.hb_t is not None and t - self.hb_t <= wd.controller_heartbeat.timeout_s
+        sp_fresh = self.sp_t is not None and t - self.sp_t <= wd.setpoint_stale.timeout_s
+        ctl = self._controller_link()
+        signing = bool(ctl and ctl.endpoint.link.signing_required_for)
+        return o.authority_status_from_decision(
+            d, self._boot_ms(), active_grant_seq=self._grant_seq_active,
+            max_revocations=hc.max_revocations_per_flight, cooldown_remaining_s=cooldown,
+            last_reason=self._last_reason, landed=self.loop.state.landed, controller_heartbeat_ok=hb_ok,
+            setpoint_fresh=sp_fresh, signing_required=signing)
+
+    def _stream_messages(self, name: str, ls: _LinkState) -> list[o.OutMessage]:
+        s = self.loop.state
+        ms = self._boot_ms()
+        d = self.decision
+        if name == "HEARTBEAT":
+            return [o.heartbeat_from_decision(d)] if d is not None else []
+        if name == "ATTITUDE":
+            return [o.attitude_from_state(s, ms)]
+        if name == "LOCAL_POSITION_NED":
+            return [o.local_position_from_state(s, ms)]
+        if name == "GLOBAL_POSITION_INT":
+            return [o.global_position_from_state(s, self.frame, ms)]
+        if name == "GPS_RAW_INT":
+            lat, lon, alt = self.frame.to_geodetic(*s.pos_ned_m)
+            vn, ve, _ = s.vel_ned_mps
+            return [o.GpsRawIntOut(int(self.loop.t * 1e6), 3, lat, lon, alt, s.pos_sigma_h_m, s.pos_sigma_v_m,
+                                   math.hypot(vn, ve), math.atan2(ve, vn) % (2 * math.pi), 12)]
+        if name == "VFR_HUD":
+            return [o.vfr_hud_from_state(s, self.frame, _throttle(self.loop.motors))]
+        if name == "SYS_STATUS":
+            # sensor bits as PX4 reports them, so that QGroundControl and MAVSDK's health checks pass
+            # (MAVSDK reads global-position health from the GPS bit and "armable" from PREARM_CHECK)
+            health = SENSORS_PRESENT if s.nav_mode is NavMode.GPS else SENSORS_PRESENT & ~SENSOR_GPS
+            return [replace(o.sys_status_from_state(s), sensors_present=SENSORS_PRESENT,
+                            sensors_enabled=SENSORS_PRESENT, sensors_health=health)]
+        if name == "EXTENDED_SYS_STATE":
+            return [o.extended_sys_state_from_state(s)]
+        if name == "HOME_POSITION":
+            return [o.home_position_from_frame(self.frame)]
+        if name == "MERLIN_AUTHORITY_STATUS":
+            return [self._authority_status(d)] if d is not None else []
+        if name == "MERLIN_ENVELOPE_STATUS":
+            elapsed: dict[str, float] = {}
+            if d is not None:
+                for mon in d.monitors:
+                    if mon.name == "envelope":
+                        elapsed = dict(mon.detail)
+            return list(o.envelope_status_from(ms, s, self.limits, self.cfg.envelope.active_stage, elapsed))
+        return []
+
+    def _on_event(self, e: Event, d: Decision) -> None:
+        self.events.write(e.to_dict())
+        ms = self._boot_ms()
+        for out in self.bridge.on_event(e):
+            ctl = self._exchange_peer[0] if self._exchange_peer else self._controller_link()
+            if ctl is not None:
+                self._send(ctl, out)
+        peer_ls, peer = self._exchange_peer if self._exchange_peer else (self._controller_link(), (0, 0))
+        hc = self.cfg.handover
+        if e.kind is EventKind.GRANTED:
+            req_id = self._take_request_id()
+            auth = Authority.SHADOW if e.to is Authority.SHADOW else Authority.EXPERIMENTAL
+            self._broadcast(o.grant_from_event(e, ms, peer, req_id, auth, hc.ack_timeout_s, hc.blend_window_s))
+        elif e.kind is EventKind.DENIED:
+            req_id = self._take_request_id() if e.seq == 0 else 0
+            retry = hc.cooldown_s - (self.t - self._last_revoke_t) if (
+                e.reason.code is ReasonCode.COOLDOWN and self._last_revoke_t is not None) else 0.0
+            self._broadcast(o.deny_from_event(e, ms, peer, req_id, max(0.0, retry)))
+        elif e.kind is EventKind.ACKNOWLEDGED:
+            self._grant_seq_active = e.seq
+        elif e.kind is EventKind.REVOKED or e.kind is EventKind.RELEASED:
+            released = e.kind is EventKind.RELEASED or e.reason.code is ReasonCode.RELEASED
+            cooldown = 0.0 if released else hc.cooldown_s
+            if not released:
+                self._last_revoke_t = self.t
+            rv = o.revoke_from_event(e, ms, peer, self._grant_seq_active or e.seq, cooldown, d.revocations)
+            self._broadcast(rv)
+            if not released:
+                self._revoke_repeats += [(self.t + dt, rv) for dt in REVOKE_REPEATS_S]
+        elif e.kind is EventKind.COMMAND_ACK:
+            waiting = self._cmd_waiting.pop(e.seq, None)
+            if waiting is not None:
+                ls, cmd, sender = waiting
+                self._send(ls, command_ack(cmd, sender, MAV_RESULT_ACCEPTED if e.accepted else MAV_RESULT_DENIED))
+        if e.reason.code is not ReasonCode.NONE and e.kind in (EventKind.REVOKED, EventKind.DENIED):
+            self._last_reason = e.reason.code
+        text = o.statustext_for_event(e)
+        if text is not None:
+            self._broadcast(text)
+        _ = peer_ls
+
+    def _take_request_id(self) -> int:
+        if not self._request_ids:
+            return 0
+        ls, rid, sender = self._request_ids.pop(0)
+        self._exchange_peer = (ls, sender)
+        return rid
+
+    # ---------------------------------------------------------------------------------- loop
+
+    def _fds(self) -> dict[int, _LinkState]:
+        out: dict[int, _LinkState] = {}
+        for ls in self.links:
+            tr = ls.endpoint.transport
+            fd = tr.sock.fileno() if hasattr(tr, "sock") else tr.port.fileno()
+            out[fd] = ls
+        return out
+
+    def _drain(self, ls: _LinkState) -> int:
+        ep = ls.endpoint
+        t = self.t
+        batch = ep.transport.read(0.0)
+        if ls.role is LinkRole.CONTROLLER and len(batch) > 1:
+            batch = self._coalesce(batch)
+        got: list[i.Received] = []
+        for data, addr in batch:
+            rxs = ep.link.receive(data, t, time.time(), final=ep.transport.datagram)
+            # the same rule as MavlinkEndpoint.poll: follow a peer only after an accepted (signed) message
+            if rxs and addr is not None and (not ep.link.security.required or any(r.signed for r in rxs)):
+                ep.transport.remote = addr
+            for r in rxs:
+                if isinstance(r.msg, i.SetupSigningIn) and ep.key_file is not None:
+                    write_key_file(ep.key_file, r.msg.secret_key)
+            got.extend(rxs)
+        for rx in got:
+            try:
+                self._on_received(ls, rx)
+            except Exception:  # a bug handling one message must not stop the vehicle: logged, message dropped
+                log.exception("handling %s from %d/%d", type(rx.msg).__name__, rx.system_id, rx.component_id)
+                self.events.write({"t": self.t, "type": "serve_error", "detail": f"handling {type(rx.msg).__name__}"})
+        return len(got)
+
+    def _coalesce(self, batch: list[tuple[bytes, Any]]) -> list[tuple[bytes, Any]]:
+        """Drop, before decoding, setpoint datagrams superseded by a later one from the same sender in
+        the same batch: only the latest setpoint before a tick matters (icd/ICD.md section 7), and
+        decoding costs ~0.1 ms a frame. A superseded datagram is still written to the tlog and counted.
+        Only datagrams holding exactly one MAVLink 2 setpoint frame are candidates; anything else is
+        decoded as usual."""
+        last: dict[tuple[int, int], int] = {}
+        keys: list[tuple[int, int] | None] = []
+        for k, (data, _addr) in enumerate(batch):
+            key = _lone_setpoint_sender(data)
+            keys.append(key)
+            if key is not None:
+                last[key] = k
+        out = []
+        now = time.time()
+        for k, item in enumerate(batch):
+            key = keys[k]
+            if key is not None and last[key] != k:
+                self.tlog.write(item[0], now)
+                self.stats.coalesced += 1
+                continue
+            out.append(item)
+        return out
+
+    def stop(self) -> None:
+        self._stop = True
+
+    def _sync_files(self) -> None:
+        while not self._stop:
+            time.sleep(FSYNC_INTERVAL_S)
+            for fd in (getattr(self.tlog, "_fd", None), self.events.fileno()):
+                if fd is not None and fd >= 0:
+                    with contextlib.suppress(OSError):
+                        os.fsync(fd)
+
+    def run(self) -> dict[str, Any]:
+        """Serve until the duration elapses or :meth:`stop`; returns the timing and link statistics."""
+        opts = self.opts
+        self.events.write({"t": 0.0, "type": "serve_start", "rate_hz": opts.rate_hz, "speedup": opts.speedup,
+                           "config": opts.config_source, "links": {
+                               ls.name: {"local": getattr(ls.endpoint.transport, "local_address", None),
+                                         "remote": ls.endpoint.remote} for ls in self.links}})
+        if opts.realtime_priority > 0:
+            # the seed FCU thesis runs its single RateGenerator SCHED_FIFO (notes/seed_004_notes.md section 2)
+            try:
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(opts.realtime_priority))
+                self.events.write({"t": 0.0, "type": "realtime", "policy": "SCHED_FIFO",
+                                   "priority": opts.realtime_priority})
+            except (AttributeError, OSError) as exc:
+                log.warning("cannot switch to SCHED_FIFO (%s); running with the normal scheduler", exc)
+                self.events.write({"t": 0.0, "type": "realtime", "policy": "normal", "detail": str(exc)})
+        for ls in self.links:
+            if hasattr(ls.endpoint.transport, "max_datagrams_per_read"):
+                ls.endpoint.transport.max_datagrams_per_read = MAX_DATAGRAMS_PER_READ
+        self._syncer.start()
+        fds = self._fds()
+        poller = select.poll()
+        for fd in fds:
+            poller.register(fd, select.POLLIN)
+        period_ns = self.stats.period_ns
+        n_ticks = None if opts.duration_s is None else round(opts.duration_s / self.dt)
+        if opts.tune_gc:
+            gc.collect()
+            gc.freeze()  # start-up objects never need scanning again
+            gc.disable()  # collections run by hand between ticks, where the slack is (below)
+        t0 = time.monotonic_ns()
+        deadline = t0
+        prev_start: int | None = None
+        try:
+            while not self._stop and (n_ticks is None or self.loop.k < n_ticks):
+                now = time.monotonic_ns()
+                # wait for the deadline, decoding whatever arrives meanwhile
+                while now < deadline:
+                    timeout_ms = (deadline - now) / 1e6
+                    ready = poller.poll(timeout_ms if timeout_ms >= 1.0 else 0)
+                    if ready:
+                        for fd, _ev in ready:
+                            self._drain(fds[fd])
+                    elif timeout_ms < 1.0:
+                        # poll() has 1 ms resolution: spin out the last fraction to hit the deadline
+                        while time.monotonic_ns() < deadline:
+                            pass
+                    now = time.monotonic_ns()
+                late = now - deadline
+                if late > RESYNC_TICKS * period_ns:
+                    self.stats.resyncs += 1
+                    deadline = now
+                    late = 0
+                start = now
+                for ls in fds.values():  # anything that arrived during the previous tick
+                    self._drain(ls)
+                self._tick()
+                work = time.monotonic_ns() - start
+                self.stats.record(late, start, prev_start, work)
+                prev_start = start
+                if self.on_tick is not None:
+                    self.on_tick(self)
+                if opts.tune_gc and self.loop.k % GC_EVERY_TICKS == 0:
+                    # by hand, right after a tick: the youngest generation often, the middle one now and then
+                    gc.collect(1 if self.loop.k % (GC_EVERY_TICKS * 30) == 0 else 0)
+                deadline += period_ns
+        finally:
+            if opts.tune_gc:
+                gc.enable()
+            summary = self.close()
+        return summary
+
+    def close(self) -> dict[str, Any]:
+        self._stop = True
+        links = {}
+        for ls in self.links:
+            st = ls.endpoint.stats()
+            links[ls.name] = {"frames_in": st.frames_in, "frames_out": st.frames_out, "accepted": st.accepted,
+                              "ignored": st.ignored, "not_for_us": st.not_for_us,
+                              "frame_errors": dict(st.frame_errors), "rejected": dict(st.rejected)}
+            for rec in ls.endpoint.link.recent_rejections()[-20:]:
+                self.events.write({"t": rec.t_s, "type": "link_rejection", "link": rec.link, "sender":
+                                   [rec.system_id, rec.component_id], "message": rec.msg_name,
+                                   "reason": rec.reason.value, "detail": rec.detail})
+        summary = {"timing": self.stats.summary(), "links": links,
+                   "final": {"t_s": self.t, "authority": self.decision.authority.name if self.decision else None,
+                             "armed": bool(self.decision.armed) if self.decision else False}}
+        self.events.write({"t": self.t, "type": "serve_stop", **summary})
+        for ls in self.links:
+            ls.endpoint.close()
+        self.tlog.close()
+        self.events.close()
+        return summary
+
+
+_SETPOINT_IDS = frozenset({82, 84, 86})  # SET_ATTITUDE_TARGET, SET_POSITION_TARGET_LOCAL_NED / _GLOBAL_INT
+
+
+def _lone_setpoint_sender(data: bytes) -> tuple[int, int] | None:
+    """(system, component) if ``data`` is exactly one MAVLink 2 setpoint frame, else None (header only:
+    the frame is not trusted for anything but the choice of what to decode)."""
+    if len(data) < 12 or data[0] != 0xFD:
+        return None
+    size = 12 + data[1] + (13 if data[2] & 1 else 0)
+    if len(data) != size:
+        return None
+    if data[7] | data[8] << 8 | data[9] << 16 not in _SETPOINT_IDS:
+        return None
+    return (data[5], data[6])
+
+
+def _package_version() -> list[int]:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        v = version("merlin-autopilot")
+    except PackageNotFoundError:
+        return []
+    return [int(x) for x in v.split(".")[:3] if x.isdigit()]
+
+
+def _throttle(motors: Any) -> float:
+    try:
+        vals = [float(x) for x in motors]
+    except TypeError:
+        return 0.0
+    return sum(vals) / len(vals) if vals else 0.0
+
+
+def install_signal_handlers(server: Server) -> None:
+    def handler(_sig: int, _frame: object) -> None:
+        server.stop()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+
+
+__all__ = ["ServeOptions", "Server", "UdpLinkSpec", "install_signal_handlers"]

@@ -1,0 +1,158 @@
+"""``merlin serve`` as a real subprocess on loopback, with ports chosen per test, always killed at the end."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+STEP_TIMEOUT_S = 60.0  # generous and bounded: the CI machine is small and shared
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@dataclass
+class ServeProc:
+    proc: subprocess.Popen[str]
+    gcs_port: int
+    ctl_port: int
+    out: Path
+    extra: list[subprocess.Popen[str]] = field(default_factory=list)
+
+    def events(self) -> list[dict[str, Any]]:
+        p = self.out / "events.jsonl"
+        if not p.exists():
+            return []
+        return [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
+
+    def spawn(self, *args: str) -> subprocess.Popen[str]:
+        """A helper process (a controller) killed with serve at the end of the test."""
+        p = subprocess.Popen([sys.executable, *args], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                             text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        self.extra.append(p)
+        return p
+
+
+def start_serve(tmp_path: Path, *extra: str, duration_s: float = 240.0) -> ServeProc:
+    gcs, ctl = free_udp_port(), free_udp_port()
+    out = tmp_path / "serve"
+    cmd = [sys.executable, "-m", "merlin.cli", "serve", "--gcs-port", str(gcs), "--gcs-bind-port", "0",
+           "--offboard-port", str(ctl), "--offboard-bind-port", "0", "--out", str(out),
+           "--duration", str(duration_s), "--quiet", *extra]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    return ServeProc(proc, gcs, ctl, out)
+
+
+def stop(sp: ServeProc) -> None:
+    for p in [*sp.extra, sp.proc]:
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+            try:
+                p.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(timeout=10)
+
+
+@pytest.fixture
+def serve(tmp_path: Path) -> Iterator[ServeProc]:
+    sp = start_serve(tmp_path)
+    try:
+        yield sp
+    finally:
+        stop(sp)
+
+
+def gcs_connection(port: int) -> Any:
+    from pymavlink import mavutil
+
+    from merlin.link import register_with_mavutil
+
+    dialect = register_with_mavutil()
+    m = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255, source_component=190,
+                                   dialect=dialect)
+    hb = m.wait_heartbeat(timeout=STEP_TIMEOUT_S)
+    assert hb is not None, "no HEARTBEAT from merlin serve"
+    m.mav.heartbeat_send(6, 8, 0, 0, 0)
+
+    def beat() -> None:  # a ground station heartbeats at 1 Hz whatever the test is waiting for
+        while not getattr(m, "closed", False):
+            try:
+                m.mav.heartbeat_send(6, 8, 0, 0, 0)
+            except Exception:
+                return
+            time.sleep(0.5)
+
+    threading.Thread(target=beat, daemon=True).start()
+    return m
+
+
+def wait_for(m: Any, pred: Any, timeout_s: float = STEP_TIMEOUT_S, heartbeat: bool = True) -> Any:
+    """The first message for which ``pred`` holds, sending the GCS heartbeat meanwhile; None on timeout."""
+    t_end = time.monotonic() + timeout_s
+    t_hb = 0.0
+    while time.monotonic() < t_end:
+        if heartbeat and time.monotonic() >= t_hb:
+            m.mav.heartbeat_send(6, 8, 0, 0, 0)
+            t_hb = time.monotonic() + 1.0
+        msg = m.recv_match(blocking=True, timeout=0.2)
+        if msg is not None and pred(msg):
+            return msg
+    return None
+
+
+def command(m: Any, cmd: int, *params: float, timeout_s: float = STEP_TIMEOUT_S) -> Any:
+    p = [*params, *([0.0] * (7 - len(params)))]
+    m.mav.command_long_send(1, 1, cmd, 0, *p)
+    return wait_for(m, lambda x: x.get_type() == "COMMAND_ACK" and x.command == cmd, timeout_s)
+
+
+def arm_and_takeoff(m: Any) -> None:
+    ack = command(m, 400, 1.0)
+    assert ack is not None and ack.result == 0, f"arm: {ack}"
+    ack = command(m, 22, 0, 0, 0, float("nan"), 0, 0, float("nan"))
+    assert ack is not None and ack.result == 0, f"takeoff: {ack}"
+    # airborne: EXTENDED_SYS_STATE landed_state IN_AIR (2) and above 5 m
+    got = wait_for(m, lambda x: x.get_type() == "GLOBAL_POSITION_INT" and x.relative_alt > 5000)
+    assert got is not None, "never climbed above 5 m"
+
+
+def lines_until(p: subprocess.Popen[str], needle: str, timeout_s: float = STEP_TIMEOUT_S) -> list[str]:
+    """Read a helper's stdout until a line contains ``needle`` (or it exits / time runs out)."""
+    import selectors
+
+    sel = selectors.DefaultSelector()
+    assert p.stdout is not None
+    sel.register(p.stdout, selectors.EVENT_READ)
+    out: list[str] = []
+    t_end = time.monotonic() + timeout_s
+    while time.monotonic() < t_end:
+        if not sel.select(timeout=0.5):
+            if p.poll() is not None:
+                break
+            continue
+        line = p.stdout.readline()
+        if not line:
+            break
+        out.append(line.rstrip())
+        if needle in line:
+            break
+    sel.close()
+    return out

@@ -1,0 +1,51 @@
+"""MAVProxy, run non-interactively (commands on its standard input), against ``merlin serve``'s GCS link."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.serve.conftest import ROOT, ServeProc
+
+pytestmark = pytest.mark.integration
+
+
+def test_mavproxy_connects_reads_params_arms_and_takes_off(serve: ServeProc, tmp_path: Path) -> None:
+    pytest.importorskip("MAVProxy")
+    state = tmp_path / "mavproxy"
+    state.mkdir()
+    # MAVProxy's takeoff altitude is what it sends in MAV_CMD_NAV_TAKEOFF param7: above mean sea level for
+    # a PX4-style vehicle (icd/ICD.md section 2); the default home is 30 m AMSL, so 45 is 15 m above home.
+    script = ("sleep 15; echo 'arm throttle'; sleep 4; echo 'takeoff 45'; sleep 8; echo 'param show ENV_ROLL_MAX';"
+              " sleep 2")
+    for _ in range(600):  # serve is up (its start record written) before MAVProxy's clock starts
+        if any(e["type"] == "serve_start" for e in serve.events()):
+            break
+        time.sleep(0.1)
+    cmd = f"({script}) | {sys.executable} -m MAVProxy.mavproxy --master=udpin:127.0.0.1:{serve.gcs_port} " \
+          f"--logfile={state / 'mavproxy.tlog'} --state-basedir={state}"
+    try:
+        res = subprocess.run(["bash", "-c", cmd], cwd=state, capture_output=True, text=True, timeout=120,
+                             env={**os.environ, "PYTHONPATH": str(ROOT)})
+        out = res.stdout + res.stderr
+    except subprocess.TimeoutExpired as exc:
+        out = (exc.stdout or b"").decode() if isinstance(exc.stdout, bytes) else (exc.stdout or "")
+    assert "Detected vehicle 1:1" in out, out[-2000:]
+    assert "COMPONENT_ARM_DISARM: ACCEPTED" in out, out[-2000:]
+    assert "NAV_TAKEOFF: ACCEPTED" in out, out[-2000:]
+    assert "ENV_ROLL_MAX" in out and "30" in out, out[-2000:]
+    kinds = [(e["type"], e.get("command")) for e in serve.events()]
+    assert ("command_ack", "TAKEOFF") in kinds
+    # the tlog MAVProxy wrote parses with pymavlink and holds Merlin's heartbeats
+    from pymavlink import mavutil
+
+    log = mavutil.mavlink_connection(str(state / "mavproxy.tlog"))
+    autopilots = set()
+    while (hb := log.recv_match(type="HEARTBEAT")) is not None:
+        autopilots.add((hb.get_srcSystem(), hb.autopilot))
+    assert (1, 12) in autopilots  # Merlin's, as MAV_AUTOPILOT_PX4 (MAVProxy logs its own too)
