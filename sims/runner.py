@@ -504,6 +504,9 @@ def run_scenario(
         if progress is not None and k % 4000 == 0:
             progress(t / sc.duration_s)
     wall = time.perf_counter() - wall0
+    for note in getattr(loop, "notes", ()):  # vehicle-side notes (e.g. a fixed wing's LAND flown as a loiter)
+        events.append(note if isinstance(note, dict) else {"t": loop.t, "type": "note", "detail": str(note)})
+    events.sort(key=lambda e: e["t"])
     arrays = log.arrays()
     for key in sorted(arrays):
         digest.update(key.encode())

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Final
 
 from merlin.core.geofence import Fence
 from merlin.core.types import Action
@@ -16,9 +17,9 @@ from merlin.core.types import Action
 class Clear:
     """When a latched action ends (cf. PX4 failsafe framework's clear conditions)."""
 
-    WHEN_CLEAR = "when_clear"
-    ON_REQUEST = "on_request"
-    NEVER = "never"
+    WHEN_CLEAR: Final = "when_clear"
+    ON_REQUEST: Final = "on_request"
+    NEVER: Final = "never"
 
 
 @dataclass(frozen=True, slots=True)

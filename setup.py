@@ -1,0 +1,202 @@
+"""Build hook: compile the 400 Hz hot path with mypyc, or install pure Python when that is not possible.
+
+Everything else about the package is declared in ``pyproject.toml``; this file only adds the extension
+modules. The compiled modules are the same sources, type-checked and translated to C by mypyc (shipped
+with mypy, https://mypyc.readthedocs.io): same decisions, about twice as fast per tick
+(``docs/benchmarks/compiled.md``).
+
+Pure Python is installed instead (no extension modules at all) when
+- ``MERLIN_PURE_PYTHON=1`` is set at install time, or
+- mypyc cannot be imported, or no C compiler is found, or
+- mypyc or the C compiler fails on the sources (a warning says why).
+Set ``MERLIN_REQUIRE_COMPILED=1`` to make the last two an error instead (benchmarks, release builds).
+
+An editable install (``pip install -e .``) builds the extensions in place, beside the ``.py`` files they
+shadow: after editing one of ``COMPILED_MODULES`` reinstall, or ``merlin._build.stale_modules()`` (and
+``tests/test_compiled.py``) will say the compiled module no longer matches its source. A pure build
+removes such in-place extensions, so ``MERLIN_PURE_PYTHON=1 pip install -e .`` always goes back to the
+sources.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import sys
+import sysconfig
+from pathlib import Path
+
+from setuptools import Extension, setup
+from setuptools.command.build_ext import build_ext
+
+ROOT = Path(__file__).resolve().parent
+
+# The modules on the closed loop's 400 Hz path, in import order. Kept in step with merlin/_build.py
+# (tests/test_compiled.py checks that the two lists agree). Each was measured on its own before being
+# added (docs/benchmarks/compiled.md); modules whose gain did not pay for their compile time stay out.
+COMPILED_MODULES = (
+    "merlin/core/types.py",
+    "merlin/core/config.py",
+    "merlin/core/envelope.py",
+    "merlin/core/watchdog.py",
+    "merlin/core/arbiter.py",
+    "merlin/autopilot/guidance.py",
+    "merlin/core/shaping.py",
+    "merlin/core/step.py",
+    "merlin/autopilot/multirotor_control.py",
+    "sims/wind.py",
+    "sims/battery.py",
+    "sims/multirotor.py",
+    "sims/sensors.py",
+)
+
+# Name of mypyc's shared runtime library (a top-level module ``merlin_native__mypyc``).
+GROUP_NAME = "merlin_native"
+
+# Where merlin._build.stale_modules() finds which source each compiled module was built from.
+MANIFEST = "merlin/_compiled_sources.json"
+
+# Only these commands build; metadata queries (egg_info, dist_info, sdist) must not pay for mypyc.
+_BUILD_COMMANDS = {"build", "build_ext", "bdist_wheel", "editable_wheel", "install", "develop", "bdist_egg"}
+
+_FAILURES = (Exception, SystemExit)
+
+
+def _flag(name: str) -> bool:
+    return os.environ.get(name, "").strip().lower() in {"1", "true", "yes", "on"}
+
+
+def _warn(message: str) -> None:
+    print(f"merlin setup.py: {message}", file=sys.stderr, flush=True)
+
+
+def _fail_or_warn(message: str) -> None:
+    if _flag("MERLIN_REQUIRE_COMPILED"):
+        raise SystemExit(f"merlin setup.py: {message} (MERLIN_REQUIRE_COMPILED is set)")
+    _warn(f"{message}; installing pure Python")
+
+
+# Packages whose modules may be compiled; an extension beside one of their .py files is a build product.
+_PACKAGES = ("merlin", "sims")
+
+
+def _inplace_outputs(keep: tuple[str, ...] = ()) -> list[Path]:
+    """Extension files an earlier in-place (editable) build left beside the sources, except ``keep``'s.
+
+    Any extension module that shadows a ``.py`` counts, not only those of ``COMPILED_MODULES``: a module
+    dropped from the list must not keep running as its last compiled version.
+    """
+    found: list[Path] = []
+    for package in _PACKAGES:
+        for p in (ROOT / package).rglob("*"):
+            if p.suffix not in {".so", ".pyd"}:
+                continue
+            source = p.with_name(p.name.split(".", 1)[0] + ".py")
+            if source.exists() and source.relative_to(ROOT).as_posix() not in keep:
+                found.append(p)
+    if not keep:
+        found.extend(p for p in ROOT.glob(GROUP_NAME + "__mypyc.*") if p.suffix in {".so", ".pyd"})
+    return found
+
+
+def _builds_in_place() -> bool:
+    args = sys.argv[1:]
+    return bool({"editable_wheel", "develop"}.intersection(args)) or (
+        "build_ext" in args and bool({"--inplace", "-i"}.intersection(args))
+    )
+
+
+def _remove_inplace_outputs(keep: tuple[str, ...] = ()) -> None:
+    for p in _inplace_outputs(keep):
+        _warn(f"removing the compiled module {p.relative_to(ROOT)} left by an earlier in-place build")
+        p.unlink()
+    if not keep:
+        (ROOT / MANIFEST).unlink(missing_ok=True)
+
+
+def _module_name(path: str) -> str:
+    return path.removesuffix(".py").replace("/", ".")
+
+
+# sha256 of each source as mypyc read it; written beside merlin/_build.py after a successful build.
+_SOURCE_HASHES: dict[str, str] = {}
+
+
+def _have_c_compiler() -> bool:
+    cc = os.environ.get("CC") or sysconfig.get_config_var("CC") or "cc"
+    return shutil.which(cc.split()[0]) is not None
+
+
+def _mypyc_extensions() -> list[Extension]:
+    if _flag("MERLIN_PURE_PYTHON"):
+        _warn("MERLIN_PURE_PYTHON is set; installing pure Python")
+        return []
+    try:
+        from mypyc.build import mypycify
+    except ImportError:
+        _fail_or_warn("mypyc (part of mypy) is not importable")
+        return []
+    if not _have_c_compiler():
+        _fail_or_warn("no C compiler found")
+        return []
+    for module in COMPILED_MODULES:
+        _SOURCE_HASHES[_module_name(module)] = hashlib.sha256((ROOT / module).read_bytes()).hexdigest()
+    cwd = os.getcwd()
+    os.chdir(ROOT)  # mypyc takes paths relative to the project root and writes its C files to ./build
+    try:
+        return list(
+            mypycify(
+                # Type errors in modules that are only imported (pydantic models, scenario loading) are not
+                # this build's concern: mypy --strict on merlin/core is run by the test command.
+                ["--follow-imports=silent", *COMPILED_MODULES],
+                opt_level="3",
+                multi_file=True,  # one C file per module, so build_ext can compile them in parallel
+                group_name=GROUP_NAME,
+            )
+        )
+    except _FAILURES as exc:  # mypyc reports type errors by exiting
+        _fail_or_warn(f"mypyc could not compile the hot path ({exc!r})")
+        return []
+    finally:
+        os.chdir(cwd)
+
+
+class BuildExtOrPure(build_ext):
+    """``build_ext`` that compiles in parallel and falls back to pure Python if the C build fails."""
+
+    def finalize_options(self) -> None:
+        super().finalize_options()
+        if self.parallel is None:
+            self.parallel = os.cpu_count() or 1
+
+    def run(self) -> None:
+        if not self.extensions:
+            return
+        try:
+            super().run()
+        except _FAILURES as exc:
+            _fail_or_warn(f"the C build of the mypyc modules failed ({exc!r})")
+            for output in self.get_outputs():
+                Path(output).unlink(missing_ok=True)
+            if self.inplace:
+                _remove_inplace_outputs()
+            self.extensions = []
+            self.distribution.ext_modules = []
+            return
+        manifest = (ROOT if self.inplace else Path(self.build_lib)) / MANIFEST
+        manifest.parent.mkdir(parents=True, exist_ok=True)
+        manifest.write_text(json.dumps(_SOURCE_HASHES, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+
+
+def _ext_modules() -> list[Extension]:
+    if not _BUILD_COMMANDS.intersection(sys.argv[1:]):
+        return []
+    extensions = _mypyc_extensions()
+    if _builds_in_place():
+        _remove_inplace_outputs(keep=COMPILED_MODULES if extensions else ())
+    return extensions
+
+
+setup(ext_modules=_ext_modules(), cmdclass={"build_ext": BuildExtOrPure})

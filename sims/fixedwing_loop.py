@@ -1,0 +1,355 @@
+"""The closed loop for the JSBSim fixed wing: dynamics -> sensors -> estimate -> trusted core -> fixed-wing
+actuator stage -> dynamics.
+
+Same interface as :class:`sims.runner.ClosedLoop` (``sense()``, ``act(inputs)``, ``t``, ``dt``, ``truth``,
+``state``, ``decision``, ``core``, ``core_cfg``, ``wind_ned``, ``batt_frac``, ``actuators``), so
+``run_scenario`` and ``merlin serve`` drive either vehicle; ``sims.runner.make_loop`` picks this one for a
+scenario whose ``vehicle`` is a JSBSim model.
+
+The trusted core runs unchanged. What differs is the actuator stage, because a fixed wing cannot stop:
+
+* EXPERIMENTAL or OPERATOR authority (and IDLE/TERMINATE commands): the core's shaped
+  :class:`~merlin.core.types.Command` becomes fixed-wing targets through
+  :func:`merlin.autopilot.fixedwing_guidance.targets_from_command` (a velocity is a course, a speed and a
+  climb rate; an attitude passes through the inner loops' protections).
+* TRUSTED or SHADOW authority: the core's *behaviour* is flown by the fixed-wing guidance -- HOLD loiters
+  on a circle the aircraft is already on, RTL loiters over home at max(RTL height, current height),
+  MISSION flies ``trusted.mission_ned_m`` once and loiters at its last point, LAND (impossible here: the
+  Aerosonde has no gear and this simulator no runway) loiters down to a safe height over home, TAKEOFF
+  (scenarios start airborne) holds. The velocity command the core's multirotor guidance computes for the
+  behaviour is not flown (docs/fixed-wing.md, "Closed loop").
+* Every change of authority, command kind or behaviour re-initialises the inner loops bumplessly: guidance
+  first (its targets at the switch), then :func:`merlin.autopilot.fixedwing_control.reset_from_state` from
+  the surfaces last commanded, so the first surface command equals the last one.
+* Fence recovery: a fixed wing turning back from a boundary must turn the way that is clear. The fence
+  projection trips when *neither* turn is clear any more, so when a trusted behaviour starts while the
+  geofence monitor is tripped, the stage first flies an escape turn at the bank limit to the side whose
+  projected turn keeps the larger margin (:func:`turn_clearances_m`), until the monitor clears and the
+  aircraft heads towards home, and only then hands over to the behaviour's guidance. Guidance alone turns
+  the short way towards its goal, which next to a re-entrant corner can be the blocked side.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from merlin.autopilot import fixedwing_control as fc
+from merlin.autopilot import fixedwing_guidance as fg
+from merlin.config.loader import ConfigError
+from merlin.config.models import MerlinConfig
+from merlin.config.runtime import build_core_config
+from merlin.core import geofence
+from merlin.core.step import TrustedCore
+from merlin.core.types import (
+    Authority,
+    Behavior,
+    CommandKind,
+    Decision,
+    Inputs,
+    VehicleState,
+)
+from sims.battery import Battery, BatteryParams, BatterySagFault
+from sims.fixedwing import FixedWingSim, SurfaceCommand
+from sims.runner import ClosedLoop, TruthPlusNoiseEstimator, _end, sensor_faults
+from sims.scenario import Scenario
+from sims.sensor_faults import SensorFaultInjector
+from sims.sensors import SensorParams, SensorSuite
+from sims.wind import DiscreteGust, WindModel, WindParams
+
+G_MPS2 = 9.80665
+
+#: Airspeed a fixed-wing scenario starts at when ``initial.airspeed_mps`` is not given: the seed FCU
+#: thesis's cruise (Table 6.1).
+DEFAULT_AIRSPEED_MPS = 22.0
+#: Lowest start height above home: a fixed-wing scenario starts airborne (no take-off in this simulator).
+MIN_START_HEIGHT_M = 10.0
+#: LAND for a fixed wing: loiter over home down to this height above home (or the fence floor plus the
+#: fence margin, if higher). Low enough to be a landing approach, high enough to stay clear of the terrain
+#: with the loiter's height error (under 3 m in the tests) and the envelope's 30 m altitude floor.
+LAND_LOITER_HEIGHT_M = 50.0
+#: Rate of the fixed-wing guidance and inner loops (as in tests/fixedwing: the gains were tuned there at
+#: 100 Hz; PX4 runs its fixed-wing position controller at 50 Hz). The surfaces are held in between; a
+#: change of source re-initialises and runs the loops in the tick it happens.
+AUTOPILOT_HZ = 100.0
+#: Points per projected turn when comparing the two turn sides against the fence.
+_TURN_SAMPLES = 24
+
+#: The Aerosonde's battery: [B2]'s motor is specified for V_max = 44.4 V, a 12-cell LiPo (12 x 3.7 V);
+#: 5 Ah is our assumption (222 Wh: about 25 minutes at the 22 m/s cruise's ~500 W electrical).
+AEROSONDE_BATTERY = BatteryParams(cells=12, capacity_mah=5000.0, internal_resistance_ohm=0.06,
+                                  drive_efficiency=0.8, full_authority_cell_v=3.5, avionics_power_w=10.0)
+
+
+class FixedWingEstimator(TruthPlusNoiseEstimator):
+    """The multirotor's truth-plus-noise stand-in, plus the angle of attack (an alpha vane, read as truth).
+
+    LABELLED AS SUCH in every summary, as the multirotor's: the navigation errors are modelled, the vane's
+    are not (its error, about 0.5 deg on a calibrated vane, is small against the 6.5 deg between the
+    envelope's 17 deg and the stall).
+    """
+
+    def estimate(self, t: float, truth: Any, armed: bool, battery_frac: float) -> VehicleState:
+        s = super().estimate(t, truth, armed, battery_frac)
+        # positional, not dataclasses.replace: this runs every tick and replace costs ten times more
+        return VehicleState(s.pos_ned_m, s.vel_ned_mps, s.att_rpy_rad, s.rates_frd_radps, s.accel_frd_mps2,
+                            s.airspeed_mps, s.pos_sigma_h_m, s.pos_sigma_v_m, s.nav_mode, s.nav_inertial_s,
+                            s.armed, s.landed, s.battery_frac, truth.alpha_rad)
+
+
+def turn_clearances_m(
+    fence: geofence.Fence, s: VehicleState, reaction_time_s: float, bank_rad: float
+) -> tuple[float, float]:
+    """Smallest horizontal fence margin along the projected right and left turns: (right_m, left_m).
+
+    The path is the fence projection's (``merlin.core.geofence``): a straight reaction leg ``v t_react``,
+    then a half turn at ``bank_rad``, radius ``v^2 / (g tan(bank))``, sampled at ``_TURN_SAMPLES`` points
+    and measured with the public :func:`merlin.core.geofence.signed_margin_m` (horizontal only: the height
+    is set to home's). Pure; for the once-per-recovery choice of the turn side, not for every tick.
+    """
+    n, e = s.pos_ned_m[0], s.pos_ned_m[1]
+    vn, ve = s.vel_ned_mps[0], s.vel_ned_mps[1]
+    v = math.hypot(vn, ve)
+    if v < 1.0:
+        m = geofence.signed_margin_m(fence, (n, e, 0.0))
+        return m, m
+    un, ue = vn / v, ve / v
+    leg = v * reaction_time_s
+    radius = v * v / (G_MPS2 * math.tan(bank_rad))
+    an, ae = n + leg * un, e + leg * ue
+    out = []
+    for side in (1.0, -1.0):  # right, left
+        rn, re_ = -ue * side, un * side  # towards the turn centre
+        worst = min(geofence.signed_margin_m(fence, (n + f * leg * un, e + f * leg * ue, 0.0))
+                    for f in (0.0, 0.5, 1.0))
+        for i in range(1, _TURN_SAMPLES + 1):
+            phi = math.pi * i / _TURN_SAMPLES
+            c, sn = 1.0 - math.cos(phi), math.sin(phi)
+            worst = min(worst, geofence.signed_margin_m(
+                fence, (an + radius * (rn * c + un * sn), ae + radius * (re_ * c + ue * sn), 0.0)))
+        out.append(worst)
+    return out[0], out[1]
+
+
+def _side_towards(s: VehicleState, target_ne: tuple[float, float]) -> float:
+    """+1 when the short turn towards ``target_ne`` is to the right, -1 to the left."""
+    vn, ve = s.vel_ned_mps[0], s.vel_ned_mps[1]
+    tn, te = target_ne[0] - s.pos_ned_m[0], target_ne[1] - s.pos_ned_m[1]
+    return 1.0 if vn * te - ve * tn >= 0.0 else -1.0
+
+
+class FixedWingLoop(ClosedLoop):
+    """The fixed wing's vehicle side, one tick per ``sense()`` + ``act(inputs)`` (see the module docstring).
+
+    ``actuators`` are (aileron, elevator, rudder, throttle) in the pilot's conventions
+    (:class:`sims.fixedwing.SurfaceCommand`). ``notes`` lists what the stage did that the core's decision
+    does not say (an escape turn and its side, a LAND flown as a loiter), as event-like dicts.
+    """
+
+    #: Fly the escape turn before a trusted behaviour when the fence is tripped (off only to show, in the
+    #: tests, what guidance alone does next to the notch).
+    escape_turns: bool = True
+
+    def __init__(self, sc: Scenario, cfg: MerlinConfig, source: str = "<scenario>") -> None:
+        self.sc = sc
+        self.cfg = cfg
+        self.dt = dt = sc.dt_s
+        # The same five streams, in the same order, as the multirotor's loop (the vehicle's is unused:
+        # JSBSim is deterministic), so a sensor or wind draw never depends on which vehicle flies.
+        root = np.random.default_rng(sc.seed)
+        _rng_vehicle, rng_sensors, rng_wind, rng_est, rng_faults = root.spawn(5)
+        self.core_cfg = build_core_config(cfg, source=source)
+        self.core = TrustedCore(self.core_cfg)
+        ini = sc.initial
+        height = -ini.pos_ned_m[2]
+        if height < MIN_START_HEIGHT_M:
+            raise ConfigError(source, [
+                f"initial.pos_ned_m: down = {ini.pos_ned_m[2]!r} m; a fixed wing ({sc.vehicle}) starts airborne,"
+                f" at least {MIN_START_HEIGHT_M:g} m above home (down <= {-MIN_START_HEIGHT_M:g})"])
+        airspeed = ini.airspeed_mps if ini.airspeed_mps is not None else DEFAULT_AIRSPEED_MPS
+        steady = (float(sc.wind.steady_ned_mps[0]), float(sc.wind.steady_ned_mps[1]),
+                  float(sc.wind.steady_ned_mps[2]))
+        try:
+            self.vehicle = FixedWingSim(  # type: ignore[assignment]
+                home_lat_deg=cfg.home.lat_deg, home_lon_deg=cfg.home.lon_deg, home_alt_amsl_m=cfg.home.alt_amsl_m,
+                pos_ned_m=(float(ini.pos_ned_m[0]), float(ini.pos_ned_m[1]), float(ini.pos_ned_m[2])),
+                heading_rad=math.radians(ini.yaw_deg), airspeed_mps=airspeed, rate_hz=1.0 / dt,
+                wind_ned_mps=steady, model=sc.vehicle)
+        except ValueError as exc:
+            raise ConfigError(source, [f"initial.airspeed_mps = {airspeed!r}: {exc}"]) from None
+        self.fw: FixedWingSim = self.vehicle  # type: ignore[assignment]
+        self.sensors = SensorSuite(SensorParams(), rng_sensors, home_lat_deg=cfg.home.lat_deg,
+                                   home_lon_deg=cfg.home.lon_deg)
+        self.injector = SensorFaultInjector(sensor_faults(sc.faults), rng_faults)
+        gusts = [DiscreteGust(g.start_s, g.duration_s, tuple(g.amplitude_ned_mps)) for g in sc.wind.gusts]  # type: ignore[arg-type]
+        gusts += [DiscreteGust(f.start_s, (_end(f) - f.start_s) if f.end_s else 2.0, tuple(f.amplitude_ned_mps))  # type: ignore[arg-type]
+                  for f in sc.faults if f.type == "wind_gust" and f.amplitude_ned_mps]
+        self.wind = WindModel(WindParams(steady_ned_mps=steady, turbulence_w20_mps=sc.wind.turbulence_w20_mps,
+                                         gusts=tuple(gusts)), rng_wind, dt)
+        self.battery = Battery(AEROSONDE_BATTERY, [
+            BatterySagFault(f.start_s, _end(f), f.extra_resistance_ohm or 0.0, f.capacity_loss_frac or 0.0)
+            for f in sc.faults if f.type == "battery_sag"
+        ])
+        losses = [(f.start_s, _end(f)) for f in sc.faults if f.type == "gps_loss"]
+        self.estimator = FixedWingEstimator(rng_est, dt, losses)
+
+        # ---- the fixed-wing actuator stage: parameters from the configuration where it has them
+        trusted = cfg.trusted
+        cp0 = fc.FixedWingControlParams()
+        cruise = min(max(trusted.cruise_speed_mps, cp0.airspeed_min_mps), cp0.airspeed_max_mps)
+        # The autopilot banks up to its own 35 deg; the configuration's vehicle.bank_limit_deg is the bank the
+        # fence projection assumes, which should be what the autopilot holds in a sustained turn (less).
+        self.cp = replace(cp0, airspeed_cruise_mps=cruise)
+        self.gp = fg.GuidanceParams(rtl_height_m=trusted.rtl_altitude_m, rtl_airspeed_mps=cruise)
+        self.mission = tuple(fg.Waypoint(float(n), float(e), -float(d), cruise) for n, e, d in trusted.mission_ned_m)
+        fence = self.core_cfg.fence
+        floor = fence.params.altitude_floor_m if fence is not None else None
+        margin = fence.params.margin_m if fence is not None else 0.0
+        self.land_height_m = max(LAND_LOITER_HEIGHT_M, (floor + margin) if floor is not None else 0.0)
+        self.gstate = fg.GuidanceState()
+        self.mode_key: tuple[Any, ...] | None = None
+        self.autopilot_every = max(1, round(1.0 / (AUTOPILOT_HZ * dt)))
+        self.autopilot_dt_s = self.autopilot_every * dt
+        self._since_autopilot = self.autopilot_every  # run on the first tick
+        self.escape_side: float = 0.0  # +1 / -1 while an escape turn is flown, else 0
+        self.notes: list[dict[str, Any]] = []
+        assert self.fw.trim_result is not None
+        self.surfaces: SurfaceCommand = self.fw.trim_result.surfaces
+        self.cstate = fc.reset_from_state(self.cp, self.fw.truth().to_vehicle_state(), self.surfaces)
+
+        self.k = 0
+        self.armed = False
+        self.batt_frac = 1.0
+        self.supply = 1.0
+        self.truth = self.fw.truth()  # type: ignore[assignment]
+        self.state = VehicleState()
+        self.decision: Decision | None = None
+        self.wind_ned: tuple[float, float, float] = steady
+        self.frame: Any = None
+
+    @property
+    def actuators(self) -> tuple[float, float, float, float]:
+        """The surfaces commanded this tick: (aileron, elevator, rudder, throttle)."""
+        c = self.surfaces
+        return (c.aileron, c.elevator, c.rudder, c.throttle)
+
+    # ------------------------------------------------------------------------------------------ the tick
+
+    def act(self, inputs: Inputs) -> Decision:
+        """The core's tick on ``inputs`` (whose ``state`` must be :meth:`sense`'s), then the fixed-wing
+        actuator stage and one JSBSim frame."""
+        t = self.t
+        decision = self.core.step(t, inputs)
+        self.decision = decision
+        self.armed = decision.armed
+        s = inputs.state
+        if self._source_key(decision) != self.mode_key or self._since_autopilot >= self.autopilot_every:
+            targets = self._targets(t, decision, s)
+            self.cstate, out = fc.control_step(self.cp, self.cstate, s, targets, self.autopilot_dt_s)
+            self.surfaces = out.surfaces
+            self._since_autopilot = 0
+        self._since_autopilot += 1
+        self.wind_ned = self.wind.step(t)
+        self.fw.step(self.surfaces, self.wind_ned, self.supply)
+        bs = self.battery.step(self.fw.rotor_power_w, t, self.dt)
+        self.batt_frac, self.supply = bs.remaining_frac, bs.supply_scale
+        self.k += 1
+        return decision
+
+    @staticmethod
+    def _source_key(decision: Decision) -> tuple[Any, ...]:
+        """Who the stage follows: the core's command (with its authority and kind), or a trusted behaviour."""
+        cmd = decision.command
+        auth = decision.authority
+        if cmd.kind in (CommandKind.IDLE, CommandKind.TERMINATE) or auth in (Authority.EXPERIMENTAL,
+                                                                             Authority.OPERATOR):
+            return ("command", auth, cmd.kind)
+        return ("trusted", decision.behavior)
+
+    def _targets(self, t: float, decision: Decision, s: VehicleState) -> fc.FixedWingTargets:
+        """What the inner loops fly this tick; re-initialises them bumplessly on a change of source."""
+        cmd = decision.command
+        key = self._source_key(decision)
+        from_command = key[0] == "command"
+        changed = key != self.mode_key
+        if from_command:
+            self.escape_side = 0.0
+            targets = fg.targets_from_command(self.gp, self.cp, cmd, s)
+        else:
+            if changed:
+                self._enter(t, decision, s)
+            targets = self._trusted_targets(t, decision, s)
+        if changed:
+            # Guidance first (above), then the loops from the surfaces last commanded: no bump.
+            self.cstate = fc.reset_from_state(self.cp, s, self.surfaces, targets)
+            self.mode_key = key
+        return targets
+
+    def _enter(self, t: float, decision: Decision, s: VehicleState) -> None:
+        """Start the guidance mode for the core's behaviour, and an escape turn if the fence is tripped."""
+        b = decision.behavior
+        gs = self.gstate
+        self.escape_side = 0.0
+        fence = self.core_cfg.fence
+        if (self.escape_turns and fence is not None
+                and any(m.name == "geofence" and m.tripped for m in decision.monitors)):
+            right, left = turn_clearances_m(fence, s, fence.params.reaction_time_s, fence.params.bank_limit_rad)
+            if abs(right - left) < 1.0:  # both as good: the short way home
+                self.escape_side = _side_towards(s, (0.0, 0.0))
+            else:
+                self.escape_side = 1.0 if right > left else -1.0
+            self.notes.append({"t": t, "type": "fixed_wing_escape_turn",
+                               "side": "right" if self.escape_side > 0 else "left",
+                               "right_margin_m": right, "left_margin_m": left})
+        if b is Behavior.RTL:
+            gs = fg.start_rtl(self.gp, gs, s)
+        elif b is Behavior.LAND:
+            self.notes.append({"t": t, "type": "fixed_wing_land_as_loiter",
+                               "detail": f"LAND flown as a loiter over home descending to {self.land_height_m:g} m:"
+                                         " the fixed wing cannot land in this simulator"})
+            gs = fg.start_loiter(gs, fg.LoiterCircle((0.0, 0.0), self.gp.loiter_radius_m, True,
+                                                     self.land_height_m, self.cp.airspeed_cruise_mps))
+        elif b is Behavior.MISSION and self.mission:
+            gs = fg.start_mission(gs, s, self.mission, loop=False)
+        else:  # HOLD, TAKEOFF (airborne already), MISSION without waypoints
+            gs = fg.start_hold(self.gp, self.cp, gs, s, clockwise=self._hold_clockwise(s))
+        self.gstate = gs
+
+    def _hold_clockwise(self, s: VehicleState) -> bool:
+        """Loiter on the side whose circle keeps the larger fence margin (clockwise when no fence)."""
+        fence = self.core_cfg.fence
+        if fence is None or self.escape_side:
+            return self.escape_side >= 0.0
+        vn, ve = s.vel_ned_mps[0], s.vel_ned_mps[1]
+        speed = math.hypot(vn, ve)
+        if speed < 1.0:
+            return True
+        r = self.gp.loiter_radius_m
+        worst = []
+        for side in (1.0, -1.0):
+            cn = s.pos_ned_m[0] + side * (-ve / speed) * r
+            ce = s.pos_ned_m[1] + side * (vn / speed) * r
+            worst.append(min(geofence.signed_margin_m(fence, (cn + r * math.cos(a), ce + r * math.sin(a), 0.0))
+                             for a in np.linspace(0.0, math.tau, _TURN_SAMPLES, endpoint=False)))
+        return worst[0] >= worst[1]
+
+    def _trusted_targets(self, t: float, decision: Decision, s: VehicleState) -> fc.FixedWingTargets:
+        self.gstate, targets, _status = fg.guidance_step(self.gp, self.cp, self.gstate, s)
+        if not self.escape_side:
+            return targets
+        fence_tripped = any(m.name == "geofence" and m.tripped for m in decision.monitors)
+        vn, ve = s.vel_ned_mps[0], s.vel_ned_mps[1]
+        homeward = vn * -s.pos_ned_m[0] + ve * -s.pos_ned_m[1] > 0.0
+        if not fence_tripped and homeward:
+            self.notes.append({"t": t, "type": "fixed_wing_escape_turn_end"})
+            if decision.behavior in (Behavior.HOLD, Behavior.TAKEOFF) or (
+                    decision.behavior is Behavior.MISSION and not self.mission):
+                # the hold circle is re-centred where the escape ended, turning the same way
+                self.gstate = fg.start_hold(self.gp, self.cp, self.gstate, s, clockwise=self.escape_side > 0.0)
+                self.gstate, targets, _status = fg.guidance_step(self.gp, self.cp, self.gstate, s)
+            self.escape_side = 0.0
+            return targets
+        return replace(targets, roll_rad=self.escape_side * fc.bank_limit_rad(self.cp))

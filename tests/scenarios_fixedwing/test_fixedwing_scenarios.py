@@ -1,0 +1,174 @@
+"""The JSBSim fixed wing in the whole closed loop (sensors, estimator, trusted core, fixed-wing actuator
+stage): stall protection, the velocity-projected fence at several approach angles and speeds and next to
+the range's notch, and the seed FCU thesis's lap. Checked numerically against the run's log, where the
+scenario expectation types cannot say it (height lost after a revocation, height/airspeed errors).
+
+The runs use the scenarios' own rates (200 Hz for the stall and the fence, 100 Hz for the 170 s lap:
+the lap's errors agree with 200 Hz to 0.03 m RMS; docs/fixed-wing.md, "Closed loop").
+"""
+
+from __future__ import annotations
+
+import math
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from merlin.config.loader import load_config
+from merlin.config.runtime import build_core_config
+from sims.expectations import evaluate_all
+from sims.fixedwing_loop import FixedWingLoop
+from sims.runner import RunResult, run_scenario
+from sims.scenario import Scenario, load_scenario, resolve_config
+from tests.scenarios_fixedwing.fence_cases import ANGLES_DEG, SPEEDS_MPS, approach_case, notch_case
+
+ROOT = Path(__file__).resolve().parents[2]
+SCENARIOS = ROOT / "examples" / "scenarios"
+CONFIG = ROOT / "examples" / "configs" / "fixedwing_default.yaml"
+STALL_SPEED_MPS = 15.5  # the model's 1 g stall speed (docs/fixed-wing.md; tests/fixedwing/test_vehicle.py)
+ALPHA_STALL_DEG = 23.5
+HEIGHT_LOSS_BOUND_M = 8.0  # the stated bound (docs/fixed-wing.md)
+FENCE = build_core_config(load_config(CONFIG)).fence  # built once (its distance field takes a moment)
+assert FENCE is not None
+FENCE_PARAMS = FENCE.params
+
+
+def _expectations_pass(r: RunResult) -> None:
+    verdicts = evaluate_all(r.scenario.expectations, r.events, r.log, r.metrics)
+    failed = [v.to_dict() for v in verdicts if not v.passed]
+    assert not failed, failed
+
+
+@cache
+def _run_file(name: str, log_rate_hz: float | None = None) -> RunResult:
+    sc, cfg = load_scenario(SCENARIOS / name)
+    if log_rate_hz is not None:
+        sc = sc.model_copy(update={"log_rate_hz": log_rate_hz})
+    return run_scenario(sc, cfg, source=name)
+
+
+@cache
+def _run_case(kind: str, speed_mps: float) -> RunResult:
+    sc = notch_case(FENCE_PARAMS, speed_mps) if kind == "notch" else approach_case(FENCE_PARAMS, float(kind), speed_mps)
+    return run_scenario(sc, resolve_config(sc, SCENARIOS, "<generated>"), source=sc.name)
+
+
+def _row(log: dict[str, np.ndarray], t: float) -> int:
+    return int(np.searchsorted(log["t"], t - 1e-9))
+
+
+def height_loss_after_revocation_m(r: RunResult) -> float:
+    """Height at the first revocation minus the lowest height after it (what the stall recovery costs)."""
+    rev = next(e for e in r.events if e["type"] == "revoked")
+    k = _row(r.log, rev["t"])
+    h = -r.log["truth_d"]
+    return float(h[k] - h[k:].min())
+
+
+def _surface_steps_at_changes(r: RunResult) -> float:
+    """Largest step of any surface across a change of authority or behaviour (log at the tick rate)."""
+    log = r.log
+    change = np.flatnonzero((np.diff(log["authority"]) != 0) | (np.diff(log["behavior"]) != 0)) + 1
+    steps = [max(abs(float(log[c][k] - log[c][k - 1])) for c in ("m0", "m1", "m2", "m3")) for k in change]
+    return max(steps, default=0.0)
+
+
+# ------------------------------------------------------------------------------------------------ stall
+
+
+def test_stall_protection_revokes_before_the_stall_and_recovers_within_the_bound() -> None:
+    r = _run_file("fw_stall_protection.yaml", log_rate_hz=200.0)
+    _expectations_pass(r)
+    rev = [e for e in r.events if e["type"] == "revoked"]
+    assert len(rev) == 1 and rev[0]["reason"] == "envelope"
+    assert rev[0]["reason_detail"]["parameter"] in ("airspeed_mps", "alpha_deg")
+    k = _row(r.log, rev[0]["t"])
+    airspeed, alpha = r.log["env_airspeed_mps"], r.log["env_alpha_deg"]
+    # before the stall: the aircraft never got near the stall speed or the stall angle, before or after
+    assert airspeed[k] > STALL_SPEED_MPS + 2.0, airspeed[k]
+    assert alpha[k] < ALPHA_STALL_DEG - 5.0, alpha[k]
+    assert airspeed.min() > STALL_SPEED_MPS + 2.0 and alpha.max() < ALPHA_STALL_DEG - 5.0
+    # the experimental controller really pulled the speed down: it was revoked on the way to the stall
+    assert airspeed[k] < 18.5
+    loss = height_loss_after_revocation_m(r)
+    assert 0.0 < loss < HEIGHT_LOSS_BOUND_M, loss
+    # recovered: back at cruise and within 3 m of the revocation height by the end
+    h = -r.log["truth_d"]
+    assert airspeed[-1] == pytest.approx(22.0, abs=1.0)
+    assert h[-1] > h[k] - 3.0
+    # bumpless: no surface steps by more than two autopilot ticks of setpoint slew at the switches
+    assert _surface_steps_at_changes(r) < 0.05
+
+
+# ------------------------------------------------------------------------------------------------ fence
+
+CASES = [(str(a), v) for a in ANGLES_DEG for v in SPEEDS_MPS] + [("notch", v) for v in SPEEDS_MPS]
+
+
+@pytest.mark.parametrize(("kind", "speed_mps"), CASES, ids=[f"{k}_{int(v)}mps" for k, v in CASES])
+def test_fence_approach_holds_at_every_angle_and_speed(kind: str, speed_mps: float) -> None:
+    """Velocity projection with a fixed wing's turn: zero breach at 0/30/60/90 deg to the boundary normal
+    (90: parallel to the east boundary, into the north-east corner), at cruise and maximum speed, and next
+    to the notch, where only the turn away from home is clear."""
+    r = _run_case(kind, speed_mps)
+    _expectations_pass(r)
+    assert r.metrics["max_fence_breach_m"] == 0.0
+    assert r.metrics["min_fence_margin_m"] > 0.0
+    rev = next(e for e in r.events if e["type"] == "revoked")
+    k = _row(r.log, rev["t"])
+    turn_roll = float(np.mean(r.log["truth_roll"][k + 50 : k + 150]))  # 1-3 s after the trip
+    if kind == "notch":
+        assert turn_roll > math.radians(20.0)  # right: the left turn (towards home) is blocked by the notch
+    elif kind != "0.0":
+        assert turn_roll < -math.radians(20.0)  # left: away from the east boundary it is flying along
+    assert _surface_steps_at_changes(r) < 0.1  # the log is at 50 Hz here: two to four autopilot ticks
+
+
+def test_guidance_alone_turns_into_the_notch(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Why the escape turn exists: without it the RTL guidance turns the short way home, into the notch."""
+    monkeypatch.setattr(FixedWingLoop, "escape_turns", False)
+    sc = notch_case(FENCE_PARAMS, 22.0)
+    r = run_scenario(sc, resolve_config(sc, SCENARIOS, "<generated>"), source=sc.name)
+    assert r.metrics["max_fence_breach_m"] > 20.0
+
+
+@pytest.mark.parametrize("name", ["fw_fence_0deg_22mps", "fw_fence_60deg_30mps", "fw_fence_notch_22mps"])
+def test_shipped_fence_files_are_the_generated_cases(name: str) -> None:
+    """The representative YAML files are exactly the sweep's cases (so the sweep's runs stand for them)."""
+    sc, _cfg = load_scenario(SCENARIOS / f"{name}.yaml")
+    _, rest = name.removeprefix("fw_fence_").split("_")
+    kind = name.removeprefix("fw_fence_").split("_")[0]
+    speed = float(rest.removesuffix("mps"))
+    gen: Scenario = (notch_case(FENCE_PARAMS, speed) if kind == "notch"
+                     else approach_case(FENCE_PARAMS, float(kind.removesuffix("deg")), speed))
+    assert sc.model_dump() == gen.model_dump()
+
+
+# -------------------------------------------------------------------------------------------------- lap
+
+
+def test_seed_004_lap_two_laps_clockwise_through_the_closed_loop() -> None:
+    """Table 6.1 of the seed FCU thesis: 500 m square, 160 m, 22 m/s, clockwise, two laps, by Merlin's
+    trusted MISSION behaviour; height within 10 m and airspeed within 2 m/s after capture."""
+    r = _run_file("fw_lap.yaml")
+    _expectations_pass(r)
+    log = r.log
+    t, h, v = log["t"], -log["truth_d"], log["env_airspeed_mps"]
+    captured = np.flatnonzero((np.abs(h - 160.0) < 2.0) & (np.abs(v - 22.0) < 0.5))
+    assert captured.size and t[captured[0]] < 30.0
+    c = captured[0]
+    assert np.abs(h[c:] - 160.0).max() <= 10.0
+    assert np.abs(v[c:] - 22.0).max() <= 2.0
+    # the corners, in order, twice (L1 cuts each corner by its turn anticipation: within 60 m)
+    corners = [(500.0, 0.0), (500.0, 500.0), (0.0, 500.0), (0.0, 0.0)] * 2
+    i = 0
+    for n, e in zip(log["truth_n"], log["truth_e"], strict=True):
+        if i < len(corners) and math.hypot(n - corners[i][0], e - corners[i][1]) < 60.0:
+            i += 1
+    assert i == len(corners)
+    # clockwise: the heading turns right by 90 deg at each of the seven corners between the eight legs
+    # (the last one still under way at the end of the run)
+    turned = math.degrees(float(np.unwrap(log["truth_yaw"])[-1] - log["truth_yaw"][0]))
+    assert turned > 560.0

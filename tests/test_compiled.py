@@ -1,0 +1,181 @@
+"""The mypyc-compiled build of the hot path (``setup.py``) against the pure-Python sources.
+
+These tests pass in both builds. In a compiled build they check that the extension modules make the same
+decisions as their sources (run in a subprocess forced onto the ``.py`` files), that no extension module
+is older than the source beside it, and that bad input values still never make the core raise.
+"""
+
+from __future__ import annotations
+
+import ast
+import hashlib
+import importlib.machinery
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from merlin import _build
+
+ROOT = Path(__file__).resolve().parents[1]
+DT = 0.0025
+
+_BAD = (math.nan, math.inf, -math.inf)
+
+
+def core_decision_digest(n_ticks: int = 1600) -> str:
+    """A scripted flight through the trusted core, with bad values mixed in; a digest of its decisions.
+
+    Arm, take off, take authority through the exchange, fly velocity setpoints, then feed NaN and
+    infinite states and setpoints (which must become faults, never exceptions), then recover.
+    """
+    from merlin.config.models import MerlinConfig
+    from merlin.config.runtime import build_core_config
+    from merlin.core.step import TrustedCore
+    from merlin.core.types import (
+        Authority,
+        AuthorityRequest,
+        EventKind,
+        ExperimentalInput,
+        GcsCommand,
+        GcsCommandKind,
+        Inputs,
+        RequestKind,
+        Setpoint,
+        SetpointKind,
+        VehicleState,
+    )
+
+    core = TrustedCore(build_core_config(MerlinConfig()))
+    digest = hashlib.sha256()
+    grant_seq = 0
+    authorities = []
+    for k in range(n_ticks):
+        t = k * DT
+        requests: tuple[AuthorityRequest, ...] = ()
+        commands: tuple[GcsCommand, ...] = ()
+        state = VehicleState(
+            pos_ned_m=(3.0 * t, 1.0 - math.cos(t), -10.0),
+            vel_ned_mps=(3.0, math.sin(t), 0.0),
+            att_rpy_rad=(0.05, -0.02, 0.3),
+            armed=True,
+            landed=False,
+        )
+        setpoint = Setpoint(SetpointKind.VELOCITY, vel_ned_mps=(3.0, math.sin(t), 0.0), yaw_rad=0.3)
+        if k == 0:
+            state = VehicleState(landed=True)
+            commands = (GcsCommand(GcsCommandKind.ARM),)
+        elif k == 1:
+            state = VehicleState(landed=True, armed=True)
+            commands = (GcsCommand(GcsCommandKind.TAKEOFF, param=10.0),)
+        elif k == 600:
+            requests = (AuthorityRequest(RequestKind.REQUEST),)
+        elif k == 601:
+            requests = (AuthorityRequest(RequestKind.ACK, seq=grant_seq),)
+        elif 1000 <= k < 1100:  # a corrupt navigation solution
+            bad = _BAD[k % 3]
+            state = VehicleState(pos_ned_m=(bad, 0.0, -10.0), vel_ned_mps=(0.0, bad, 0.0), armed=True, landed=False)
+        elif 1100 <= k < 1200:  # a corrupt setpoint
+            bad = _BAD[k % 3]
+            setpoint = Setpoint(SetpointKind.VELOCITY, vel_ned_mps=(bad, 0.0, bad), yaw_rad=bad)
+        inputs = Inputs(
+            state=state,
+            experimental=ExperimentalInput(heartbeat_t_s=t, setpoint=setpoint, setpoint_t_s=t, requests=requests),
+            gcs_link_t_s=t,
+            gcs_commands=commands,
+        )
+        d = core.step(t, inputs)
+        if k == 600:
+            grant_seq = next(e.seq for e in d.events if e.kind is EventKind.GRANTED)
+        authorities.append(d.authority)
+        digest.update(repr((d.authority, d.command, d.armed, [(e.kind, e.seq) for e in d.events])).encode())
+    assert authorities[605] is Authority.EXPERIMENTAL, authorities[605]
+    if n_ticks > 1100:  # the corrupt navigation solution took authority back
+        assert authorities[1099] is not Authority.EXPERIMENTAL, authorities[1099]
+    return digest.hexdigest()
+
+
+def closed_loop_digest(seconds: float = 3.0) -> str:
+    """The start of the nominal scenario (dynamics, sensors, core, inner loops): its decision digest."""
+    from sims.runner import run_scenario
+    from sims.scenario import load_scenario
+
+    sc, cfg = load_scenario(ROOT / "examples" / "scenarios" / "nominal.yaml")
+    return run_scenario(sc.model_copy(update={"duration_s": seconds}), cfg).decisions_digest
+
+
+def _pure_digests() -> dict[str, str]:
+    code = (
+        "import json, sys\n"
+        "from merlin import _build\n"
+        "_build.use_pure_python()\n"
+        "from tests.test_compiled import closed_loop_digest, core_decision_digest\n"
+        "import merlin.core.step, sims.multirotor\n"
+        "print(json.dumps({'core': core_decision_digest(), 'loop': closed_loop_digest(),\n"
+        "    'compiled': _build.compiled(), 'files': [merlin.core.step.__file__, sims.multirotor.__file__]}))\n"
+    )
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    result: dict[str, str] = json.loads(proc.stdout.strip().splitlines()[-1])
+    return result
+
+
+def test_module_lists_agree_with_setup_py() -> None:
+    tree = ast.parse((ROOT / "setup.py").read_text(encoding="utf-8"))
+    listed = next(
+        ast.literal_eval(node.value)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "COMPILED_MODULES" for t in node.targets)
+    )
+    assert tuple(p.removesuffix(".py").replace("/", ".") for p in listed) == _build.COMPILED_MODULES
+
+
+def test_build_reports_consistently() -> None:
+    import merlin.core.step
+
+    flags = _build.compiled_modules()
+    step_is_extension = merlin.core.step.__file__ is not None and merlin.core.step.__file__.endswith(
+        tuple(importlib.machinery.EXTENSION_SUFFIXES)
+    )
+    assert _build.compiled() is step_is_extension is flags["merlin.core.step"]
+    # setup.py builds all of them or none: a mix would mean a broken or half-cleaned build
+    assert set(flags.values()) == {_build.compiled()}, flags
+    assert ("compiled" in _build.describe()) is _build.compiled()
+
+
+def test_no_compiled_module_is_older_than_its_source() -> None:
+    stale = _build.stale_modules()
+    assert stale == [], f"rebuild: `pip install -e .` (or MERLIN_PURE_PYTHON=1 to drop them); stale: {stale}"
+
+
+def test_stale_detection_sees_a_changed_source(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    wrong = tmp_path / "manifest.json"
+    wrong.write_text(json.dumps(dict.fromkeys(_build.COMPILED_MODULES, "0" * 64)), encoding="utf-8")
+    monkeypatch.setattr(_build, "SOURCES_MANIFEST", wrong)
+    compiled = [name for name, is_ext in _build.compiled_modules().items() if is_ext]
+    assert _build.stale_modules() == compiled
+
+
+def test_use_pure_python_refuses_once_the_hot_modules_are_loaded() -> None:
+    import merlin.core.step  # noqa: F401
+
+    with pytest.raises(RuntimeError, match=r"merlin\.core\.step"):
+        _build.use_pure_python()
+
+
+def test_bad_values_never_raise() -> None:
+    assert len(core_decision_digest(1300)) == 64
+
+
+@pytest.mark.slow
+def test_compiled_and_pure_make_the_same_decisions() -> None:
+    pure = _pure_digests()
+    assert pure["compiled"] is False
+    assert all(f.endswith(".py") for f in pure["files"]), pure["files"]
+    assert core_decision_digest() == pure["core"]
+    assert closed_loop_digest() == pure["loop"]
