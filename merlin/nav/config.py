@@ -1,0 +1,140 @@
+"""Every tunable of the navigation filter, its fault tests and its mode logic, with documented defaults.
+
+One frozen dataclass so that a run is reproducible from its configuration alone; the lead mirrors it into
+the pydantic models (``merlin/config/models.py``) later. Units are in the names; SI and radians.
+
+Where a default comes from a source it is cited. The sensor noise defaults describe a typical small
+multirotor with MEMS sensors (an ICM-20602/BMI088-class IMU, a u-blox M8/M9-class receiver, an
+MS5611-class barometer); they are deliberately a little pessimistic because vibration inflates
+the datasheet densities in flight (PX4's EKF2 defaults make the same choice: ``EKF2_GYR_NOISE``,
+``EKF2_ACC_NOISE``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+# Chi-square quantiles used as innovation gates, P(chi2_dof > gate) = 1e-4 under a correct model
+# (scipy.stats.chi2.isf(1e-4, dof)); kept as literals so importing the config needs no scipy.
+CHI2_1E4: dict[int, float] = {1: 15.137, 2: 18.421, 3: 21.108, 4: 23.513, 6: 27.856}
+# ... and P = 1e-2, used for the stricter re-admission test (a GPS that is to be trusted again must look
+# ordinary, not merely not-absurd).
+CHI2_1E2: dict[int, float] = {1: 6.635, 2: 9.210, 3: 11.345, 4: 13.277, 6: 16.812}
+
+
+@dataclass(frozen=True, slots=True)
+class NavConfig:
+    # ------------------------------------------------------------------ IMU model (prediction, Q)
+    gravity_mps2: float = 9.80665
+    gyro_noise_radps_rthz: float = 5.0e-3  # white noise density (angle random walk)
+    accel_noise_mps2_rthz: float = 5.0e-2  # white noise density (velocity random walk)
+    gyro_bias_rw_radps2_rthz: float = 1.0e-4  # bias random walk density
+    accel_bias_rw_mps3_rthz: float = 1.0e-3
+    init_gyro_bias_sigma_radps: float = 0.01
+    init_accel_bias_sigma_mps2: float = 0.1
+    max_imu_dt_s: float = 0.05  # a longer gap is integrated as this long (and reported as an event)
+    # Covariance prediction every n IMU samples (nominal state still integrates every sample). 1 keeps
+    # the exact discrete filter; see docs/benchmarks/nav.md for the cost at 400 Hz.
+    cov_predict_every_n: int = 1
+
+    # ------------------------------------------------------------------ GPS
+    gps_min_fix_type: int = 3  # GPS_RAW_INT fix_type: 3 = 3D fix
+    gps_min_satellites: int = 6  # paper: "at least three to four" for a fix; 6 for a trustworthy one
+    # The receiver's position error is mostly slow (multipath, ionosphere, orbit and clock): modelled as a
+    # first-order Gauss-Markov bias state (stationary sigma, correlation time) plus a white part. Treating
+    # it all as white would let the filter average it away and publish a sigma several times too small.
+    gps_bias_sigma_h_m: float = 1.2
+    gps_bias_sigma_v_m: float = 2.0
+    gps_bias_tau_s: float = 60.0
+    gps_white_fraction: float = 0.35  # white part = this fraction of the reported eph/epv ...
+    gps_pos_sigma_floor_m: float = 0.3  # ... never below this
+    gps_vel_sigma_mps: float = 0.15  # receiver Doppler velocity accuracy, 1 sigma
+    gps_timeout_s: float = 1.0  # no usable GPS for this long -> GPS lost
+    gps_max_lag_s: float = 0.5  # a sample older than this (valid time vs filter time) is carried 0.5 s only
+    gps_gate_pos: float = CHI2_1E4[3]  # single-epoch gate (3 dof): a jump is rejected on its first epoch
+    gps_gate_vel: float = CHI2_1E4[3]
+    # Persistently rejected for this long -> excluded (a jump that does not come back is not noise).
+    gps_reject_exclude_s: float = 1.0
+    # CUSUM on the per-epoch normalised innovation energy s = (NIS_pos + NIS_vel) / 6, which has mean 1
+    # under a consistent GPS (Page 1954; Basseville & Nikiforov 1993, sec. 2.2): g = max(0, g + s - k),
+    # alarm at g > h. k is the allowance (the drift of g is negative while s < k), s is clipped so that a
+    # single wild epoch cannot alone trip the sequential test.
+    gps_cusum_allowance: float = 2.0
+    gps_cusum_threshold: float = 12.0
+    gps_cusum_clip: float = 6.0
+    # Windowed consistency test: over the last gps_window_s the GPS horizontal displacement must match
+    # the displacement of the mechanisation (velocity held by VO and the IMU, not by GPS position). A
+    # position-only spoof that drags the estimate slowly is visible here long before in the innovations.
+    # gps_window_sigma_m is the receiver's short-term stability: the 1-sigma change of its position error
+    # over the window, per axis (far smaller than eph, which describes the slowly wandering absolute
+    # error). The window statistic d^T C^-1 d / 2 (mean 1) feeds a second CUSUM with the same allowance,
+    # threshold and clip.
+    gps_window_s: float = 3.0
+    gps_window_sigma_m: float = 0.6
+    # Re-admission: the GPS must pass the stricter 1e-2 gate on every epoch for this long.
+    gps_readmit_gate_pos: float = CHI2_1E2[3]
+    gps_readmit_gate_vel: float = CHI2_1E2[3]
+    gps_readmit_s: float = 10.0
+
+    # ------------------------------------------------------------------ barometer, magnetometer
+    baro_sigma_m: float = 0.5
+    baro_gate: float = CHI2_1E4[1]
+    baro_timeout_s: float = 1.0
+    mag_heading_sigma_rad: float = 0.05  # ~3 deg: calibration residual and motor interference
+    mag_gate: float = CHI2_1E4[1]
+    mag_declination_rad: float = 0.0
+    mag_min_horizontal_gauss: float = 0.05  # below this the heading is not observable (near a pole/iron)
+
+    # ------------------------------------------------------------------ visual odometry
+    vo_gate: float = CHI2_1E4[3]
+    vo_timeout_s: float = 0.5  # no accepted VO for this long -> VO not available
+    vo_sigma_floor_mps: float = 0.05
+    vo_min_features: int = 25
+    vo_min_inlier_ratio: float = 0.5
+    vo_max_reprojection_px: float = 1.5
+    vo_min_texture_score: float = 0.25
+    # Between the minimum and "good" the VO covariance is inflated linearly up to vo_max_noise_scale.
+    vo_good_features: int = 80
+    vo_good_inlier_ratio: float = 0.85
+    vo_max_noise_scale: float = 4.0
+    # The VO velocity is computed with this filter's attitude and height; model that shared error in H
+    # (attitude and altitude columns) instead of inflating the VO noise (see NavEstimator._vo_jacobian).
+    vo_model_coupling: bool = True
+
+    # ------------------------------------------------------------------ modes
+    # Inertial-only navigation is trusted this long (mirrors merlin.config.models.NavConfig).
+    inertial_time_limit_s: float = 30.0
+    lost_sigma_h_m: float = 50.0  # beyond this horizontal sigma the solution is LOST whatever the time
+
+    def __post_init__(self) -> None:
+        problems = []
+        for name in (
+            "gyro_noise_radps_rthz",
+            "accel_noise_mps2_rthz",
+            "gps_pos_sigma_floor_m",
+            "gps_vel_sigma_mps",
+            "baro_sigma_m",
+            "mag_heading_sigma_rad",
+            "vo_sigma_floor_mps",
+            "gps_cusum_threshold",
+            "gps_window_s",
+            "gps_bias_sigma_h_m",
+            "gps_bias_sigma_v_m",
+            "gps_bias_tau_s",
+            "gps_white_fraction",
+            "gps_window_sigma_m",
+            "inertial_time_limit_s",
+        ):
+            if not getattr(self, name) > 0.0:
+                problems.append(f"{name}={getattr(self, name)!r} must be > 0")
+        if self.cov_predict_every_n < 1:
+            problems.append(f"cov_predict_every_n={self.cov_predict_every_n} must be >= 1")
+        if self.gps_cusum_allowance <= 1.0:
+            problems.append(
+                f"gps_cusum_allowance={self.gps_cusum_allowance} must exceed 1 (the mean of the statistic"
+                " under a healthy GPS), or the CUSUM drifts up without a fault"
+            )
+        if self.vo_max_noise_scale < 1.0:
+            problems.append(f"vo_max_noise_scale={self.vo_max_noise_scale} must be >= 1")
+        if problems:
+            raise ValueError("invalid NavConfig: " + "; ".join(problems))

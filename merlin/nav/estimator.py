@@ -1,0 +1,765 @@
+"""The navigation filter: an IMU-driven error-state extended Kalman filter with per-source fault tests.
+
+State (Solà 2017, "Quaternion kinematics for the error-state Kalman filter", arXiv:1711.02508, sec. 5
+and 7): the nominal state ``p`` (NED position, m), ``v`` (NED velocity, m/s), ``q`` (body FRD -> NED
+attitude), ``b_g`` (gyro bias, rad/s), ``b_a`` (accelerometer bias, m/s²) is integrated from every IMU
+sample; a 15-element error state ``δx = [δp, δv, δθ, δb_g, δb_a]`` with the attitude error expressed in
+the NED frame ("global" error, Solà sec. 7) carries the covariance. The error-state Kalman filter itself is
+filterpy's :class:`~filterpy.kalman.ExtendedKalmanFilter`, used as the textbook equations it implements:
+``predict()`` propagates ``P = F P Fᵀ + Q`` and ``update(z, HJacobian, Hx, R)`` computes the gain and the
+Joseph-form covariance; after each update the error mean is injected into the nominal state and reset to
+zero (Solà sec. 6.2-6.3, 7.3).
+
+Every measurement goes through a normalised innovation squared (NIS) test before it is fused: with
+innovation ``y = z - h(x̂)`` and ``S = H P Hᵀ + R``, ``NIS = yᵀ S⁻¹ y`` is chi-square with dim(z) degrees
+of freedom under a consistent model (Bar-Shalom, Li & Kirubarajan 2001, "Estimation with Applications to
+Tracking and Navigation", sec. 5.4). GPS is in addition watched by a CUSUM (Page 1954) on its innovation
+energy to catch a slow spoofing drift that no single-epoch gate sees. See docs/navigation.md.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+from filterpy.kalman import ExtendedKalmanFilter
+
+from merlin.core.types import ZERO3, NavMode, Vec3, VehicleState
+from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample, VoQuality, VoSample
+from merlin.nav.config import NavConfig
+from merlin.nav.events import NavEvent, NavEventKind
+from merlin.nav.modes import select_mode
+from merlin.nav.quaternion import (
+    Quat,
+    quat_exp,
+    quat_from_euler,
+    quat_mul,
+    quat_normalize,
+    quat_rotate,
+    quat_to_dcm,
+    quat_to_euler,
+    skew,
+    wrap_pi,
+)
+
+# error-state indices
+P_, V_, TH_, BG_, BA_ = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15)
+BGPS_ = slice(15, 18)  # the GPS receiver's slowly wandering position error (first-order Gauss-Markov)
+N_ERR = 18
+
+
+class GpsStatus(Enum):
+    OK = "ok"  # admitted: fused whenever an epoch passes its gate
+    UNUSABLE = "unusable"  # the receiver's own quality (fix type, satellites) is too poor
+    EXCLUDED = "excluded"  # inconsistent with VO+INS: not fused until it agrees for gps_readmit_s
+
+
+@dataclass(frozen=True, slots=True)
+class NavInit:
+    """Where the filter starts and how sure it is (the runner aligns on the ground before arming)."""
+
+    t_s: float = 0.0
+    pos_ned_m: Vec3 = ZERO3
+    vel_ned_mps: Vec3 = ZERO3
+    att_rpy_rad: Vec3 = ZERO3
+    pos_sigma_m: float = 1.0
+    vel_sigma_mps: float = 0.2
+    tilt_sigma_rad: float = 0.03
+    yaw_sigma_rad: float = 0.2
+
+
+@dataclass(frozen=True, slots=True)
+class GpsCheck:
+    """The test statistics of one GPS epoch (for logs and the innovation plots)."""
+
+    t_s: float
+    nis_pos: float
+    nis_vel: float
+    cusum: float
+    nis_window: float  # windowed displacement test, per degree of freedom (nan until the window fills)
+    window_cusum: float
+    fused_pos: bool
+    fused_vel: bool
+    status: GpsStatus
+
+
+@dataclass(frozen=True, slots=True)
+class Check:
+    """The test statistic of one baro, mag or VO measurement."""
+
+    t_s: float
+    nis: float
+    fused: bool
+
+
+def initial_attitude(accel_frd_mps2: Vec3, field_frd_gauss: Vec3, declination_rad: float = 0.0) -> Vec3:
+    """Roll and pitch from the specific force at rest, yaw from the levelled magnetic field (coarse
+    alignment, Groves 2013, "Principles of GNSS, Inertial, and Multisensor Integrated Navigation Systems",
+    2nd ed., sec. 5.6.2 and 6.1.1)."""
+    fx, fy, fz = accel_frd_mps2
+    roll = math.atan2(-fy, -fz)
+    pitch = math.atan2(fx, math.hypot(fy, fz))
+    return (roll, pitch, _mag_heading(field_frd_gauss, roll, pitch, declination_rad)[0])
+
+
+def _mag_heading(field: Vec3, roll: float, pitch: float, declination_rad: float) -> tuple[float, float]:
+    """Heading from a body-frame field levelled with the given roll and pitch; also the levelled field's
+    horizontal strength (the heading is meaningless when it is small)."""
+    mx, my, mz = field
+    cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
+    # Ry(pitch) Rx(roll) m: the field in the yaw-only frame
+    ly = cr * my - sr * mz
+    lz = sr * my + cr * mz
+    lx = cp * mx + sp * lz
+    return wrap_pi(declination_rad - math.atan2(ly, lx)), math.hypot(lx, ly)
+
+
+class NavEstimator:
+    """Error-state EKF over [p, v, θ, b_g, b_a] driven by the IMU, fusing GPS, VO, baro and magnetometer.
+
+    Call :meth:`predict` with every IMU sample (400 Hz) and the ``update_*`` methods as samples arrive, in
+    time order; read :meth:`state` and :meth:`pop_events`. Measurements are applied at the current filter
+    time (the sample's own ``t_s`` must not be later than the latest IMU sample).
+    """
+
+    def __init__(self, config: NavConfig | None = None, init: NavInit = NavInit()) -> None:
+        config = NavConfig() if config is None else config
+        self.cfg = config
+        self._t = init.t_s
+        self._imu_seen = False
+        self._p = np.array(init.pos_ned_m, dtype=float)
+        self._v = np.array(init.vel_ned_mps, dtype=float)
+        self._q: Quat = quat_from_euler(*init.att_rpy_rad)
+        self._q_gyro: Quat = self._q  # integrated from the bias-corrected gyro only, never updated
+        self._bg = np.zeros(3)
+        self._ba = np.zeros(3)
+        self._b_gps = np.zeros(3)
+        self._g = np.array([0.0, 0.0, config.gravity_mps2])
+        self._last_gyro: Vec3 = ZERO3
+        self._last_accel: Vec3 = (0.0, 0.0, -config.gravity_mps2)
+
+        kf = ExtendedKalmanFilter(dim_x=N_ERR, dim_z=3)
+        kf.x = np.zeros((N_ERR, 1))
+        kf.P = np.diag(
+            [init.pos_sigma_m**2] * 3
+            + [init.vel_sigma_mps**2] * 3
+            + [init.tilt_sigma_rad**2] * 2
+            + [init.yaw_sigma_rad**2]
+            + [config.init_gyro_bias_sigma_radps**2] * 3
+            + [config.init_accel_bias_sigma_mps2**2] * 3
+            + [config.gps_bias_sigma_h_m**2] * 2
+            + [config.gps_bias_sigma_v_m**2]
+        )
+        self.kf = kf
+        self._F = np.eye(N_ERR)
+        self._Q = np.zeros((N_ERR, N_ERR))
+        self._q_density = np.array(
+            [0.0] * 3
+            + [config.accel_noise_mps2_rthz**2] * 3
+            + [config.gyro_noise_radps_rthz**2] * 3
+            + [config.gyro_bias_rw_radps2_rthz**2] * 3
+            + [config.accel_bias_rw_mps3_rthz**2] * 3
+            # Gauss-Markov driving noise 2σ²/τ keeps the bias at its stationary σ (Groves 2013, sec. 3.4.3)
+            + [2.0 * config.gps_bias_sigma_h_m**2 / config.gps_bias_tau_s] * 2
+            + [2.0 * config.gps_bias_sigma_v_m**2 / config.gps_bias_tau_s]
+        )
+        # pending covariance prediction (cov_predict_every_n > 1): accumulated time and specific force
+        self._pend_n = 0
+        self._pend_dt = 0.0
+        self._pend_f_ned = np.zeros(3)
+
+        # source health
+        self.gps_status = GpsStatus.OK
+        self._gps_cusum = 0.0
+        self._gps_wcusum = 0.0
+        # (t, GPS north, GPS east, dead-reckoned north, east) of recent admitted epochs
+        self._gps_window: deque[tuple[float, float, float, float, float]] = deque()
+        self._dr = np.zeros(3)  # position propagated by the mechanisation alone (never corrected)
+        self._gps_reject_since: float | None = None
+        self._gps_agree_since: float | None = None
+        self._gps_pos_fused_t: float | None = None
+        self._gps_seen_usable_t: float | None = None
+        self._gps_lost_reported = False
+        self._vo_fused_t: float | None = None
+        self._vo_lost_reported = True  # VO counts as lost until its first accepted sample
+        self._aid_t = init.t_s  # last position/velocity aid (GPS or VO)
+        self._mode = NavMode.INERTIAL  # nothing fused yet
+        self._events: list[NavEvent] = []
+
+        self.last_gps: GpsCheck | None = None
+        self.last_vo: Check | None = None
+        self.last_baro: Check | None = None
+        self.last_mag: Check | None = None
+
+    # ------------------------------------------------------------------------------ prediction
+
+    def predict(self, imu: ImuSample) -> None:
+        """Strapdown mechanisation of one IMU sample (Solà eq. 260, 'nominal state kinematics', with the
+        rates and specific force held over the interval) and the error-state covariance propagation."""
+        if not self._imu_seen:
+            self._imu_seen = True
+            if imu.t_s > self._t:
+                self._t = imu.t_s
+            self._last_gyro, self._last_accel = imu.gyro_frd_radps, imu.accel_frd_mps2
+            return
+        dt = imu.t_s - self._t
+        if dt <= 0.0:
+            return  # duplicate or out of order: the voter/edge should not deliver these
+        if dt > self.cfg.max_imu_dt_s:
+            self._emit(NavEventKind.IMU_GAP, "imu", dt, self.cfg.max_imu_dt_s, "dt_s", "IMU gap")
+            dt = self.cfg.max_imu_dt_s
+        self._t = imu.t_s
+        self._last_gyro, self._last_accel = imu.gyro_frd_radps, imu.accel_frd_mps2
+        bg, ba = self._bg, self._ba
+        wx = imu.gyro_frd_radps[0] - bg[0]
+        wy = imu.gyro_frd_radps[1] - bg[1]
+        wz = imu.gyro_frd_radps[2] - bg[2]
+        f_b = (
+            imu.accel_frd_mps2[0] - ba[0],
+            imu.accel_frd_mps2[1] - ba[1],
+            imu.accel_frd_mps2[2] - ba[2],
+        )
+        f_n = quat_rotate(self._q, f_b)
+        ax, ay, az = f_n[0], f_n[1], f_n[2] + self.cfg.gravity_mps2
+        p, v = self._p, self._v
+        half_dt2 = 0.5 * dt * dt
+        dn = v[0] * dt + ax * half_dt2
+        de = v[1] * dt + ay * half_dt2
+        p[0] += dn
+        p[1] += de
+        p[2] += v[2] * dt + az * half_dt2
+        self._dr[0] += dn
+        self._dr[1] += de
+        v[0] += ax * dt
+        v[1] += ay * dt
+        v[2] += az * dt
+        self._pend_f_ned += (f_n[0] * dt, f_n[1] * dt, f_n[2] * dt)
+        self._pend_dt += dt
+        self._pend_n += 1
+        # the covariance Jacobian uses the attitude at the start of the interval, like the mechanisation
+        if self._pend_n >= self.cfg.cov_predict_every_n:
+            self._predict_covariance()
+        dq = quat_exp(wx * dt, wy * dt, wz * dt)
+        self._q = quat_normalize(quat_mul(self._q, dq))
+        self._q_gyro = quat_normalize(quat_mul(self._q_gyro, dq))
+        self._update_mode()
+
+    def _predict_covariance(self) -> None:
+        """P = F P Fᵀ + Q with the first-order transition of the global-error dynamics (Solà sec. 7.2):
+        δṗ = δv, δv̇ = -[R f]× δθ - R δb_a, δθ̇ = -R δb_g, biases random walks."""
+        dt = self._pend_dt
+        if dt <= 0.0:
+            return
+        R = quat_to_dcm(self._q)
+        fx, fy, fz = self._pend_f_ned / dt
+        F = self._F
+        F[0, 3] = F[1, 4] = F[2, 5] = dt
+        # -[f]× dt
+        F[3, 7], F[3, 8] = fz * dt, -fy * dt
+        F[4, 6], F[4, 8] = -fz * dt, fx * dt
+        F[5, 6], F[5, 7] = fy * dt, -fx * dt
+        F[V_, BA_] = R * -dt
+        F[TH_, BG_] = R * -dt
+        decay = math.exp(-dt / self.cfg.gps_bias_tau_s)
+        F[15, 15] = F[16, 16] = F[17, 17] = decay
+        self._b_gps *= decay
+        # white noise densities integrate to variances growing with dt (Solà sec. 5.4.3)
+        Q = self._Q
+        Q[_DIAG, _DIAG] = self._q_density * dt
+        self.kf.F = F
+        self.kf.Q = Q
+        self.kf.predict()
+        self._pend_n = 0
+        self._pend_dt = 0.0
+        self._pend_f_ned[:] = 0.0
+
+    # ------------------------------------------------------------------------------ measurement update
+
+    def _innovation(
+        self, z: np.ndarray, hx: np.ndarray, H: np.ndarray, R: np.ndarray, angle: bool = False
+    ) -> tuple[np.ndarray, np.ndarray]:
+        if self._pend_n:
+            self._predict_covariance()
+        y = z - hx
+        if angle:
+            y = np.array([wrap_pi(float(a)) for a in y])
+        S = H @ self.kf.P @ H.T + R
+        return y, S
+
+    @staticmethod
+    def _nis(y: np.ndarray, S: np.ndarray) -> float:
+        return float(y @ np.linalg.solve(S, y))
+
+    def _fuse(self, z: np.ndarray, hx: np.ndarray, H: np.ndarray, R: np.ndarray, angle: bool = False) -> None:
+        """filterpy's EKF update on the error state (prior error mean zero), then inject and reset."""
+        residual = _angle_residual if angle else np.subtract
+        self.kf.update(
+            z.reshape(-1, 1), HJacobian=lambda _x: H, Hx=lambda _x: hx.reshape(-1, 1), R=R, residual=residual
+        )
+        dx = self.kf.x[:, 0]
+        self._p += dx[P_]
+        self._v += dx[V_]
+        dth = dx[TH_]
+        self._q = quat_normalize(quat_mul(quat_exp(dth[0], dth[1], dth[2]), self._q))
+        self._bg += dx[BG_]
+        self._ba += dx[BA_]
+        self._b_gps += dx[BGPS_]
+        # reset: the global-error reset Jacobian G = diag(I, I, I + [δθ/2]×, I, I) (Solà sec. 7.3)
+        G = np.eye(N_ERR)
+        G[TH_, TH_] += skew(0.5 * dth)
+        self.kf.P = G @ self.kf.P @ G.T
+        self.kf.x[:] = 0.0
+
+    def update_gps(self, gps: GpsSample) -> GpsCheck | None:
+        cfg = self.cfg
+        t = gps.t_s
+        if gps.fix_type < cfg.gps_min_fix_type or gps.satellites < cfg.gps_min_satellites:
+            if self.gps_status is not GpsStatus.UNUSABLE:
+                text = f"fix_type={gps.fix_type} satellites={gps.satellites}"
+                self._emit(
+                    NavEventKind.LOST, "gps", gps.satellites, cfg.gps_min_satellites, "satellites", text
+                )
+                self.gps_status = GpsStatus.UNUSABLE
+                self._gps_cusum = 0.0
+                self._gps_wcusum = 0.0
+                self._gps_window.clear()
+            return None
+        recent = self._gps_pos_fused_t is not None and self._t - self._gps_pos_fused_t <= cfg.gps_timeout_s
+        reacquired = self.gps_status is GpsStatus.UNUSABLE or (
+            self.gps_status is GpsStatus.OK and self._gps_pos_fused_t is not None and not recent
+        )
+        if reacquired:
+            # a receiver coming back after an outage longer than the timeout is judged like an excluded
+            # one: it must agree with the VO/INS-propagated estimate for gps_readmit_s before it is trusted
+            first = self._gps_pos_fused_t is None  # first acquisition: judged by the gates only
+            self.gps_status = GpsStatus.OK if recent or first else GpsStatus.EXCLUDED
+            self._gps_agree_since = None
+        self._gps_seen_usable_t = t
+        # the white part of the receiver's error; the slowly wandering part is the bias state
+        sig_h = max(gps.eph_m * cfg.gps_white_fraction, cfg.gps_pos_sigma_floor_m)
+        sig_v = max(gps.epv_m * cfg.gps_white_fraction, cfg.gps_pos_sigma_floor_m)
+        z = np.array([*gps.pos_ned_m, *gps.vel_ned_mps])
+        # A receiver's sample is valid at its t_s and arrives later (~0.1 s): carry it forward to the
+        # filter's time with the filter's velocity and acceleration (a first-order stand-in for a delayed
+        # filter horizon), and add the variance that carrying costs.
+        lag = min(max(0.0, self._t - t), cfg.gps_max_lag_s)
+        a_n = np.array(quat_rotate(self._q, tuple(np.subtract(self._last_accel, self._ba)))) + self._g
+        z[:3] += self._v * lag + 0.5 * a_n * lag * lag
+        z[3:] += a_n * lag
+        P = self.kf.P
+        lag_var_p = float(max(P[3, 3], P[4, 4], P[5, 5])) * lag * lag
+        lag_var_v = (cfg.accel_noise_mps2_rthz**2 / max(lag, 1e-3) + 1.0) * lag * lag  # 1 m/s² of jerk margin
+        hx = np.concatenate([self._p + self._b_gps, self._v])
+        H = _H_GPS
+        R = np.diag(
+            [sig_h**2 + lag_var_p, sig_h**2 + lag_var_p, sig_v**2 + lag_var_p]
+            + [cfg.gps_vel_sigma_mps**2 + lag_var_v] * 3
+        )
+        y, S = self._innovation(z, hx, H, R)
+        nis_p = self._nis(y[:3], S[:3, :3])
+        nis_v = self._nis(y[3:], S[3:, 3:])
+        fused_p = fused_v = False
+
+        if self.gps_status is GpsStatus.EXCLUDED:
+            if nis_p <= cfg.gps_readmit_gate_pos and nis_v <= cfg.gps_readmit_gate_vel:
+                if self._gps_agree_since is None:
+                    self._gps_agree_since = t
+                if t - self._gps_agree_since >= cfg.gps_readmit_s:
+                    self.gps_status = GpsStatus.OK
+                    self._gps_cusum = 0.0
+                    self._gps_wcusum = 0.0
+                    self._gps_window.clear()
+                    self._gps_reject_since = None
+                    self._emit(
+                        NavEventKind.READMITTED,
+                        "gps",
+                        t - self._gps_agree_since,
+                        cfg.gps_readmit_s,
+                        "agree_s",
+                        "GPS consistent with VO+INS again",
+                    )
+            else:
+                self._gps_agree_since = None
+        s_win = math.nan
+        if self.gps_status is GpsStatus.OK:
+            s = min((nis_p + nis_v) / 6.0, cfg.gps_cusum_clip)
+            self._gps_cusum = max(0.0, self._gps_cusum + s - cfg.gps_cusum_allowance)
+            s_win = self._window_statistic(t, gps.pos_ned_m)
+            if not math.isnan(s_win):
+                s_w = min(s_win, cfg.gps_cusum_clip)
+                self._gps_wcusum = max(0.0, self._gps_wcusum + s_w - cfg.gps_cusum_allowance)
+            pos_ok = nis_p <= cfg.gps_gate_pos
+            vel_ok = nis_v <= cfg.gps_gate_vel
+            if self._gps_cusum > cfg.gps_cusum_threshold:
+                self._exclude_gps(
+                    t,
+                    self._gps_cusum,
+                    cfg.gps_cusum_threshold,
+                    "cusum",
+                    "GPS innovations inconsistent with VO+INS (sequential test)",
+                )
+            elif self._gps_wcusum > cfg.gps_cusum_threshold:
+                self._exclude_gps(
+                    t,
+                    self._gps_wcusum,
+                    cfg.gps_cusum_threshold,
+                    "window_cusum",
+                    "GPS displacement disagrees with VO+INS (windowed sequential test)",
+                )
+            elif not (pos_ok and vel_ok):
+                if self._gps_reject_since is None:
+                    self._gps_reject_since = t
+                    bad_p = not pos_ok
+                    self._emit(
+                        NavEventKind.REJECTED,
+                        "gps_pos" if bad_p else "gps_vel",
+                        nis_p if bad_p else nis_v,
+                        cfg.gps_gate_pos if bad_p else cfg.gps_gate_vel,
+                        "nis",
+                        "GPS epoch inconsistent",
+                    )
+                elif t - self._gps_reject_since >= cfg.gps_reject_exclude_s:
+                    self._exclude_gps(
+                        t,
+                        t - self._gps_reject_since,
+                        cfg.gps_reject_exclude_s,
+                        "rejected_s",
+                        "GPS persistently inconsistent",
+                    )
+            else:
+                self._gps_reject_since = None
+            if self.gps_status is GpsStatus.OK:
+                idx = [
+                    i
+                    for i, ok in (
+                        (0, pos_ok),
+                        (1, pos_ok),
+                        (2, pos_ok),
+                        (3, vel_ok),
+                        (4, vel_ok),
+                        (5, vel_ok),
+                    )
+                    if ok
+                ]
+                if idx:
+                    self._fuse(z[idx], hx[idx], H[idx], R[np.ix_(idx, idx)])
+                    fused_p, fused_v = pos_ok, vel_ok
+                    self._aid_t = self._t
+                    if pos_ok:
+                        self._gps_pos_fused_t = self._t
+        check = GpsCheck(
+            t, nis_p, nis_v, self._gps_cusum, s_win, self._gps_wcusum, fused_p, fused_v, self.gps_status
+        )
+        self.last_gps = check
+        self._update_mode()
+        return check
+
+    def _window_statistic(self, t: float, pos_ned_m: Vec3) -> float:
+        """d = (GPS displacement) - (mechanisation displacement) over the last gps_window_s, horizontal;
+        returns dᵀ C⁻¹ d / 2 with C = (σ_w² + P_vv W²) I, or nan until the window has filled."""
+        cfg = self.cfg
+        win = self._gps_window
+        win.append((t, pos_ned_m[0], pos_ned_m[1], float(self._dr[0]), float(self._dr[1])))
+        while len(win) > 1 and win[1][0] <= t - cfg.gps_window_s:
+            win.popleft()
+        t0, n0, e0, dn0, de0 = win[0]
+        w = t - t0
+        if w < 0.5 * cfg.gps_window_s:
+            return math.nan
+        d_n = (pos_ned_m[0] - n0) - (self._dr[0] - dn0)
+        d_e = (pos_ned_m[1] - e0) - (self._dr[1] - de0)
+        P = self.kf.P
+        var = cfg.gps_window_sigma_m**2 + max(P[3, 3], P[4, 4]) * w * w
+        return float((d_n * d_n + d_e * d_e) / var / 2.0)
+
+    def _exclude_gps(self, t: float, stat: float, limit: float, parameter: str, text: str) -> None:
+        self.gps_status = GpsStatus.EXCLUDED
+        self._gps_agree_since = None
+        self._gps_reject_since = None
+        self._gps_window.clear()
+        self._gps_wcusum = 0.0
+        self._emit(NavEventKind.EXCLUDED, "gps", stat, limit, parameter, text)
+
+    def update_vo(self, vo: VoSample) -> Check | None:
+        cfg = self.cfg
+        scale = vo_noise_scale(vo.quality, cfg)
+        if scale is None:
+            self.last_vo = Check(vo.t_s, math.nan, False)
+            return self.last_vo
+        var = [max(c, 0.0) * scale**2 + cfg.vo_sigma_floor_mps**2 for c in vo.vel_cov_m2ps2]
+        z = np.array(vo.vel_ned_mps, dtype=float)
+        H = self._vo_jacobian()
+        R = np.diag(var)
+        y, S = self._innovation(z, self._v.copy(), H, R)
+        nis = self._nis(y, S)
+        fused = nis <= cfg.vo_gate
+        if fused:
+            self._fuse(z, self._v.copy(), H, R)
+            self._vo_fused_t = self._t
+            self._aid_t = self._t
+            if self._vo_lost_reported:
+                self._vo_lost_reported = False
+                self._emit(NavEventKind.RECOVERED, "vo", nis, cfg.vo_gate, "nis", "VO accepted")
+        else:
+            self._emit(NavEventKind.REJECTED, "vo", nis, cfg.vo_gate, "nis", "VO velocity inconsistent")
+        self.last_vo = Check(vo.t_s, nis, fused)
+        self._update_mode()
+        return self.last_vo
+
+    def _vo_jacobian(self) -> np.ndarray:
+        """The VO velocity was made metric with this filter's height and rotated into NED with this
+        filter's attitude, so its error shares the filter's. A yaw error δψ (the down component of the
+        global attitude error) rotates the ground displacement: with R = (I + [δθ]×) R̂ the pipeline reports
+        R̂ Rᵀ v ≈ v + [v]× δθ, of which only the δθ_d column survives the ground projection (a tilt error
+        shifts the ground points of both frames alike and cancels). The height ĥ = h + δp_d (flat ground at
+        home altitude) scales the motion by ĥ / h ≈ 1 + δp_d / h. The rotation between frames comes from
+        this filter's bias-corrected gyro (``gyro_attitude``): a gyro bias error δb_g turns the second
+        frame by ε = R δb_g Δt, which shifts its nadir ground points by h (ε_e, −ε_n): a velocity error
+        h (−(R δb_g)_e, (R δb_g)_n). Hence H = [e_d v/h, I, [v]× e_d, h [−R₂; R₁; 0], 0] (R_i the rows)."""
+        H = np.zeros((3, N_ERR))
+        H[:, 3:6] = np.eye(3)
+        if self.cfg.vo_model_coupling:
+            v = self._v
+            H[0, 8] = v[1]
+            H[1, 8] = -v[0]
+            h = -self._p[2]
+            if h > 1.0:
+                H[:, 2] = v / h
+                R = quat_to_dcm(self._q)
+                H[0, 9:12] = -h * R[1, :]
+                H[1, 9:12] = h * R[0, :]
+        return H
+
+    def update_baro(self, baro: BaroSample) -> Check:
+        cfg = self.cfg
+        z = np.array([baro.alt_m])
+        hx = np.array([-self._p[2]])
+        R = np.array([[cfg.baro_sigma_m**2]])
+        y, S = self._innovation(z, hx, _H_BARO, R)
+        nis = self._nis(y, S)
+        fused = nis <= cfg.baro_gate
+        if fused:
+            self._fuse(z, hx, _H_BARO, R)
+        else:
+            self._emit(NavEventKind.REJECTED, "baro", nis, cfg.baro_gate, "nis", "baro altitude inconsistent")
+        self.last_baro = Check(baro.t_s, nis, fused)
+        return self.last_baro
+
+    def update_mag(self, mag: MagSample) -> Check | None:
+        """Magnetic heading, levelled with the estimated roll and pitch. With the global attitude error,
+        ψ(R) for R' = (I + [δθ]×) R gives H_θ = [-c_x c_z / n, -c_y c_z / n, 1] with c the first column
+        of R and n = c_x² + c_y² (derived in docs/navigation.md)."""
+        cfg = self.cfg
+        roll, pitch, yaw = quat_to_euler(self._q)
+        heading, strength = _mag_heading(mag.field_frd_gauss, roll, pitch, cfg.mag_declination_rad)
+        if strength < cfg.mag_min_horizontal_gauss:
+            return None
+        H = np.zeros((1, N_ERR))
+        H[0, 6:9] = yaw_jacobian_global(quat_to_dcm(self._q))
+        z = np.array([heading])
+        hx = np.array([yaw])
+        R = np.array([[cfg.mag_heading_sigma_rad**2]])
+        y, S = self._innovation(z, hx, H, R, angle=True)
+        nis = self._nis(y, S)
+        fused = nis <= cfg.mag_gate
+        if fused:
+            self._fuse(z, hx, H, R, angle=True)
+        else:
+            self._emit(
+                NavEventKind.REJECTED, "mag", nis, cfg.mag_gate, "nis", "magnetic heading inconsistent"
+            )
+        self.last_mag = Check(mag.t_s, nis, fused)
+        return self.last_mag
+
+    # ------------------------------------------------------------------------------ modes and output
+
+    def _gps_ok(self) -> bool:
+        return (
+            self.gps_status is GpsStatus.OK
+            and self._gps_pos_fused_t is not None
+            and self._t - self._gps_pos_fused_t <= self.cfg.gps_timeout_s
+        )
+
+    def _vo_ok(self) -> bool:
+        return self._vo_fused_t is not None and self._t - self._vo_fused_t <= self.cfg.vo_timeout_s
+
+    def _update_mode(self) -> None:
+        cfg = self.cfg
+        gps_ok, vo_ok = self._gps_ok(), self._vo_ok()
+        if not gps_ok and self.gps_status is GpsStatus.OK and not self._gps_lost_reported:
+            if self._gps_pos_fused_t is not None:
+                self._gps_lost_reported = True
+                self._emit(
+                    NavEventKind.LOST,
+                    "gps",
+                    self._t - self._gps_pos_fused_t,
+                    cfg.gps_timeout_s,
+                    "since_fused_s",
+                    "no usable GPS",
+                )
+        elif gps_ok and self._gps_lost_reported:
+            self._gps_lost_reported = False
+            self._emit(NavEventKind.RECOVERED, "gps", 0.0, 0.0, "", "GPS fused again")
+        if not vo_ok and not self._vo_lost_reported and self._vo_fused_t is not None:
+            self._vo_lost_reported = True
+            self._emit(
+                NavEventKind.LOST,
+                "vo",
+                self._t - self._vo_fused_t,
+                cfg.vo_timeout_s,
+                "since_fused_s",
+                "no accepted VO",
+            )
+        mode = select_mode(
+            gps_ok, vo_ok, self.inertial_s, self.pos_sigma_h_m, cfg.inertial_time_limit_s, cfg.lost_sigma_h_m
+        )
+        if mode is not self._mode:
+            self._events.append(
+                NavEvent(
+                    self._t,
+                    NavEventKind.MODE,
+                    "nav",
+                    self.pos_sigma_h_m,
+                    0.0,
+                    "sigma_h_m",
+                    self._mode,
+                    mode,
+                    f"gps={self.gps_status.value} vo={'ok' if vo_ok else 'none'}"
+                    f" inertial_s={self.inertial_s:.1f}",
+                )
+            )
+            self._mode = mode
+
+    @property
+    def t_s(self) -> float:
+        return self._t
+
+    @property
+    def mode(self) -> NavMode:
+        return self._mode
+
+    @property
+    def inertial_s(self) -> float:
+        return max(0.0, self._t - self._aid_t)
+
+    @property
+    def pos_sigma_h_m(self) -> float:
+        """Square root of the larger eigenvalue of the horizontal position covariance (conservative)."""
+        P = self.kf.P
+        a, b, d = P[0, 0], P[0, 1], P[1, 1]
+        return math.sqrt(max(0.0, 0.5 * (a + d) + math.sqrt(0.25 * (a - d) ** 2 + b * b)))
+
+    @property
+    def pos_sigma_v_m(self) -> float:
+        return math.sqrt(max(0.0, self.kf.P[2, 2]))
+
+    @property
+    def gyro_bias_radps(self) -> Vec3:
+        return (float(self._bg[0]), float(self._bg[1]), float(self._bg[2]))
+
+    @property
+    def accel_bias_mps2(self) -> Vec3:
+        return (float(self._ba[0]), float(self._ba[1]), float(self._ba[2]))
+
+    @property
+    def quaternion(self) -> Quat:
+        return self._q
+
+    @property
+    def gyro_attitude(self) -> Quat:
+        """Attitude integrated from the bias-corrected gyro alone (smooth; drifts): the rotation between
+        two instants for the VO's de-rotation, free of the jumps the filtered attitude makes at updates."""
+        return self._q_gyro
+
+    @property
+    def covariance(self) -> np.ndarray:
+        if self._pend_n:
+            self._predict_covariance()
+        P: np.ndarray = np.array(self.kf.P, dtype=float)
+        return P
+
+    def state(self) -> VehicleState:
+        p, v, bg, ba = self._p, self._v, self._bg, self._ba
+        g, a = self._last_gyro, self._last_accel
+        return VehicleState(
+            pos_ned_m=(float(p[0]), float(p[1]), float(p[2])),
+            vel_ned_mps=(float(v[0]), float(v[1]), float(v[2])),
+            att_rpy_rad=quat_to_euler(self._q),
+            rates_frd_radps=(g[0] - float(bg[0]), g[1] - float(bg[1]), g[2] - float(bg[2])),
+            accel_frd_mps2=(a[0] - float(ba[0]), a[1] - float(ba[1]), a[2] - float(ba[2])),
+            pos_sigma_h_m=self.pos_sigma_h_m,
+            pos_sigma_v_m=self.pos_sigma_v_m,
+            nav_mode=self._mode,
+            nav_inertial_s=self.inertial_s,
+        )
+
+    @property
+    def events(self) -> tuple[NavEvent, ...]:
+        """Events not yet collected with :meth:`pop_events`."""
+        return tuple(self._events)
+
+    def pop_events(self) -> tuple[NavEvent, ...]:
+        out = tuple(self._events)
+        self._events.clear()
+        return out
+
+    def _emit(
+        self, kind: NavEventKind, source: str, stat: float, limit: float, parameter: str, text: str
+    ) -> None:
+        self._events.append(NavEvent(self._t, kind, source, float(stat), float(limit), parameter, text=text))
+
+
+def yaw_jacobian_global(R_nb: np.ndarray) -> tuple[float, float, float]:
+    """∂ψ/∂δθ for R' = (I + [δθ]×) R: with c the first column of R and n = c_x² + c_y²,
+    [-c_x c_z / n, -c_y c_z / n, 1] (docs/navigation.md, "Magnetometer")."""
+    cx, cy, cz = float(R_nb[0, 0]), float(R_nb[1, 0]), float(R_nb[2, 0])
+    n = max(cx * cx + cy * cy, 1e-9)
+    return (-cx * cz / n, -cy * cz / n, 1.0)
+
+
+def vo_noise_scale(quality: VoQuality, cfg: NavConfig) -> float | None:
+    """None when the vision pipeline's own quality says it cannot be used; otherwise the factor (>= 1)
+    on its standard deviation, growing linearly from 1 at "good" to ``vo_max_noise_scale`` at the
+    acceptance limit for the feature count and the inlier ratio (whichever is worse)."""
+    if (
+        not quality.valid
+        or quality.features < cfg.vo_min_features
+        or quality.inlier_ratio < cfg.vo_min_inlier_ratio
+        or quality.reprojection_error_px > cfg.vo_max_reprojection_px
+        or quality.texture_score < cfg.vo_min_texture_score
+    ):
+        return None
+
+    def badness(value: float, worst: float, good: float) -> float:
+        if good <= worst:
+            return 0.0
+        return min(1.0, max(0.0, (good - value) / (good - worst)))
+
+    b = max(
+        badness(quality.features, cfg.vo_min_features, cfg.vo_good_features),
+        badness(quality.inlier_ratio, cfg.vo_min_inlier_ratio, cfg.vo_good_inlier_ratio),
+    )
+    return 1.0 + b * (cfg.vo_max_noise_scale - 1.0)
+
+
+def _angle_residual(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    d: np.ndarray = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
+    wrapped: np.ndarray = (d + math.pi) % (2.0 * math.pi) - math.pi
+    return wrapped
+
+
+_DIAG = np.arange(N_ERR)
+_H_GPS = np.zeros((6, N_ERR))
+_H_GPS[0:3, 0:3] = np.eye(3)
+_H_GPS[0:3, 15:18] = np.eye(3)
+_H_GPS[3:6, 3:6] = np.eye(3)
+_H_VEL = np.zeros((3, N_ERR))
+_H_VEL[:, 3:6] = np.eye(3)
+_H_BARO = np.zeros((1, N_ERR))
+_H_BARO[0, 2] = -1.0
+_H_GPS.setflags(write=False)
+_H_VEL.setflags(write=False)
+_H_BARO.setflags(write=False)

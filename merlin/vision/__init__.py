@@ -1,0 +1,1 @@
+"""Vision: the downward camera model and the visual odometry pipeline."""

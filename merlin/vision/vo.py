@@ -1,0 +1,312 @@
+"""Downward monocular visual odometry: NED velocity over flat ground, with its covariance and its quality.
+
+The pipeline for each new frame (Scaramuzza & Fraundorfer 2011, "Visual odometry [tutorial]", IEEE RAM
+18(4), the paper's reference 3; structure as in their Algorithm 1, feature-based, 2-D to 2-D):
+
+1. Features: FAST corners (Rosten & Drummond 2006) with an *absolute* intensity threshold on the
+   previous frame, kept strongest-first on a grid so they cover the image. The absolute threshold is what
+   lets the pipeline say "I cannot see": a relative threshold (Shi-Tomasi quality level) finds "corners"
+   in sensor noise over water. ``texture_score`` = the fraction of grid cells that hold a corner.
+2. Tracking: pyramidal Lucas-Kanade (Bouguet 2000) from the previous to the current frame, started at the
+   position predicted by the gyro-integrated rotation (and the prior velocity, if given), with a
+   forward-backward check (Kalal et al. 2010) that discards tracks which do not return to their origin.
+3. Geometric verification: RANSAC homography (the ground is a plane; Hartley & Zisserman 2004, sec. 4.7)
+   gives the inliers and the reprojection error.
+4. De-rotation and metric scale: each inlier's pixel is turned into a ray, rotated into NED with the
+   attitude at its frame (which removes the camera's rotation between frames), and intersected with the
+   ground plane at the height above ground. A ground point seen at unit-height offsets ``u1``, ``u2``
+   from the two camera positions satisfies ``h1 u1 = Δ + h2 u2``; least squares over all inliers gives
+   the horizontal displacement ``Δ`` and the new height ``h2`` (vertical motion from the scale change),
+   hence the velocity, and the residuals give its covariance. The covariance adds the scale error from
+   the height's uncertainty and the yaw uncertainty's rotation of the velocity.
+
+The quality fields follow the paper's demand for "measures of accuracy ... based on computer vision
+theory"; when any is outside its limit the sample is marked invalid with an uninformative covariance,
+never a confident wrong answer.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from merlin.measurements import VoQuality, VoSample
+from merlin.nav.quaternion import dcm_from_euler, quat_to_dcm
+from merlin.vision.camera_model import R_BODY_CAM, CameraModel
+
+_INVALID_COV = (1.0e6, 1.0e6, 1.0e6)
+
+
+@dataclass(frozen=True, slots=True)
+class VoConfig:
+    fast_threshold: int = 20  # absolute grey-level difference of a FAST corner
+    grid_cols: int = 8
+    grid_rows: int = 6
+    per_cell: int = 3  # strongest corners kept per grid cell
+    lk_window_px: int = 11
+    lk_levels: int = 2
+    fb_max_px: float = 0.5  # forward-backward disagreement tolerated
+    ransac_px: float = 1.5
+    min_height_m: float = 1.0  # below this the flat-ground model and the scale are too poor
+    # validity limits (the filter applies its own, typically stricter, ones on top: NavConfig.vo_*)
+    min_features: int = 20
+    min_inlier_ratio: float = 0.5
+    max_reprojection_px: float = 1.5
+    min_texture_score: float = 0.25
+    # Relative error of the height above ground beyond the filter's altitude error, which the filter models
+    # itself: terrain that is not the flat plane at home altitude.
+    height_rel_sigma: float = 0.01
+    # Extra variance for an attitude error that rotates the measured velocity. 0 when the attitude given is
+    # the navigation filter's own: the filter models that coupling itself (NavEstimator.update_vo).
+    yaw_sigma_rad: float = 0.0
+    pixel_sigma_floor_px: float = 0.15  # tracking noise never assumed below this
+    # The gyro's angle random walk over one frame interval rotates every ray alike: a common ground shift
+    # of h·σ_Δθ that the residual scatter cannot see. Set to the IMU's gyro noise density.
+    gyro_noise_radps_rthz: float = 1.0e-3
+    # Repetitive scenes: the largest normalised autocorrelation peak of the image outside its central lobe
+    # (within ±repetition_window_px). Above max_repetition the frame-to-frame motion is ambiguous by a
+    # period; the sample is then valid only if a velocity prior predicts the motion to within a third of
+    # the period (prior_sigma_mps is the prior's assumed 1-sigma error).
+    max_repetition: float = 0.7
+    repetition_window_px: int = 48
+    prior_sigma_mps: float = 1.0
+
+
+@dataclass(frozen=True, slots=True)
+class _Frame:
+    t_s: float
+    image: np.ndarray
+    R_nb: np.ndarray
+    R_gyro: np.ndarray | None  # gyro-integrated attitude (arbitrary reference) at this frame
+    height_m: float
+    points: np.ndarray  # (n, 1, 2) float32 FAST corners of this frame
+    texture_score: float
+    repetition: float
+    period_px: float  # shortest repetition period found (inf when not repetitive)
+
+
+class VisualOdometry:
+    """Frame-to-frame VO. Call :meth:`process` with each frame in time order."""
+
+    def __init__(self, model: CameraModel | None = None, config: VoConfig = VoConfig()) -> None:
+        model = CameraModel() if model is None else model
+        self.model = model
+        self.cfg = config
+        self._K = model.K()
+        self._Kinv = np.linalg.inv(self._K)
+        self._fast = cv2.FastFeatureDetector_create(threshold=config.fast_threshold, nonmaxSuppression=True)
+        self._prev: _Frame | None = None
+        self._hann: np.ndarray | None = None
+        self._lk = {
+            "winSize": (config.lk_window_px, config.lk_window_px),
+            "maxLevel": config.lk_levels,
+            "criteria": (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 10, 0.03),
+        }
+
+    def reset(self) -> None:
+        self._prev = None
+
+    def _detect(self, image: np.ndarray) -> tuple[np.ndarray, float]:
+        cfg = self.cfg
+        kps = self._fast.detect(image, None)
+        h, w = image.shape
+        if not kps:
+            return np.zeros((0, 1, 2), np.float32), 0.0
+        pts = cv2.KeyPoint_convert(kps)
+        # strength order: the detector's score (FAST's response) read through the keypoint objects is
+        # the costliest step in Python; the smoothed Laplacian magnitude at the corner ranks them alike
+        resp = self._strength(image, pts)
+        margin = cfg.lk_window_px // 2
+        keep = (
+            (pts[:, 0] >= margin)
+            & (pts[:, 1] >= margin)
+            & (pts[:, 0] < w - margin)
+            & (pts[:, 1] < h - margin)
+        )
+        pts, resp = pts[keep], resp[keep]
+        col = np.minimum((pts[:, 0] * cfg.grid_cols / w).astype(np.int64), cfg.grid_cols - 1)
+        row = np.minimum((pts[:, 1] * cfg.grid_rows / h).astype(np.int64), cfg.grid_rows - 1)
+        cell = row * cfg.grid_cols + col
+        order = np.lexsort((-resp, cell))  # by cell, strongest first within a cell
+        cell_sorted = cell[order]
+        first = np.searchsorted(cell_sorted, cell_sorted, side="left")
+        rank = np.arange(len(order)) - first
+        chosen = order[rank < cfg.per_cell]
+        score = len(np.unique(cell)) / float(cfg.grid_cols * cfg.grid_rows)
+        return np.ascontiguousarray(pts[chosen], dtype=np.float32).reshape(-1, 1, 2), score
+
+    def _repetition(self, image: np.ndarray) -> tuple[float, float]:
+        """(peak, period_px): the highest local maximum of the normalised autocorrelation outside the
+        central lobe (the connected region around zero shift above 0.5) within the search window, on the half-resolution
+        image (Wiener-Khinchin: the autocorrelation is the inverse transform of the power spectrum)."""
+        small = cv2.pyrDown(image).astype(np.float32)
+        small -= float(small.mean())
+        h, w = small.shape
+        if self._hann is None or self._hann.shape != small.shape:
+            self._hann = cv2.createHanningWindow((w, h), cv2.CV_32F)
+        x = small * self._hann
+        spec = cv2.dft(x, flags=cv2.DFT_COMPLEX_OUTPUT)
+        ac = cv2.idft(cv2.mulSpectrums(spec, spec, 0, conjB=True), flags=cv2.DFT_REAL_OUTPUT | cv2.DFT_SCALE)
+        zero = float(ac[0, 0])
+        if zero <= 0.0:
+            return 0.0, math.inf
+        r = min(self.cfg.repetition_window_px // 2, h // 2 - 1, w // 2 - 1)
+        ac = np.fft.fftshift(ac)[h // 2 - r : h // 2 + r + 1, w // 2 - r : w // 2 + r + 1] / zero
+        _, labels = cv2.connectedComponents((ac > 0.5).astype(np.uint8))
+        is_peak = ac >= cv2.dilate(ac, np.ones((3, 3), np.uint8))
+        outside = (labels != labels[r, r]) & is_peak
+        if not outside.any():
+            return 0.0, math.inf
+        masked = np.where(outside, ac, -1.0)
+        k = int(np.argmax(masked))
+        peak = float(masked.flat[k])
+        dy, dx = divmod(k, 2 * r + 1)
+        return peak, 2.0 * math.hypot(dy - r, dx - r)
+
+    @staticmethod
+    def _strength(image: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        xi = pts[:, 0].astype(np.intp)
+        yi = pts[:, 1].astype(np.intp)
+        lap = cv2.Laplacian(image, cv2.CV_16S, ksize=3)
+        return np.abs(lap[yi, xi]).astype(np.float32)
+
+    def _unit_ground(self, pts: np.ndarray, R_nb: np.ndarray) -> np.ndarray:
+        """Pixels -> ground offsets (north, east) per metre of height, via the NED ray."""
+        n = pts.shape[0]
+        homog = np.column_stack([pts.reshape(n, 2), np.ones(n)])
+        rays = (R_nb @ R_BODY_CAM @ self._Kinv @ homog.T).T
+        down = np.maximum(rays[:, 2], 1e-6)
+        return rays[:, :2] / down[:, None]
+
+    def _project(self, offsets_ned: np.ndarray, R_nb: np.ndarray) -> np.ndarray:
+        """NED vectors from the camera -> pixels."""
+        cam = (R_BODY_CAM.T @ R_nb.T @ offsets_ned.T).T
+        pix = (self._K @ (cam / cam[:, 2:3]).T).T
+        return pix[:, :2]
+
+    def process(
+        self,
+        image: np.ndarray,
+        t_s: float,
+        att_rpy_rad: tuple[float, float, float],
+        height_m: float,
+        vel_prior_ned_mps: tuple[float, float, float] | None = None,
+        gyro_att: tuple[float, float, float, float] | None = None,
+    ) -> VoSample:
+        """One frame: ``image`` uint8 grey, ``att_rpy_rad`` the vehicle attitude at the frame (from the
+        filter: the gyro-integrated rotation between frames is what matters), ``height_m`` the height
+        above the ground. ``vel_prior_ned_mps`` only seeds the tracker (it never enters the output).
+
+        ``gyro_att`` is the attitude quaternion integrated from the gyro alone (any reference, never
+        corrected by measurement updates; ``NavEstimator.gyro_attitude``). When given, the rotation
+        between two frames is taken from it and only the previous frame's absolute attitude is used: the
+        small jumps a filter's attitude makes at its updates would otherwise look like motion (a 0.1°
+        tilt step at 30 m is 5 cm of apparent ground shift, 1 m/s at 20 Hz)."""
+        cfg = self.cfg
+        if image.ndim != 2 or image.dtype != np.uint8:
+            raise ValueError(f"image must be 2-D uint8, got shape {image.shape} dtype {image.dtype}")
+        R_nb = dcm_from_euler(*att_rpy_rad)
+        R_gyro = None if gyro_att is None else quat_to_dcm(gyro_att)
+        points, texture = self._detect(image)
+        repetition, period = self._repetition(image) if texture >= cfg.min_texture_score else (0.0, math.inf)
+        frame = _Frame(t_s, image, R_nb, R_gyro, height_m, points, texture, repetition, period)
+        prev, self._prev = self._prev, frame
+        if prev is None or t_s <= prev.t_s:
+            return _invalid(t_s, VoQuality(features=len(points), texture_score=texture))
+        dt = t_s - prev.t_s
+        if R_gyro is not None and prev.R_gyro is not None:
+            # this frame's attitude = the previous frame's, turned by the gyro's rotation in between
+            R_nb = prev.R_nb @ (prev.R_gyro.T @ R_gyro)
+        if (
+            texture < cfg.min_texture_score
+            or len(prev.points) < cfg.min_features
+            or height_m < cfg.min_height_m
+        ):
+            return _invalid(t_s, VoQuality(features=len(prev.points), texture_score=texture))
+
+        if prev.repetition > cfg.max_repetition:
+            # ambiguous by a period unless the prior pins the motion well inside half a period
+            flow_sigma_px = self.model.fx_px * cfg.prior_sigma_mps * dt / max(height_m, cfg.min_height_m)
+            if vel_prior_ned_mps is None or 3.0 * flow_sigma_px > 0.5 * prev.period_px:
+                return _invalid(t_s, VoQuality(features=len(prev.points), texture_score=texture))
+
+        # predicted positions: the ground point under each feature seen from the predicted new pose
+        p0 = prev.points
+        n0 = p0.shape[0]
+        g1 = self._unit_ground(p0, prev.R_nb) * prev.height_m
+        v = np.zeros(3) if vel_prior_ned_mps is None else np.asarray(vel_prior_ned_mps, dtype=float)
+        rel = np.column_stack([g1, np.full(n0, prev.height_m)]) - v * dt
+        rel[:, 2] = np.maximum(rel[:, 2], 0.1)
+        guess = self._project(rel, R_nb).astype(np.float32).reshape(-1, 1, 2)
+
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(
+            prev.image, image, p0, guess.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk
+        )
+        pb, stb, _ = cv2.calcOpticalFlowPyrLK(
+            image, prev.image, p1, p0.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk
+        )
+        fb = np.linalg.norm((pb - p0).reshape(-1, 2), axis=1)
+        h, w = image.shape
+        q = p1.reshape(-1, 2)
+        inside = (q[:, 0] >= 0) & (q[:, 1] >= 0) & (q[:, 0] < w) & (q[:, 1] < h)
+        ok = (st.ravel() == 1) & (stb.ravel() == 1) & (fb < cfg.fb_max_px) & inside
+        tracked = int(ok.sum())
+        if tracked < max(cfg.min_features, 8):
+            return _invalid(
+                t_s, VoQuality(features=tracked, inlier_ratio=tracked / n0, texture_score=texture)
+            )
+        a, b = p0[ok], p1[ok]
+        Hm, mask = cv2.findHomography(a, b, cv2.RANSAC, cfg.ransac_px)
+        if Hm is None:
+            return _invalid(t_s, VoQuality(features=0, texture_score=texture))
+        inl = mask.ravel().astype(bool)
+        n_in = int(inl.sum())
+        ratio = n_in / float(n0)
+        proj = cv2.perspectiveTransform(a[inl], Hm).reshape(-1, 2)
+        reproj = (
+            float(np.sqrt(np.mean(np.sum((proj - b[inl].reshape(-1, 2)) ** 2, axis=1)))) if n_in else math.inf
+        )
+        quality = VoQuality(n_in, ratio, reproj, texture, False)
+        if n_in < cfg.min_features or ratio < cfg.min_inlier_ratio or reproj > cfg.max_reprojection_px:
+            return _invalid(t_s, quality)
+
+        # metric, de-rotated displacement: h1 u1 = Δ + h2 u2 (least squares over the inliers)
+        u1 = self._unit_ground(a[inl], prev.R_nb)
+        u2 = self._unit_ground(b[inl], R_nb)
+        A = np.zeros((2 * n_in, 3))
+        A[0::2, 0] = 1.0
+        A[1::2, 1] = 1.0
+        A[0::2, 2] = u2[:, 0]
+        A[1::2, 2] = u2[:, 1]
+        rhs = (prev.height_m * u1).reshape(-1)
+        sol, *_ = np.linalg.lstsq(A, rhs, rcond=None)
+        d_n, d_e, h2 = (float(x) for x in sol)
+        if not h2 > 0.0:
+            return _invalid(t_s, quality)
+        resid = rhs - A @ sol
+        dof = max(1, 2 * n_in - 3)
+        # residual scatter, floored by the tracking noise projected to the ground
+        gsd = prev.height_m / self.model.fx_px
+        s2 = max(float(resid @ resid) / dof, (cfg.pixel_sigma_floor_px * gsd) ** 2)
+        cov = s2 * np.linalg.inv(A.T @ A) / (dt * dt)
+        vel = np.array([d_n / dt, d_e / dt, (prev.height_m - h2) / dt])
+        var = np.diag(cov).copy()
+        rot_sigma_mps = prev.height_m * cfg.gyro_noise_radps_rthz * math.sqrt(dt) / dt
+        var[:2] += rot_sigma_mps**2
+        var += (cfg.height_rel_sigma * vel) ** 2
+        vh2 = vel[0] ** 2 + vel[1] ** 2
+        var[:2] += cfg.yaw_sigma_rad**2 * vh2
+        valid_quality = VoQuality(n_in, ratio, reproj, texture, True)
+        return VoSample(
+            t_s,
+            (float(vel[0]), float(vel[1]), float(vel[2])),
+            (float(var[0]), float(var[1]), float(var[2])),
+            valid_quality,
+        )
+
+
+def _invalid(t_s: float, quality: VoQuality) -> VoSample:
+    return VoSample(t_s, (0.0, 0.0, 0.0), _INVALID_COV, quality)

@@ -1,0 +1,81 @@
+"""The simulated downward camera: geometry of the rendering and its effects."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from merlin.vision.camera_model import CameraModel
+from sims.camera import PHOTO_TEXTURES, CameraEffects, DownwardCamera, load_texture
+
+NO_EFFECTS = CameraEffects(
+    noise_sigma=0.0, exposure_s=0.0, defocus_sigma_px=0.0, vignetting=0.0, gain_amplitude=0.0
+)
+
+
+def test_bundled_textures_load_offline():
+    for name in PHOTO_TEXTURES:
+        tex = load_texture(name)
+        assert tex.image.dtype == np.uint8 and tex.image.ndim == 2 and tex.image.std() > 10
+
+
+def test_unknown_texture_names_the_allowed_ones():
+    with pytest.raises(ValueError, match="grass"):
+        load_texture("lava")
+
+
+@pytest.mark.parametrize("att", [(0.0, 0.0, 0.0), (0.2, -0.1, 2.0)])
+def test_homography_maps_a_ground_point_to_its_projection(att):
+    cam = DownwardCamera(load_texture("gravel"), CameraModel(), NO_EFFECTS)
+    pos = np.array([3.0, -4.0, -25.0])
+    H = cam.homography(pos, att)
+    s = cam.texture.m_per_px
+    # a ground point 2 m north, 1 m east of the vehicle, in texture pixels (columns east, rows south)
+    n, e = (
+        math.fmod(pos[0], cam.texture.image.shape[0] * s) + 2.0,
+        math.fmod(pos[1], cam.texture.image.shape[1] * s) + 1.0,
+    )
+    tex_px = np.array([e / s, -n / s, 1.0])
+    img = H @ tex_px
+    img = img[:2] / img[2]
+    # the same point through the pinhole model directly
+    from merlin.nav.quaternion import dcm_from_euler
+    from merlin.vision.camera_model import R_BODY_CAM
+
+    R_cn = (dcm_from_euler(*att) @ R_BODY_CAM).T
+    xc = R_cn @ np.array([2.0, 1.0, 25.0])
+    expected = CameraModel().K() @ (xc / xc[2])
+    assert np.allclose(img, expected[:2], atol=1e-6)
+
+
+def test_level_camera_sees_north_up_and_east_right():
+    # moving the camera north must shift the image down (ground features move to the back)
+    cam = DownwardCamera(load_texture("gravel"), CameraModel(160, 120), NO_EFFECTS)
+    a = cam.render((0.0, 0.0, -20.0), (0.0, 0.0, 0.0)).astype(float)
+    gsd = CameraModel(160, 120).ground_sample_distance_m(20.0)
+    b = cam.render((3 * gsd, 0.0, -20.0), (0.0, 0.0, 0.0)).astype(float)
+    assert (
+        np.abs(a[10:-10, 10:-10] - b[13:-7, 10:-10]).mean()
+        < np.abs(a[10:-10, 10:-10] - b[7:-13, 10:-10]).mean()
+    )
+
+
+def test_effects_change_the_image_and_noise_is_seeded():
+    tex = load_texture("grass")
+    clean = DownwardCamera(tex, CameraModel(160, 120), NO_EFFECTS).render((0, 0, -30), (0, 0, 0))
+    n1 = DownwardCamera(tex, CameraModel(160, 120), CameraEffects(), np.random.default_rng(5)).render(
+        (0, 0, -30), (0, 0, 0), (10, 0, 0), 3.0
+    )
+    n2 = DownwardCamera(tex, CameraModel(160, 120), CameraEffects(), np.random.default_rng(5)).render(
+        (0, 0, -30), (0, 0, 0), (10, 0, 0), 3.0
+    )
+    assert np.array_equal(n1, n2)
+    assert np.abs(n1.astype(float) - clean).mean() > 2.0
+
+
+def test_camera_below_ground_is_refused():
+    cam = DownwardCamera(load_texture("grass"))
+    with pytest.raises(ValueError, match="above the ground"):
+        cam.render((0.0, 0.0, 1.0), (0.0, 0.0, 0.0))
