@@ -288,6 +288,14 @@ class ClosedLoop:
         ])
         losses = [(f.start_s, _end(f)) for f in sc.faults if f.type == "gps_loss"]
         self.estimator = TruthPlusNoiseEstimator(rng_est, dt, losses)
+        self.ekf: Any = None
+        self.nav_events: list[dict[str, Any]] = []
+        if sc.estimator == "ekf":
+            from merlin.nav.estimator import NavEstimator, NavInit
+
+            # aligned on the ground before arming, as the runner of a real vehicle would (NavInit's doc)
+            self.ekf = NavEstimator(init=NavInit(pos_ned_m=tuple(ini.pos_ned_m),  # type: ignore[arg-type]
+                                                 att_rpy_rad=(0.0, 0.0, math.radians(ini.yaw_deg))))
         self.ctl = reset_from_state(VehicleState(), self.params.hover_thrust)
         self.gains = DEFAULT_GAINS
         self.k = 0
@@ -316,7 +324,43 @@ class ClosedLoop:
         self.truth = self.vehicle.truth()
         # the sensor frame feeds the fusion EKF (issue 4); the stand-in estimator reads the truth
         self.frame = self.injector.apply(self.sensors.step(self.truth))
-        self.state = self.estimator.estimate(t, self.truth, self.armed, self.batt_frac)
+        if self.ekf is None:
+            self.state = self.estimator.estimate(t, self.truth, self.armed, self.batt_frac)
+            return self.state
+        return self._ekf_estimate(t)
+
+    def _ekf_estimate(self, t: float) -> VehicleState:
+        """The fusion EKF on the simulated sensors: the three IMU lanes mid-value selected per axis (the
+        triplex voter's selection rule; the full voter with isolation is ``merlin.redundancy``), GPS, baro
+        and magnetometer fused with the filter's own gates and fault tests."""
+        from dataclasses import replace as dc_replace
+
+        from merlin.measurements import ImuSample
+
+        fr = self.frame
+        ekf = self.ekf
+        if fr.imu:
+            lanes = fr.imu
+            if len(lanes) == 3:
+                g = tuple(sorted(s.gyro_frd_radps[i] for s in lanes)[1] for i in range(3))
+                a = tuple(sorted(s.accel_frd_mps2[i] for s in lanes)[1] for i in range(3))
+                imu = ImuSample(lanes[0].t_s, g, a, -1)  # type: ignore[arg-type]
+            else:
+                imu = lanes[0]
+            ekf.predict(imu)
+        if fr.gps is not None:
+            ekf.update_gps(fr.gps)
+        if fr.baro is not None:
+            ekf.update_baro(fr.baro)
+        if fr.mag is not None:
+            ekf.update_mag(fr.mag)
+        for e in ekf.pop_events():
+            self.nav_events.append({"t": e.t_s, "type": f"nav_{e.kind.value}", "source": e.source,
+                                    "parameter": e.parameter, "statistic": e.statistic, "limit": e.limit,
+                                    "text": e.describe()})
+        st = ekf.state()
+        self.state = dc_replace(st, armed=self.armed, landed=self.truth.landed, battery_frac=self.batt_frac,
+                                airspeed_mps=self.truth.airspeed_mps)
         return self.state
 
     def act(self, inputs: Inputs) -> Decision:
@@ -504,6 +548,7 @@ def run_scenario(
         if progress is not None and k % 4000 == 0:
             progress(t / sc.duration_s)
     wall = time.perf_counter() - wall0
+    events.extend(getattr(loop, "nav_events", ()))
     for note in getattr(loop, "notes", ()):  # vehicle-side notes (e.g. a fixed wing's LAND flown as a loiter)
         events.append(note if isinstance(note, dict) else {"t": loop.t, "type": "note", "detail": str(note)})
     events.sort(key=lambda e: e["t"])
