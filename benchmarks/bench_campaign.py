@@ -1,0 +1,71 @@
+"""Campaign throughput: runs per minute on 1 and 2 local workers and on a local Ray instance, and the
+scheduling overhead per run (workers' capacity not spent inside ``run_scenario``).
+
+    .venv/bin/python benchmarks/bench_campaign.py                 # small: 8 runs per configuration
+    .venv/bin/python benchmarks/bench_campaign.py --runs 1000     # the 1,000-run mixed campaign
+
+The mixed campaign is ``examples/campaigns/*.yaml`` (nominal, every controller fault, every sensor /
+link / battery / wind fault, fence approaches). Each configuration flies a fresh directory with the same
+seed, so all fly the same runs. The machine is shared: numbers vary with its load.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from merlin.campaign.aggregate import timing  # noqa: E402
+from merlin.campaign.scheduler import CampaignOptions, run_campaign  # noqa: E402
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--runs", type=int, default=8)
+    ap.add_argument("--repeats", type=int, default=1, help="repeat each configuration (median and spread)")
+    ap.add_argument("--configs", default="local1,local2,ray2")
+    args = ap.parse_args()
+    scenarios = tuple(str(p) for p in sorted((ROOT / "examples" / "campaigns").glob("*.yaml")))
+    results = {}
+    for name in args.configs.split(","):
+        backend = "ray" if name.startswith("ray") else "local"
+        workers = int(name.removeprefix("ray").removeprefix("local"))
+        rates, overheads, fracs, after, startups, inside = [], [], [], [], [], []
+        for _ in range(args.repeats):
+            with tempfile.TemporaryDirectory() as d:
+                o = run_campaign(CampaignOptions(scenarios=scenarios, runs=args.runs, out=Path(d), seed=1,
+                                                 backend=backend, workers=workers, quiet=False))
+                t = timing(list(o.records.values()), o.wall_s, workers, o.flown_now, o.startup_s)
+                passed = sum(1 for r in o.records.values() if r.get("passed"))
+                errors = sum(1 for r in o.records.values() if r.get("status") == "error")
+            rates.append(t["runs_per_min"])
+            overheads.append(t["overhead_per_run_s"])
+            fracs.append(t["overhead_fraction"])
+            after.append(t["overhead_fraction_after_startup"])
+            startups.append(t["startup_s"])
+            inside.append(t["worker_overhead_per_run_s"])
+            print(f"{name}: {t['runs_per_min']:.2f} runs/min, mean run {t['mean_run_wall_s']:.2f} s, overhead/run "
+                  f"{t['overhead_per_run_s']:.2f} s ({100 * t['overhead_fraction']:.1f} %), after start-up "
+                  f"{100 * t['overhead_fraction_after_startup']:.1f} %, start-up {t['startup_s']:.1f} s, in-worker "
+                  f"{t['worker_overhead_per_run_s']:.3f} s/run, {passed} passed, {errors} errors", flush=True)
+        results[name] = {"runs": args.runs, "runs_per_min_median": statistics.median(rates),
+                         "runs_per_min_spread": [min(rates), max(rates)],
+                         "overhead_per_run_s_median": statistics.median(overheads),
+                         "overhead_fraction_median": statistics.median(fracs),
+                         "overhead_fraction_after_startup_median": statistics.median(after),
+                         "startup_s_median": statistics.median(startups),
+                         "worker_overhead_per_run_s_median": statistics.median(inside)}
+    if "local1" in results and "local2" in results:
+        results["speedup_2_over_1"] = results["local2"]["runs_per_min_median"] / results["local1"]["runs_per_min_median"]
+    print(json.dumps(results, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,102 @@
+"""Fly one campaign run in the worker and return its compact summary (never the heavy log).
+
+Runs in a worker process (local pool or Ray). Anything the run raises becomes an ``error`` record with
+its traceback: a crashed run is evidence, never silently dropped.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from merlin.campaign.spec import RunSpec
+
+
+def run_yaml_path(out_dir: Path, run_id: str) -> Path:
+    return out_dir / "runs" / f"{run_id}.yaml"
+
+
+def write_run_yaml(spec: RunSpec, out_dir: Path, campaign_seed: int) -> Path:
+    p = run_yaml_path(out_dir, spec.run_id)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    head = (f"# campaign run {spec.run_id}: {spec.scenario_file}, run index {spec.index}, campaign seed "
+            f"{campaign_seed}\n# samples: {spec.samples}\n# reproduce: merlin sim {p} --out <dir>\n")
+    tmp = p.with_suffix(".tmp")
+    tmp.write_text(head + yaml.safe_dump(spec.scenario, sort_keys=False), encoding="utf-8")
+    tmp.replace(p)
+    return p
+
+
+def takeover_latency_s(events: list[dict[str, Any]]) -> float | None:
+    """From the first injected fault's onset to the first revocation at or after it (None: no fault or
+    no revocation)."""
+    starts = [e["t"] for e in events if e.get("type") == "fault_start"]
+    if not starts:
+        return None
+    t0 = min(starts)
+    rev = [e["t"] for e in events if e.get("type") == "revoked" and e["t"] >= t0 - 1e-9]
+    return min(rev) - t0 if rev else None
+
+
+def nav_error_max_m(log: dict[str, np.ndarray]) -> float | None:
+    if "est_n" not in log or not len(log["est_n"]):
+        return None
+    err = np.hypot(log["est_n"] - log["truth_n"], log["est_e"] - log["truth_e"])
+    return float(np.nanmax(err))
+
+
+def execute(spec: RunSpec) -> dict[str, Any]:
+    """Fly ``spec``; the record for ``results.jsonl``. Reads and writes no file: on a Ray cluster the
+    worker's machine need not share the campaign directory (the driver writes the run's YAML)."""
+    wall0 = time.perf_counter()
+    rec: dict[str, Any] = {
+        "run_id": spec.run_id, "index": spec.index, "scenario_file": spec.scenario_file,
+        "scenario": spec.scenario.get("name", ""), "seed": spec.seed, "samples": spec.samples,
+    }
+    try:
+        rec["run_yaml"] = f"runs/{spec.run_id}.yaml"
+        p = Path(rec["run_yaml"])
+        from merlin.config.loader import validate_model
+        from sims.expectations import evaluate_all
+        from sims.runner import run_scenario
+        from sims.scenario import Scenario, resolve_config
+
+        sc = validate_model(Scenario, spec.scenario, str(p), {})
+        cfg = resolve_config(sc, p.parent, str(p))
+        result = run_scenario(sc, cfg, source=str(p))
+        verdicts = evaluate_all(sc.expectations, result.events, result.log, result.metrics)
+        revs = [{"t": e["t"], "reason": e.get("reason", ""), "text": e.get("reason_detail", {}).get("text", "")}
+                for e in result.events if e.get("type") == "revoked"]
+        m = result.metrics
+        rec.update({
+            "status": "ok",
+            "passed": all(v.passed for v in verdicts),
+            "expectations": [v.to_dict() for v in verdicts],
+            "config_sha256": result.config_sha256,
+            "log_digest_sha256": result.decisions_digest,
+            "revocations": revs,
+            "metrics": {
+                "min_fence_margin_m": m["min_fence_margin_m"],
+                "max_fence_breach_m": m["max_fence_breach_m"],
+                "takeover_latency_s": takeover_latency_s(result.events),
+                "nav_error_max_m": nav_error_max_m(result.log),
+                "max_command_jump_mps": m["max_authority_change_command_jump_mps"],
+                "final_distance_from_home_m": m["final_distance_from_home_m"],
+                "sim_time_s": sc.duration_s,
+            },
+            "run_wall_s": m["wall_time_s"],
+        })
+    except Exception as exc:  # a crashing run is recorded, with its traceback, and the campaign goes on
+        rec.update({"status": "error", "passed": False, "error": f"{type(exc).__name__}: {exc}",
+                    "traceback": traceback.format_exc()})
+    rec["wall_s"] = time.perf_counter() - wall0
+    for k, v in list(rec.get("metrics", {}).items()):
+        if isinstance(v, float) and not math.isfinite(v):
+            rec["metrics"][k] = None
+    return rec

@@ -1,0 +1,211 @@
+"""Plan a campaign, fly the missing runs on a backend, store each result as it completes.
+
+Backends: ``local`` -- a ``ProcessPoolExecutor`` (spawn context, ``max_tasks_per_child`` bounds a
+worker's memory), all cores by default; ``ray`` -- Ray tasks, on a local instance started here when no
+address is given, or unchanged on a cluster address (the cluster's nodes need this repository importable;
+the driver alone writes the campaign directory). Either way the driver appends each finished run to
+``results.jsonl`` at once, so an interrupted campaign loses at most the runs in flight; the same command
+resumes it and flies only what is missing.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import time
+from collections.abc import Callable, Iterable
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from merlin.campaign.execute import execute, write_run_yaml
+from merlin.campaign.spec import CampaignScenario, RunSpec, derive_run, load_campaign_scenario
+from merlin.campaign.store import ResultStore, read_results
+from merlin.config.loader import ConfigError
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+MAX_POOL_RESTARTS = 3  # a worker lost this many times in one campaign stops it (resume continues it)
+
+
+@dataclass(frozen=True, slots=True)
+class CampaignOptions:
+    scenarios: tuple[str, ...]
+    runs: int
+    out: Path
+    seed: int = 0
+    backend: str = "local"
+    address: str | None = None
+    workers: int = 0  # 0: every core
+    max_tasks_per_child: int = 25
+    quiet: bool = True
+
+    @property
+    def n_workers(self) -> int:
+        return self.workers if self.workers > 0 else (os.cpu_count() or 1)
+
+
+@dataclass(slots=True)
+class Outcome:
+    planned: int
+    flown_now: int = 0
+    skipped: int = 0  # already in the store
+    wall_s: float = 0.0
+    startup_s: float | None = None  # pool / Ray start-up: first result's arrival minus that run's own time
+    records: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+
+def plan(scenarios: list[CampaignScenario], runs: int, seed: int) -> list[RunSpec]:
+    """Run ``i`` flies scenario ``i mod len(scenarios)``; its id and seed do not depend on ``runs``, so a
+    campaign can be extended with a larger ``--runs``."""
+    out = []
+    for i in range(runs):
+        cs = scenarios[i % len(scenarios)]
+        out.append(derive_run(cs, seed, i, f"{i:05d}-{cs.stem}"))
+    return out
+
+
+def fingerprint(scenarios: list[CampaignScenario], seed: int) -> dict[str, Any]:
+    return {"seed": seed, "scenarios": [{"file": str(c.path), "sha256": c.content_sha256} for c in scenarios]}
+
+
+def _check_meta(out: Path, fp: dict[str, Any]) -> None:
+    meta = out / "campaign_meta.json"
+    if meta.exists():
+        old = json.loads(meta.read_text())
+        same = old.get("seed") == fp["seed"] and [s["sha256"] for s in old.get("scenarios", [])] == [
+            s["sha256"] for s in fp["scenarios"]]
+        if not same:
+            raise ConfigError(str(out), [
+                f"this directory holds another campaign (seed {old.get('seed')}, scenarios "
+                f"{[s['file'] for s in old.get('scenarios', [])]}); resume it with the same seed and unchanged"
+                " scenario files, or give a fresh --out"])
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        tmp = meta.with_suffix(".tmp")
+        tmp.write_text(json.dumps(fp, indent=2) + "\n")
+        tmp.replace(meta)
+
+
+Emit = Callable[[RunSpec, dict[str, Any]], None]
+
+
+def _local(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
+    ctx = multiprocessing.get_context("spawn")
+    pending = {s.run_id: s for s in specs}
+    restarts = 0
+    while pending:
+        ex = ProcessPoolExecutor(max_workers=opts.n_workers, mp_context=ctx,
+                                 max_tasks_per_child=opts.max_tasks_per_child)
+        try:
+            futs = {ex.submit(execute, s): s for s in pending.values()}
+            live = set(futs)
+            while live:
+                done, live = wait(live, return_when=FIRST_COMPLETED)
+                for f in done:
+                    spec = futs[f]
+                    emit(spec, f.result())
+                    pending.pop(spec.run_id, None)
+        except BrokenProcessPool:
+            # a worker died (killed, out of memory): fly what is missing on a fresh pool
+            restarts += 1
+            if restarts > MAX_POOL_RESTARTS:
+                raise
+        except BaseException:
+            ex.shutdown(wait=False, cancel_futures=True)
+            raise
+        finally:
+            ex.shutdown(wait=False, cancel_futures=True)
+
+
+def _ray(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
+    import ray
+
+    started = False
+    if not ray.is_initialized():
+        if opts.address:
+            ray.init(address=opts.address, log_to_driver=False)
+        else:
+            env = {"PYTHONPATH": os.pathsep.join([str(REPO_ROOT), os.environ.get("PYTHONPATH", "")])}
+            ray.init(num_cpus=opts.n_workers, include_dashboard=False, log_to_driver=False,
+                     object_store_memory=200 * 1024 * 1024, runtime_env={"env_vars": env})
+        started = True
+    try:
+        # max_retries: Ray flies a task again when its worker process or node is lost
+        task = ray.remote(num_cpus=1, max_retries=3)(execute)
+        window = 4 * opts.n_workers if not opts.address else 4 * int(ray.cluster_resources().get("CPU", 1))  # type: ignore[no-untyped-call]
+        todo = list(specs)
+        refs: dict[Any, RunSpec] = {}
+        while todo or refs:
+            while todo and len(refs) < window:
+                s = todo.pop(0)
+                refs[task.remote(s)] = s
+            ready, _ = ray.wait(list(refs), num_returns=1)
+            for r in ready:
+                emit(refs.pop(r), ray.get(r))
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def load_scenarios(paths: Iterable[str]) -> list[CampaignScenario]:
+    out = [load_campaign_scenario(p) for p in paths]
+    if not out:
+        raise ConfigError("merlin campaign", ["give at least one scenario file"])
+    stems = [c.stem for c in out]
+    dup = sorted({s for s in stems if stems.count(s) > 1})
+    if dup:
+        raise ConfigError("merlin campaign", [f"scenario file names must differ (run ids use them): {dup}"])
+    return out
+
+
+def run_campaign(opts: CampaignOptions, scenarios: list[CampaignScenario] | None = None) -> Outcome:
+    """Fly every planned run not yet in ``out/results.jsonl``; returns all records (old and new)."""
+    if opts.runs < 1:
+        raise ConfigError("merlin campaign", [f"--runs: must be at least 1, got {opts.runs}"])
+    if opts.backend not in ("local", "ray"):
+        raise ConfigError("merlin campaign", [f"--backend: {opts.backend!r}; allowed: local, ray"])
+    scs = scenarios if scenarios is not None else load_scenarios(opts.scenarios)
+    specs = plan(scs, opts.runs, opts.seed)
+    _check_meta(opts.out, fingerprint(scs, opts.seed))
+    results_path = opts.out / "results.jsonl"
+    records = read_results(results_path)
+    planned_ids = {s.run_id for s in specs}
+    todo = [s for s in specs if s.run_id not in records]
+    outcome = Outcome(planned=len(specs), skipped=len(planned_ids & set(records)))
+    failures = sum(1 for r in records.values() if r["run_id"] in planned_ids and not r.get("passed"))
+    bar = None
+    if not opts.quiet:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(specs), initial=outcome.skipped, unit="run", desc="campaign", dynamic_ncols=True,
+                   smoothing=0.05)
+        bar.set_postfix(failures=failures)
+    t0 = time.perf_counter()
+    with ResultStore(results_path) as store:
+
+        def emit(spec: RunSpec, rec: dict[str, Any]) -> None:
+            nonlocal failures
+            write_run_yaml(spec, opts.out, opts.seed)
+            store.append(rec)
+            records[spec.run_id] = rec
+            outcome.flown_now += 1
+            if outcome.startup_s is None:
+                outcome.startup_s = max(0.0, time.perf_counter() - t0 - float(rec.get("wall_s", 0.0)))
+            if not rec.get("passed"):
+                failures += 1
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(failures=failures)
+
+        try:
+            if todo:
+                (_ray if opts.backend == "ray" else _local)(todo, opts, emit)
+        finally:
+            outcome.wall_s = time.perf_counter() - t0
+            if bar is not None:
+                bar.close()
+    outcome.records = {k: v for k, v in read_results(results_path).items() if k in planned_ids}
+    return outcome

@@ -1,0 +1,305 @@
+"""Campaigns: seeds and samples, the durable store, kill-and-resume equality, crashed runs recorded as
+errors, a single-run reproduction, the Ray backend, and the report rendered in a real browser."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from merlin.campaign.aggregate import aggregate, wilson_interval
+from merlin.campaign.scheduler import CampaignOptions, load_scenarios, plan, run_campaign
+from merlin.campaign.spec import load_campaign_scenario
+from merlin.campaign.store import ResultStore, read_results
+from merlin.config.loader import ConfigError
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+TINY = str(HERE / "tiny.yaml")
+EXPLODING = str(HERE / "exploding.yaml")
+TIMING_KEYS = {"wall_s", "run_wall_s"}
+
+
+def _stable(records: dict[str, dict]) -> dict[str, dict]:
+    return {k: {f: v for f, v in r.items() if f not in TIMING_KEYS} for k, r in sorted(records.items())}
+
+
+# ------------------------------------------------------------------------------------------ statistics
+
+
+@given(st.integers(1, 5000), st.data())
+def test_wilson_interval_contains_the_estimate_and_stays_in_unit_interval(n: int, data: st.DataObject) -> None:
+    k = data.draw(st.integers(0, n))
+    lo, hi = wilson_interval(k, n)
+    assert 0.0 <= lo <= k / n <= hi <= 1.0
+    assert hi - lo > 0.0
+    if k == n:
+        assert lo < 1.0  # no failures in n runs still leaves a failure rate above 0 possible
+
+
+def test_wilson_interval_known_value() -> None:
+    # 95 % Wilson interval of 0/10: [0, 0.2775] (Brown, Cai & DasGupta 2001, Table 1 style check)
+    lo, hi = wilson_interval(0, 10)
+    assert lo == 0.0 and hi == pytest.approx(0.27753, abs=1e-4)
+
+
+# ------------------------------------------------------------------------------------- seeds, samples
+
+
+def test_samples_and_seeds_are_deterministic_and_independent_of_the_run_count() -> None:
+    scs = load_scenarios([TINY])
+    a = plan(scs, 6, seed=7)
+    b = plan(scs, 3, seed=7)
+    c = plan(scs, 3, seed=8)
+    assert [s.seed for s in a[:3]] == [s.seed for s in b]
+    assert [s.samples for s in a[:3]] == [s.samples for s in b]
+    assert len({s.seed for s in a}) == 6
+    assert [s.seed for s in c] != [s.seed for s in b]
+    for s in a:
+        assert set(s.samples) == {"wind.steady_ned_mps.0", "wind.steady_ned_mps.1", "config.geofence.margin_m"}
+        assert s.scenario["config"]["geofence"]["margin_m"] == s.samples["config.geofence.margin_m"]
+        assert s.scenario["wind"]["steady_ned_mps"][1] == s.samples["wind.steady_ned_mps.1"]
+        assert 3 <= s.samples["config.geofence.margin_m"] <= 8
+        assert s.scenario["seed"] == s.seed
+
+
+def test_a_bad_sample_names_the_key_and_the_value(tmp_path: Path) -> None:
+    p = tmp_path / "bad.yaml"
+    p.write_text(Path(TINY).read_text().replace("config.geofence.margin_m: {int_uniform: [3, 8]}",
+                                                "config.geofence.margin_m: {normal: [5, 20]}"))
+    cs = load_campaign_scenario(p)  # the centre (5 m) is valid; some samples are negative
+    with pytest.raises(ConfigError) as e:
+        plan([cs], 50, seed=0)
+    msg = str(e.value)
+    assert "geofence.margin_m" in msg and "value -" in msg and "greater than or equal to 0" in msg
+
+
+def test_a_key_that_is_not_in_the_scenario_is_refused_with_its_centre(tmp_path: Path) -> None:
+    p = tmp_path / "bad.yaml"
+    p.write_text(Path(TINY).read_text().replace("config.geofence.margin_m: {int_uniform: [3, 8]}",
+                                                "config.geofence.margin_m: {uniform: [-9, -8]}"))
+    with pytest.raises(ConfigError, match=r"margin_m.*-8\.5"):
+        load_campaign_scenario(p)
+
+
+@pytest.mark.parametrize("vary, needle", [
+    ("nosuch.key: {uniform: [0, 1]}", "nosuch"),
+    ("duration_s: {gaussian: [0, 1]}", "unknown distribution"),
+    ("duration_s: {uniform: [5, 1]}", "above upper bound"),
+    ("wind.steady_ned_mps.7: {uniform: [0, 1]}", "not an index"),
+])
+def test_bad_vary_entries_are_refused_at_load(tmp_path: Path, vary: str, needle: str) -> None:
+    p = tmp_path / "bad.yaml"
+    p.write_text("name: x\nduration_s: 2\nvary:\n  " + vary + "\n")
+    with pytest.raises(ConfigError, match=needle):
+        load_campaign_scenario(p)
+
+
+# ----------------------------------------------------------------------------------------------- store
+
+
+def test_store_survives_a_torn_last_line(tmp_path: Path) -> None:
+    p = tmp_path / "results.jsonl"
+    with ResultStore(p) as s:
+        s.append({"run_id": "a", "x": 1.0})
+    with p.open("ab") as f:
+        f.write(b'{"run_id": "b", "x"')  # a SIGKILL in the middle of a write
+    with ResultStore(p) as s:
+        s.append({"run_id": "c", "x": float("nan")})
+    got = read_results(p)
+    assert set(got) == {"a", "c"}
+    assert got["c"]["x"] is None
+
+
+# ------------------------------------------------------------------------------ campaign, end to end
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, dict]]:
+    out = tmp_path_factory.mktemp("ref")
+    o = run_campaign(CampaignOptions(scenarios=(TINY,), runs=4, out=out, seed=11, workers=2))
+    assert o.flown_now == 4 and len(o.records) == 4
+    return out, o.records
+
+
+def test_killed_campaign_resumes_to_the_same_results(reference: tuple[Path, dict], tmp_path: Path) -> None:
+    _, ref = reference
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "merlin.cli", "campaign", TINY, "--runs", "4", "--seed", "11", "--workers", "1",
+           "--out", str(out), "--quiet"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, start_new_session=True, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    results = out / "results.jsonl"
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and proc.poll() is None:
+        if results.exists() and len(read_results(results)) >= 1:
+            break
+        time.sleep(0.2)
+    killed = proc.poll() is None
+    os.killpg(proc.pid, signal.SIGKILL)  # the whole group: driver and workers, no clean-up at all
+    proc.wait()
+    assert killed, "the campaign finished before it could be killed"
+    before = read_results(results)
+    assert 1 <= len(before) < 4
+    with results.open("ab") as f:
+        f.write(b'{"run_id": "00003-tiny", "stat')  # as if killed mid-write
+    o = run_campaign(CampaignOptions(scenarios=(TINY,), runs=4, out=out, seed=11, workers=2))
+    assert o.skipped == len(before) and o.flown_now == 4 - len(before)
+    assert _stable(o.records) == _stable(ref)
+    agg_a = aggregate(list(o.records.values()), seed=11, planned=4, out_dir="D", scenarios=[])
+    agg_b = aggregate(list(ref.values()), seed=11, planned=4, out_dir="D", scenarios=[])
+    assert agg_a == agg_b
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_with_130_and_the_same_command_resumes(reference: tuple[Path, dict], tmp_path: Path) -> None:
+    _, ref = reference
+    out = tmp_path / "ctrlc"
+    cmd = [sys.executable, "-m", "merlin.cli", "campaign", TINY, "--runs", "4", "--seed", "11", "--workers", "1",
+           "--out", str(out), "--quiet"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, start_new_session=True, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    results = out / "results.jsonl"
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and proc.poll() is None and not (results.exists() and results.stat().st_size):
+        time.sleep(0.1)
+    os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in a terminal does: the whole foreground group
+    _, err = proc.communicate(timeout=240)
+    assert proc.returncode == 130, err
+    assert "run the same command to resume" in err
+    n = len(read_results(results))
+    assert 1 <= n < 4
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=400)
+    assert done.returncode in (0, 1), done.stderr
+    assert _stable(read_results(results)) == _stable(ref)
+
+
+def _descendants(pid: int) -> list[int]:
+    out: list[int] = []
+    try:
+        kids = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+    except OSError:
+        return out
+    for k in map(int, kids):
+        out += [k, *_descendants(k)]
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux /proc to find the worker")
+def test_a_lost_worker_costs_only_its_run(reference: tuple[Path, dict], tmp_path: Path) -> None:
+    """SIGKILL the worker process mid-campaign: the driver starts a fresh pool and flies what is missing."""
+    _, ref = reference
+    out = tmp_path / "lost"
+    cmd = [sys.executable, "-m", "merlin.cli", "campaign", TINY, "--runs", "3", "--seed", "11", "--workers", "1",
+           "--out", str(out), "--quiet"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    killed = False
+    deadline = time.monotonic() + 240
+    try:
+        while time.monotonic() < deadline and proc.poll() is None and not killed:
+            for pid in _descendants(proc.pid):
+                try:
+                    cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
+                except OSError:
+                    continue
+                if b"spawn_main" in cmdline and b"resource_tracker" not in cmdline:
+                    time.sleep(1.0)  # let it start its run
+                    os.kill(pid, signal.SIGKILL)
+                    killed = True
+                    break
+            time.sleep(0.1)
+        _, err = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert killed, "no worker process found to kill"
+    assert proc.returncode in (0, 1), err
+    got = read_results(out / "results.jsonl")
+    assert set(got) == {"00000-tiny", "00001-tiny", "00002-tiny"}
+    agg = json.loads((out / "campaign.json").read_text())
+    assert agg["runs"] == 3 and agg["complete"] and (out / "report.html").exists()
+    assert _stable(got) == {k: v for k, v in _stable(ref).items() if k in got}
+
+
+def test_another_campaign_in_the_same_directory_is_refused(reference: tuple[Path, dict]) -> None:
+    out, _ = reference
+    with pytest.raises(ConfigError, match="another campaign"):
+        run_campaign(CampaignOptions(scenarios=(TINY,), runs=4, out=out, seed=12, workers=1))
+
+
+def test_a_run_that_raises_is_recorded_as_an_error(tmp_path: Path) -> None:
+    o = run_campaign(CampaignOptions(scenarios=(EXPLODING,), runs=2, out=tmp_path, seed=0, workers=1))
+    assert len(o.records) == 2
+    for r in o.records.values():
+        assert r["status"] == "error" and r["passed"] is False
+        assert "exploder: boom requested" in r["error"]
+        assert "Traceback" in r["traceback"] and "RuntimeError" in r["traceback"]
+    agg = aggregate(list(o.records.values()), seed=0, planned=2, out_dir=str(tmp_path), scenarios=[])
+    assert agg["errors"] == 2 and agg["passed"] == 0
+    assert agg["error_runs"][0]["reproduce"].startswith("merlin sim ")
+
+
+def test_worst_run_reproduces_bit_for_bit_with_merlin_sim(reference: tuple[Path, dict], tmp_path: Path) -> None:
+    out, ref = reference
+    agg = aggregate(list(ref.values()), seed=11, planned=4, out_dir=str(out), scenarios=[])
+    w = agg["worst_runs"][0]
+    argv = w["reproduce"].split()
+    assert argv[:2] == ["merlin", "sim"] and len(argv) == 5
+    from merlin.commands.sim import run_one
+
+    summary = run_one(argv[2], tmp_path / "repro", plots=False)
+    assert summary["log_digest_sha256"] == ref[w["run_id"]]["log_digest_sha256"]
+    assert summary["seed"] == w["seed"]
+
+
+def test_ray_backend_flies_the_same_runs(reference: tuple[Path, dict], tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    _, ref = reference
+    o = run_campaign(CampaignOptions(scenarios=(TINY,), runs=2, out=tmp_path, seed=11, backend="ray", workers=1))
+    assert len(o.records) == 2
+    assert _stable(o.records) == {k: v for k, v in _stable(ref).items() if k in o.records}
+
+
+def test_report_is_self_contained_and_renders_in_headless_chromium(reference: tuple[Path, dict],
+                                                                    tmp_path: Path) -> None:
+    from merlin.campaign.scheduler import Outcome
+    from merlin.commands.campaign import finish
+
+    out, ref = reference
+    o = Outcome(planned=4, records=ref)
+    shutil.copytree(out / "runs", tmp_path / "runs")
+    agg = finish(tmp_path, o, load_scenarios([TINY]), seed=11, workers=2, keep_runs=1)
+    kept = json.loads((tmp_path / "worst" / agg["worst_runs"][0]["run_id"] / "summary.json").read_text())
+    assert kept["log_digest_sha256"] == ref[agg["worst_runs"][0]["run_id"]]["log_digest_sha256"]
+    assert (tmp_path / "worst" / agg["worst_runs"][0]["run_id"] / "envelope.png").exists()
+    html = (tmp_path / "report.html").read_text()
+    assert html.startswith("<!DOCTYPE html>") and html.rstrip().endswith("</html>")
+    assert "data:image/png;base64," in html and "src=\"http" not in html and "<script" not in html
+    for needle in ("SHA-256", "Envelope", "trigger distance", "Wilson", "merlin sim"):
+        assert needle in html
+    agg = json.loads((tmp_path / "campaign.json").read_text())
+    assert agg["runs"] == 4 and agg["runs_planned"] == 4
+    browser = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
+    if browser is None:
+        pytest.skip("no chromium on this machine (apt-get install -y chromium); the HTML checks above still ran")
+    shot = tmp_path / "shot.png"
+    subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                    "--hide-scrollbars", f"--screenshot={shot}", "--window-size=1200,2400",
+                    (tmp_path / "report.html").as_uri()], check=True, capture_output=True, timeout=120)
+    import cv2
+
+    img = cv2.imread(str(shot))
+    assert img is not None and img.shape[0] >= 1000
+    assert float(img.std()) > 10.0, "the screenshot is blank"
+    # the page shows plots (many distinct colours), not just text on white
+    assert len({tuple(p) for p in img.reshape(-1, 3)[::97]}) > 50
