@@ -258,6 +258,9 @@ class ClosedLoop:
     script; ``merlin serve`` drives it in real time from MAVLink links.
     """
 
+    #: the fusion EKF when the scenario asks for ``estimator: ekf`` (a subclass need not set it)
+    ekf: Any = None
+
     def __init__(self, sc: Scenario, cfg: MerlinConfig, source: str = "<scenario>") -> None:
         self.sc = sc
         self.cfg = cfg
