@@ -121,16 +121,21 @@ def step(g: GuidanceState, s: VehicleState, cfg: TrustedParams, dt: float) -> tu
     trajectory generator).
     """
     g2, sp = _target(g, s, cfg)
-    lim_h = cfg.max_horizontal_decel_mps2 * dt
-    lim_v = cfg.max_vertical_decel_mps2 * dt
-    p, t = g2.vel_cmd, sp.vel_ned_mps
-    dn, de, dd = t[0] - p[0], t[1] - p[1], t[2] - p[2]
-    h = math.hypot(dn, de)
-    if h > lim_h:
-        dn, de = dn * lim_h / h, de * lim_h / h
-    dd = min(max(dd, -lim_v), lim_v)
-    v = (p[0] + dn, p[1] + de, p[2] + dd)
+    v = limit_velocity_change(
+        g2.vel_cmd, sp.vel_ned_mps, cfg.max_horizontal_decel_mps2 * dt, cfg.max_vertical_decel_mps2 * dt
+    )
     return g2._replace(vel_cmd=v), sp._replace(vel_ned_mps=v)
+
+
+def limit_velocity_change(prev: Vec3, target: Vec3, max_dh_mps: float, max_dv_mps: float) -> Vec3:
+    """Move from ``prev`` towards ``target`` by at most ``max_dh_mps`` horizontally and ``max_dv_mps``
+    vertically: one tick of an acceleration limit."""
+    dn, de, dd = target[0] - prev[0], target[1] - prev[1], target[2] - prev[2]
+    h = math.hypot(dn, de)
+    if h > max_dh_mps:
+        dn, de = dn * max_dh_mps / h, de * max_dh_mps / h
+    dd = min(max(dd, -max_dv_mps), max_dv_mps)
+    return (prev[0] + dn, prev[1] + de, prev[2] + dd)
 
 
 def _target(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[GuidanceState, Setpoint]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from merlin.autopilot.guidance import position_to_velocity
+from merlin.autopilot.guidance import limit_velocity_change, position_to_velocity, stopping_point
 from merlin.core.config import HandoverParams, OperatorParams, TrustedParams
 from merlin.core.types import (
     Authority,
@@ -106,10 +106,8 @@ def operator_command(
     hold = mem.hold_ned_m
     if fwd == 0.0 and right == 0.0 and thr == 0.0:
         if hold is None:
-            v = s.vel_ned_mps
-            k = 1.0 / (2.0 * tp.max_horizontal_decel_mps2)
-            p = s.pos_ned_m
-            hold = (p[0] + v[0] * abs(v[0]) * k, p[1] + v[1] * abs(v[1]) * k, p[2])
+            stop = stopping_point(s, tp.max_horizontal_decel_mps2)
+            hold = (stop[0], stop[1], s.pos_ned_m[2])
         vn, ve, vd = position_to_velocity(
             hold, s.pos_ned_m, (0.0, 0.0, 0.0), tp.position_gain_per_s, cfg.max_speed_h_mps,
             cfg.max_speed_up_mps, cfg.max_speed_down_mps,
@@ -120,13 +118,9 @@ def operator_command(
     # human asks for a speed, the trusted inner loops get there without a tilt spike.
     prev = mem.vel_cmd if mem.vel_cmd is not None else s.vel_ned_mps
     if all(math.isfinite(x) for x in prev):
-        lim_h = tp.max_horizontal_decel_mps2 * dt
-        lim_v = tp.max_vertical_decel_mps2 * dt
-        dn, de = vn - prev[0], ve - prev[1]
-        h = math.hypot(dn, de)
-        if h > lim_h:
-            vn, ve = prev[0] + dn * lim_h / h, prev[1] + de * lim_h / h
-        vd = prev[2] + min(max(vd - prev[2], -lim_v), lim_v)
+        vn, ve, vd = limit_velocity_change(
+            prev, (vn, ve, vd), tp.max_horizontal_decel_mps2 * dt, tp.max_vertical_decel_mps2 * dt
+        )
     cmd = Command(
         CommandKind.VELOCITY,
         Authority.OPERATOR,
