@@ -191,7 +191,9 @@ def _switch(st: ArbiterState, view: TickView, cfg: CoreConfig, events: list[Even
         events.append(Event(view.now, EventKind.DENIED, reason=block, seq=sw.seq, to=sw.target))
         return st
     events.append(
-        _authority_event(view.now, st.authority, sw.target, Reason(ReasonCode.GRANTED, "arbiter"), sw.seq)
+        _authority_event(view.now, st.authority, sw.target,
+                         Reason(ReasonCode.GRANTED, "arbiter", text=f"granted after the exchange (grant {sw.seq})"),
+                         sw.seq)
     )
     return st._replace(authority=sw.target, base=Behavior.HOLD, latches=_drop_on_request(st.latches))
 
@@ -405,7 +407,8 @@ def _exchange(st: ArbiterState, view: TickView, cfg: CoreConfig, events: list[Ev
             continue
         seq = st.next_seq
         deadline = now + cfg.handover.ack_timeout_s
-        events.append(Event(now, EventKind.GRANTED, reason=Reason(ReasonCode.GRANTED, "arbiter"), seq=seq, to=target))
+        granted = Reason(ReasonCode.GRANTED, "arbiter", text=f"preconditions hold: grant {seq}, awaiting ACK")
+        events.append(Event(now, EventKind.GRANTED, reason=granted, seq=seq, to=target))
         st = st._replace(pending=Pending(seq, target, deadline), next_seq=seq + 1)
     p = st.pending
     if p is not None and now > p.deadline_s:
