@@ -1,8 +1,8 @@
-"""Flight logs read into plain arrays: PX4 ULog (pyulog) and MAVLink telemetry logs (.tlog, pymavlink).
+"""Flight logs read into plain arrays: PX4 ULog (pyulog) and MAVLink telemetry logs (.tlog).
 
 A :class:`FlightLog` holds each stream at its own recorded times (seconds from the log's start); the
-replay resamples them. This is an edge module: the two log libraries are used here and nowhere else in
-the replay (the link layer wraps pymavlink for live traffic; a recorded file is read here).
+replay resamples them. This is an edge module: pyulog is used here and nowhere else; MAVLink logs are
+parsed by ``merlin.link.tlog_reader``, since only ``merlin/link`` imports pymavlink (``STYLE.md``).
 """
 
 from __future__ import annotations
@@ -87,39 +87,36 @@ def read_ulog(path: str | Path) -> FlightLog:
 def read_tlog(path: str | Path) -> FlightLog:
     """ATTITUDE, LOCAL_POSITION_NED (else GLOBAL_POSITION_INT's relative altitude), HEARTBEAT (armed),
     GPS_RAW_INT (fix, eph) from a .tlog; times are the log's own record times."""
-    from pymavlink import mavutil
+    from merlin.link.tlog_reader import MAV_MODE_FLAG_SAFETY_ARMED, MAV_TYPE_GCS, TlogError, read_records
 
-    try:
-        conn = mavutil.mavlink_connection(str(path), dialect="common")
-    except Exception as exc:
-        raise ConfigError(str(path), [f"cannot open the telemetry log: {exc}"]) from None
     rows: dict[str, list[tuple[float, list[float]]]] = {k: [] for k in
                                                        ("pos", "vel", "att", "rates", "armed", "fix", "eph", "gpi")}
     t_first: float | None = None
-    while True:
-        m = conn.recv_match(type=["ATTITUDE", "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "HEARTBEAT",
-                                  "GPS_RAW_INT"], blocking=False)
-        if m is None:
-            break
-        t = float(getattr(m, "_timestamp", 0.0))
-        if t_first is None:
-            t_first = t
-        t -= t_first
-        kind = m.get_type()
-        if kind == "ATTITUDE":
-            rows["att"].append((t, [m.roll, m.pitch, m.yaw]))
-            rows["rates"].append((t, [m.rollspeed, m.pitchspeed, m.yawspeed]))
-        elif kind == "LOCAL_POSITION_NED":
-            rows["pos"].append((t, [m.x, m.y, m.z]))
-            rows["vel"].append((t, [m.vx, m.vy, m.vz]))
-        elif kind == "GLOBAL_POSITION_INT":
-            rows["gpi"].append((t, [m.relative_alt / 1000.0, m.vx / 100.0, m.vy / 100.0, m.vz / 100.0]))
-        elif kind == "HEARTBEAT" and m.type != mavutil.mavlink.MAV_TYPE_GCS:
-            rows["armed"].append((t, [float(bool(m.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED))]))
-        elif kind == "GPS_RAW_INT":
-            rows["fix"].append((t, [float(m.fix_type)]))
-            if m.eph != 65535:
-                rows["eph"].append((t, [m.eph / 100.0]))
+    names = ("ATTITUDE", "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "HEARTBEAT", "GPS_RAW_INT")
+    try:
+        for rec in read_records(path, names):
+            t = rec.t_unix_s
+            if t_first is None:
+                t_first = t
+            t -= t_first
+            kind, m = rec.name, rec.fields
+            if kind == "ATTITUDE":
+                rows["att"].append((t, [m["roll"], m["pitch"], m["yaw"]]))
+                rows["rates"].append((t, [m["rollspeed"], m["pitchspeed"], m["yawspeed"]]))
+            elif kind == "LOCAL_POSITION_NED":
+                rows["pos"].append((t, [m["x"], m["y"], m["z"]]))
+                rows["vel"].append((t, [m["vx"], m["vy"], m["vz"]]))
+            elif kind == "GLOBAL_POSITION_INT":
+                rows["gpi"].append((t, [m["relative_alt"] / 1000.0, m["vx"] / 100.0, m["vy"] / 100.0,
+                                        m["vz"] / 100.0]))
+            elif kind == "HEARTBEAT" and m["type"] != MAV_TYPE_GCS:
+                rows["armed"].append((t, [float(bool(m["base_mode"] & MAV_MODE_FLAG_SAFETY_ARMED))]))
+            elif kind == "GPS_RAW_INT":
+                rows["fix"].append((t, [float(m["fix_type"])]))
+                if m["eph"] != 65535:
+                    rows["eph"].append((t, [m["eph"] / 100.0]))
+    except TlogError as exc:
+        raise ConfigError(str(path), [str(exc)]) from None
 
     def stream(key: str) -> Stream | None:
         r = rows[key]
