@@ -1,7 +1,7 @@
 """Plan a campaign, fly the missing runs on a backend, store each result as it completes.
 
-Backends: ``local`` -- a ``ProcessPoolExecutor`` (spawn context, ``max_tasks_per_child`` bounds a
-worker's memory), all cores by default; ``ray`` -- Ray tasks, on a local instance started here when no
+Backends: ``local`` -- a ``ProcessPoolExecutor`` (spawn context, recycled every ``max_tasks_per_child``
+runs per worker to bound a worker's memory), all cores by default; ``ray`` -- Ray tasks, on a local instance started here when no
 address is given, or unchanged on a cluster address (the cluster's nodes need this repository importable;
 the driver alone writes the campaign directory). Either way the driver appends each finished run to
 ``results.jsonl`` at once, so an interrupted campaign loses at most the runs in flight; the same command
@@ -93,14 +93,22 @@ Emit = Callable[[RunSpec, dict[str, Any]], None]
 
 
 def _local(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
+    """Fly ``specs`` on a process pool, recycling the pool every ``max_tasks_per_child`` runs per worker.
+
+    The recycling is done here, by generations of pools, and NOT with ``ProcessPoolExecutor``'s own
+    ``max_tasks_per_child``: on CPython 3.11 to 3.15.0b3 that option deadlocks once a worker exits at its
+    limit while work is queued (no replacement worker is started; CPython gh-115634). A 1,000-run campaign
+    hung that way after 2 x 25 runs.
+    """
     ctx = multiprocessing.get_context("spawn")
     pending = {s.run_id: s for s in specs}
     restarts = 0
+    generation = max(1, opts.max_tasks_per_child) * opts.n_workers
     while pending:
-        ex = ProcessPoolExecutor(max_workers=opts.n_workers, mp_context=ctx,
-                                 max_tasks_per_child=opts.max_tasks_per_child)
+        batch = list(pending.values())[:generation]
+        ex = ProcessPoolExecutor(max_workers=min(opts.n_workers, len(batch)), mp_context=ctx)
         try:
-            futs = {ex.submit(execute, s): s for s in pending.values()}
+            futs = {ex.submit(execute, s): s for s in batch}
             live = set(futs)
             while live:
                 done, live = wait(live, return_when=FIRST_COMPLETED)
@@ -108,14 +116,12 @@ def _local(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
                     spec = futs[f]
                     emit(spec, f.result())
                     pending.pop(spec.run_id, None)
+            ex.shutdown(wait=True)  # this generation's workers exit before the next one starts
         except BrokenProcessPool:
             # a worker died (killed, out of memory): fly what is missing on a fresh pool
             restarts += 1
             if restarts > MAX_POOL_RESTARTS:
                 raise
-        except BaseException:
-            ex.shutdown(wait=False, cancel_futures=True)
-            raise
         finally:
             ex.shutdown(wait=False, cancel_futures=True)
 

@@ -303,3 +303,22 @@ def test_report_is_self_contained_and_renders_in_headless_chromium(reference: tu
     assert float(img.std()) > 10.0, "the screenshot is blank"
     # the page shows plots (many distinct colours), not just text on white
     assert len({tuple(p) for p in img.reshape(-1, 3)[::97]}) > 50
+
+
+def test_local_pool_recycles_workers_without_hanging(tmp_path: Path) -> None:
+    """More runs than one pool generation (max_tasks_per_child x workers): every run completes. With
+    ProcessPoolExecutor's own max_tasks_per_child this hung on CPython 3.11 (gh-115634) after the first
+    generation; the subprocess's timeout turns such a hang into a failure instead of a stuck suite."""
+    code = (
+        "import sys, json; from pathlib import Path\n"
+        "from merlin.campaign.scheduler import CampaignOptions, run_campaign\n"
+        f"o = run_campaign(CampaignOptions(scenarios=({TINY!r},), runs=5, out=Path(sys.argv[1]), seed=3,"
+        " workers=1, max_tasks_per_child=2))\n"
+        "print(json.dumps(sorted(o.records)))\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code, str(tmp_path / "c")], cwd=ROOT, capture_output=True,
+                       text=True, timeout=400)
+    assert r.returncode == 0, r.stderr[-2000:]
+    ids = json.loads(r.stdout.strip().splitlines()[-1])
+    assert len(ids) == 5
+    assert len(read_results(tmp_path / "c" / "results.jsonl")) == 5
