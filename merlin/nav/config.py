@@ -71,9 +71,18 @@ class NavConfig:
     # threshold and clip.
     gps_window_s: float = 3.0
     gps_window_sigma_m: float = 0.6
+    # GPS velocity against VO velocity (cross-correlation between redundant systems, paper "Navigational
+    # Failsafe"): at each GPS epoch, the VO sample nearest the GPS time of validity (within
+    # gps_vo_match_s) gives d = v_gps,h - v_vo,h; s = d^T C^-1 d / 2 (mean 1) with C the sum of both
+    # sources' velocity variances feeds a third CUSUM with the same allowance, threshold and clip. The two
+    # are independent, so a velocity-consistent spoof too slow for the innovation CUSUM (the filter's
+    # velocity sits between GPS and VO, halving each innovation) shows here at full size.
+    gps_vo_check: bool = True
+    gps_vo_match_s: float = 0.08  # covers one frame interval of a 15 frames/s camera
     # Re-admission: the GPS must pass the stricter 1e-2 gate on every epoch for this long.
     gps_readmit_gate_pos: float = CHI2_1E2[3]
     gps_readmit_gate_vel: float = CHI2_1E2[3]
+    gps_readmit_gate_vo: float = CHI2_1E2[2] / 2.0  # the GPS-VO statistic is per degree of freedom
     gps_readmit_s: float = 10.0
 
     # ------------------------------------------------------------------ barometer, magnetometer
@@ -84,6 +93,9 @@ class NavConfig:
     mag_gate: float = CHI2_1E4[1]
     mag_declination_rad: float = 0.0
     mag_min_horizontal_gauss: float = 0.05  # below this the heading is not observable (near a pole/iron)
+    # Model that the heading is levelled with the *estimated* tilt (exact Jacobian, NavEstimator.update_mag)
+    # rather than treat it as a measurement of the true yaw. Off by default: see docs/navigation.md.
+    mag_tilt_coupling: bool = False
 
     # ------------------------------------------------------------------ visual odometry
     vo_gate: float = CHI2_1E4[3]
@@ -97,6 +109,12 @@ class NavConfig:
     vo_good_features: int = 80
     vo_good_inlier_ratio: float = 0.85
     vo_max_noise_scale: float = 4.0
+    # Repetitive scenes (the pipeline's autocorrelation side peak, VoQualityRepetition.repetition): a
+    # periodic ground can alias the motion by a period, so from vo_good_repetition the covariance is
+    # inflated like a poor inlier ratio, and above vo_max_repetition the sample is not used. Natural
+    # textures score <= 0.25, the brick photograph 0.5-0.6, a perfectly tiled floor 0.9-0.98 (docs/navigation.md).
+    vo_good_repetition: float = 0.3
+    vo_max_repetition: float = 0.99
     # The VO velocity is computed with this filter's attitude and height; model that shared error in H
     # (attitude and altitude columns) instead of inflating the VO noise (see NavEstimator._vo_jacobian).
     vo_model_coupling: bool = True

@@ -84,6 +84,8 @@ class GpsCheck:
     fused_pos: bool
     fused_vel: bool
     status: GpsStatus
+    vo_stat: float = math.nan  # GPS-versus-VO velocity statistic, per degree of freedom (nan: no VO match)
+    vo_cusum: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -175,6 +177,9 @@ class NavEstimator:
         self.gps_status = GpsStatus.OK
         self._gps_cusum = 0.0
         self._gps_wcusum = 0.0
+        self._gps_vcusum = 0.0
+        # (t, v_n, v_e, var_n, var_e) of recent quality-accepted VO samples, for the GPS-VO velocity check
+        self._vo_recent: deque[tuple[float, float, float, float, float]] = deque(maxlen=32)
         # (t, GPS north, GPS east, dead-reckoned north, east) of recent admitted epochs
         self._gps_window: deque[tuple[float, float, float, float, float]] = deque()
         self._dr = np.zeros(3)  # position propagated by the mechanisation alone (never corrected)
@@ -325,6 +330,7 @@ class NavEstimator:
                 self.gps_status = GpsStatus.UNUSABLE
                 self._gps_cusum = 0.0
                 self._gps_wcusum = 0.0
+                self._gps_vcusum = 0.0
                 self._gps_window.clear()
             return None
         recent = self._gps_pos_fused_t is not None and self._t - self._gps_pos_fused_t <= cfg.gps_timeout_s
@@ -362,15 +368,18 @@ class NavEstimator:
         nis_p = self._nis(y[:3], S[:3, :3])
         nis_v = self._nis(y[3:], S[3:, 3:])
         fused_p = fused_v = False
+        s_vo = self._vo_velocity_statistic(gps, a_n)
 
         if self.gps_status is GpsStatus.EXCLUDED:
-            if nis_p <= cfg.gps_readmit_gate_pos and nis_v <= cfg.gps_readmit_gate_vel:
+            vo_agrees = math.isnan(s_vo) or s_vo <= cfg.gps_readmit_gate_vo
+            if nis_p <= cfg.gps_readmit_gate_pos and nis_v <= cfg.gps_readmit_gate_vel and vo_agrees:
                 if self._gps_agree_since is None:
                     self._gps_agree_since = t
                 if t - self._gps_agree_since >= cfg.gps_readmit_s:
                     self.gps_status = GpsStatus.OK
                     self._gps_cusum = 0.0
                     self._gps_wcusum = 0.0
+                    self._gps_vcusum = 0.0
                     self._gps_window.clear()
                     self._gps_reject_since = None
                     self._emit(
@@ -387,7 +396,14 @@ class NavEstimator:
         if self.gps_status is GpsStatus.OK:
             s = min((nis_p + nis_v) / 6.0, cfg.gps_cusum_clip)
             self._gps_cusum = max(0.0, self._gps_cusum + s - cfg.gps_cusum_allowance)
-            s_win = self._window_statistic(t, gps.pos_ned_m)
+            if not math.isnan(s_vo):
+                s_c = min(s_vo, cfg.gps_cusum_clip)
+                self._gps_vcusum = max(0.0, self._gps_vcusum + s_c - cfg.gps_cusum_allowance)
+            # the mechanisation's position at the GPS time of validity (the receiver's latency: the
+            # displacement of the last `lag` seconds must not count as a disagreement in a turn)
+            dr_n = float(self._dr[0] - self._v[0] * lag + 0.5 * a_n[0] * lag * lag)
+            dr_e = float(self._dr[1] - self._v[1] * lag + 0.5 * a_n[1] * lag * lag)
+            s_win = self._window_statistic(t, gps.pos_ned_m, dr_n, dr_e)
             if not math.isnan(s_win):
                 s_w = min(s_win, cfg.gps_cusum_clip)
                 self._gps_wcusum = max(0.0, self._gps_wcusum + s_w - cfg.gps_cusum_allowance)
@@ -400,6 +416,14 @@ class NavEstimator:
                     cfg.gps_cusum_threshold,
                     "cusum",
                     "GPS innovations inconsistent with VO+INS (sequential test)",
+                )
+            elif self._gps_vcusum > cfg.gps_cusum_threshold:
+                self._exclude_gps(
+                    t,
+                    self._gps_vcusum,
+                    cfg.gps_cusum_threshold,
+                    "vo_cusum",
+                    "GPS velocity disagrees with VO (cross-check sequential test)",
                 )
             elif self._gps_wcusum > cfg.gps_cusum_threshold:
                 self._exclude_gps(
@@ -451,29 +475,56 @@ class NavEstimator:
                     if pos_ok:
                         self._gps_pos_fused_t = self._t
         check = GpsCheck(
-            t, nis_p, nis_v, self._gps_cusum, s_win, self._gps_wcusum, fused_p, fused_v, self.gps_status
+            t,
+            nis_p,
+            nis_v,
+            self._gps_cusum,
+            s_win,
+            self._gps_wcusum,
+            fused_p,
+            fused_v,
+            self.gps_status,
+            s_vo,
+            self._gps_vcusum,
         )
         self.last_gps = check
         self._update_mode()
         return check
 
-    def _window_statistic(self, t: float, pos_ned_m: Vec3) -> float:
+    def _window_statistic(self, t: float, pos_ned_m: Vec3, dr_n: float, dr_e: float) -> float:
         """d = (GPS displacement) - (mechanisation displacement) over the last gps_window_s, horizontal;
         returns dᵀ C⁻¹ d / 2 with C = (σ_w² + P_vv W²) I, or nan until the window has filled."""
         cfg = self.cfg
         win = self._gps_window
-        win.append((t, pos_ned_m[0], pos_ned_m[1], float(self._dr[0]), float(self._dr[1])))
+        win.append((t, pos_ned_m[0], pos_ned_m[1], dr_n, dr_e))
         while len(win) > 1 and win[1][0] <= t - cfg.gps_window_s:
             win.popleft()
         t0, n0, e0, dn0, de0 = win[0]
         w = t - t0
         if w < 0.5 * cfg.gps_window_s:
             return math.nan
-        d_n = (pos_ned_m[0] - n0) - (self._dr[0] - dn0)
-        d_e = (pos_ned_m[1] - e0) - (self._dr[1] - de0)
+        d_n = (pos_ned_m[0] - n0) - (dr_n - dn0)
+        d_e = (pos_ned_m[1] - e0) - (dr_e - de0)
         P = self.kf.P
         var = cfg.gps_window_sigma_m**2 + max(P[3, 3], P[4, 4]) * w * w
         return float((d_n * d_n + d_e * d_e) / var / 2.0)
+
+    def _vo_velocity_statistic(self, gps: GpsSample, a_ned: np.ndarray) -> float:
+        """s = dᵀ C⁻¹ d / 2 for d = (GPS − VO) horizontal velocity, with the VO sample nearest the GPS time
+        of validity; C = σ²_gps,v + the VO variance + (|a| Δt)² for the time between the two. nan when no
+        quality-accepted VO sample is within ``gps_vo_match_s`` (or the check is off)."""
+        cfg = self.cfg
+        if not cfg.gps_vo_check or not self._vo_recent:
+            return math.nan
+        best = min(self._vo_recent, key=lambda r: abs(r[0] - gps.t_s))
+        dt = abs(best[0] - gps.t_s)
+        if dt > cfg.gps_vo_match_s:
+            return math.nan
+        skew_var = (float(np.hypot(a_ned[0], a_ned[1])) * dt) ** 2
+        base = cfg.gps_vel_sigma_mps**2 + skew_var
+        d_n = gps.vel_ned_mps[0] - best[1]
+        d_e = gps.vel_ned_mps[1] - best[2]
+        return 0.5 * (d_n * d_n / (base + best[3]) + d_e * d_e / (base + best[4]))
 
     def _exclude_gps(self, t: float, stat: float, limit: float, parameter: str, text: str) -> None:
         self.gps_status = GpsStatus.EXCLUDED
@@ -481,6 +532,7 @@ class NavEstimator:
         self._gps_reject_since = None
         self._gps_window.clear()
         self._gps_wcusum = 0.0
+        self._gps_vcusum = 0.0
         self._emit(NavEventKind.EXCLUDED, "gps", stat, limit, parameter, text)
 
     def update_vo(self, vo: VoSample) -> Check | None:
@@ -490,6 +542,9 @@ class NavEstimator:
             self.last_vo = Check(vo.t_s, math.nan, False)
             return self.last_vo
         var = [max(c, 0.0) * scale**2 + cfg.vo_sigma_floor_mps**2 for c in vo.vel_cov_m2ps2]
+        # kept for the GPS-VO velocity cross-check whatever the gate below says: the check must not
+        # depend on a filter velocity the GPS under test may already have dragged
+        self._vo_recent.append((vo.t_s, vo.vel_ned_mps[0], vo.vel_ned_mps[1], var[0], var[1]))
         z = np.array(vo.vel_ned_mps, dtype=float)
         H = self._vo_jacobian()
         R = np.diag(var)
@@ -549,16 +604,27 @@ class NavEstimator:
         return self.last_baro
 
     def update_mag(self, mag: MagSample) -> Check | None:
-        """Magnetic heading, levelled with the estimated roll and pitch. With the global attitude error,
-        ψ(R) for R' = (I + [δθ]×) R gives H_θ = [-c_x c_z / n, -c_y c_z / n, 1] with c the first column
-        of R and n = c_x² + c_y² (derived in docs/navigation.md)."""
+        """Magnetic heading, levelled with the estimated roll and pitch: z = ψ̂ + D − heading(R̂ m_b).
+
+        The levelling uses the *estimated* tilt, so z is not the true yaw: with the global error
+        R = (I + [δθ]×) R̂, R̂ m_b = m − δθ × m (m the NED field), and to first order
+        z − ψ̂ = δθ_d − m_d (m_n δθ_n + m_e δθ_e) / |m_h|², i.e. H_θ = [−m_d m_n, −m_d m_e, |m_h|²] / |m_h|²
+        (docs/navigation.md, "Magnetometer"). The field's direction is taken from R̂ m_b itself (an error
+        of second order) (``mag_heading_jacobian``, used with ``mag_tilt_coupling``). The default uses the
+        Jacobian of the Euler yaw (``yaw_jacobian_global``), which treats z as a measurement of the true
+        yaw and the tilt-induced part as noise: in the closed loop the exact Jacobian let the unobservable
+        tilt / accelerometer-bias combination wander by ~1° under GPS, and the Euler one lets a hard
+        pitch-up leak ~2° into roll; both are measured in docs/benchmarks/nav.md."""
         cfg = self.cfg
         roll, pitch, yaw = quat_to_euler(self._q)
         heading, strength = _mag_heading(mag.field_frd_gauss, roll, pitch, cfg.mag_declination_rad)
         if strength < cfg.mag_min_horizontal_gauss:
             return None
         H = np.zeros((1, N_ERR))
-        H[0, 6:9] = yaw_jacobian_global(quat_to_dcm(self._q))
+        if cfg.mag_tilt_coupling:
+            H[0, 6:9] = mag_heading_jacobian(quat_rotate(self._q, mag.field_frd_gauss))
+        else:
+            H[0, 6:9] = yaw_jacobian_global(quat_to_dcm(self._q))
         z = np.array([heading])
         hx = np.array([yaw])
         R = np.array([[cfg.mag_heading_sigma_rad**2]])
@@ -720,12 +786,24 @@ def yaw_jacobian_global(R_nb: np.ndarray) -> tuple[float, float, float]:
     return (-cx * cz / n, -cy * cz / n, 1.0)
 
 
+def mag_heading_jacobian(field_ned_est: Vec3) -> tuple[float, float, float]:
+    """∂(z − ψ̂)/∂δθ for the levelled magnetic heading z, with ``field_ned_est`` = R̂ m_b the measured field
+    rotated with the estimated attitude: [−m_d m_n, −m_d m_e, |m_h|²] / |m_h|² (``update_mag``)."""
+    m_n, m_e, m_d = field_ned_est
+    h2 = max(m_n * m_n + m_e * m_e, 1e-12)
+    return (-m_d * m_n / h2, -m_d * m_e / h2, 1.0)
+
+
 def vo_noise_scale(quality: VoQuality, cfg: NavConfig) -> float | None:
     """None when the vision pipeline's own quality says it cannot be used; otherwise the factor (>= 1)
     on its standard deviation, growing linearly from 1 at "good" to ``vo_max_noise_scale`` at the
-    acceptance limit for the feature count and the inlier ratio (whichever is worse)."""
+    acceptance limit for the feature count, the inlier ratio and the scene's repetition score (whichever
+    is worst; the repetition score is read with ``getattr`` because only the pipeline's
+    ``VoQualityRepetition`` carries it)."""
+    repetition = float(getattr(quality, "repetition", 0.0))
     if (
-        not quality.valid
+        repetition > cfg.vo_max_repetition
+        or not quality.valid
         or quality.features < cfg.vo_min_features
         or quality.inlier_ratio < cfg.vo_min_inlier_ratio
         or quality.reprojection_error_px > cfg.vo_max_reprojection_px
@@ -741,6 +819,7 @@ def vo_noise_scale(quality: VoQuality, cfg: NavConfig) -> float | None:
     b = max(
         badness(quality.features, cfg.vo_min_features, cfg.vo_good_features),
         badness(quality.inlier_ratio, cfg.vo_min_inlier_ratio, cfg.vo_good_inlier_ratio),
+        badness(-repetition, -cfg.vo_max_repetition, -cfg.vo_good_repetition),
     )
     return 1.0 + b * (cfg.vo_max_noise_scale - 1.0)
 

@@ -118,3 +118,21 @@ def test_first_frame_and_bad_input():
     assert not vo.process(img, 0.0, (0.0, 0.0, 0.0), 10.0).quality.valid
     with pytest.raises(ValueError, match="uint8"):
         vo.process(img.astype(np.float32), 0.1, (0.0, 0.0, 0.0), 10.0)
+
+
+def test_quality_carries_the_repetition_score():
+    """Natural texture: low score; a tiled floor tracked with a prior: high, so the filter down-weights
+    it (merlin.nav.estimator.vo_noise_scale)."""
+    from merlin.nav.config import NavConfig
+    from merlin.nav.estimator import vo_noise_scale
+
+    grass = [s for s in fly("grass", (5.0, 0.0, 0.0), frames=3) if s.quality.valid]
+    assert grass and all(s.quality.repetition < 0.3 for s in grass)
+    tiles = [
+        s
+        for s in fly("tiles", (5.0, 0.0, 0.0), frames=3, prior=(5.0, 0.0, 0.0), att=lambda t: (0.0, 0.0, 0.0))
+        if s.quality.valid
+    ]
+    assert tiles and all(s.quality.repetition > 0.7 for s in tiles)
+    cfg = NavConfig()
+    assert vo_noise_scale(grass[0].quality, cfg) < vo_noise_scale(tiles[0].quality, cfg)

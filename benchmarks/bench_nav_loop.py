@@ -1,0 +1,93 @@
+"""The navigational failsafe in the closed loop: the GPS-fault scenarios of issue 4 flown with the fusion
+EKF and (where the scenario has one) the downward camera and visual odometry in the loop.
+
+For each scenario: whether its expectations pass, the GPS fault onset, the first single-epoch rejection,
+the exclusion (and by which test), the largest horizontal estimate error from the onset to the exclusion +
+5 s (how far the fault pulled the vehicle, which flies on the estimate), the revocation, the touchdown,
+and the CPU time of the run with the VO and rendering share. Writes the navigation page of selected runs
+to docs/img/ (the run report's nav.png). The runs are deterministic (one run each); the CPU figures are
+one run on the shared, loaded machine.
+
+    nice -n 10 .venv/bin/python benchmarks/bench_nav_loop.py [--only NAME ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from sims.expectations import evaluate_all
+from sims.nav_report import plot_nav
+from sims.runner import run_scenario
+from sims.scenario import load_scenario
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENARIOS = [
+    "gps_spoof_0p5mps", "gps_spoof_1mps", "gps_spoof_2mps", "gps_jump_20m", "gps_jump_100m",
+    "gps_loss_vo", "gps_gcs_loss_ekf", "gps_loss_water_land",
+]
+FIGURES = {"gps_spoof_1mps": "nav_loop_spoof_1mps.png", "gps_loss_vo": "nav_loop_gps_loss_vo.png",
+           "gps_loss_water_land": "nav_loop_water.png"}
+
+
+def first(events: list[dict], kind: str, after: float, source: str | None = None) -> dict | None:
+    for e in events:
+        if e["type"] == kind and e["t"] >= after - 1e-9 and (source is None or str(e.get("source", "")).startswith(source)):
+            return e
+    return None
+
+
+def since(e: dict | None, onset: float) -> str:
+    return f"+{e['t'] - onset:.2f} s" if e else "none"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--only", nargs="*", default=None)
+    args = ap.parse_args()
+    print(f"date {time.strftime('%Y-%m-%d %H:%M', time.gmtime())} UTC")
+    print("| scenario | expectations | onset s | first rejection | excluded (test) | largest error onset..excl+5 s | "
+          "revoked | touchdown | CPU s (VO, render ms/frame) |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for name in args.only or SCENARIOS:
+        path = ROOT / "examples" / "scenarios" / f"{name}.yaml"
+        sc, cfg = load_scenario(path)
+        c0 = time.process_time()
+        r = run_scenario(sc, cfg, source=str(path))
+        cpu = time.process_time() - c0
+        verdicts = evaluate_all(sc.expectations, r.events, r.log, r.metrics)
+        ok = sum(v.passed for v in verdicts)
+        failed = [v.name for v in verdicts if not v.passed]
+        onset = min((f.start_s for f in sc.faults if f.type.startswith("gps")), default=math.nan)
+        rej = first(r.events, "nav_rejected", onset, "gps")
+        exc = first(r.events, "nav_excluded", onset)
+        rev = first(r.events, "revoked", onset)
+        L = r.log
+        t = L["t"]
+        err = np.hypot(L["est_n"] - L["truth_n"], L["est_e"] - L["truth_e"])
+        end = (exc["t"] if exc else onset) + 5.0
+        sel = (t >= onset) & (t <= end)
+        worst = float(err[sel].max()) if sel.any() else math.nan
+        landed = L["landed"] > 0.5
+        air = np.flatnonzero(~landed)
+        touchdown = float(t[air[-1]]) if len(air) and landed[-1] else math.nan
+        nav = r.nav
+        vo = (f"{nav['cpu_vo_ms_per_frame']:.1f}, {nav['cpu_render_ms_per_frame']:.1f}"
+              if nav.get("frames") else "no camera")
+        excl = f"+{exc['t'] - onset:.2f} s ({exc.get('parameter', '')})" if exc else "none"
+        td = f"{touchdown:.1f} s (+{touchdown - onset:.1f})" if not math.isnan(touchdown) else "airborne"
+        print(f"| {name} | {ok}/{len(verdicts)}{' FAILED: ' + '; '.join(failed) if failed else ''} | {onset:g} | "
+              f"{since(rej, onset)} | {excl} | {worst:.2f} m | {since(rev, onset)} | {td} | {cpu:.1f} ({vo}) |", flush=True)
+        if name in FIGURES:
+            out = ROOT / "docs" / "img"
+            png = plot_nav(r, out)
+            if png is not None:
+                png.rename(out / FIGURES[name])
+
+
+if __name__ == "__main__":
+    main()
