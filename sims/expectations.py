@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from merlin.core.types import Authority, Behavior
+from merlin.core.types import Authority, Behavior, NavMode
 from sims.scenario import Expectation
 
 
@@ -34,6 +34,8 @@ def _matches(e: dict[str, Any], x: Expectation) -> bool:
         return False
     if x.parameter is not None and e.get("reason_detail", {}).get("parameter") != x.parameter:
         return False
+    if x.lane is not None and e.get("lane") != x.lane:
+        return False
     if e["t"] < x.after_s - 1e-9:
         return False
     if x.duration_s is not None and abs(e.get("reason_detail", {}).get("duration_s", math.nan) - x.duration_s) > 1e-6:
@@ -45,7 +47,8 @@ def _describe(x: Expectation) -> str:
     if x.name:
         return x.name
     parts = [x.type]
-    for k in ("t", "authority", "behavior", "reason", "parameter", "event", "after_s", "within_s", "m", "mps"):
+    for k in ("t", "authority", "behavior", "reason", "parameter", "event", "lane", "after_s", "within_s", "m",
+              "mps"):
         v = getattr(x, k)
         if v is not None and not (k == "after_s" and v == 0.0):
             parts.append(f"{k}={v}")
@@ -107,7 +110,63 @@ def evaluate(x: Expectation, events: list[dict[str, Any]], log: dict[str, np.nda
         lim = x.mps if x.mps is not None else 0.5
         j = metrics["max_authority_change_command_jump_mps"]
         return Verdict(name, j <= lim, f"largest command step at a change of authority {j:.3f} m/s (allowed {lim})")
+    if kind == "max_lane_switch_step":
+        # hardware redundancy (sims/lanes.py): within SWITCH_WINDOW_S of an autopilot-lane switch, the
+        # largest per-tick motor-command step the hand-over adds beyond the incoming lane's own change;
+        # default limit: the run's bumpless limit. At least one switch must have happened.
+        n = metrics.get("lane_switches", 0.0)
+        lim = x.step if x.step is not None else metrics.get("bumpless_limit", 0.0)
+        s = metrics.get("max_lane_switch_added_step", math.inf)
+        return Verdict(name, n >= 1 and s <= lim + 1e-12,
+                       f"{int(n)} lane switch(es); step added by the hand-over {s:.4f} per tick (allowed {lim:.4f});"
+                       f" gap at the switch {metrics.get('lane_switch_handover_gap', math.nan):.4f}; largest "
+                       f"step near the switch {metrics.get('max_lane_switch_motor_step', math.nan):.4f}, elsewhere "
+                       f"in flight {metrics.get('max_motor_step_outside_switches', math.nan):.4f}")
+    if kind == "max_height_loss_after_revocation":
+        return _height_loss_after_revocation(name, x, events, log)
+    if kind in ("nav_mode_at", "max_nav_error"):
+        return _evaluate_nav(x, name, log)
     return Verdict(name, False, f"unknown expectation type {kind!r}")  # unreachable: the model validates types
+
+
+def _evaluate_nav(x: Expectation, name: str, log: dict[str, np.ndarray]) -> Verdict:
+    """The navigation solution the core saw (``docs/navigation.md``): its mode at a time, or the largest
+    horizontal distance between the estimate and the truth over ``[after_s, after_s + within_s]`` (to the
+    end without ``within_s``): how far a GPS fault pulled the vehicle, which flies on the estimate."""
+    if x.type == "nav_mode_at":
+        assert x.t is not None and x.nav_mode is not None
+        got = NavMode(int(_at(log, x.t, "nav_mode"))).name
+        return Verdict(name, got == x.nav_mode.upper(), f"navigation mode at t={x.t}: {got}")
+    assert x.m is not None
+    t = log["t"]
+    end = x.after_s + x.within_s if x.within_s is not None else math.inf
+    sel = (t >= x.after_s - 1e-9) & (t <= end + 1e-9)
+    if not sel.any():
+        return Verdict(name, False, f"no log rows in [{x.after_s}, {end}]")
+    err = np.hypot(log["est_n"][sel] - log["truth_n"][sel], log["est_e"][sel] - log["truth_e"][sel])
+    k = int(np.argmax(err))
+    return Verdict(name, float(err[k]) <= x.m,
+                   f"largest horizontal estimate error {err[k]:.2f} m at t={t[sel][k]:.2f} (allowed {x.m} m)")
+
+
+def _height_loss_after_revocation(name: str, x: Expectation, events: list[dict[str, Any]],
+                                  log: dict[str, np.ndarray]) -> Verdict:
+    """The true height at the first matching revocation minus the lowest true height after it (to the end of
+    the run, or ``within_s`` after the revocation): what taking control back cost in height, e.g. a fixed
+    wing's stall recovery. Fails without a matching revocation (nothing was recovered)."""
+    if x.m is None:
+        return Verdict(name, False, "max_height_loss_after_revocation needs m: the allowed height loss, metres")
+    hits = [e for e in events if e["type"] == "revoked" and _matches(e, x)]
+    if not hits:
+        return Verdict(name, False, "no matching revocation: no recovery to measure")
+    t0 = float(hits[0]["t"])
+    ts = log["t"]
+    k = min(int(np.searchsorted(ts, t0 - 1e-9)), len(ts) - 1)
+    end = len(ts) if x.within_s is None else int(np.searchsorted(ts, t0 + x.within_s + 1e-9, side="right"))
+    h = -np.asarray(log["truth_d"][k:max(end, k + 1)], dtype=float)
+    loss = float(h[0] - h.min())
+    return Verdict(name, loss <= x.m, f"height lost after the revocation at t={t0:.3f}: {loss:.2f} m "
+                   f"(allowed {x.m} m)")
 
 
 def evaluate_all(expectations: list[Expectation], events: list[dict[str, Any]], log: dict[str, np.ndarray],

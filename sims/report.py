@@ -202,6 +202,11 @@ def write_all(r: RunResult, verdicts: list[Verdict], out: Path, plots: bool = Tr
         files["ground_track"] = plot_ground_track(r, out)
         files["authority"] = plot_authority(r, out)
         files["envelope"] = plot_envelope(r, out)
+        from sims.nav_report import plot_nav  # navigation page, fusion-EKF runs only (docs/navigation.md)
+
+        nav_png = plot_nav(r, out)
+        if nav_png is not None:
+            files["nav"] = nav_png
     events_path = out / "events.jsonl"
     with events_path.open("w") as f:
         for e in r.events:

@@ -205,6 +205,7 @@ class RunResult:
     decisions_digest: str
     fence_triggers: list[tuple[float, float, float]] = field(default_factory=list)  # (t, north, east)
     controller_log: list[str] = field(default_factory=list)
+    nav: dict[str, Any] = field(default_factory=dict)  # the EKF's test trace (sims/vision_loop.NavTrace)
 
 
 class _Log:
@@ -260,6 +261,12 @@ class ClosedLoop:
 
     #: the fusion EKF when the scenario asks for ``estimator: ekf`` (a subclass need not set it)
     ekf: Any = None
+    #: hardware redundancy (sims/lanes.py) when the scenario's ``redundancy:`` section is active, else None
+    redundancy: Any = None
+    #: the downward camera, visual odometry and the nav test trace (sims/vision_loop.py) with ``estimator: ekf``
+    vision: Any = None
+    #: extra log columns, called at the log rate when set (run_scenario's hook)
+    extra_log_row: Callable[[], dict[str, float]] | None = None
 
     def __init__(self, sc: Scenario, cfg: MerlinConfig, source: str = "<scenario>") -> None:
         self.sc = sc
@@ -295,10 +302,12 @@ class ClosedLoop:
         self.nav_events: list[dict[str, Any]] = []
         if sc.estimator == "ekf":
             from merlin.nav.estimator import NavEstimator, NavInit
+            from sims.vision_loop import VisionLoop, nav_filter_config
 
             # aligned on the ground before arming, as the runner of a real vehicle would (NavInit's doc)
-            self.ekf = NavEstimator(init=NavInit(pos_ned_m=tuple(ini.pos_ned_m),  # type: ignore[arg-type]
+            self.ekf = NavEstimator(nav_filter_config(cfg), init=NavInit(pos_ned_m=tuple(ini.pos_ned_m),  # type: ignore[arg-type]
                                                  att_rpy_rad=(0.0, 0.0, math.radians(ini.yaw_deg))))
+            self.vision = VisionLoop(sc.camera, sc.seed)
         self.ctl = reset_from_state(VehicleState(), self.params.hover_thrust)
         self.gains = DEFAULT_GAINS
         self.k = 0
@@ -311,6 +320,18 @@ class ClosedLoop:
         self.decision: Decision | None = None
         self.wind_ned: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self.frame: Any = None
+        # --- hardware redundancy (issue 5): nothing is built, and nothing runs per tick, when it is off
+        from sims.lanes import Redundancy
+
+        self.redundancy = None
+        if Redundancy.wanted(sc):
+            from sims.sensors import dipole_field_ned_gauss
+
+            fld = self.sensors.params.mag.field_ned_gauss or dipole_field_ned_gauss(cfg.home.lat_deg,
+                                                                                    cfg.home.lon_deg)
+            self.redundancy = Redundancy(sc, root.spawn(1)[0], fld, self.params.hover_thrust, self.gains)
+            self.extra_log_row = self.redundancy.log_row
+        # --- end hardware redundancy
 
     @property
     def actuators(self) -> tuple[float, float, float, float]:
@@ -342,7 +363,13 @@ class ClosedLoop:
 
         fr = self.frame
         ekf = self.ekf
-        if fr.imu:
+        red = self.redundancy
+        if red is not None and red.voter is not None:
+            # the triplex voter with isolation and the duplex PF FDI (sims/lanes.py) feeds the EKF
+            imu_v = red.voter.vote(t, fr)
+            if fr.imu and imu_v is not None:
+                ekf.predict(imu_v)
+        elif fr.imu:
             lanes = fr.imu
             if len(lanes) == 3:
                 g = tuple(sorted(s.gyro_frd_radps[i] for s in lanes)[1] for i in range(3))
@@ -357,6 +384,8 @@ class ClosedLoop:
             ekf.update_baro(fr.baro)
         if fr.mag is not None:
             ekf.update_mag(fr.mag)
+        if self.vision is not None:  # the camera's VO frame when one is due, and the nav trace
+            self.vision.step(t, self.truth, ekf)
         for e in ekf.pop_events():
             self.nav_events.append({"t": e.t_s, "type": f"nav_{e.kind.value}", "source": e.source,
                                     "parameter": e.parameter, "statistic": e.statistic, "limit": e.limit,
@@ -379,6 +408,12 @@ class ClosedLoop:
             self.ctl = reset_from_state(inputs.state, self.params.hover_thrust)
         else:
             self.motors, self.ctl = control_step(cmd, inputs.state, self.ctl, self.gains, self.dt)
+        red = self.redundancy
+        if red is not None:  # hardware redundancy: the voted autopilot lanes drive the motors
+            if red.lanes is not None:
+                self.motors = red.motors(t, cmd, inputs.state, self.frame)
+            else:
+                red.observe(t, self.frame)
         self.wind_ned = self.wind.step(t)
         self.vehicle.step(self.motors, self.wind_ned, self.supply)
         bs = self.battery.step(self.vehicle.rotor_power_w, t, self.dt)
@@ -547,11 +582,15 @@ def run_scenario(
                 row[f"env_{lim.name}"] = ev[lim.index] * lim.display_scale
             for ms in decision.monitors:
                 row[f"mon_{ms.name}"] = float(ms.tripped)
+            if loop.extra_log_row is not None:
+                row.update(loop.extra_log_row())
             log.add(row)
         if progress is not None and k % 4000 == 0:
             progress(t / sc.duration_s)
     wall = time.perf_counter() - wall0
     events.extend(getattr(loop, "nav_events", ()))
+    if loop.redundancy is not None:
+        events.extend(loop.redundancy.events)
     for note in getattr(loop, "notes", ()):  # vehicle-side notes (e.g. a fixed wing's LAND flown as a loiter)
         events.append(note if isinstance(note, dict) else {"t": loop.t, "type": "note", "detail": str(note)})
     events.sort(key=lambda e: e["t"])
@@ -569,6 +608,8 @@ def run_scenario(
         "final_landed": float(loop.truth.landed),
         "revocations": float(decision.revocations if decision is not None else 0),
     }
+    if loop.redundancy is not None:
+        metrics.update(loop.redundancy.metrics())
     return RunResult(
         scenario=sc,
         config=cfg,
@@ -579,4 +620,5 @@ def run_scenario(
         decisions_digest=digest.hexdigest(),
         fence_triggers=fence_triggers,
         controller_log=list(ctrl.log) if ctrl is not None else [],
+        nav=loop.vision.trace.to_dict(loop.ekf) if loop.vision is not None else {},
     )

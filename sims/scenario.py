@@ -82,6 +82,7 @@ FaultType = Literal[
     "rc_link_loss",
     "battery_sag",
     "wind_gust",
+    "autopilot_lane_fail",
 ]
 
 
@@ -101,6 +102,9 @@ class Fault(S):
     amplitude_ned_mps: Vec3L | None = None  # wind_gust
     extra_resistance_ohm: float | None = None  # battery_sag
     capacity_loss_frac: float | None = None  # battery_sag
+    # autopilot_lane_fail: "silent" (the lane's computer stops: no messages, no vote, no motor output) or
+    # "garbage" (it keeps talking, but every health flag it sends is wrong and its motor output is noise)
+    mode: Literal["silent", "garbage"] = "silent"
 
     @model_validator(mode="after")
     def _params(self) -> Fault:
@@ -135,6 +139,10 @@ class Expectation(S):
         "event",
         "disarmed",
         "max_command_jump",
+        "max_lane_switch_step",
+        "nav_mode_at",
+        "max_nav_error",
+        "max_height_loss_after_revocation",
     ]
     name: str = ""
     t: float | None = None
@@ -150,6 +158,35 @@ class Expectation(S):
     event: str | None = None
     count: int | None = None
     duration_s: float | None = None  # revoked: the exceedance duration the reason must carry (to 1 µs)
+    lane: int | None = Field(None, ge=0, le=2, description="event: only events about this lane")
+    step: float | None = Field(None, gt=0.0, description="max_lane_switch_step: allowed motor-command step")
+    nav_mode: str | None = Field(None, description="nav_mode_at: GPS, VO, INERTIAL or LOST")
+
+
+class Camera(S):
+    """A downward camera feeding visual odometry to the fusion EKF (``sims/vision_loop.py``,
+    ``docs/navigation.md``). The ground is one texture everywhere, at home altitude."""
+
+    texture: Literal["grass", "gravel", "brick", "water", "tiles"] = Field(
+        "grass", description="photographs (grass, gravel, brick), low texture (water) or repetitive (tiles)")
+    rate_hz: float = Field(15.0, ge=1.0, le=30.0, description="frames per second (VO runs on every frame)")
+    width_px: int = Field(160, ge=64, le=640)
+    height_px: int = Field(120, ge=48, le=480)
+    hfov_deg: float = Field(70.0, gt=10.0, lt=150.0)
+    m_per_px: float = Field(0.1, gt=0.0, le=1.0, description="ground metres per texture pixel")
+
+
+class Redundancy(S):
+    """Hardware redundancy in the loop (``docs/redundancy.md``). Off by default except the sensor voter,
+    which is on whenever the fusion EKF is (``sensor_voter: null`` = follow the estimator)."""
+
+    sensor_voter: bool | None = Field(
+        None, description="vote the three IMU lanes (merlin.redundancy) before the EKF; null: on with ekf")
+    fdi_preset: Literal["merlin", "table2"] = Field("merlin", description="duplex PF FDI preset (seed 003)")
+    autopilot_lanes: Literal[1, 3] = Field(1, description="3: three inner-loop lanes voted by seed 000's scheme")
+    lane_preset: Literal["fast", "thesis", "thesis_sitl"] = "fast"
+    bumpless_step: float | None = Field(
+        None, gt=0.0, le=1.0, description="motor-command change allowed per tick at a hand-over; null: default")
 
 
 class Scenario(S):
@@ -172,6 +209,14 @@ class Scenario(S):
     faults: list[Fault] = []
     expectations: list[Expectation] = []
     log_rate_hz: float = Field(50.0, gt=0.0, le=400.0)
+    redundancy: Redundancy = Redundancy()
+    camera: Camera | None = Field(None, description="downward camera + visual odometry (needs estimator: ekf)")
+
+    @model_validator(mode="after")
+    def _camera_needs_ekf(self) -> Scenario:
+        if self.camera is not None and self.estimator != "ekf":
+            raise ValueError("camera: visual odometry feeds the fusion EKF; it needs estimator: ekf")
+        return self
 
 
 def load_scenario(path: str | Path, seed: int | None = None) -> tuple[Scenario, MerlinConfig]:

@@ -325,25 +325,52 @@ class Selector:
 class BumplessSwitch:
     """Actuator hand-over between lanes without a jump, and the tracking reference for standby lanes.
 
-    ``max_step`` bounds the change of each actuator command per call (the bumpless limit). While a lane
-    is active its command passes through unchanged (up to that limit); after a switch the output slews
-    from the last actuated value to the new lane's command. :meth:`tracking_reference` is what every
-    standby lane must use to back-calculate its integrators, so that at a switch its own command already
-    equals the actuated one (seed 000 §5.3.1: standby lanes "commanded opposite actuator values").
+    While one lane stays selected its command passes through unchanged: the limiter must not shape
+    normal control (the inner loops legitimately move a motor by more than ``max_step`` in one tick).
+    At a switch the output starts from the last actuated value: the offset between it and the incoming
+    lane's command (its previous one, so that lane's own change this tick still passes) is held and then
+    faded to zero by at most ``max_step`` per call -- the bumpless limit bounds what the *hand-over*
+    adds to any actuator's step. Outputs stay in 0..1. :meth:`tracking_reference` is what every standby
+    lane must use to back-calculate its integrators, so that at a switch its own command already equals
+    the actuated one and the offset is small (seed 000 §5.3.1: standby lanes "commanded opposite
+    actuator values").
     """
 
     max_step: float
     last: tuple[float, ...] | None = None
+    selected: int | None = None
+    offset: tuple[float, ...] = ()  # actuated - selected lane's command, fading to zero after a switch
+    _prev: tuple[tuple[float, ...], ...] | None = None  # every lane's command at the previous call
 
     def step(self, selected: int, commands: tuple[tuple[float, ...], ...]) -> tuple[float, ...]:
         target = commands[selected]
         if self.last is None:
+            self.last, self.selected, self.offset, self._prev = target, selected, (), commands
+            return target
+        if selected != self.selected:
+            ref = self._prev[selected] if self._prev is not None else target
+            self.offset = tuple(p - c for p, c in zip(self.last, ref, strict=True))
+            self.selected = selected
+        self._prev = commands
+        if not self.offset:
             self.last = target
             return target
-        out = tuple(p + max(-self.max_step, min(self.max_step, c - p))
-                    for p, c in zip(self.last, target, strict=True))
+        m = self.max_step
+        off = tuple(o - max(-m, min(m, o)) for o in self.offset)
+        self.offset = () if not any(off) else off
+        out = tuple(max(0.0, min(1.0, c + o)) for c, o in zip(target, off, strict=True))
         self.last = out
         return out
+
+    def hold(self, commands: tuple[tuple[float, ...], ...]) -> tuple[float, ...] | None:
+        """The selected lane produced nothing this tick (silent, not yet voted out): the actuators hold
+        the last output; the other lanes' commands are remembered for the coming hand-over."""
+        self._prev = commands
+        return self.last
+
+    def reset(self) -> None:
+        """Motors off: the next start passes the selected lane's command straight through."""
+        self.last, self.selected, self.offset, self._prev = None, None, (), None
 
     def tracking_reference(self) -> tuple[float, ...] | None:
         return self.last

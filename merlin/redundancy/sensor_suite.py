@@ -5,6 +5,11 @@ hands the newest sample of every lane (``None`` for a lane that never produced o
 channel, runs the IMU through the degradation chain (triplex -> duplex PF FDI -> simplex), and returns the
 voted samples in the same types the estimator reads (``lane = -1`` marks a voted sample), the redundancy
 level per channel, the nav health to hand on, and this tick's fault reports.
+
+A channel the airframe carries only once (the simulator's quadrotor has three IMUs but one
+magnetometer, one barometer and one GPS receiver) is given as a one-element tuple: it is passed through
+unvoted, reported as SIMPLEX, and does not lower the nav health (a single unit by design is not a
+degradation). A single magnetometer is then the one every IMU lane's duplex FDI filter reads.
 """
 
 from __future__ import annotations
@@ -14,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
-from merlin.redundancy.degradation import NAV_HEALTH, ImuDegradationChain
+from merlin.redundancy.degradation import NAV_HEALTH, ChainOutput, ImuDegradationChain
 from merlin.redundancy.duplex_fdi import MERLIN, FdiConfig
 from merlin.redundancy.events import FaultReport, RedundancyLevel
 from merlin.redundancy.sensor_voter import (
@@ -59,7 +64,11 @@ class SensorSuiteVoter:
     def step(self, t_s: float, imu: tuple[ImuSample | None, ...], mag: tuple[MagSample | None, ...],
              baro: tuple[BaroSample | None, ...], gps: tuple[GpsSample | None, ...]) -> VotedSensors:
         mag_vecs = tuple(None if m is None else m.field_frd_gauss for m in mag)
+        if len(mag_vecs) == 1:
+            mag_vecs = mag_vecs * len(imu)
         chain = self.imu.step(t_s, tuple(None if s is None else imu_lane(s) for s in imu), mag_vecs)
+        if len(mag) == 1 or len(baro) == 1 or len(gps) == 1:
+            return self._with_single_channels(t_s, chain, mag, baro, gps)
         m_out, m_ev = self.mag.step(t_s, tuple(None if s is None else mag_lane(s) for s in mag))
         b_out, b_ev = self.baro.step(t_s, tuple(None if s is None else baro_lane(s) for s in baro))
         g_out, g_ev = self.gps.step(t_s, tuple(None if s is None else gps_lane(s) for s in gps))
@@ -82,6 +91,20 @@ class SensorSuiteVoter:
         health = min(chain.nav_health, *(NAV_HEALTH[o.level] for o in (m_out, b_out, g_out)))
         return VotedSensors(t_s, imu_v, mag_v, baro_v, gps_v, levels, health,
                             (*chain.events, *m_ev, *b_ev, *g_ev))
+
+
+    def _with_single_channels(self, t_s: float, chain: ChainOutput, mag: tuple[MagSample | None, ...],
+                              baro: tuple[BaroSample | None, ...],
+                              gps: tuple[GpsSample | None, ...]) -> VotedSensors:
+        """Only the IMU is voted; the single-unit channels pass through as they came."""
+        if not (len(mag) == len(baro) == len(gps) == 1):
+            raise ValueError("give either three lanes or one for each of mag, baro and gps")
+        imu_v = None
+        if chain.imu.values is not None and chain.imu.valid:
+            imu_v = ImuSample(t_s, _v3(chain.imu.values, 0), _v3(chain.imu.values, 3), VOTED_LANE)
+        single = RedundancyLevel.SIMPLEX
+        levels = (("imu", chain.level), ("mag", single), ("baro", single), ("gps", single))
+        return VotedSensors(t_s, imu_v, mag[0], baro[0], gps[0], levels, chain.nav_health, chain.events)
 
 
 def m_or(out: VotedOutput) -> float:

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from operator import le, sub
 
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
 from merlin.redundancy.events import FaultKind, FaultReport, RedundancyLevel
@@ -204,6 +205,58 @@ def vote_step(
     """
     if len(samples) != N_LANES:
         raise ValueError(f"{spec.name}: expected {N_LANES} lane samples, got {len(samples)}")
+    fast = _clean_triplex_tick(spec, state, t_s, samples)
+    if fast is not None:
+        return fast
+    return _vote_step_general(spec, state, t_s, samples, duplex_fault_lane)
+
+
+_NO_EVENTS: tuple[FaultReport, ...] = ()
+_ALL_LANES = (0, 1, 2)
+
+
+def _clean_triplex_tick(
+    spec: ChannelSpec, state: VoterState, t_s: float, samples: tuple[LaneSample | None, ...]
+) -> tuple[VoterState, VotedOutput, tuple[FaultReport, ...]] | None:
+    """The common tick, in a fraction of the general path's time (it runs at 400 Hz before the EKF):
+    three clean lanes (not isolated, no fault, no miscompare, integrator at zero) each with a new, in-range,
+    changed sample, all within threshold of the median. Returns exactly what the general path would --
+    same state, output, no events (tests/redundancy/test_sensor_voter.py checks the equivalence) -- or
+    None when any condition fails."""
+    if state.level is not RedundancyLevel.TRIPLEX or state.t_s is None:
+        return None
+    a, b, c = samples
+    if a is None or b is None or c is None:
+        return None
+    for ln, smp in zip(state.lanes, samples, strict=True):
+        if ln.isolated or ln.fault is not None or ln.miscompare or ln.counter_s != 0.0:
+            return None
+        if ln.last_t_s is None or not smp.t_s > ln.last_t_s or t_s - smp.t_s > spec.timeout_s:  # type: ignore[union-attr]
+            return None
+        vals = smp.values  # type: ignore[union-attr]
+        if vals == ln.last_values or smp.fix_type < spec.min_fix_type:  # type: ignore[union-attr]
+            return None
+        # map() with operator functions keeps the per-component loop in C; a NaN fails every <=
+        if len(vals) != len(spec.range_min) or not (all(map(le, spec.range_min, vals))
+                                                    and all(map(le, vals, spec.range_max))):
+            return None
+    mid = tuple(map(_median3, a.values, b.values, c.values))
+    thr = spec.miscompare
+    for smp in (a, b, c):
+        if not all(map(le, map(abs, map(sub, smp.values, mid)), thr)):
+            return None
+    lanes = (LaneState(a.t_s, a.values), LaneState(b.t_s, b.values), LaneState(c.t_s, c.values))
+    out = VotedOutput(t_s, mid, True, RedundancyLevel.TRIPLEX, _ALL_LANES, False)
+    return VoterState(lanes, t_s, RedundancyLevel.TRIPLEX, mid), out, _NO_EVENTS
+
+
+def _vote_step_general(
+    spec: ChannelSpec,
+    state: VoterState,
+    t_s: float,
+    samples: tuple[LaneSample | None, ...],
+    duplex_fault_lane: int | None = None,
+) -> tuple[VoterState, VotedOutput, tuple[FaultReport, ...]]:
     events: list[FaultReport] = []
     dt = 0.0 if state.t_s is None else max(0.0, t_s - state.t_s)
     name = spec.name

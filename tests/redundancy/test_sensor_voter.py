@@ -252,3 +252,43 @@ def test_a_fault_on_one_lane_never_isolates_another(lane, kind, size, t0, seed):
         v = out.values[0]
         # mid-value select: the median of three always lies between the two healthy lanes
         assert lo - 1e-9 <= v <= hi + 1e-9
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), p_anomaly=st.sampled_from([0.0, 0.02, 0.1]))
+def test_the_clean_tick_fast_path_returns_exactly_what_the_general_path_does(seed, p_anomaly):
+    """vote_step takes a shortcut on clean triplex ticks; on any sequence -- clean, or with dropped,
+    repeated, out-of-range, NaN or wild samples -- its states, outputs and events equal the general path's."""
+    from merlin.redundancy.sensor_voter import _vote_step_general
+
+    rng = np.random.default_rng(seed)
+    s_fast = s_gen = VoterState()
+    prev: list[LaneSample | None] = [None, None, None]
+    for k in range(120):
+        t = k * 0.0025
+        samples: list[LaneSample | None] = []
+        for i in range(3):
+            vals = tuple(float(x) for x in 0.01 * rng.standard_normal(6) + 0.002 * i)
+            u = rng.random()
+            if u < p_anomaly:
+                kind = rng.integers(5)
+                if kind == 0:
+                    samples.append(prev[i])  # no new sample
+                    continue
+                if kind == 1 and prev[i] is not None:
+                    vals = prev[i].values  # type: ignore[union-attr]  # repeated (stuck) values
+                elif kind == 2:
+                    vals = (math.nan, *vals[1:])
+                elif kind == 3:
+                    vals = (1e3, *vals[1:])  # out of range
+                else:
+                    vals = (vals[0] + 1.0, *vals[1:])  # miscompare
+            prev[i] = LaneSample(t, vals)
+            samples.append(prev[i])
+        s_fast, out_f, ev_f = vote_step(IMU_SPEC, s_fast, t, tuple(samples))
+        s_gen, out_g, ev_g = _vote_step_general(IMU_SPEC, s_gen, t, tuple(samples))
+        assert s_fast == s_gen and ev_f == ev_g
+        assert out_f.values == out_g.values or (out_f.values is not None and out_g.values is not None
+                                                and all(a == b or (math.isnan(a) and math.isnan(b))
+                                                        for a, b in zip(out_f.values, out_g.values, strict=True)))
+        assert (out_f.valid, out_f.level, out_f.lanes_used) == (out_g.valid, out_g.level, out_g.lanes_used)
