@@ -83,14 +83,28 @@ def run_once(duration_s: float, out: Path, flood_hz: float, rt_priority: int) ->
                threading.Thread(target=ground_station, args=(gcs_port, stop), daemon=True)]
     for th in threads:
         th.start()
+    steal0 = _steal_s()
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=duration_s * 3 + 60,
                           env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    steal = _steal_s() - steal0 if steal0 is not None else None
     stop.set()
     for th in threads:
         th.join(timeout=5)
     stop_rec = [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines() if '"serve_stop"' in x][-1]
     return {"returncode": proc.returncode, "timing": stop_rec["timing"], "links": stop_rec["links"],
-            "setpoints_sent": sent[0] if sent else None, "stderr_tail": proc.stderr[-400:]}
+            "setpoints_sent": sent[0] if sent else None, "stderr_tail": proc.stderr[-400:],
+            # the machine while measuring: 1-minute load average at the end, CPU time the hypervisor took
+            # from this virtual machine's CPUs during the run (the "steal" column of /proc/stat)
+            "loadavg_1min_end": os.getloadavg()[0], "steal_s": steal}
+
+
+def _steal_s() -> float | None:
+    try:
+        with open("/proc/stat") as f:
+            fields = f.readline().split()
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return None
 
 
 def main() -> int:
@@ -106,7 +120,9 @@ def main() -> int:
             r = run_once(a.duration, Path(tmp) / f"run{k}", a.flood_hz, a.realtime_priority)
             results.append(r)
             print(json.dumps(r, indent=1), flush=True)
-    keys = ("jitter_p99_ms", "missed_ticks", "setpoint_latency_p99_ms", "setpoint_latency_max_ms", "late_max_ms")
+    keys = ("jitter_p99_ms", "missed_ticks", "late_p99_ms", "late_max_ms", "work_p50_ms", "work_p99_ms",
+            "work_max_ms", "gc_max_ms", "setpoint_latency_p50_ms", "setpoint_latency_p99_ms",
+            "setpoint_latency_max_ms")
     summary = {k: {"median": statistics.median(float(r["timing"][k]) for r in results),  # type: ignore[index]
                    "min": min(float(r["timing"][k]) for r in results),  # type: ignore[index]
                    "max": max(float(r["timing"][k]) for r in results)} for k in keys}  # type: ignore[index]

@@ -15,10 +15,16 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from pydantic import ValidationError
+
 
 def register(sub: Any) -> None:
     p = sub.add_parser("serve", help="run the simulated vehicle and the trusted core in real time over MAVLink")
     p.add_argument("--config", default=None, help="configuration YAML (default: the built-in MerlinConfig())")
+    p.add_argument("--vehicle", default="quadrotor_default",
+                   help="the simulated vehicle: a multirotor in sims/vehicles (default quadrotor_default) or the "
+                        "JSBSim fixed wing 'aerosonde' (it starts on its catapult: arm, then takeoff launches it; "
+                        "without --config it flies the built-in fixed-wing configuration)")
     p.add_argument("--rate-hz", type=float, default=250.0, help="core and simulation tick rate (default 250)")
     p.add_argument("--speedup", type=float, default=1.0, help="run faster than real time (tests), default 1")
     p.add_argument("--sysid", type=int, default=1, help="Merlin's MAVLink system id (default 1)")
@@ -32,11 +38,15 @@ def register(sub: Any) -> None:
     p.add_argument("--serial", default=None, metavar="DEV:BAUD",
                    help="put the controller link on a serial device instead of UDP, e.g. /dev/ttyUSB0:921600")
     p.add_argument("--signing-key", default=None, metavar="FILE",
-                   help="32-byte signing key file (64 hex digits or 32 bytes) for both links")
-    p.add_argument("--allow-unsigned-provisioning", action="store_true",
-                   help="accept a first SETUP_SIGNING in the clear (bench links only)")
-    p.add_argument("--controller-sysids", default=None, help="allow-list of controller system ids, e.g. 1,42")
-    p.add_argument("--gcs-sysids", default=None, help="allow-list of ground-station system ids, e.g. 255")
+                   help="signing key file (64 hex digits, 44 base64 characters or 32 bytes) for both links, "
+                        "signatures required on both; overrides links.*.signing in the configuration")
+    p.add_argument("--allow-unsigned-provisioning", action="store_true", default=None,
+                   help="accept a first SETUP_SIGNING in the clear on both links (bench links only); overrides "
+                        "links.*.signing.allow_unsigned_provisioning")
+    p.add_argument("--controller-sysids", default=None,
+                   help="allow-list of controller system ids, e.g. 1,42; overrides links.controller")
+    p.add_argument("--gcs-sysids", default=None,
+                   help="allow-list of ground-station system ids, e.g. 255; overrides links.gcs")
     p.add_argument("--out", default=None, help="directory for flight.tlog and events.jsonl "
                                                "(default out/serve/<UTC timestamp>)")
     p.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
@@ -61,11 +71,55 @@ def _ids(text: str | None, what: str) -> frozenset[int] | None:
     return ids
 
 
-def options_from_args(args: argparse.Namespace) -> Any:
-    from merlin.config.loader import ConfigError, load_config
+def _load(path: str | None) -> tuple[Any, Path]:
+    """The configuration, validated with the directory of its file known, so that the ``links:`` key files
+    are checked (relative to that directory) as part of validation; and that directory."""
+    from merlin.config.loader import ConfigError, describe_validation_error, parse_yaml
     from merlin.config.models import MerlinConfig
-    from merlin.link.security import LinkPolicy
-    from merlin.link.signing import KeyFileError, load_key_file
+
+    if path is None:
+        return MerlinConfig(), Path.cwd()
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(str(p), [f"cannot read the file: {exc.strerror or exc}"]) from None
+    data, lines = parse_yaml(text, str(p))
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(str(p), [f"(top level): expected a mapping of keys, got {type(data).__name__}"])
+    config_dir = p.resolve().parent
+    try:
+        return MerlinConfig.model_validate(data, context={"config_dir": config_dir}), config_dir
+    except ValidationError as err:
+        raise ConfigError(str(p), describe_validation_error(err, lines)) from None
+
+
+def _vehicle_config(vehicle: str, path: str | None, cfg: Any) -> Any:
+    """The configuration for ``--vehicle``: a fixed wing (JSBSim) flies the built-in fixed-wing configuration
+    when no file is given, and refuses a configuration that is not a fixed wing's; a multirotor must exist."""
+    from merlin.config.loader import ConfigError
+    from sims.runner import FIXED_WING_VEHICLES, vehicle_params_path
+
+    if vehicle in FIXED_WING_VEHICLES:
+        from sims.fixedwing_loop import default_config
+
+        if path is None:
+            return default_config(vehicle)
+        if cfg.vehicle.type.value != "fixed_wing":
+            raise ConfigError(path, [f"vehicle.type: {cfg.vehicle.type.value!r}, but --vehicle {vehicle} is a fixed "
+                                     "wing: its envelope and fence projection need vehicle.type: fixed_wing"])
+        return cfg
+    if not vehicle_params_path(vehicle).is_file():
+        raise ConfigError("command line", [f"--vehicle {vehicle!r}: no such vehicle; allowed: a file in "
+                                           f"sims/vehicles (without .yaml) or {', '.join(FIXED_WING_VEHICLES)}"])
+    return cfg
+
+
+def options_from_args(args: argparse.Namespace) -> Any:
+    from merlin.config.loader import ConfigError
+    from merlin.serve.link_security import KeyFileProblem, LinkOverrides, link_setups
     from merlin.serve.server import ServeOptions, UdpLinkSpec
 
     problems = []
@@ -92,28 +146,31 @@ def options_from_args(args: argparse.Namespace) -> Any:
             serial = (dev, int(baud))
     if problems:
         raise ConfigError("command line", problems)
-    cfg = load_config(args.config) if args.config else MerlinConfig()
-    key = None
-    key_file = Path(args.signing_key) if args.signing_key else None
-    if key_file is not None and key_file.exists():
-        try:
-            key = load_key_file(key_file)
-        except (KeyFileError, OSError) as exc:
-            raise ConfigError(str(key_file), [f"signing key: {exc}"]) from None
-    common = {"signing_key": key, "allow_unsigned_provisioning": args.allow_unsigned_provisioning}
-    cpol = LinkPolicy(name="controller", allowed_system_ids=_ids(args.controller_sysids, "controller-sysids"),
-                      **common)
-    gpol = LinkPolicy(name="gcs", allowed_system_ids=_ids(args.gcs_sysids, "gcs-sysids"),
-                      **common)
+    cfg, config_dir = _load(args.config)
+    cfg = _vehicle_config(args.vehicle, args.config, cfg)  # issue 8: the fixed wing
+    overrides = LinkOverrides(
+        key_file=Path(args.signing_key) if args.signing_key else None,
+        allow_unsigned_provisioning=args.allow_unsigned_provisioning,
+        controller_system_ids=_ids(args.controller_sysids, "controller-sysids"),
+        gcs_system_ids=_ids(args.gcs_sysids, "gcs-sysids"),
+    )
+    try:
+        setups = link_setups(cfg.links, config_dir, overrides)
+    except KeyFileProblem as exc:
+        source = "command line" if exc.where.startswith("--") else (args.config or "<built-in default>")
+        raise ConfigError(source, [str(exc)]) from None
     out = Path(args.out) if args.out else Path("out/serve") / dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
     host = args.remote_host
     return ServeOptions(
         config=cfg, config_source=args.config or "<built-in default>", rate_hz=args.rate_hz, speedup=args.speedup,
+        vehicle=args.vehicle,
         system_id=args.sysid, component_id=args.compid,
         gcs=None if args.no_gcs else UdpLinkSpec(("0.0.0.0", args.gcs_bind_port), (host, args.gcs_port)),
         controller=UdpLinkSpec(("0.0.0.0", args.offboard_bind_port), (host, args.offboard_port)),
-        serial=serial, out_dir=out, duration_s=args.duration, controller_policy=cpol, gcs_policy=gpol,
-        key_file=key_file, tune_gc=not args.no_gc_tuning, realtime_priority=args.realtime_priority,
+        serial=serial, out_dir=out, duration_s=args.duration,
+        controller_policy=setups["controller"].policy, gcs_policy=setups["gcs"].policy,
+        controller_key_file=setups["controller"].key_file, gcs_key_file=setups["gcs"].key_file,
+        tune_gc=not args.no_gc_tuning, realtime_priority=args.realtime_priority,
     )
 
 

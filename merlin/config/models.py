@@ -10,11 +10,14 @@ Numbers taken from the seeds are cited where they are used.
 
 from __future__ import annotations
 
+import base64
+import binascii
 import math
 from enum import StrEnum
+from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 CONFIG_VERSION = 1
 
@@ -474,6 +477,126 @@ class BatteryConfig(Strict):
     critical_frac: float = Field(0.10, ge=0.0, le=1.0)
 
 
+# ------------------------------------------------------------------------------------------- links
+
+#: Length of a MAVLink 2 signing key (mavlink.io, "Message Signing": the secret key is 32 bytes).
+SIGNING_KEY_LEN = 32
+
+
+def signing_key_from_file_bytes(data: bytes) -> bytes:
+    """The 32-byte key held by a signing key file, or ValueError saying what a key file may hold.
+
+    A key file holds 64 hex digits, or 44 characters of standard base64 (with its ``=`` padding), both
+    with surrounding whitespace ignored, or exactly 32 raw bytes. This is the one definition of the
+    format: :func:`merlin.link.signing.load_key_file` reads key files with it.
+    """
+    text = data.strip()
+    if len(text) == 2 * SIGNING_KEY_LEN:
+        try:
+            return bytes.fromhex(text.decode("ascii"))
+        except (UnicodeDecodeError, ValueError):
+            pass
+    if len(text) == 44 and text.endswith(b"="):
+        try:
+            key = base64.b64decode(text, validate=True)
+        except (binascii.Error, ValueError):
+            key = b""
+        if len(key) == SIGNING_KEY_LEN:
+            return key
+    if len(data) == SIGNING_KEY_LEN:
+        return data
+    raise ValueError(
+        f"a signing key file holds 64 hex digits, 44 base64 characters or exactly {SIGNING_KEY_LEN} raw bytes;"
+        f" this one holds {len(data)} bytes that are none of these"
+    )
+
+
+class SigningConfig(Strict):
+    """MAVLink 2 message signing on one link (mavlink.io, "Message Signing").
+
+    With ``require_signed`` true, authority requests and acknowledgements, commands, setpoints, fence
+    uploads and parameter writes must carry a valid signature made with the link's key; unsigned or
+    wrongly signed ones are dropped, counted and logged. With it false, a key still signs what Merlin sends
+    and a signature that does not verify is still rejected, but unsigned messages are accepted.
+    ``key_file`` is relative to the configuration file's directory; the file must exist and hold a key
+    (see :func:`signing_key_from_file_bytes`) unless ``allow_unsigned_provisioning`` is true, in which
+    case a key received with SETUP_SIGNING is written there.
+    """
+
+    key_file: str | None = Field(
+        None, min_length=1, description="signing key file (64 hex digits, 44 base64 characters or 32 bytes)"
+    )
+    require_signed: bool = Field(False, description="reject unsigned authority, command and setpoint messages")
+    allow_unsigned_provisioning: bool = Field(
+        False, description="accept a first SETUP_SIGNING in the clear when no key is loaded (bench links)"
+    )
+
+    @field_validator("key_file")
+    @classmethod
+    def _key_file(cls, v: str | None) -> str | None:
+        """`key_file` is a file path (no NUL character)."""
+        if v is not None and "\x00" in v:
+            raise ValueError("a file path cannot contain a NUL character")
+        return v
+
+    @model_validator(mode="after")
+    def _usable(self, info: ValidationInfo) -> SigningConfig:
+        """`require_signed: true` needs a `key_file` or `allow_unsigned_provisioning: true`; when the
+        configuration is read for `merlin serve`, `key_file` (relative to the configuration file) must exist
+        and hold a key, unless `allow_unsigned_provisioning` is true and the file does not exist yet."""
+        if self.require_signed and self.key_file is None and not self.allow_unsigned_provisioning:
+            raise ValueError(
+                "require_signed is true but there is no key_file and allow_unsigned_provisioning is false:"
+                " no message could ever be accepted on this link; name a key_file"
+            )
+        # The key file itself can only be checked when the directory of the configuration file is known:
+        # readers that know it pass ``context={"config_dir": ...}`` to model_validate (merlin serve does).
+        base = info.context.get("config_dir") if isinstance(info.context, dict) else None
+        if base is None or self.key_file is None:
+            return self
+        path = Path(base) / self.key_file
+        if not path.exists():
+            if self.allow_unsigned_provisioning:
+                return self  # the first SETUP_SIGNING writes it
+            raise ValueError(
+                f"key_file {self.key_file!r}: {str(path)!r} does not exist (a relative path is relative to"
+                " the configuration file's directory; allowed: an existing key file, or no file with"
+                " allow_unsigned_provisioning: true)"
+            )
+        try:
+            signing_key_from_file_bytes(path.read_bytes())
+        except OSError as exc:
+            raise ValueError(f"key_file {self.key_file!r}: cannot read {str(path)!r}: {exc.strerror or exc}") from None
+        except ValueError as exc:
+            raise ValueError(f"key_file {self.key_file!r}: {exc}") from None
+        return self
+
+
+SystemId = Annotated[int, Field(ge=1, le=255)]  # 0 is MAVLink's broadcast address, never a sender
+ComponentId = Annotated[int, Field(ge=0, le=255)]
+
+
+class LinkConfig(Strict):
+    """Security of one MAVLink link: who may talk on it and which messages must be signed."""
+
+    signing: SigningConfig = SigningConfig()
+    allowed_system_ids: list[SystemId] | None = Field(
+        None, min_length=1, description="senders' system ids accepted on this link; null: any"
+    )
+    allowed_component_ids: list[ComponentId] | None = Field(
+        None, min_length=1, description="senders' component ids accepted on this link; null: any"
+    )
+
+
+class LinksConfig(Strict):
+    """The MAVLink links of ``merlin serve`` (icd/ICD.md): the experimental controller's (offboard API,
+    UDP 14540 or a serial device) and the ground station's (UDP 14550). Command-line options of
+    ``merlin serve`` override what is set here."""
+
+    controller: LinkConfig = LinkConfig()
+    gcs: LinkConfig = LinkConfig()
+
+
 class HomeConfig(Strict):
     lat_deg: float = Field(29.6516, ge=-90.0, le=90.0)  # Gainesville, FL: where the paper's team flew
     lon_deg: float = Field(-82.3248, ge=-180.0, le=180.0)
@@ -496,3 +619,4 @@ class MerlinConfig(Strict):
     trusted: TrustedConfig = TrustedConfig()
     nav: NavConfig = NavConfig()
     battery: BatteryConfig = BatteryConfig()
+    links: LinksConfig = LinksConfig()

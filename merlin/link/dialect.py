@@ -16,8 +16,13 @@ into place with ``os.replace`` (atomic on POSIX and Windows), so concurrent firs
 processes each produce a complete file and the last rename wins with identical content.
 
 Cache directory: ``$MERLIN_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/merlin`` (``~/.cache/merlin``),
-falling back to ``<tmp>/merlin-cache-<uid>`` when that is not writable. The XML is ``$MERLIN_DIALECT_XML``
-if set, else a copy shipped next to this module, else ``icd/merlin.xml`` of this source tree.
+falling back to ``<tmp>/merlin-cache-<uid>`` when that is not writable.
+
+Where the XML comes from: ``$MERLIN_DIALECT_XML`` if set (to try an edited dialect), else the copy shipped
+as package data of :mod:`merlin.link` (``merlin/link/merlin.xml``, read through ``importlib.resources`` so
+it is found in an installed wheel as in a source checkout). ``icd/merlin.xml`` is the document third
+parties read; the two are byte-identical (``tests/link/test_packaging.py`` fails if they drift: edit
+``icd/merlin.xml`` and copy it over).
 
 This is the only module that imports pymavlink's generator; the rest of ``merlin.link`` reaches the
 bindings through :func:`mavlink_module`. Nothing outside ``merlin.link`` imports pymavlink.
@@ -27,6 +32,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import importlib.resources
 import importlib.util
 import io
 import os
@@ -44,6 +50,9 @@ import pymavlink
 #: Major changes break controllers; minor ones add messages or fields (MAVLink 2 extensions) only.
 ICD_VERSION: tuple[int, int, int] = (1, 0, 0)
 
+#: The dialect's file name in the :mod:`merlin.link` package (package data).
+SHIPPED_XML = "merlin.xml"
+
 #: First and last message id reserved for the Merlin dialect (see the header of icd/merlin.xml).
 MESSAGE_ID_RANGE: tuple[int, int] = (53100, 53149)
 
@@ -53,15 +62,18 @@ def icd_version_string() -> str:
 
 
 def dialect_xml_path() -> Path:
-    """``$MERLIN_DIALECT_XML``; else a ``merlin.xml`` shipped next to this module (an installed wheel, if the
-    build copies it there); else ``icd/merlin.xml`` of the source tree."""
+    """``$MERLIN_DIALECT_XML`` if set, else the dialect shipped with the package (see the module doc)."""
     env = os.environ.get("MERLIN_DIALECT_XML")
     if env:
         return Path(env)
-    shipped = Path(__file__).resolve().parent / "merlin.xml"
-    if shipped.is_file():
-        return shipped
-    return Path(__file__).resolve().parents[2] / "icd" / "merlin.xml"
+    shipped = importlib.resources.files("merlin.link").joinpath(SHIPPED_XML)
+    if not shipped.is_file():
+        raise FileNotFoundError(
+            f"the MAVLink dialect {SHIPPED_XML} is missing from the merlin.link package ({shipped}): the "
+            "installation is incomplete (package data not installed); reinstall Merlin"
+        )
+    # a wheel installs package data as plain files, so this is a real path (never a zip member)
+    return Path(str(shipped))
 
 
 def _pymavlink_v20_dir() -> Path:

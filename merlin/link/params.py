@@ -1,10 +1,12 @@
 """The MAVLink parameter protocol over a flat list of named floats (the effective limits), as a pure class.
 
 PARAM_REQUEST_LIST answers every parameter in index order; PARAM_REQUEST_READ one, by index or (index
--1) by name; PARAM_SET is refused while ``read_only`` (the serve process sets it whenever the vehicle is
-armed) and otherwise passes through a validator, which is where the configuration models decide; either
-way the answer is a PARAM_VALUE carrying the value now in force, which is how the protocol tells a ground
-station that a write was refused (mavlink.io, "Parameter Protocol"). Values are MAV_PARAM_TYPE_REAL32
+-1) by name; PARAM_SET is refused while ``read_only`` (the owner sets it whenever the vehicle is armed),
+and always when there is no validator (``merlin serve`` has none: the limits are the reviewed
+configuration file's, see icd/ICD.md section 8.2); otherwise it passes through the validator. A refusal
+is answered with the PARAM_VALUE carrying the value in force, which is how the protocol tells a ground
+station that a write failed (mavlink.io, "Parameter Protocol"; PX4 answers a failed set the same way),
+and a STATUSTEXT saying why. Values are MAV_PARAM_TYPE_REAL32
 in the unit of the limit they expose.
 """
 
@@ -85,6 +87,9 @@ class ParamProtocol:
             values[name] = float(value)
         self._names, self._values = names, values
 
+    def __contains__(self, name: object) -> bool:
+        return name in self._values
+
     def __len__(self) -> int:
         return len(self._names)
 
@@ -113,17 +118,18 @@ class ParamProtocol:
         if isinstance(m, i.ParamSetIn):
             if m.param_id not in self._values:
                 return []  # unknown id: no PARAM_VALUE, as PX4 does; the sender times out
+            # the two fixed reasons fit one 50-character STATUSTEXT with any 16-character id
             why = None
             if self.read_only:
-                why = "parameters are read-only while armed"
+                why = "read-only while armed"
             elif self.validator is None:
-                why = "parameters are read-only on this vehicle"
+                why = "read-only (config file)"
             else:
-                why = self.validator(m.param_id, float(m.value))
+                reason = self.validator(m.param_id, float(m.value))
+                why = None if reason is None else f"not set: {reason}"
             if why is not None:
                 self.refused += 1
-                return [self._pv(m.param_id),
-                        o.StatusTextOut(o.MAV_SEVERITY_WARNING, f"Merlin: {m.param_id} not set: {why}")]
+                return [self._pv(m.param_id), o.StatusTextOut(o.MAV_SEVERITY_WARNING, f"Merlin: {m.param_id} {why}")]
             self._values[m.param_id] = float(m.value)
             self._changes.append((m.param_id, float(m.value)))
             return [self._pv(m.param_id)]

@@ -10,7 +10,7 @@ Unlike pymavlink's ``check_signature`` (which records a stream's timestamp befor
 signature, so one forged frame with a far-future timestamp silences the genuine stream), the stream
 timestamp here is advanced only by frames whose signature verifies.
 
-Keys come from a file (64 hex digits, or exactly 32 raw bytes), from a passphrase hashed with SHA-256
+Keys come from a file (64 hex digits, 44 base64 characters, or exactly 32 raw bytes), from a passphrase hashed with SHA-256
 as MAVProxy's ``signing setup`` does, or are provisioned in flight with SETUP_SIGNING (see
 :class:`merlin.link.security.LinkSecurity`).
 """
@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
 
+from merlin.config.models import signing_key_from_file_bytes
 from merlin.link.frames import Frame
 
 KEY_LEN = 32
@@ -47,19 +48,12 @@ def key_from_passphrase(passphrase: str) -> bytes:
 
 
 def load_key_file(path: Path) -> bytes:
-    """Read a key file: 64 hex digits (whitespace ignored) or exactly 32 raw bytes."""
-    data = Path(path).read_bytes()
-    text = data.strip()
-    if len(text) == 2 * KEY_LEN:
-        try:
-            return bytes.fromhex(text.decode("ascii"))
-        except (UnicodeDecodeError, ValueError):
-            pass
-    if len(data) == KEY_LEN:
-        return data
-    raise KeyFileError(
-        f"{path}: a MAVLink signing key file holds 64 hex digits or exactly 32 bytes, got {len(data)} bytes"
-    )
+    """Read a key file: 64 hex digits or 44 base64 characters (whitespace ignored), or exactly 32 raw
+    bytes (the format is defined once, by :func:`merlin.config.models.signing_key_from_file_bytes`)."""
+    try:
+        return signing_key_from_file_bytes(Path(path).read_bytes())
+    except ValueError as exc:
+        raise KeyFileError(f"{path}: {exc}") from None
 
 
 def write_key_file(path: Path, key: bytes) -> None:

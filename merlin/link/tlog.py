@@ -14,9 +14,11 @@ from __future__ import annotations
 
 import os
 import struct
+import time
 from pathlib import Path
 
 _TS = struct.Struct(">Q")
+SLOW_WRITE_NS = 1_000_000
 
 
 class TlogWriter:
@@ -28,14 +30,22 @@ class TlogWriter:
         self.fsync_interval_s = fsync_interval_s
         self._last_sync_s = 0.0
         self.records = 0
+        self.max_write_ns = 0  # the longest write(2), to tell a blocked log from a slow tick
+        self.slow_writes = 0
 
     def write(self, raw_frame: bytes, unix_s: float) -> None:
         if self._fd is None:
             raise ValueError(f"{self.path}: tlog writer is closed")
         record = _TS.pack(max(0, int(unix_s * 1e6))) + raw_frame
+        t0 = time.monotonic_ns()
         n = os.write(self._fd, record)
         while n < len(record):  # regular files complete writes; this guards odd filesystems
             n += os.write(self._fd, record[n:])
+        dt = time.monotonic_ns() - t0
+        if dt > self.max_write_ns:
+            self.max_write_ns = dt
+        if dt >= SLOW_WRITE_NS:
+            self.slow_writes += 1  # the kernel blocked the write (a busy disk throttling dirty pages)
         self.records += 1
         if self.fsync_interval_s is not None and unix_s - self._last_sync_s >= self.fsync_interval_s:
             os.fsync(self._fd)

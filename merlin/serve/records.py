@@ -42,6 +42,9 @@ def _plain(v: object) -> object:
     return str(v)
 
 
+SLOW_KEPT = 50  # the first ticks that started half a period late or worked half a period, for diagnosis
+
+
 @dataclass
 class TickStats:
     """Real-time figures of the scheduler. ``late_ns`` of a tick is how long after its deadline it started;
@@ -59,23 +62,48 @@ class TickStats:
     keep: int = 200_000
     coalesced: int = 0  # setpoints superseded before a tick used them (only the latest matters)
     setpoint_latency_ns: list[int] = field(default_factory=list)  # arrival -> actuated command
+    work_hist: list[int] = field(default_factory=list)  # a tick's own duration (drain, core, sends)
+    slow: list[tuple[int, float, float]] = field(default_factory=list)  # (tick, late ms, work ms)
+    missed_at: list[tuple[int, float, float]] = field(default_factory=list)  # (tick, late ms, previous work ms)
+    _prev_work_ns: int = 0
+    gc_runs: int = 0
+    gc_frozen: int = 0  # objects moved to the never-scanned generation instead of traversed (see Server)
+    gc_unreachable: int = 0  # cyclic garbage the collections found and freed
+    # (tick, generation or -1 for a freeze, ms) of the first collections that took 1 ms or more
+    slow_gc: list[tuple[int, int, float]] = field(default_factory=list)
+    max_gc_ns: int = 0
 
     def record_setpoint_latency(self, ns: int) -> None:
         if len(self.setpoint_latency_ns) < self.keep:
             self.setpoint_latency_ns.append(ns)
 
-    def record(self, late_ns: int, start_ns: int, prev_start_ns: int | None, work_ns: int) -> None:
+    def record(self, late_ns: int, start_ns: int, prev_start_ns: int | None, work_ns: int, k: int = 0) -> None:
         self.ticks += 1
         if late_ns >= self.period_ns:
             self.missed += 1
+            if len(self.missed_at) < SLOW_KEPT:
+                # a late start after a long previous tick is that tick's work; after a short one, the
+                # thread did not run (descheduled, or the machine's CPU taken by the hypervisor)
+                self.missed_at.append((k, round(late_ns / 1e6, 3), round(self._prev_work_ns / 1e6, 3)))
+        self._prev_work_ns = work_ns
         self.max_late_ns = max(self.max_late_ns, late_ns)
         self.max_work_ns = max(self.max_work_ns, work_ns)
         if prev_start_ns is not None and len(self.periods_ns) < self.keep:
             self.periods_ns.append(start_ns - prev_start_ns)
         if len(self.late_hist) < self.keep:
             self.late_hist.append(late_ns)
+            self.work_hist.append(work_ns)
+        if (late_ns >= self.period_ns // 2 or work_ns >= self.period_ns // 2) and len(self.slow) < SLOW_KEPT:
+            # where a bad tick's time went: started late (the thread did not run) or worked long
+            self.slow.append((k, round(late_ns / 1e6, 3), round(work_ns / 1e6, 3)))
 
-    def summary(self) -> dict[str, float]:
+    def record_gc(self, ns: int, k: int = 0, generation: int = 0) -> None:
+        self.gc_runs += 1
+        self.max_gc_ns = max(self.max_gc_ns, ns)
+        if ns >= 1_000_000 and len(self.slow_gc) < SLOW_KEPT:
+            self.slow_gc.append((k, generation, round(ns / 1e6, 3)))
+
+    def summary(self) -> dict[str, Any]:
         def pct(xs: list[int], q: float) -> float:
             if not xs:
                 return math.nan
@@ -89,7 +117,11 @@ class TickStats:
             "jitter_p50_ms": pct(jitter, 0.5), "jitter_p99_ms": pct(jitter, 0.99),
             "jitter_max_ms": max(jitter) / 1e6 if jitter else math.nan,
             "late_p99_ms": pct(self.late_hist, 0.99), "late_max_ms": self.max_late_ns / 1e6,
-            "work_max_ms": self.max_work_ns / 1e6,
+            "work_p50_ms": pct(self.work_hist, 0.5), "work_p99_ms": pct(self.work_hist, 0.99),
+            "work_max_ms": self.max_work_ns / 1e6, "gc_runs": self.gc_runs, "gc_max_ms": self.max_gc_ns / 1e6,
+            "gc_frozen": self.gc_frozen, "gc_unreachable": self.gc_unreachable,
+            "slow_gc": self.slow_gc,
+            "slow_ticks": self.slow, "missed_at": self.missed_at,
             "setpoints_used": len(self.setpoint_latency_ns), "setpoints_coalesced": self.coalesced,
             "setpoint_latency_p50_ms": pct(self.setpoint_latency_ns, 0.5),
             "setpoint_latency_p99_ms": pct(self.setpoint_latency_ns, 0.99),

@@ -59,6 +59,7 @@ from merlin.link import outbound as o
 from merlin.link.commands import (
     MAV_RESULT_ACCEPTED,
     MAV_RESULT_DENIED,
+    MAV_RESULT_UNSUPPORTED,
     MAVLINK_MSG_ID_AUTOPILOT_VERSION,
     MAVLINK_MSG_ID_HOME_POSITION,
     LinkRole,
@@ -75,6 +76,7 @@ from merlin.link.params import ParamProtocol, envelope_params
 from merlin.link.security import LinkPolicy
 from merlin.link.signing import write_key_file
 from merlin.link.tlog import TlogWriter
+from merlin.serve.link_security import LinkSetup, describe
 from merlin.serve.records import EventLog, TickStats
 from merlin.serve.streams import CONTROLLER_RATES_HZ, GCS_RATES_HZ, Stream, plan_streams, replan
 
@@ -87,9 +89,25 @@ SENSORS_PRESENT = 1 | 2 | 4 | 8 | SENSOR_GPS | (1 << 28)
 REVOKE_REPEATS_S = (1.0, 2.0)  # MERLIN_AUTHORITY_REVOKE is re-sent 1 s and 2 s after (ICD 4.3)
 RESYNC_TICKS = 200  # more than this far behind, the schedule is re-anchored instead of caught up
 MAX_DATAGRAMS_PER_READ = 64  # per link per wake-up: a flood waits in the socket buffer, not in the tick
+# Waiting for a deadline (see Server.run): sleep in select(2), whose timeout has microsecond resolution
+# (poll(2) and epoll take whole milliseconds, and Python rounds them up: a tick started up to 1 ms late),
+# to SPIN_NS before the deadline, then spin. No datagram is decoded closer than DRAIN_GUARD_NS to a
+# deadline, and decoding while waiting stops at that guard: what is left waits in the link's backlog.
+SPIN_NS = 150_000
+DRAIN_GUARD_NS = 400_000
+# At a tick's start, what arrived since the last wake-up is decoded for at most this long (a setpoint sent
+# just before the tick is used by it); the rest is decoded while waiting for the next tick.
+TICK_DRAIN_BUDGET_NS = 1_000_000
 FSYNC_INTERVAL_S = 1.0
 BULK_PER_TICK = 2  # bulk messages per link per tick (an encode costs ~0.1 ms, docs/benchmarks/link.md)
-GC_EVERY_TICKS = 1000  # a young-generation collection, done by hand right after a tick
+GC_EVERY_TICKS = 250  # a young-generation collection, done by hand right after a tick (small: < 1 ms)
+GC_MIDDLE_EVERY = 20  # every 20th of them collects the middle generation too
+GC_BULK_OBJECTS = 500  # more new objects than this at a collection point are frozen, not traversed
+#: The messages :meth:`Server._stream_messages` produces (streams, and MAV_CMD_REQUEST_MESSAGE answers).
+STREAM_NAMES = frozenset({
+    "HEARTBEAT", "ATTITUDE", "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "GPS_RAW_INT", "VFR_HUD", "SYS_STATUS",
+    "EXTENDED_SYS_STATE", "HOME_POSITION", "MERLIN_AUTHORITY_STATUS", "MERLIN_ENVELOPE_STATUS",
+})
 
 
 @dataclass(frozen=True, slots=True)
@@ -102,6 +120,7 @@ class UdpLinkSpec:
 class ServeOptions:
     config: MerlinConfig = field(default_factory=MerlinConfig)
     config_source: str = "<built-in default>"
+    vehicle: str = "quadrotor_default"  # sims.runner.make_loop's choice: a multirotor file or a JSBSim fixed wing
     rate_hz: float = 250.0
     speedup: float = 1.0
     system_id: int = 1
@@ -113,7 +132,9 @@ class ServeOptions:
     duration_s: float | None = None
     controller_policy: LinkPolicy = field(default_factory=lambda: LinkPolicy(name="controller"))
     gcs_policy: LinkPolicy = field(default_factory=lambda: LinkPolicy(name="gcs"))
-    key_file: Path | None = None  # where SETUP_SIGNING-provisioned keys are persisted
+    # where a key provisioned with SETUP_SIGNING is written, per link (links.<name>.signing.key_file)
+    controller_key_file: Path | None = None
+    gcs_key_file: Path | None = None
     setpoint_liveness: bool = True  # a valid setpoint also counts as controller liveness (see module doc)
     tune_gc: bool = True
     realtime_priority: int = 0  # >0: run the scheduler thread SCHED_FIFO at this priority (Linux), as the FCU does
@@ -126,6 +147,9 @@ class _LinkState:
     endpoint: MavlinkEndpoint
     # bulk messages (the envelope burst, a parameter list) are sent a few per tick, never all in one
     bulk: deque[o.OutMessage] = field(default_factory=deque)
+    # datagrams read from the socket but not yet decoded (decoding is time-bounded, see Server._drain)
+    # (datagram, sender address, monotonic ns of its read from the socket)
+    backlog: deque[tuple[bytes, Any, int]] = field(default_factory=deque)
 
 
 @dataclass
@@ -144,14 +168,16 @@ class Server:
     ``stop()`` is called (SIGINT/SIGTERM)."""
 
     def __init__(self, opts: ServeOptions) -> None:
-        from sims.runner import ClosedLoop
+        from sims.runner import FIXED_WING_VEHICLES, make_loop
         from sims.scenario import Scenario
 
         self.opts = opts
         self.cfg = opts.config
         self.dt = 1.0 / opts.rate_hz
-        sc = Scenario.model_validate({"name": "serve", "duration_s": 7200.0, "dt_s": self.dt})
-        self.loop = ClosedLoop(sc, self.cfg, opts.config_source)
+        # the vehicle on the ground at home; a fixed wing rests on its catapult until TAKEOFF launches it
+        sc = Scenario.model_validate({"name": "serve", "duration_s": 7200.0, "dt_s": self.dt, "vehicle": opts.vehicle})
+        self.loop = make_loop(sc, self.cfg, opts.config_source)
+        self.mav_type = o.MAV_TYPE_FIXED_WING if opts.vehicle in FIXED_WING_VEHICLES else o.MAV_TYPE_QUADROTOR
         h = self.cfg.home
         self.frame = LocalFrame(h.lat_deg, h.lon_deg, h.alt_amsl_m)
         opts.out_dir.mkdir(parents=True, exist_ok=True)
@@ -164,15 +190,15 @@ class Server:
         sid, cid = opts.system_id, opts.component_id
         if opts.serial is not None:
             ep = MavlinkEndpoint.serial(opts.controller_policy, opts.serial[0], opts.serial[1], sid, cid, self.tlog,
-                                        key_file=opts.key_file)
+                                        key_file=opts.controller_key_file)
             self.links.append(_LinkState("controller", LinkRole.CONTROLLER, ep))
         elif opts.controller is not None:
             ep = MavlinkEndpoint.udp(opts.controller_policy, opts.controller.bind, opts.controller.remote, sid, cid,
-                                     self.tlog, key_file=opts.key_file)
+                                     self.tlog, key_file=opts.controller_key_file)
             self.links.append(_LinkState("controller", LinkRole.CONTROLLER, ep))
         if opts.gcs is not None:
             ep = MavlinkEndpoint.udp(opts.gcs_policy, opts.gcs.bind, opts.gcs.remote, sid, cid, self.tlog,
-                                     key_file=opts.key_file)
+                                     key_file=opts.gcs_key_file)
             self.links.append(_LinkState("gcs", LinkRole.GCS, ep))
         self.tick_hz = opts.rate_hz
         self.defaults = {"controller": CONTROLLER_RATES_HZ, "gcs": GCS_RATES_HZ}
@@ -201,6 +227,7 @@ class Server:
         self._last_revoke_t: float | None = None
         self._controller_sender: tuple[int, int] | None = None
         self._stop = False
+        self._read_ns = 0  # when the datagram being handled was read from its socket (monotonic ns)
         self._t0_ns = time.monotonic_ns()
         self.stats = TickStats(period_ns=round(self.dt / opts.speedup * 1e9))
         self.on_tick: Callable[[Server], None] | None = None  # test/benchmark hook, after each tick
@@ -248,7 +275,7 @@ class Server:
                 return  # setpoints are the controller's (ICD 4.2); a GCS flies through MANUAL_CONTROL
             if self.pending.setpoint is not None:
                 self.pending.coalesced += 1
-            self.pending.setpoint = (t, m, time.monotonic_ns())
+            self.pending.setpoint = (t, m, self._read_ns)
             if self.opts.setpoint_liveness:
                 self.hb_t = t
             ack = self.bridge.on_setpoint(t)
@@ -272,7 +299,14 @@ class Server:
             self._on_command(ls, rx, m, sender)
             return
         if isinstance(m, (i.ParamRequestListIn, i.ParamRequestReadIn, i.ParamSetIn)):
+            refused = self.params.refused
             ls.bulk.extend(self.params.handle(rx))
+            if isinstance(m, i.ParamSetIn):  # every write is logged with its outcome (ICD 8.2)
+                known = m.param_id in self.params
+                result = "unknown" if not known else ("refused" if self.params.refused > refused else "accepted")
+                self.events.write({"t": t, "type": "param_set", "result": result, "link": ls.name,
+                                   "sender": list(sender), "param": m.param_id, "value": m.value,
+                                   "in_force": self.params.value(m.param_id) if known else None})
             return
         if isinstance(m, i.MissionClearAllIn):
             for out in self.fence.handle_clear_all(sender):
@@ -300,8 +334,13 @@ class Server:
                     self._exchange_peer = (ls, sender)
                     acked = True
             elif isinstance(intent, RequestMessage):
-                self._send(ls, command_ack(m, sender, MAV_RESULT_ACCEPTED))
-                self._send_requested(ls, intent.message_id)
+                if self._can_send(intent.message_id):
+                    self._send(ls, command_ack(m, sender, MAV_RESULT_ACCEPTED))
+                    self._send_requested(ls, intent.message_id)
+                else:  # answered at once, so a ground station moves on instead of waiting for its timeout
+                    self._send(ls, command_ack(m, sender, MAV_RESULT_UNSUPPORTED))
+                    self.events.write({"t": rx.t_s, "type": "command_refused", "link": ls.name,
+                                       "command": m.command, "detail": f"message {intent.message_id} not provided"})
                 acked = True
             elif isinstance(intent, SetMessageInterval):
                 self._set_interval(ls, m, sender, intent)
@@ -331,6 +370,12 @@ class Server:
             return None
         cls = ls_mod.mavlink_map.get(msg_id)
         return None if cls is None else str(cls.msgname)
+
+    def _can_send(self, msg_id: int) -> bool:
+        """Whether MAV_CMD_REQUEST_MESSAGE for ``msg_id`` is answered with that message."""
+        if msg_id in (MAVLINK_MSG_ID_AUTOPILOT_VERSION, MAVLINK_MSG_ID_HOME_POSITION):
+            return True
+        return self._message_name(msg_id) in STREAM_NAMES
 
     def _send_requested(self, ls: _LinkState, msg_id: int) -> None:
         if msg_id == MAVLINK_MSG_ID_AUTOPILOT_VERSION:
@@ -393,7 +438,7 @@ class Server:
             self._on_event(e, d)
         changed = prev is None or (prev.authority, prev.behavior, prev.armed) != (d.authority, d.behavior, d.armed)
         if changed:
-            hb = o.heartbeat_from_decision(d)
+            hb = o.heartbeat_from_decision(d, self.mav_type)
             self._broadcast(hb)
             self._broadcast(self._authority_status(d))
         if self._revoke_repeats and self._revoke_repeats[0][0] <= t:
@@ -402,7 +447,9 @@ class Server:
             for msg in due:
                 self._broadcast(msg)
         self.fence.accept_uploads = not d.armed
-        self.params.read_only = True  # the envelope is fixed for a serve session (see docs/connecting.md)
+        # PARAM_SET is always refused: there is no validator, the limits are the configuration file's (ICD
+        # 8.2); read_only only chooses the reason given (armed, or set by the file)
+        self.params.read_only = d.armed
         if self.fence.busy:
             outs = self.fence.tick(t)
             if outs and self._fence_link is not None:
@@ -452,7 +499,7 @@ class Server:
         ms = self._boot_ms()
         d = self.decision
         if name == "HEARTBEAT":
-            return [o.heartbeat_from_decision(d)] if d is not None else []
+            return [o.heartbeat_from_decision(d, self.mav_type)] if d is not None else []
         if name == "ATTITUDE":
             return [o.attitude_from_state(s, ms)]
         if name == "LOCAL_POSITION_NED":
@@ -545,56 +592,111 @@ class Server:
             out[fd] = ls
         return out
 
-    def _drain(self, ls: _LinkState) -> int:
+    def _drain(self, ls: _LinkState, until_ns: int | None = None) -> int:
+        """Read what the link's socket holds (at most MAX_DATAGRAMS_PER_READ more than the backlog) and
+        decode and handle it in arrival order until ``until_ns`` (monotonic; None: all of it). Returns
+        how many datagrams were handled; the rest stay in ``ls.backlog`` for the next call."""
         ep = ls.endpoint
         t = self.t
-        batch = ep.transport.read(0.0)
-        if ls.role is LinkRole.CONTROLLER and len(batch) > 1:
-            batch = self._coalesce(batch)
-        got: list[i.Received] = []
-        for data, addr in batch:
+        if len(ls.backlog) < MAX_DATAGRAMS_PER_READ:
+            batch = ep.transport.read(0.0)
+            if batch:
+                now = time.monotonic_ns()
+                ls.backlog.extend((data, addr, now) for data, addr in batch)
+        if ls.role is LinkRole.CONTROLLER and len(ls.backlog) > 1:
+            self._coalesce(ls.backlog)
+        n = 0
+        while ls.backlog and (until_ns is None or time.monotonic_ns() < until_ns):
+            data, addr, self._read_ns = ls.backlog.popleft()
+            n += 1
             rxs = ep.link.receive(data, t, time.time(), final=ep.transport.datagram)
             # the same rule as MavlinkEndpoint.poll: follow a peer only after an accepted (signed) message
             if rxs and addr is not None and (not ep.link.security.required or any(r.signed for r in rxs)):
                 ep.transport.remote = addr
-            for r in rxs:
-                if isinstance(r.msg, i.SetupSigningIn) and ep.key_file is not None:
-                    write_key_file(ep.key_file, r.msg.secret_key)
-            got.extend(rxs)
-        for rx in got:
-            try:
-                self._on_received(ls, rx)
-            except Exception:  # a bug handling one message must not stop the vehicle: logged, message dropped
-                log.exception("handling %s from %d/%d", type(rx.msg).__name__, rx.system_id, rx.component_id)
-                self.events.write({"t": self.t, "type": "serve_error", "detail": f"handling {type(rx.msg).__name__}"})
-        return len(got)
+            for rx in rxs:
+                if isinstance(rx.msg, i.SetupSigningIn) and ep.key_file is not None:
+                    write_key_file(ep.key_file, rx.msg.secret_key)
+                try:
+                    self._on_received(ls, rx)
+                except Exception:  # a bug handling one message must not stop the vehicle: logged, dropped
+                    log.exception("handling %s from %d/%d", type(rx.msg).__name__, rx.system_id, rx.component_id)
+                    self.events.write({"t": self.t, "type": "serve_error",
+                                       "detail": f"handling {type(rx.msg).__name__}"})
+        return n
 
-    def _coalesce(self, batch: list[tuple[bytes, Any]]) -> list[tuple[bytes, Any]]:
-        """Drop, before decoding, setpoint datagrams superseded by a later one from the same sender in
-        the same batch: only the latest setpoint before a tick matters (icd/ICD.md section 7), and
-        decoding costs ~0.1 ms a frame. A superseded datagram is still written to the tlog and counted.
-        Only datagrams holding exactly one MAVLink 2 setpoint frame are candidates; anything else is
-        decoded as usual."""
+    def _coalesce(self, backlog: deque[tuple[bytes, Any, int]]) -> None:
+        """Drop from ``backlog``, before decoding, setpoint datagrams superseded by a later one from the
+        same sender: only the latest setpoint before a tick matters (icd/ICD.md section 7), and decoding
+        costs ~0.1 ms a frame. A superseded datagram is still written to the tlog and counted. Only
+        datagrams holding exactly one MAVLink 2 setpoint frame are candidates; anything else is decoded as
+        usual, in order."""
+        keys = [_lone_setpoint_sender(item[0]) for item in backlog]
         last: dict[tuple[int, int], int] = {}
-        keys: list[tuple[int, int] | None] = []
-        for k, (data, _addr) in enumerate(batch):
-            key = _lone_setpoint_sender(data)
-            keys.append(key)
+        for k, key in enumerate(keys):
             if key is not None:
                 last[key] = k
-        out = []
+        if len(last) == sum(key is not None for key in keys):
+            return  # nothing superseded
+        kept: list[tuple[bytes, Any, int]] = []
         now = time.time()
-        for k, item in enumerate(batch):
+        for k, item in enumerate(backlog):
             key = keys[k]
             if key is not None and last[key] != k:
                 self.tlog.write(item[0], now)
                 self.stats.coalesced += 1
                 continue
-            out.append(item)
-        return out
+            kept.append(item)
+        backlog.clear()
+        backlog.extend(kept)
 
     def stop(self) -> None:
         self._stop = True
+
+    def _collect_garbage(self) -> None:
+        """Python's cycle collector, by hand right after a tick (automatic collection is off while serving).
+
+        A collection costs time in proportion to the objects it traverses. Nearly everything a tick
+        allocates is freed by reference counting at once; what is still alive at a collection is either
+        small (a few dozen objects) or a bulk of long-lived data, e.g. the simulator's blocks of 1024
+        pre-drawn noise rows (one Python list per row, ``sims/sensors.py``), which traversing costs ~5 ms,
+        more than a tick's slack. So: fewer than GC_BULK_OBJECTS new objects are collected (youngest
+        generation, and the middle one every GC_MIDDLE_EVERY-th time); more are frozen (moved, in constant
+        time, to the generation that is never scanned; they are still freed by reference counting when
+        dropped). Cyclic garbage that happens to be among them is not reclaimed: ``gc_frozen`` counts
+        what was frozen, ``gc_unreachable`` what the collections found, so a leak would show in the
+        ``serve_stop`` record."""
+        g0 = time.monotonic_ns()
+        k = self.loop.k
+        young = gc.get_count()[0]
+        if young >= GC_BULK_OBJECTS or k == GC_EVERY_TICKS:
+            # (also once after the first ticks: what they created once, lazy imports and caches, joins the
+            # start-up objects that are never scanned again)
+            gc.freeze()
+            self.stats.gc_frozen += young
+            gen = -1
+        else:
+            gen = 1 if k % (GC_EVERY_TICKS * GC_MIDDLE_EVERY) == 0 else 0
+            self.stats.gc_unreachable += gc.collect(gen)
+        self.stats.record_gc(time.monotonic_ns() - g0, k, gen)
+
+    def _wait_until(self, deadline: int, fd_list: list[int], fds: dict[int, _LinkState]) -> None:
+        """Return at ``deadline`` (monotonic ns), decoding what arrives meanwhile but never within
+        DRAIN_GUARD_NS of it; the last SPIN_NS are spun, below the sleep's timer slack."""
+        while True:
+            left = deadline - time.monotonic_ns()
+            if left <= DRAIN_GUARD_NS:
+                break
+            if any(ls.backlog for ls in fds.values()):
+                ready = [fd for fd, ls in fds.items() if ls.backlog]
+            else:
+                ready, _, _ = select.select(fd_list, [], [], (left - DRAIN_GUARD_NS) / 1e9)
+            for fd in ready:
+                self._drain(fds[fd], deadline - DRAIN_GUARD_NS)
+        left = deadline - time.monotonic_ns()
+        if left > SPIN_NS:
+            time.sleep((left - SPIN_NS) / 1e9)
+        while time.monotonic_ns() < deadline:
+            pass
 
     def _sync_files(self) -> None:
         while not self._stop:
@@ -610,7 +712,10 @@ class Server:
         self.events.write({"t": 0.0, "type": "serve_start", "rate_hz": opts.rate_hz, "speedup": opts.speedup,
                            "config": opts.config_source, "links": {
                                ls.name: {"local": getattr(ls.endpoint.transport, "local_address", None),
-                                         "remote": ls.endpoint.remote} for ls in self.links}})
+                                         "remote": ls.endpoint.remote, "security": self._security(ls)}
+                               for ls in self.links}})
+        # started first, so it keeps the normal scheduler (a thread inherits its creator's policy)
+        self._syncer.start()
         if opts.realtime_priority > 0:
             # the seed FCU thesis runs its single RateGenerator SCHED_FIFO (notes/seed_004_notes.md section 2)
             try:
@@ -623,11 +728,9 @@ class Server:
         for ls in self.links:
             if hasattr(ls.endpoint.transport, "max_datagrams_per_read"):
                 ls.endpoint.transport.max_datagrams_per_read = MAX_DATAGRAMS_PER_READ
-        self._syncer.start()
         fds = self._fds()
-        poller = select.poll()
-        for fd in fds:
-            poller.register(fd, select.POLLIN)
+        fd_list = list(fds)
+        links = list(fds.values())
         period_ns = self.stats.period_ns
         n_ticks = None if opts.duration_s is None else round(opts.duration_s / self.dt)
         if opts.tune_gc:
@@ -639,42 +742,37 @@ class Server:
         prev_start: int | None = None
         try:
             while not self._stop and (n_ticks is None or self.loop.k < n_ticks):
+                self._wait_until(deadline, fd_list, fds)
                 now = time.monotonic_ns()
-                # wait for the deadline, decoding whatever arrives meanwhile
-                while now < deadline:
-                    timeout_ms = (deadline - now) / 1e6
-                    ready = poller.poll(timeout_ms if timeout_ms >= 1.0 else 0)
-                    if ready:
-                        for fd, _ev in ready:
-                            self._drain(fds[fd])
-                    elif timeout_ms < 1.0:
-                        # poll() has 1 ms resolution: spin out the last fraction to hit the deadline
-                        while time.monotonic_ns() < deadline:
-                            pass
-                    now = time.monotonic_ns()
                 late = now - deadline
                 if late > RESYNC_TICKS * period_ns:
                     self.stats.resyncs += 1
                     deadline = now
                     late = 0
                 start = now
-                for ls in fds.values():  # anything that arrived during the previous tick
-                    self._drain(ls)
+                budget_end = start + TICK_DRAIN_BUDGET_NS
+                for ls in links:  # what arrived since the last wake-up, time-bounded
+                    self._drain(ls, budget_end)
                 self._tick()
                 work = time.monotonic_ns() - start
-                self.stats.record(late, start, prev_start, work)
+                self.stats.record(late, start, prev_start, work, self.loop.k)
                 prev_start = start
                 if self.on_tick is not None:
                     self.on_tick(self)
                 if opts.tune_gc and self.loop.k % GC_EVERY_TICKS == 0:
-                    # by hand, right after a tick: the youngest generation often, the middle one now and then
-                    gc.collect(1 if self.loop.k % (GC_EVERY_TICKS * 30) == 0 else 0)
+                    self._collect_garbage()
                 deadline += period_ns
         finally:
             if opts.tune_gc:
                 gc.enable()
             summary = self.close()
         return summary
+
+    def _security(self, ls: _LinkState) -> dict[str, object]:
+        o_ = self.opts
+        if ls.role is LinkRole.CONTROLLER:
+            return describe(LinkSetup(o_.controller_policy, o_.controller_key_file))
+        return describe(LinkSetup(o_.gcs_policy, o_.gcs_key_file))
 
     def close(self) -> dict[str, Any]:
         self._stop = True
@@ -688,7 +786,9 @@ class Server:
                 self.events.write({"t": rec.t_s, "type": "link_rejection", "link": rec.link, "sender":
                                    [rec.system_id, rec.component_id], "message": rec.msg_name,
                                    "reason": rec.reason.value, "detail": rec.detail})
-        summary = {"timing": self.stats.summary(), "links": links,
+        timing = {**self.stats.summary(), "tlog_write_max_ms": self.tlog.max_write_ns / 1e6,
+                  "tlog_writes_over_1ms": self.tlog.slow_writes}
+        summary = {"timing": timing, "links": links,
                    "final": {"t_s": self.t, "authority": self.decision.authority.name if self.decision else None,
                              "armed": bool(self.decision.armed) if self.decision else False}}
         self.events.write({"t": self.t, "type": "serve_stop", **summary})

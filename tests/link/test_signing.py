@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import base64
 import hashlib
 from pathlib import Path
 from typing import Any
@@ -180,6 +181,13 @@ def test_key_files(tmp_path: Path) -> None:
     assert load_key_file(raw) == OTHER_KEY
     bad = tmp_path / "k.bad"
     bad.write_text("abc")
-    with pytest.raises(KeyFileError, match=r"k\.bad.*64 hex digits or exactly 32 bytes"):
+    with pytest.raises(KeyFileError, match=r"k\.bad.*64 hex digits, 44 base64 characters or exactly 32 raw bytes"):
         load_key_file(bad)
+    b64 = tmp_path / "k.b64"
+    b64.write_text(base64.b64encode(KEY).decode() + "\n")
+    assert load_key_file(b64) == KEY
+    not_b64 = tmp_path / "k.nob64"
+    not_b64.write_text("!" * 43 + "=")
+    with pytest.raises(KeyFileError):
+        load_key_file(not_b64)
     assert key_from_passphrase("merlin") == hashlib.sha256(b"merlin").digest()

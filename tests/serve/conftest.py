@@ -134,25 +134,45 @@ def arm_and_takeoff(m: Any) -> None:
     assert got is not None, "never climbed above 5 m"
 
 
+_PENDING: dict[int, bytes] = {}  # per helper pid: bytes read past the last complete line
+
+
 def lines_until(p: subprocess.Popen[str], needle: str, timeout_s: float = STEP_TIMEOUT_S) -> list[str]:
-    """Read a helper's stdout until a line contains ``needle`` (or it exits / time runs out)."""
+    """Read a helper's stdout until a line contains ``needle`` (or it exits / time runs out).
+
+    Reads the pipe's file descriptor directly: a text wrapper's ``readline`` pulls every line already in
+    the pipe into its own buffer, where ``select`` cannot see them, so a line written before this call
+    (the helper printed while the test was arming) would wait for the helper's *next* output."""
     import selectors
 
-    sel = selectors.DefaultSelector()
     assert p.stdout is not None
-    sel.register(p.stdout, selectors.EVENT_READ)
+    fd = p.stdout.fileno()
     out: list[str] = []
+    buf = _PENDING.pop(p.pid, b"")
     t_end = time.monotonic() + timeout_s
-    while time.monotonic() < t_end:
-        if not sel.select(timeout=0.5):
-            if p.poll() is not None:
+    sel = selectors.DefaultSelector()
+    sel.register(fd, selectors.EVENT_READ)
+    try:
+        while True:
+            while b"\n" in buf:
+                raw, buf = buf.split(b"\n", 1)
+                line = raw.decode(errors="replace").rstrip()
+                out.append(line)
+                if needle in line:
+                    _PENDING[p.pid] = buf
+                    return out
+            if time.monotonic() >= t_end:
                 break
-            continue
-        line = p.stdout.readline()
-        if not line:
-            break
-        out.append(line.rstrip())
-        if needle in line:
-            break
-    sel.close()
+            if not sel.select(timeout=0.5):
+                if p.poll() is not None:
+                    break
+                continue
+            chunk = os.read(fd, 65536)
+            if not chunk:
+                break
+            buf += chunk
+    finally:
+        sel.close()
+    if buf:
+        out.append(buf.decode(errors="replace").rstrip())
     return out
