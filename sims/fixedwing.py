@@ -159,9 +159,12 @@ class FixedWingSim:
         self._fdm.set_debug_level(0)
         self._nodes: dict[str, jsbsim.FGPropertyNode] = {}
         self._read_nodes: tuple[Callable[[], float], ...] | None = None
+        # The frame time must be set BEFORE the model is loaded: JSBSim's flight-control components take
+        # their dt when they are built, so the actuators' rate limits (per second in the XML) were applied
+        # per 1/120 s frame whatever the rate (the servos slewed 3.3 times too fast at 400 Hz).
+        self._fdm.set_dt(self.dt_s)
         if not self._fdm.load_model(model):
             raise ValueError(f"JSBSim could not load aircraft model {model!r} from {root_dir}/aircraft")
-        self._fdm.set_dt(self.dt_s)
         self._n_contacts = int(self._fdm["gear/num-units"])
         self._mass_kg = float(self._fdm["inertia/mass-slugs"]) * 14.59390294
         self._crashed = False
@@ -228,6 +231,12 @@ class FixedWingSim:
         self._frame += frames
         self._truth = self._read()
         return self._truth
+
+    def restart_clock(self, frame: int) -> None:
+        """Count frames from ``frame`` on (the truth's ``t_s``): a runner that held the aircraft outside
+        JSBSim (on a catapult) for that many of its ticks before the first :meth:`step`."""
+        self._frame = frame
+        self._truth = self._truth._replace(t_s=frame * self.dt_s)
 
     def set_wind(self, wind_ned_mps: Vec3) -> None:
         """Change the steady wind (NED, m/s: the direction the air moves towards)."""
@@ -311,8 +320,30 @@ class FixedWingSim:
 
         JSBSim's own trim adjusts engine throttles, and this model's thrust is an external force, so the
         trim is solved here against the model's accelerations at the initial condition (run_ic).
+
+        Two things made it fragile at 28-30 m/s (it failed at some start points, depending on what the
+        previous iteration had left in the actuators), both fixed: run_ic applies the actuators' rate limits,
+        so a residual depended on the previous evaluation's surfaces (the limits are lifted while solving);
+        and the fixed start (throttle 0.7) lies, above about 27 m/s, where the folding propeller gives no
+        thrust, so the throttle column of the Jacobian was zero and the damped steps wandered. The start is
+        now the speed's estimate: alpha from the linear lift curve, the throttle from the trims measured
+        across the range (docs/fixed-wing.md).
         """
-        x = np.array([0.15, 0.4, 0.7, 0.0, 0.0])  # alpha rad, elevator, throttle, aileron, rudder (norm)
+        rate_nodes = (self._node("fcs/throttle-rate-limit-norm"), self._node("fcs/surface-rate-limit-norm"))
+        rates = tuple(n.get_double_value() for n in rate_nodes)
+        for n in rate_nodes:
+            n.set_double_value(1e9)
+        try:
+            return self._solve_trim(pos_ned_m, heading_rad, airspeed_mps)
+        finally:
+            for n, r in zip(rate_nodes, rates, strict=True):
+                n.set_double_value(r)
+            # run_ic once more at the solution with the limits back (they do not move a settled actuator)
+            self._run_ic()
+
+    def _solve_trim(self, pos_ned_m: Vec3, heading_rad: float, airspeed_mps: float) -> TrimResult:
+        x = np.array([_trim_alpha_guess_rad(airspeed_mps), 0.4, _trim_throttle_guess(airspeed_mps), 0.0, 0.0])
+        # x: alpha rad, elevator, throttle, aileron, rudder (normalised)
 
         def residual(v: np.ndarray) -> np.ndarray:
             self._set_ic(pos_ned_m, heading_rad, airspeed_mps, alpha_rad=float(v[0]))
@@ -437,6 +468,22 @@ _TRUTH_PROPERTIES = (
     "motor/thrust-n",
     "motor/torque-nm",
 )
+
+
+#: Wings-level trims measured on the model (airspeed m/s, throttle): the trim's starting throttle. Below
+#: about 18 m/s the trim throttle rises again (the back of the power curve); 32.2 m/s is full throttle.
+_TRIM_THROTTLE_TABLE = ((16.0, 0.68), (18.5, 0.62), (22.0, 0.707), (26.0, 0.80), (30.0, 0.93), (32.2, 1.0))
+
+
+def _trim_throttle_guess(airspeed_mps: float) -> float:
+    v, thr = zip(*_TRIM_THROTTLE_TABLE, strict=True)
+    return float(np.interp(airspeed_mps, v, thr))
+
+
+def _trim_alpha_guess_rad(airspeed_mps: float) -> float:
+    """Angle of attack for lift = weight on [B1]'s linear lift curve C_L = 0.28 + 3.45 alpha, sea level."""
+    c_l = 2.0 * 13.5 * G_MPS2 / (1.225 * 0.55 * max(airspeed_mps, 10.0) ** 2)
+    return min(max((c_l - 0.28) / 3.45, -0.1), 0.35)
 
 
 def _rotate_frd_to_ned(q: tuple[float, float, float, float], v: Vec3, *, add_gravity: bool) -> Vec3:

@@ -24,7 +24,8 @@ The trusted core runs unchanged. What differs is the actuator stage, because a f
 * Fence recovery: a fixed wing turning back from a boundary must turn the way that is clear. The fence
   projection trips when *neither* turn is clear any more, so when a trusted behaviour starts while the
   geofence monitor is tripped, the stage first flies an escape turn at the bank limit to the side whose
-  projected turn keeps the larger margin (:func:`turn_clearances_m`), until the monitor clears and the
+  projected turn flies farther before it meets the widening (:func:`escape_side`, on the core's own measure
+  of the two turns, :func:`merlin.core.geofence.turn_clearances`), until the monitor clears and the
   aircraft heads towards home, and only then hands over to the behaviour's guidance. Guidance alone turns
   the short way towards its goal, which next to a re-entrant corner can be the blocked side.
 """
@@ -36,6 +37,7 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
+import yaml
 
 from merlin.autopilot import fixedwing_control as fc
 from merlin.autopilot import fixedwing_guidance as fg
@@ -53,7 +55,7 @@ from merlin.core.types import (
     VehicleState,
 )
 from sims.battery import Battery, BatteryParams, BatterySagFault
-from sims.fixedwing import FixedWingSim, SurfaceCommand
+from sims.fixedwing import SIMS_ROOT, FixedWingSim, SurfaceCommand
 from sims.runner import ClosedLoop, TruthPlusNoiseEstimator, _end, sensor_faults
 from sims.scenario import Scenario
 from sims.sensor_faults import SensorFaultInjector
@@ -75,13 +77,53 @@ LAND_LOITER_HEIGHT_M = 50.0
 #: 100 Hz; PX4 runs its fixed-wing position controller at 50 Hz). The surfaces are held in between; a
 #: change of source re-initialises and runs the loops in the tick it happens.
 AUTOPILOT_HZ = 100.0
-#: Points per projected turn when comparing the two turn sides against the fence.
+#: The catapult (a scenario or ``merlin serve`` starting on the ground, ``initial.pos_ned_m`` down >= 0): the
+#: aircraft rests on the launcher, motor off, until the trusted core flies TAKEOFF (armed on the ground, then
+#: a takeoff command); the launch releases it at this height above the ground, level, trimmed, at the start
+#: airspeed (default the cruise), heading ``initial.yaw_deg``. The stroke itself (about 0.3 s at 6-8 g on
+#: a pneumatic launcher for this class) is not simulated. 3 m: the rail's end on a truck-mounted launcher
+#: (our assumption), above the skids' 0.15 m.
+LAUNCH_RELEASE_HEIGHT_M = 3.0
+#: After the launch, TAKEOFF climbs along the launch heading (a line this long, at the takeoff height) until
+#: the core's takeoff completes (height reached), which makes it HOLD: a loiter where the aircraft is.
+LAUNCH_LINE_M = 5000.0
+#: Points per loiter circle when comparing the two sides' loiter circles against the fence.
 _TURN_SAMPLES = 24
 
 #: The Aerosonde's battery: [B2]'s motor is specified for V_max = 44.4 V, a 12-cell LiPo (12 x 3.7 V);
 #: 5 Ah is our assumption (222 Wh: about 25 minutes at the 22 m/s cruise's ~500 W electrical).
 AEROSONDE_BATTERY = BatteryParams(cells=12, capacity_mah=5000.0, internal_resistance_ohm=0.06,
                                   drive_efficiency=0.8, full_authority_cell_v=3.5, avionics_power_w=10.0)
+
+
+def default_config(vehicle: str = "aerosonde") -> MerlinConfig:
+    """The built-in configuration for a JSBSim fixed wing (``merlin serve --vehicle aerosonde`` without
+    ``--config``): the aircraft's envelope and vehicle preset (``sims/aircraft/<vehicle>_envelope.yaml``),
+    Merlin's defaults otherwise, except what a fixed wing needs to differ:
+
+    * a range 1.5 km in radius about home (a multirotor's 300 m default is smaller than two loiter
+      circles), ceiling 250 m, no floor (a launch climbs through any floor; the fence floor applies
+      whenever airborne, so it would fail the launch over to RTL);
+    * RTL and takeoff at 100 m and 60 m above home, cruise at the seed FCU thesis's 22 m/s;
+    * the exchange's tolerances and the core's velocity blend as in ``examples/configs/fixedwing_default.yaml``
+      (the blend is off: the fixed-wing actuator stage re-initialises its own loops bumplessly).
+    """
+    path = SIMS_ROOT / "aircraft" / f"{vehicle}_envelope.yaml"
+    preset = yaml.safe_load(path.read_text(encoding="utf-8"))
+    try:
+        return MerlinConfig.model_validate({
+            "name": f"{vehicle}-built-in",
+            "vehicle": preset["vehicle"],
+            "envelope": preset["envelope"],
+            "geofence": {"altitude_floor_m": None, "altitude_ceiling_m": 250.0, "inclusion_circles": [
+                {"name": "fixed-wing range", "center_ne_m": [0.0, 0.0], "radius_m": 1500.0}]},
+            "trusted": {"rtl_altitude_m": 100.0, "takeoff_altitude_m": 60.0, "cruise_speed_mps": DEFAULT_AIRSPEED_MPS,
+                        "climb_speed_mps": 4.0},
+            "handover": {"max_setpoint_position_error_m": 30.0, "max_setpoint_velocity_error_mps": 5.0,
+                         "blend_window_s": 0.0, "max_accel_mps2": 100.0},
+        })
+    except (KeyError, ValueError) as exc:
+        raise ConfigError(str(path), [f"not a usable {vehicle} preset: {exc}"]) from None
 
 
 class FixedWingEstimator(TruthPlusNoiseEstimator):
@@ -100,38 +142,26 @@ class FixedWingEstimator(TruthPlusNoiseEstimator):
                             s.armed, s.landed, s.battery_frac, truth.alpha_rad)
 
 
-def turn_clearances_m(
-    fence: geofence.Fence, s: VehicleState, reaction_time_s: float, bank_rad: float
-) -> tuple[float, float]:
-    """Smallest horizontal fence margin along the projected right and left turns: (right_m, left_m).
+def turn_clearances_m(fence: geofence.Fence, s: VehicleState) -> tuple[float, float]:
+    """The margins of the fence projection's right and left turns, (right_m, left_m): the shortest distance
+    from each projected path (reaction leg, then the half turn at the bank limit) to a hazard, minus the
+    widening, exactly as the core's check measures it (:func:`merlin.core.geofence.turn_clearances`)."""
+    right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m)
+    return right.margin_m, left.margin_m
 
-    The path is the fence projection's (``merlin.core.geofence``): a straight reaction leg ``v t_react``,
-    then a half turn at ``bank_rad``, radius ``v^2 / (g tan(bank))``, sampled at ``_TURN_SAMPLES`` points
-    and measured with the public :func:`merlin.core.geofence.signed_margin_m` (horizontal only: the height
-    is set to home's). Pure; for the once-per-recovery choice of the turn side, not for every tick.
-    """
-    n, e = s.pos_ned_m[0], s.pos_ned_m[1]
-    vn, ve = s.vel_ned_mps[0], s.vel_ned_mps[1]
-    v = math.hypot(vn, ve)
-    if v < 1.0:
-        m = geofence.signed_margin_m(fence, (n, e, 0.0))
-        return m, m
-    un, ue = vn / v, ve / v
-    leg = v * reaction_time_s
-    radius = v * v / (G_MPS2 * math.tan(bank_rad))
-    an, ae = n + leg * un, e + leg * ue
-    out = []
-    for side in (1.0, -1.0):  # right, left
-        rn, re_ = -ue * side, un * side  # towards the turn centre
-        worst = min(geofence.signed_margin_m(fence, (n + f * leg * un, e + f * leg * ue, 0.0))
-                    for f in (0.0, 0.5, 1.0))
-        for i in range(1, _TURN_SAMPLES + 1):
-            phi = math.pi * i / _TURN_SAMPLES
-            c, sn = 1.0 - math.cos(phi), math.sin(phi)
-            worst = min(worst, geofence.signed_margin_m(
-                fence, (an + radius * (rn * c + un * sn), ae + radius * (re_ * c + ue * sn), 0.0)))
-        out.append(worst)
-    return out[0], out[1]
+
+def escape_side(fence: geofence.Fence, s: VehicleState, home_ne: tuple[float, float] = (0.0, 0.0)) -> float:
+    """+1 (right) or -1 (left): the turn to fly after a fence trip. At a trip neither projected turn is clear
+    (both margins <= 0), so the side is the one that flies farther before it comes within the widening, then
+    the one with the larger margin; when both are as good (within 1 m), the short way towards home."""
+    right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m)
+
+    def close(a: float, b: float) -> bool:
+        return a == b or abs(a - b) < 1.0
+
+    if close(right.free_path_m, left.free_path_m) and close(right.margin_m, left.margin_m):
+        return _side_towards(s, home_ne)
+    return 1.0 if (right.free_path_m, right.margin_m) > (left.free_path_m, left.margin_m) else -1.0
 
 
 def _side_towards(s: VehicleState, target_ne: tuple[float, float]) -> float:
@@ -165,17 +195,22 @@ class FixedWingLoop(ClosedLoop):
         self.core = TrustedCore(self.core_cfg)
         ini = sc.initial
         height = -ini.pos_ned_m[2]
-        if height < MIN_START_HEIGHT_M:
+        #: On the catapult until the core flies TAKEOFF (a start on the ground); see LAUNCH_RELEASE_HEIGHT_M.
+        self.on_launcher = height <= 0.0
+        if self.on_launcher:
+            height = LAUNCH_RELEASE_HEIGHT_M
+        elif height < MIN_START_HEIGHT_M:
             raise ConfigError(source, [
                 f"initial.pos_ned_m: down = {ini.pos_ned_m[2]!r} m; a fixed wing ({sc.vehicle}) starts airborne,"
-                f" at least {MIN_START_HEIGHT_M:g} m above home (down <= {-MIN_START_HEIGHT_M:g})"])
+                f" at least {MIN_START_HEIGHT_M:g} m above home (down <= {-MIN_START_HEIGHT_M:g}), or on its"
+                " catapult (down >= 0: launched by a takeoff command)"])
         airspeed = ini.airspeed_mps if ini.airspeed_mps is not None else DEFAULT_AIRSPEED_MPS
         steady = (float(sc.wind.steady_ned_mps[0]), float(sc.wind.steady_ned_mps[1]),
                   float(sc.wind.steady_ned_mps[2]))
         try:
             self.vehicle = FixedWingSim(  # type: ignore[assignment]
                 home_lat_deg=cfg.home.lat_deg, home_lon_deg=cfg.home.lon_deg, home_alt_amsl_m=cfg.home.alt_amsl_m,
-                pos_ned_m=(float(ini.pos_ned_m[0]), float(ini.pos_ned_m[1]), float(ini.pos_ned_m[2])),
+                pos_ned_m=(float(ini.pos_ned_m[0]), float(ini.pos_ned_m[1]), -height),
                 heading_rad=math.radians(ini.yaw_deg), airspeed_mps=airspeed, rate_hz=1.0 / dt,
                 wind_ned_mps=steady, model=sc.vehicle)
         except ValueError as exc:
@@ -216,6 +251,7 @@ class FixedWingLoop(ClosedLoop):
         self._since_autopilot = self.autopilot_every  # run on the first tick
         self.escape_side: float = 0.0  # +1 / -1 while an escape turn is flown, else 0
         self.notes: list[dict[str, Any]] = []
+        self._launched_now = False
         assert self.fw.trim_result is not None
         self.surfaces: SurfaceCommand = self.fw.trim_result.surfaces
         self.cstate = fc.reset_from_state(self.cp, self.fw.truth().to_vehicle_state(), self.surfaces)
@@ -225,6 +261,9 @@ class FixedWingLoop(ClosedLoop):
         self.batt_frac = 1.0
         self.supply = 1.0
         self.truth = self.fw.truth()  # type: ignore[assignment]
+        if self.on_launcher:
+            self.truth = self._on_launcher_truth(0.0)
+            self.surfaces = replace(self.surfaces, throttle=0.0)
         self.state = VehicleState()
         self.decision: Decision | None = None
         self.wind_ned: tuple[float, float, float] = steady
@@ -236,7 +275,35 @@ class FixedWingLoop(ClosedLoop):
         c = self.surfaces
         return (c.aileron, c.elevator, c.rudder, c.throttle)
 
+    @property  # the multirotor's attribute holds four motors; this aircraft has one
+    def motors(self) -> tuple[float]:  # type: ignore[override]
+        """The one motor's throttle command, 0..1 (what ``merlin serve`` reports as VFR_HUD throttle)."""
+        return (self.surfaces.throttle,)
+
+    def _on_launcher_truth(self, t: float) -> Any:
+        """The aircraft at rest on the catapult at the start point: level, on the ground, motor off."""
+        tr = self.fw.truth()
+        n, e, _ = self.sc.initial.pos_ned_m
+        yaw = tr.rpy_rad[2]
+        return tr._replace(
+            t_s=t, pos_ned_m=(float(n), float(e), 0.0), vel_ned_mps=(0.0, 0.0, 0.0),
+            quat_wxyz=(math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw)), rpy_rad=(0.0, 0.0, yaw),
+            omega_frd_radps=(0.0, 0.0, 0.0), specific_force_frd_mps2=(0.0, 0.0, -G_MPS2),
+            accel_ned_mps2=(0.0, 0.0, 0.0), airspeed_mps=0.0, landed=True, alpha_rad=0.0, beta_rad=0.0,
+            load_factor=1.0, height_agl_m=0.0, alt_amsl_m=self.cfg.home.alt_amsl_m, motor_speed_radps=0.0,
+            thrust_n=0.0, shaft_power_w=0.0, surfaces=self.surfaces)
+
     # ------------------------------------------------------------------------------------------ the tick
+
+    def sense(self) -> VehicleState:
+        """First half of a tick; on the catapult the truth is the aircraft at rest (JSBSim is not run)."""
+        if not self.on_launcher:
+            return super().sense()
+        t = self.t
+        self.truth = self._on_launcher_truth(t)
+        self.frame = self.injector.apply(self.sensors.step(self.truth))
+        self.state = self.estimator.estimate(t, self.truth, self.armed, self.batt_frac)
+        return self.state
 
     def act(self, inputs: Inputs) -> Decision:
         """The core's tick on ``inputs`` (whose ``state`` must be :meth:`sense`'s), then the fixed-wing
@@ -245,7 +312,17 @@ class FixedWingLoop(ClosedLoop):
         decision = self.core.step(t, inputs)
         self.decision = decision
         self.armed = decision.armed
-        s = inputs.state
+        if self.on_launcher:
+            if not (decision.armed and decision.behavior is Behavior.TAKEOFF):
+                self.wind_ned = self.wind.step(t)
+                bs = self.battery.step(0.0, t, self.dt)  # avionics only
+                self.batt_frac, self.supply = bs.remaining_frac, bs.supply_scale
+                self.k += 1
+                return decision
+            self._launch(t)
+        s = inputs.state if not self._launched_now else self.fw.truth().to_vehicle_state(
+            armed=True, battery_frac=self.batt_frac)
+        self._launched_now = False
         if self._source_key(decision) != self.mode_key or self._since_autopilot >= self.autopilot_every:
             targets = self._targets(t, decision, s)
             self.cstate, out = fc.control_step(self.cp, self.cstate, s, targets, self.autopilot_dt_s)
@@ -258,6 +335,18 @@ class FixedWingLoop(ClosedLoop):
         self.batt_frac, self.supply = bs.remaining_frac, bs.supply_scale
         self.k += 1
         return decision
+
+    def _launch(self, t: float) -> None:
+        """Fire the catapult: JSBSim runs from its trimmed release state from this tick on."""
+        self.on_launcher = False
+        self._launched_now = True
+        self.fw.restart_clock(self.k)
+        assert self.fw.trim_result is not None
+        self.surfaces = self.fw.trim_result.surfaces
+        self.mode_key = None  # the stage starts its TAKEOFF climb-out from the release state
+        tr = self.fw.truth()
+        self.notes.append({"t": t, "type": "fixed_wing_launch", "height_m": -tr.pos_ned_m[2],
+                           "airspeed_mps": tr.airspeed_mps, "heading_deg": math.degrees(tr.rpy_rad[2])})
 
     @staticmethod
     def _source_key(decision: Decision) -> tuple[Any, ...]:
@@ -296,14 +385,12 @@ class FixedWingLoop(ClosedLoop):
         fence = self.core_cfg.fence
         if (self.escape_turns and fence is not None
                 and any(m.name == "geofence" and m.tripped for m in decision.monitors)):
-            right, left = turn_clearances_m(fence, s, fence.params.reaction_time_s, fence.params.bank_limit_rad)
-            if abs(right - left) < 1.0:  # both as good: the short way home
-                self.escape_side = _side_towards(s, (0.0, 0.0))
-            else:
-                self.escape_side = 1.0 if right > left else -1.0
+            right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m)
+            self.escape_side = escape_side(fence, s)
             self.notes.append({"t": t, "type": "fixed_wing_escape_turn",
                                "side": "right" if self.escape_side > 0 else "left",
-                               "right_margin_m": right, "left_margin_m": left})
+                               "right_margin_m": right.margin_m, "left_margin_m": left.margin_m,
+                               "right_free_path_m": right.free_path_m, "left_free_path_m": left.free_path_m})
         if b is Behavior.RTL:
             gs = fg.start_rtl(self.gp, gs, s)
         elif b is Behavior.LAND:
@@ -314,6 +401,14 @@ class FixedWingLoop(ClosedLoop):
                                                      self.land_height_m, self.cp.airspeed_cruise_mps))
         elif b is Behavior.MISSION and self.mission:
             gs = fg.start_mission(gs, s, self.mission, loop=False)
+        elif b is Behavior.TAKEOFF:
+            # launched from the catapult (the core accepts TAKEOFF only on the ground): climb out along the
+            # launch heading to the core's takeoff height; the core then makes it HOLD
+            h = self.core.state.arbiter.takeoff_alt_m
+            c, sn = math.cos(s.att_rpy_rad[2]), math.sin(s.att_rpy_rad[2])
+            n, e = s.pos_ned_m[0], s.pos_ned_m[1]
+            gs = fg.start_mission(gs, s, (fg.Waypoint(n + LAUNCH_LINE_M * c, e + LAUNCH_LINE_M * sn, h,
+                                                      self.cp.airspeed_cruise_mps),), loop=False)
         else:  # HOLD, TAKEOFF (airborne already), MISSION without waypoints
             gs = fg.start_hold(self.gp, self.cp, gs, s, clockwise=self._hold_clockwise(s))
         self.gstate = gs

@@ -966,6 +966,72 @@ def contains(fence: Fence, pos_ned_m: Sequence[float]) -> bool:
     return _lower_bound(fence, n, e) > 0.0 or _inside(fence, n, e)
 
 
+@dataclass(frozen=True, slots=True)
+class TurnClearance:
+    """One side of the fixed-wing projection: the reaction leg, then the half turn at the bank limit.
+
+    ``side``: +1 the right turn (clockwise seen from above), -1 the left. ``margin_m``: the shortest
+    horizontal distance from that path to a hazard, minus the widening and the polyline's chord error, as
+    :func:`check` tests it: positive, the path stays clear by that much; zero or less, it comes within the
+    widening (``-widening - chord error`` when it crosses into the hazard). ``free_path_m``: the arc length
+    along the path before it first comes within the widening (inf when it never does; at most 1 cm short
+    of the exact value, never over it).
+    """
+
+    side: int
+    margin_m: float
+    free_path_m: float
+
+
+def turn_clearances(
+    fence: Fence, pos_ned_m: Sequence[float], vel_ned_mps: Sequence[float], sigma_h_m: float
+) -> tuple[TurnClearance, TurnClearance]:
+    """Both sides of the fixed-wing fence projection, (right, left), measured exactly as :func:`check` builds
+    them (the fence's reaction time and bank limit; the arc as its polyline, whose chord error is counted
+    against the margin). :func:`check` trips horizontally when neither side has a positive margin.
+
+    For the choice of the side to turn to after a trip (a re-entrant corner blocks the short way home),
+    not for every tick: it always calls shapely (two distances, and the first contact on a side that has
+    one). Horizontal only; the fence's vehicle kind is not consulted (the turn is what is measured).
+    Non-finite input, or a fence with no horizontal hazard, gives NaN / inf margins respectively.
+    """
+    prm = fence.params
+    n, e = float(pos_ned_m[0]), float(pos_ned_m[1])
+    vn, ve = float(vel_ned_mps[0]), float(vel_ned_mps[1])
+    if not math.isfinite(n + e + vn + ve + sigma_h_m) or max(abs(n), abs(e)) > MAX_ABS_POS_M:
+        bad = (TurnClearance(1, _NAN, _NAN), TurnClearance(-1, _NAN, _NAN))
+        return bad
+    if fence._forbidden is None:
+        return TurnClearance(1, _INF, _INF), TurnClearance(-1, _INF, _INF)
+    w = prm.margin_m + prm.sigma_k * max(sigma_h_m, 0.0)
+    v = math.hypot(vn, ve)
+    with np.errstate(all="ignore"):
+        if v < _MIN_PATH_M:
+            pt = shapely.points((n, e))
+            d = float(shapely.distance(fence._forbidden, pt))
+            free = _INF if d > w else 0.0
+            return TurnClearance(1, d - w, free), TurnClearance(-1, d - w, free)
+        un, ue = vn / v, ve / v
+        leg = v * prm.reaction_time_s
+        radius = v * v / (prm.gravity_mps2 * math.tan(prm.bank_limit_rad))
+        reach = math.hypot(leg, radius) + radius
+        sag_max = max(ARC_CHORD_ERROR_M, radius * fence._arc_tables[-1][1])
+        hazard = _local_hazard(fence, n, e, reach + w + sag_max)
+        out = []
+        for side in (1, -1):
+            verts, arc_sag = _turn_path(fence, n, e, un, ue, leg, radius, float(side))
+            line = shapely.linestrings(verts)
+            # the whole forbidden area for the distance (a tile answers exactly only within its reach)
+            margin = float(shapely.distance(fence._forbidden, line)) - w - arc_sag
+            if margin > 0.0 or hazard is _NOTHING_NEAR:
+                free = _INF
+            else:
+                free = _first_hit_s(hazard, verts, w + arc_sag)
+                free = max(free, 0.0)
+            out.append(TurnClearance(side, margin, free))
+    return out[0], out[1]
+
+
 def signed_margin_m(fence: Fence, pos_ned_m: Sequence[float], *, airborne: bool = False) -> float:
     """Distance to the nearest fence boundary: positive inside, negative outside (metrics and plots).
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 import math
 
 from merlin.core import geofence
-from sims.fixedwing import FixedWingSim
 from sims.scenario import ControllerSpec, Expectation, Initial, Scenario
 
 EAST_WALL_M = 1000.0
@@ -24,9 +23,6 @@ GRANT_S = 1.0
 ANGLES_DEG = (0.0, 30.0, 60.0, 90.0)
 SPEEDS_MPS = (22.0, 30.0)  # the seed thesis's cruise; the autopilot's maximum airspeed
 PARALLEL_OFFSET_M = 50.0
-#: The start airspeed: the requested one, but below 29.5 m/s, where FixedWingSim's trim does not converge
-#: for every start point (30 m/s failed at some positions and headings); the controller then flies v.
-MAX_START_AIRSPEED_MPS = 29.0
 DT_S = 0.005  # 200 Hz: the core, JSBSim and the log agree with 400 Hz on these runs (docs/fixed-wing.md)
 CONTROLLER = "experimental_controllers.fixedwing_examples:FwFlyaway"
 
@@ -40,23 +36,6 @@ EXPECT = [
 def _turn_s(params: geofence.FenceParams, speed_mps: float) -> float:
     radius = speed_mps**2 / (params.gravity_mps2 * math.tan(params.bank_limit_rad))
     return math.pi * radius / speed_mps
-
-
-def _trimmable_start(north: float, east: float, heading_deg: float, airspeed_mps: float) -> tuple[float, float, float]:
-    """The start point, moved back along the course in 10 m steps until FixedWingSim's trim converges there.
-
-    Its damped Newton trim fails at some start points at 28-30 m/s (reported to its owner); returns
-    (north, east, extra seconds of flight to the boundary).
-    """
-    h = math.radians(heading_deg)
-    for k in range(20):
-        n, e = float(round(north - 10.0 * k * math.cos(h))), float(round(east - 10.0 * k * math.sin(h)))
-        try:
-            FixedWingSim(pos_ned_m=(n, e, -HEIGHT_M), heading_rad=h, airspeed_mps=airspeed_mps, rate_hz=1.0 / DT_S)
-        except ValueError:
-            continue
-        return n, e, 10.0 * k / airspeed_mps
-    raise ValueError(f"no trimmable start near ({north:.0f}, {east:.0f}) at {airspeed_mps} m/s")
 
 
 def approach_case(params: geofence.FenceParams, angle_deg: float, speed_mps: float, seed: int = 7) -> Scenario:
@@ -74,17 +53,16 @@ def approach_case(params: geofence.FenceParams, angle_deg: float, speed_mps: flo
         east = EAST_WALL_M - trip_m - v * math.cos(a) * (LEAD_S + GRANT_S)
         north = -v * math.sin(a) * (LEAD_S + GRANT_S)  # the trip comes near N = 0, far from any corner
         heading = 90.0 - angle_deg
-    v0 = min(v, MAX_START_AIRSPEED_MPS)
-    north, east, extra_s = _trimmable_start(north, east, heading, v0)
     return Scenario(
         name=f"fw_fence_{int(angle_deg)}deg_{int(v)}mps",
         description=f"fixed wing: approach to the boundary at {angle_deg:g} deg to its normal, {v:g} m/s",
-        duration_s=round(GRANT_S + LEAD_S + extra_s + _turn_s(params, v) + 2.0, 1),
+        duration_s=round(GRANT_S + LEAD_S + _turn_s(params, v) + 2.0, 1),
         seed=seed,
         dt_s=DT_S,
         vehicle="aerosonde",
         config="../configs/fixedwing_default.yaml",
-        initial=Initial(pos_ned_m=[north, east, -HEIGHT_M], yaw_deg=heading, airspeed_mps=v0),
+        initial=Initial(pos_ned_m=[float(round(north)), float(round(east)), -HEIGHT_M], yaw_deg=heading,
+                        airspeed_mps=v),
         gcs=[{"t": 0.0, "command": "arm"}, {"t": 0.0, "command": "hold"}],  # type: ignore[list-item]
         controller=ControllerSpec(type=CONTROLLER, params={"request_at_s": GRANT_S, "heading_deg": heading,
                                                            "speed_mps": v}),
@@ -97,19 +75,92 @@ def notch_case(params: geofence.FenceParams, speed_mps: float, seed: int = 7) ->
     boundary: the left turn (the short way home) is blocked by the notch, only the right turn is clear."""
     v = speed_mps
     north = NORTH_WALL_M - geofence.trigger_distance_m(params, v, 0.0, 0.6) - v * (LEAD_S + GRANT_S)
-    v0 = min(v, MAX_START_AIRSPEED_MPS)
-    north, east, extra_s = _trimmable_start(north, NOTCH_EAST_SIDE_M + PARALLEL_OFFSET_M, 0.0, v0)
+    east = NOTCH_EAST_SIDE_M + PARALLEL_OFFSET_M
     return Scenario(
         name=f"fw_fence_notch_{int(v)}mps",
         description=f"fixed wing: past the notch's re-entrant corner towards the north boundary at {v:g} m/s",
-        duration_s=round(GRANT_S + LEAD_S + extra_s + _turn_s(params, v) + 2.0, 1),
+        duration_s=round(GRANT_S + LEAD_S + _turn_s(params, v) + 2.0, 1),
         seed=seed,
         dt_s=DT_S,
         vehicle="aerosonde",
         config="../configs/fixedwing_default.yaml",
-        initial=Initial(pos_ned_m=[north, east, -HEIGHT_M], yaw_deg=0.0, airspeed_mps=v0),
+        initial=Initial(pos_ned_m=[float(round(north)), east, -HEIGHT_M], yaw_deg=0.0, airspeed_mps=v),
         gcs=[{"t": 0.0, "command": "arm"}, {"t": 0.0, "command": "hold"}],  # type: ignore[list-item]
         controller=ControllerSpec(type=CONTROLLER, params={"request_at_s": GRANT_S, "heading_deg": 0.0,
                                                            "speed_mps": v}),
         expectations=EXPECT,
     )
+
+
+# ------------------------------------------------------------------------------- the 0-330 deg sweeps
+
+#: Courses of the sweeps: every 30 degrees.
+COURSES_DEG = tuple(float(c) for c in range(0, 360, 30))
+#: The notch's south-east inner corner, a re-entrant corner of the allowed area.
+NOTCH_CORNER_NE_M = (1000.0, 300.0)
+#: The corner cases aim this far past the corner into the notch (along its diagonal).
+CORNER_AIM_INSIDE_M = 20.0
+
+
+def _lead_in_m(params: geofence.FenceParams, v: float) -> float:
+    """How far before the point it flies at a case starts: the head-on trigger distance (the largest), the
+    grant and ``LEAD_S`` of flight on the course, and 20 m."""
+    return geofence.trigger_distance_m(params, v, 0.0, 0.6) + v * (LEAD_S + GRANT_S) + 20.0
+
+
+def _course_scenario(name: str, description: str, params: geofence.FenceParams, start_ne: tuple[float, float],
+                     course_deg: float, v: float) -> Scenario:
+    return Scenario(
+        name=name, description=description,
+        duration_s=round(GRANT_S + _lead_in_m(params, v) / v + _turn_s(params, v) + 2.0, 1),
+        seed=7, dt_s=DT_S, vehicle="aerosonde", config="../configs/fixedwing_default.yaml",
+        initial=Initial(pos_ned_m=[float(round(start_ne[0])), float(round(start_ne[1])), -HEIGHT_M],
+                        yaw_deg=course_deg, airspeed_mps=v),
+        gcs=[{"t": 0.0, "command": "arm"}, {"t": 0.0, "command": "hold"}],  # type: ignore[list-item]
+        controller=ControllerSpec(type=CONTROLLER, params={"request_at_s": GRANT_S, "heading_deg": course_deg,
+                                                           "speed_mps": v}),
+        expectations=EXPECT,
+    )
+
+
+def course_case(fence: geofence.Fence, course_deg: float, speed_mps: float) -> Scenario:
+    """A course from home, every direction: the case starts on the ray from home at the lead-in distance
+    before the first boundary the ray meets (home itself when that is closer), so each of the range's sides,
+    its corners, the notch (0 deg: its bottom, between the two re-entrant corners) and the mast's exclusion
+    circle's neighbourhood (210, 240 deg) are approached at the angle the geometry gives."""
+    import shapely
+
+    v = speed_mps
+    c = math.radians(course_deg)
+    ray = shapely.LineString([(0.0, 0.0), (10_000.0 * math.cos(c), 10_000.0 * math.sin(c))])
+    hits = shapely.intersection(ray, shapely.boundary(fence.allowed_area))
+    hit_m = float(shapely.distance(shapely.Point(0.0, 0.0), hits))
+    back = max(0.0, hit_m - _lead_in_m(fence.params, v))
+    start = (back * math.cos(c), back * math.sin(c))
+    return _course_scenario(f"fw_fence_course_{int(course_deg)}deg_{int(v)}mps",
+                            f"fixed wing: course {course_deg:g} deg from home to the range's edge at {v:g} m/s",
+                            fence.params, start, course_deg, v)
+
+
+def corner_case(fence: geofence.Fence, course_deg: float, speed_mps: float) -> Scenario | None:
+    """A course at the notch's re-entrant corner (1000, 300), from the lead-in distance before it, aimed
+    ``CORNER_AIM_INSIDE_M`` into the notch past the corner (so the course really cuts the corner, whatever
+    small drift the flyaway's start leaves: aimed exactly at the corner, a north course flies along the
+    notch's side, 16 m off it, and correctly never trips). None for courses that would have to start inside
+    the notch or cross it (the allowed area offers 270 degrees around the corner)."""
+    import shapely
+
+    v = speed_mps
+    c = math.radians(course_deg)
+    un, ue = math.cos(c), math.sin(c)
+    back = _lead_in_m(fence.params, v)
+    an = NOTCH_CORNER_NE_M[0] + CORNER_AIM_INSIDE_M / math.sqrt(2.0)
+    ae = NOTCH_CORNER_NE_M[1] - CORNER_AIM_INSIDE_M / math.sqrt(2.0)
+    start = (an - back * un, ae - back * ue)
+    # the approach up to 60 m short of the aim point must lie inside, with room for the widening
+    approach = shapely.LineString([start, (an - 60.0 * un, ae - 60.0 * ue)])
+    if not shapely.contains(shapely.buffer(fence.allowed_area, -5.0), approach):
+        return None
+    return _course_scenario(f"fw_fence_corner_{int(course_deg)}deg_{int(v)}mps",
+                            f"fixed wing: course {course_deg:g} deg across the notch's re-entrant corner, {v:g} m/s",
+                            fence.params, start, course_deg, v)

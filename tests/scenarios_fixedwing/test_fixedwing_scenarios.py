@@ -10,6 +10,7 @@ the lap's errors agree with 200 Hz to 0.03 m RMS; docs/fixed-wing.md, "Closed lo
 from __future__ import annotations
 
 import math
+import os
 from functools import cache
 from pathlib import Path
 
@@ -22,7 +23,15 @@ from sims.expectations import evaluate_all
 from sims.fixedwing_loop import FixedWingLoop
 from sims.runner import RunResult, run_scenario
 from sims.scenario import Scenario, load_scenario, resolve_config
-from tests.scenarios_fixedwing.fence_cases import ANGLES_DEG, SPEEDS_MPS, approach_case, notch_case
+from tests.scenarios_fixedwing.fence_cases import (
+    ANGLES_DEG,
+    COURSES_DEG,
+    SPEEDS_MPS,
+    approach_case,
+    corner_case,
+    course_case,
+    notch_case,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIOS = ROOT / "examples" / "scenarios"
@@ -132,6 +141,30 @@ def test_guidance_alone_turns_into_the_notch(monkeypatch: pytest.MonkeyPatch) ->
     sc = notch_case(FENCE_PARAMS, 22.0)
     r = run_scenario(sc, resolve_config(sc, SCENARIOS, "<generated>"), source=sc.name)
     assert r.metrics["max_fence_breach_m"] > 20.0
+
+
+SWEEP = [("course", c, v) for c in COURSES_DEG for v in SPEEDS_MPS] + [
+    ("corner", c, v) for c in COURSES_DEG for v in SPEEDS_MPS if corner_case(FENCE, c, v) is not None]
+#: The sweep's tightest runs (smallest margins in the full sweep of docs/fixed-wing.md), flown by default;
+#: MERLIN_FW_FULL_SWEEP=1 flies all 40 (about 150 s of CPU).
+SWEEP_TIGHTEST = [("corner", 210.0, 30.0), ("corner", 270.0, 22.0), ("corner", 0.0, 22.0),
+                  ("corner", 300.0, 30.0), ("course", 30.0, 22.0)]
+SWEEP_RUN = SWEEP if os.environ.get("MERLIN_FW_FULL_SWEEP") == "1" else SWEEP_TIGHTEST
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("kind", "course_deg", "speed_mps"), SWEEP_RUN,
+                         ids=[f"{k}_{int(c)}deg_{int(v)}mps" for k, c, v in SWEEP_RUN])
+def test_fence_sweep_every_30_degrees_has_no_breach(kind: str, course_deg: float, speed_mps: float) -> None:
+    """Courses 0-330 deg in 30 deg steps at cruise and maximum speed: from home to whichever side of the
+    range the course meets (the notch's bottom at 0 deg), and across the notch's re-entrant corner from
+    every direction the allowed area offers. Zero breach in every run (docs/fixed-wing.md)."""
+    assert (kind, course_deg, speed_mps) in SWEEP
+    sc = course_case(FENCE, course_deg, speed_mps) if kind == "course" else corner_case(FENCE, course_deg, speed_mps)
+    assert sc is not None
+    r = run_scenario(sc, resolve_config(sc, SCENARIOS, "<generated>"), source=sc.name)
+    _expectations_pass(r)
+    assert r.metrics["max_fence_breach_m"] == 0.0
 
 
 @pytest.mark.parametrize("name", ["fw_fence_0deg_22mps", "fw_fence_60deg_30mps", "fw_fence_notch_22mps"])

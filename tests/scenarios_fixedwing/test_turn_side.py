@@ -1,4 +1,5 @@
-"""The escape turn's side: the projected half turn that keeps the larger fence margin (no simulation)."""
+"""The escape turn's side: the projected half turn that flies farther before the widening (no simulation),
+measured by the core's exact ``merlin.core.geofence.turn_clearances``."""
 
 from __future__ import annotations
 
@@ -7,11 +8,10 @@ import math
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from merlin.core import geofence
 from merlin.core.types import VehicleState
-from sims.fixedwing_loop import turn_clearances_m
+from sims.fixedwing_loop import escape_side, turn_clearances_m
 from tests.scenarios_fixedwing.test_fixedwing_scenarios import FENCE
-
-BANK = FENCE.params.bank_limit_rad
 
 
 def _state(n: float, e: float, course_deg: float, v: float) -> VehicleState:
@@ -25,17 +25,36 @@ def _state(n: float, e: float, course_deg: float, v: float) -> VehicleState:
        v=st.floats(18.5, 30.0))
 def test_the_turn_away_from_the_east_boundary_keeps_more_margin(offset: float, course: float, north: float,
                                                                 v: float) -> None:
-    """Flying north-east towards the east boundary, the left turn (away from it) is the clear one."""
-    right, left = turn_clearances_m(FENCE, _state(north, 1000.0 - offset, course, v), 1.0, BANK)
-    assert left > right
+    """Flying north-east towards the east boundary, the left turn (away from it) is the clearer one: a larger
+    margin, or, when both cross the widening, a longer path before it."""
+    s = _state(north, 1000.0 - offset, course, v)
+    right, left = geofence.turn_clearances(FENCE, s.pos_ned_m, s.vel_ned_mps, 0.0)
+    assert (left.free_path_m, left.margin_m) > (right.free_path_m, right.margin_m)
+    assert left.margin_m >= right.margin_m
+    assert escape_side(FENCE, s) == -1.0
 
 
 def test_next_to_the_notch_only_the_right_turn_is_clear() -> None:
     """North, 50 m east of the notch's side: the left turn cuts into the notch, the right one is clear."""
-    right, left = turn_clearances_m(FENCE, _state(1200.0, 350.0, 0.0, 22.0), 1.0, BANK)
+    s = _state(1200.0, 350.0, 0.0, 22.0)
+    right, left = turn_clearances_m(FENCE, s)
     assert left < 0.0 < right
+    assert escape_side(FENCE, s) == 1.0
 
 
-def test_far_inside_both_turns_are_clear_and_mirror_each_other_head_on() -> None:
-    right, left = turn_clearances_m(FENCE, _state(250.0, 0.0, 90.0, 22.0), 1.0, BANK)
+def test_far_inside_both_turns_are_clear() -> None:
+    right, left = turn_clearances_m(FENCE, _state(250.0, 0.0, 90.0, 22.0))
     assert right > 100.0 and left > 100.0
+
+
+def test_at_a_trip_the_side_that_flies_farther_is_chosen() -> None:
+    """At the trip of an oblique approach both turns touch the widening; the one turning away flies farther."""
+    v, course = 22.0, 60.0
+    n, e = 0.0, 700.0
+    vel = (v * math.cos(math.radians(course)), v * math.sin(math.radians(course)), 0.0)
+    while not geofence.check(FENCE, (n, e, -120.0), vel, 0.0, 0.0, True).tripped:
+        n, e = n + 0.1 * vel[0], e + 0.1 * vel[1]
+    right, left = geofence.turn_clearances(FENCE, (n, e, -120.0), vel, 0.0)
+    assert right.margin_m <= 0.0 and left.margin_m <= 0.0
+    assert left.free_path_m > right.free_path_m
+    assert escape_side(FENCE, _state(n, e, course, v)) == -1.0
