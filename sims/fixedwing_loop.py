@@ -146,22 +146,33 @@ def turn_clearances_m(fence: geofence.Fence, s: VehicleState) -> tuple[float, fl
     """The margins of the fence projection's right and left turns, (right_m, left_m): the shortest distance
     from each projected path (reaction leg, then the half turn at the bank limit) to a hazard, minus the
     widening, exactly as the core's check measures it (:func:`merlin.core.geofence.turn_clearances`)."""
-    right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m)
+    right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, state_wind_ne(s))
     return right.margin_m, left.margin_m
+
+
+def state_wind_ne(s: VehicleState) -> tuple[float, float]:
+    """The wind the core's fence projection uses for this state (the wind triangle, as the core computes it)."""
+    return geofence.wind_triangle_ne(s.vel_ned_mps, s.airspeed_mps, s.att_rpy_rad[2])
 
 
 def escape_side(fence: geofence.Fence, s: VehicleState, home_ne: tuple[float, float] = (0.0, 0.0)) -> float:
     """+1 (right) or -1 (left): the turn to fly after a fence trip. At a trip neither projected turn is clear
-    (both margins <= 0), so the side is the one that flies farther before it comes within the widening, then
-    the one with the larger margin; when both are as good (within 1 m), the short way towards home."""
-    right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m)
+    (both margins <= 0). The side is the one whose closest approach to a hazard is the larger (the larger
+    margin: how far it stays from the fence is what the turn is for); when both are within 1 m of each
+    other (both cross a hazard: both margins are minus the widening), the one that flies farther before it
+    comes within the widening; when both are as good, the short way towards home. (Until the campaign's
+    run 74 the free path came first: it chose a turn 6 m deeper into the widening for 5 m more path.)
+    The turns are the core's, drifting with the wind-triangle wind (:func:`state_wind_ne`)."""
+    right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, state_wind_ne(s))
 
     def close(a: float, b: float) -> bool:
         return a == b or abs(a - b) < 1.0
 
-    if close(right.free_path_m, left.free_path_m) and close(right.margin_m, left.margin_m):
-        return _side_towards(s, home_ne)
-    return 1.0 if (right.free_path_m, right.margin_m) > (left.free_path_m, left.margin_m) else -1.0
+    if not close(right.margin_m, left.margin_m):
+        return 1.0 if right.margin_m > left.margin_m else -1.0
+    if not close(right.free_path_m, left.free_path_m):
+        return 1.0 if right.free_path_m > left.free_path_m else -1.0
+    return _side_towards(s, home_ne)
 
 
 def _side_towards(s: VehicleState, target_ne: tuple[float, float]) -> float:
@@ -250,6 +261,8 @@ class FixedWingLoop(ClosedLoop):
         self.autopilot_dt_s = self.autopilot_every * dt
         self._since_autopilot = self.autopilot_every  # run on the first tick
         self.escape_side: float = 0.0  # +1 / -1 while an escape turn is flown, else 0
+        self._escape_course = 0.0  # course over the ground at the previous tick of the escape turn, rad
+        self._escape_turned_rad = 0.0  # how far the escape turn has turned towards its side so far
         self.notes: list[dict[str, Any]] = []
         self._launched_now = False
         assert self.fw.trim_result is not None
@@ -385,8 +398,11 @@ class FixedWingLoop(ClosedLoop):
         fence = self.core_cfg.fence
         if (self.escape_turns and fence is not None
                 and any(m.name == "geofence" and m.tripped for m in decision.monitors)):
-            right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m)
+            right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m,
+                                                   state_wind_ne(s))
             self.escape_side = escape_side(fence, s)
+            self._escape_course = math.atan2(s.vel_ned_mps[1], s.vel_ned_mps[0])
+            self._escape_turned_rad = 0.0
             self.notes.append({"t": t, "type": "fixed_wing_escape_turn",
                                "side": "right" if self.escape_side > 0 else "left",
                                "right_margin_m": right.margin_m, "left_margin_m": left.margin_m,
@@ -438,8 +454,18 @@ class FixedWingLoop(ClosedLoop):
         fence_tripped = any(m.name == "geofence" and m.tripped for m in decision.monitors)
         vn, ve = s.vel_ned_mps[0], s.vel_ned_mps[1]
         homeward = vn * -s.pos_ned_m[0] + ve * -s.pos_ned_m[1] > 0.0
-        if not fence_tripped and homeward:
-            self.notes.append({"t": t, "type": "fixed_wing_escape_turn_end"})
+        # The projection that chose the side covered a half turn, no more: turning on past it while the
+        # monitor stays tripped (another wall ahead, a corner) closes the circle back into the wall it
+        # escaped (campaign run 74: 18 s of turn, a 50 m breach). So the escape ends at the half turn too.
+        course = math.atan2(ve, vn)
+        step = (course - self._escape_course + math.pi) % math.tau - math.pi
+        self._escape_course = course
+        self._escape_turned_rad += step * self.escape_side
+        half_turn_done = self._escape_turned_rad >= math.pi
+        if (not fence_tripped and homeward) or half_turn_done:
+            self.notes.append({"t": t, "type": "fixed_wing_escape_turn_end",
+                               "turned_deg": math.degrees(self._escape_turned_rad),
+                               "fence_tripped": fence_tripped})
             if decision.behavior in (Behavior.HOLD, Behavior.TAKEOFF) or (
                     decision.behavior is Behavior.MISSION and not self.mission):
                 # the hold circle is re-centred where the escape ended, turning the same way

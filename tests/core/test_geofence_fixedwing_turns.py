@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 import shapely
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -178,3 +179,83 @@ def test_no_altitude_trip_means_the_pull_out_stays_within_the_floor_and_ceiling(
     assert PARAMS.altitude_ceiling_m is not None and PARAMS.altitude_floor_m is not None
     assert hi <= PARAMS.altitude_ceiling_m - wv + 1e-3 + abs(vd) * dt
     assert lo >= PARAMS.altitude_floor_m + wv - 1e-3 - abs(vd) * dt
+
+
+# ------------------------------------------------------------------------------------------ in a wind
+#
+# A fixed wing turns at its bank limit in the air mass: the reference is the same leg and half circle flown
+# at the airspeed along the air velocity, each point carried downwind by the wind times the moment it is
+# reached (a trochoid over the ground). Sampled finely, independently of the module's polyline.
+
+
+def reference_turn_in_wind(n: float, e: float, vel_ne: tuple[float, float], wind_ne: tuple[float, float],
+                           side: int) -> np.ndarray:
+    an_, ae_ = vel_ne[0] - wind_ne[0], vel_ne[1] - wind_ne[1]
+    va = math.hypot(an_, ae_)
+    air = reference_turn(n, e, math.atan2(ae_, an_), va, side)
+    leg = va * PARAMS.reaction_time_s
+    radius = va * va / (G * math.tan(PARAMS.bank_limit_rad))
+    t = np.concatenate(([0.0], (leg + radius * np.linspace(0.0, math.pi, SAMPLES)) / va))
+    return air + np.outer(t, wind_ne)
+
+
+WINDY = {**STATES, "v": st.floats(16.0, 35.0), "wind_n": st.floats(-8.0, 8.0), "wind_e": st.floats(-8.0, 8.0)}
+
+
+@settings(max_examples=200, deadline=None)
+@given(**WINDY)
+def test_in_wind_no_trip_means_a_drifting_turn_stays_inside_and_a_trip_means_neither_does(
+    n: float, e: float, course_deg: float, v: float, sigma_h: float, wind_n: float, wind_e: float
+) -> None:
+    """The invariant of the still-air test, with the ground path drifting: ``v`` is the ground speed."""
+    if not shapely.contains_xy(REF_ALLOWED, n, e):
+        return
+    c = math.radians(course_deg)
+    vel = (v * math.cos(c), v * math.sin(c))
+    if math.hypot(vel[0] - wind_n, vel[1] - wind_e) < 12.0:
+        return  # below any fixed wing's flying speed
+    w = PARAMS.margin_m + PARAMS.sigma_k * sigma_h
+    r = check(FENCE, (n, e, -120.0), (*vel, 0.0), sigma_h, 0.0, True, (wind_n, wind_e))
+    margins = [reference_margin(reference_turn_in_wind(n, e, vel, (wind_n, wind_e), side), w) for side in (1, -1)]
+    if not r.tripped:
+        assert max(margins) >= -0.01, margins
+    else:
+        assert max(margins) <= 0.2, (r, margins)
+    got = turn_clearances(FENCE, (n, e, -120.0), (*vel, 0.0), sigma_h, (wind_n, wind_e))
+    for t, ref in zip(got, margins, strict=True):
+        assert ref - 0.2 <= t.margin_m <= ref + 0.01, (t, ref)
+
+
+def test_a_wind_towards_the_wall_trips_earlier_by_about_the_drift_and_no_wind_changes_nothing() -> None:
+    """Flying east at 25 m/s ground speed towards the east wall (e = 1000), 5 m/s of wind from the west
+    (blowing east): the air speed is 20 m/s, the turn is tighter, and the half turn drifts 5 m/s times its
+    duration towards the wall. Where still air would trip is where the analytic trochoid touches the
+    widening; and a zero wind gives exactly the still-air verdicts."""
+    def first_trip(wind: tuple[float, float]) -> float:
+        for e10 in range(0, 10000):
+            e = e10 * 0.1
+            if check(FENCE, (0.0, e, -120.0), (0.0, 25.0, 0.0), 0.0, 0.0, True, wind).tripped:
+                return e
+        raise AssertionError("never tripped")
+
+    still, windy = first_trip((0.0, 0.0)), first_trip((0.0, 5.0))
+    va, radius_still = 20.0, 25.0**2 / (G * math.tan(PARAMS.bank_limit_rad))
+    radius = va * va / (G * math.tan(PARAMS.bank_limit_rad))
+    # easternmost point of the drifting turn from its start: max over phi of R sin(phi) + 5 (t_r + R phi / va)
+    phi = np.linspace(0.0, math.pi, 100_001)
+    reach = float(np.max(radius * np.sin(phi) + 5.0 * (PARAMS.reaction_time_s + radius * phi / va)))
+    expected = 1000.0 - PARAMS.margin_m - (va * PARAMS.reaction_time_s + reach)
+    assert windy == pytest.approx(expected, abs=0.25)
+    assert still == pytest.approx(1000.0 - PARAMS.margin_m - (25.0 + radius_still), abs=0.25)
+    for e in (0.0, 500.0, still - 1.0, still + 1.0):
+        for course in range(0, 360, 45):
+            c = math.radians(course)
+            vel = (25.0 * math.cos(c), 25.0 * math.sin(c), 0.0)
+            assert check(FENCE, (0.0, e, -120.0), vel, 1.0, 0.0, True) == check(
+                FENCE, (0.0, e, -120.0), vel, 1.0, 0.0, True, (0.0, 0.0))
+
+
+def test_a_non_finite_wind_is_broken_input() -> None:
+    for bad in ((math.nan, 0.0), (0.0, math.inf)):
+        r = check(FENCE, (0.0, 0.0, -120.0), (20.0, 0.0, 0.0), 0.0, 0.0, True, bad)
+        assert r.tripped and r.kind == "invalid"

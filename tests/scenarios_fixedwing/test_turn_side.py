@@ -58,3 +58,24 @@ def test_at_a_trip_the_side_that_flies_farther_is_chosen() -> None:
     assert right.margin_m <= 0.0 and left.margin_m <= 0.0
     assert left.free_path_m > right.free_path_m
     assert escape_side(FENCE, _state(n, e, course, v)) == -1.0
+
+
+def test_the_escape_turn_is_the_one_that_stays_off_the_fence_not_the_one_with_more_path_before_it() -> None:
+    """The campaign's fixed-wing range (examples/campaigns/fixed_wing.yaml), at the trip of a 23.8 m/s
+    approach on course 206 deg towards its south-west corner. The right turn crosses the west wall (margin
+    = minus the widening) but flies 41 m farther before it meets the widening; the left one only grazes
+    the widening. Choosing by path length first took the crossing turn: campaign run 74 breached by 50 m.
+    The escape must take the left turn."""
+    fence = geofence.Fence(
+        geofence.FenceParams(vehicle="fixed_wing", margin_m=5.0, sigma_k=2.0, altitude_floor_m=30.0,
+                             altitude_ceiling_m=250.0, reaction_time_s=1.0, bank_limit_rad=math.radians(30.0)),
+        inclusion_polygons=(geofence.PolygonNE(((-700.0, -700.0), (-700.0, 700.0), (700.0, 700.0), (700.0, 150.0),
+                                                (400.0, 150.0), (400.0, -150.0), (700.0, -150.0),
+                                                (700.0, -700.0))),),
+        exclusion_circles=(geofence.CircleNE((-350.0, -350.0), 60.0),))
+    s = _state(-529.99, -500.02, 206.0, 23.8)
+    assert geofence.check(fence, s.pos_ned_m, s.vel_ned_mps, 0.0, 0.0, True).tripped
+    right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, 0.0)
+    assert right.free_path_m > left.free_path_m + 30.0
+    assert right.margin_m <= -5.0 < -1.0 < left.margin_m
+    assert escape_side(fence, s) == -1.0
