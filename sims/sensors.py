@@ -197,15 +197,35 @@ def dipole_field_ned_gauss(lat_deg: float, lon_deg: float) -> Vec3:
 # -------------------------------------------------------------------------------------------- models
 
 
-def normal_rows(rng: np.random.Generator, width: int) -> Callable[[], list[float]]:
+def staggered_rows(make_block: Callable[[], list[list[float]]], prefetch_at: int) -> Iterator[list[float]]:
+    """The rows of ``make_block()`` one after the other, block after block, with each next block made
+    when row ``prefetch_at`` of the current one is handed out rather than when the current one runs out.
+
+    Why: every 400 Hz stream (three IMU lanes, the wind, the fault noise) used to refill on the same tick
+    (ticks 1025, 2049, ...), and that one tick did 5-9 ms of numpy and ``tolist`` work, enough to make a
+    real-time ``merlin serve`` miss its next 4 ms deadline (docs/benchmarks/serve.md). Giving each stream
+    its own ``prefetch_at`` spreads the refills over different ticks. Each stream owns its generator, so
+    drawing a block earlier changes no value: the samples are bit-identical to the unstaggered ones."""
+    cur = make_block()
+    while True:
+        nxt: list[list[float]] | None = None
+        for i, row in enumerate(cur):
+            if i == prefetch_at:
+                nxt = make_block()
+            yield row
+        cur = nxt if nxt is not None else make_block()
+
+
+def normal_rows(rng: np.random.Generator, width: int, prefetch_at: int = _BLOCK // 2) -> Callable[[], list[float]]:
     """A function returning the next row of ``width`` standard normals from ``rng``. Rows are drawn
-    1024 at a time and handed out as Python float lists (one generator resume per call: ~0.1 us)."""
+    1024 at a time and handed out as Python float lists (one generator resume per call: ~0.1 us); the
+    next block is drawn at row ``prefetch_at`` (:func:`staggered_rows`)."""
 
-    def rows() -> Iterator[list[float]]:
-        while True:
-            yield from rng.standard_normal((_BLOCK, width)).tolist()
+    def block() -> list[list[float]]:
+        rows: list[list[float]] = rng.standard_normal((_BLOCK, width)).tolist()
+        return rows
 
-    return rows().__next__
+    return staggered_rows(block, prefetch_at).__next__
 
 
 class ImuLane:
@@ -244,13 +264,19 @@ class ImuLane:
         self._next = self._rows().__next__
 
     def _rows(self) -> Iterator[list[float]]:
-        """Rows of (gyro error x3, accel error x3, gyro bias x3, accel bias x3), 1024 at a time."""
-        while True:
+        """Rows of (gyro error x3, accel error x3, gyro bias x3, accel bias x3), 1024 at a time; lane i
+        draws its next block at row (2i + 1)/8 of the current one, so the lanes never refill on the same
+        tick (:func:`staggered_rows`)."""
+
+        def block() -> list[list[float]]:
             steps = self.rng.standard_normal((_BLOCK, 6)) * self._kbias
             white = self.rng.standard_normal((_BLOCK, 6)) * self._knoise
             bias = self._b_last + np.cumsum(steps, axis=0)
             self._b_last = bias[-1]
-            yield from np.hstack((bias + white, bias)).tolist()
+            rows: list[list[float]] = np.hstack((bias + white, bias)).tolist()
+            return rows
+
+        return staggered_rows(block, ((2 * self._lane + 1) * _BLOCK // 8) % _BLOCK)
 
     @property
     def gyro_bias_radps(self) -> Vec3:

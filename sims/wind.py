@@ -24,6 +24,7 @@ from merlin.core.types import ZERO3, Vec3
 
 _FT = 0.3048
 _BLOCK = 1024
+_PREFETCH_AT = 7 * _BLOCK // 8  # the IMU lanes draw at 1/8, 3/8, 5/8 of theirs, the fault noise at 1/2
 
 
 @dataclass(frozen=True, slots=True)
@@ -54,7 +55,7 @@ def dryden_low_altitude(w20_mps: float, height_m: float) -> tuple[float, float, 
 class WindModel:
     """``step(t_s)`` once per simulation tick of ``dt_s``: returns the wind (air velocity) in NED, m/s."""
 
-    __slots__ = ("_g", "_i", "_phi", "_q", "_rng", "_rows", "p")
+    __slots__ = ("_g", "_i", "_pending", "_phi", "_q", "_rng", "_rows", "p")
 
     def __init__(self, params: WindParams, rng: np.random.Generator, dt_s: float) -> None:
         self.p = params
@@ -67,12 +68,18 @@ class WindModel:
         start = rng.standard_normal(3)
         self._g = [float(start[0]) * su, float(start[1]) * su, float(start[2]) * sw]
         self._rows: list[list[float]] = []
+        self._pending: list[list[float]] = []
         self._i = _BLOCK
 
     def step(self, t_s: float) -> Vec3:
         if self._i >= _BLOCK:
-            self._rows = self._rng.standard_normal((_BLOCK, 3)).tolist()
+            self._rows = self._pending or self._rng.standard_normal((_BLOCK, 3)).tolist()
+            self._pending = []
             self._i = 0
+        elif self._i == _PREFETCH_AT:
+            # the next block is drawn here, not when this one runs out, so the wind never refills on the
+            # same tick as the sensor streams (sims/sensors.py staggered_rows); same values either way
+            self._pending = self._rng.standard_normal((_BLOCK, 3)).tolist()
         n = self._rows[self._i]
         self._i += 1
         g, phi, q = self._g, self._phi, self._q
