@@ -51,6 +51,20 @@ def nav_error_max_m(log: dict[str, np.ndarray]) -> float | None:
     return float(np.nanmax(err))
 
 
+def one_thread_per_run() -> dict[str, Any]:
+    """OpenCV keeps its own thread pool (one thread per core), outside OMP_NUM_THREADS: limit it too, so a
+    worker flying a camera scenario uses the one core it was given (see scheduler.WORKER_THREAD_ENV).
+    Returns the worker's thread settings, kept in the run's record."""
+    import os
+
+    import cv2
+
+    if cv2.getNumThreads() != 1:
+        cv2.setNumThreads(1)
+    return {"OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS"),
+            "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS"), "opencv": cv2.getNumThreads()}
+
+
 def execute(spec: RunSpec) -> dict[str, Any]:
     """Fly ``spec``; the record for ``results.jsonl``. Reads and writes no file: on a Ray cluster the
     worker's machine need not share the campaign directory (the driver writes the run's YAML)."""
@@ -58,6 +72,7 @@ def execute(spec: RunSpec) -> dict[str, Any]:
     rec: dict[str, Any] = {
         "run_id": spec.run_id, "index": spec.index, "scenario_file": spec.scenario_file,
         "scenario": spec.scenario.get("name", ""), "seed": spec.seed, "samples": spec.samples,
+        "threads": one_thread_per_run(),
     }
     try:
         rec["run_yaml"] = f"runs/{spec.run_id}.yaml"

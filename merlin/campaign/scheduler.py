@@ -92,6 +92,19 @@ def _check_meta(out: Path, fp: dict[str, Any]) -> None:
 Emit = Callable[[RunSpec, dict[str, Any]], None]
 
 
+#: Each run gets one core: numerical libraries must not start a thread per core inside every worker. With
+#: their defaults (OpenBLAS/OpenMP one thread per core, OpenCV's own pool) two workers on two cores ran
+#: four-plus busy threads and two workers flew only 1.14x the runs of one; with one thread each, 1.70x
+#: (docs/benchmarks/campaign.md). A value the user has set is kept.
+WORKER_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+                     "NUMEXPR_NUM_THREADS": "1"}
+
+
+def worker_env() -> dict[str, str]:
+    """The thread limits for campaign workers, with any the user has set in the environment kept."""
+    return {k: os.environ.get(k, v) for k, v in WORKER_THREAD_ENV.items()}
+
+
 def _local(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
     """Fly ``specs`` on a process pool, recycling the pool every ``max_tasks_per_child`` runs per worker.
 
@@ -101,6 +114,8 @@ def _local(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
     hung that way after 2 x 25 runs.
     """
     ctx = multiprocessing.get_context("spawn")
+    # spawned workers inherit the environment: the limits must be in it before numpy loads in them
+    os.environ.update(worker_env())
     pending = {s.run_id: s for s in specs}
     restarts = 0
     generation = max(1, opts.max_tasks_per_child) * opts.n_workers
@@ -134,7 +149,8 @@ def _ray(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
         if opts.address:
             ray.init(address=opts.address, log_to_driver=False)
         else:
-            env = {"PYTHONPATH": os.pathsep.join([str(REPO_ROOT), os.environ.get("PYTHONPATH", "")])}
+            env = {"PYTHONPATH": os.pathsep.join([str(REPO_ROOT), os.environ.get("PYTHONPATH", "")]),
+                   **worker_env()}
             ray.init(num_cpus=opts.n_workers, include_dashboard=False, log_to_driver=False,
                      object_store_memory=200 * 1024 * 1024, runtime_env={"env_vars": env})
         started = True
