@@ -207,6 +207,11 @@ def write_all(r: RunResult, verdicts: list[Verdict], out: Path, plots: bool = Tr
         nav_png = plot_nav(r, out)
         if nav_png is not None:
             files["nav"] = nav_png
+        from sims.redundancy_plot import plot_redundancy  # voted lanes, FDI, selected lane (docs/redundancy.md)
+
+        red_png = plot_redundancy(r, out)
+        if red_png is not None:
+            files["redundancy"] = red_png
     events_path = out / "events.jsonl"
     with events_path.open("w") as f:
         for e in r.events:

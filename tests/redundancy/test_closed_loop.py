@@ -251,3 +251,14 @@ def test_the_redundancy_plot_is_written_only_for_runs_with_redundancy(tmp_path) 
     assert p is not None and p.stat().st_size > 10_000
     plain = run_scenario(_scenario(duration_s=0.5), MerlinConfig())
     assert plot_redundancy(plain, tmp_path / "none") is None
+
+
+def test_a_sim_report_of_a_redundancy_run_includes_the_redundancy_page(tmp_path) -> None:
+    """What ``merlin sim`` writes (sims.report.write_all): redundancy.png beside the other plots."""
+    from sims.report import write_all
+
+    files = write_all(_lane_run(), [], tmp_path / "lanes")
+    assert files["redundancy"] == tmp_path / "lanes" / "redundancy.png"
+    assert files["redundancy"].stat().st_size > 10_000
+    plain = write_all(run_scenario(_scenario(duration_s=0.5), MerlinConfig()), [], tmp_path / "plain")
+    assert "redundancy" not in plain and not (tmp_path / "plain" / "redundancy.png").exists()
