@@ -104,8 +104,13 @@ def evaluate(x: Expectation, events: list[dict[str, Any]], log: dict[str, np.nda
         landed = metrics["final_landed"] > 0.5
         return Verdict(name, landed and d <= lim, f"landed={landed}, {d:.2f} m from home (allowed {lim} m)")
     if kind == "disarmed":
+        if x.t is not None:
+            return _for_good_by(name, log, "armed", False, x.t, "disarmed")
         armed = bool(log["armed"][-1] > 0.5) if len(log["armed"]) else False
         return Verdict(name, not armed, f"armed at the end: {armed}")
+    if kind == "landed_by":
+        assert x.t is not None
+        return _for_good_by(name, log, "landed", True, x.t, "on the ground (touched down)")
     if kind == "max_command_jump":
         lim = x.mps if x.mps is not None else 0.5
         j = metrics["max_authority_change_command_jump_mps"]
@@ -147,6 +152,23 @@ def _evaluate_nav(x: Expectation, name: str, log: dict[str, np.ndarray]) -> Verd
     k = int(np.argmax(err))
     return Verdict(name, float(err[k]) <= x.m,
                    f"largest horizontal estimate error {err[k]:.2f} m at t={t[sel][k]:.2f} (allowed {x.m} m)")
+
+
+def _for_good_by(name: str, log: dict[str, np.ndarray], col: str, want: bool, t: float, what: str) -> Verdict:
+    """Whether the boolean log column ``col`` is ``want`` from ``t`` (at the latest) to the end of the run: a
+    touchdown or a disarm that happened by ``t`` and was not undone (a bounce back into the air fails).
+    The detail gives the start of the final run of ``want``: when it became so for good."""
+    ts = log["t"]
+    if not len(ts) or ts[-1] < t - 1e-9:
+        return Verdict(name, False, f"the run ends before t={t}")
+    flags = np.asarray(log[col], dtype=float) > 0.5
+    if not want:
+        flags = ~flags
+    if not flags[-1]:
+        return Verdict(name, False, f"not {what} at the end of the run (required by t={t})")
+    off = np.flatnonzero(~flags)
+    since = float(ts[off[-1] + 1]) if len(off) else float(ts[0])
+    return Verdict(name, since <= t + 1e-9, f"{what} for good from t={since:.2f} (required by t={t})")
 
 
 def _height_loss_after_revocation(name: str, x: Expectation, events: list[dict[str, Any]],

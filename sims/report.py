@@ -207,7 +207,9 @@ def write_all(r: RunResult, verdicts: list[Verdict], out: Path, plots: bool = Tr
         nav_png = plot_nav(r, out)
         if nav_png is not None:
             files["nav"] = nav_png
-        from sims.redundancy_plot import plot_redundancy  # voted lanes, FDI, selected lane (docs/redundancy.md)
+        from sims.redundancy_plot import (
+            plot_redundancy,  # voted lanes, FDI, selected lane (docs/redundancy.md)
+        )
 
         red_png = plot_redundancy(r, out)
         if red_png is not None:

@@ -138,6 +138,7 @@ class Expectation(S):
         "behavior_at",
         "event",
         "disarmed",
+        "landed_by",
         "max_command_jump",
         "max_lane_switch_step",
         "nav_mode_at",
@@ -161,6 +162,12 @@ class Expectation(S):
     lane: int | None = Field(None, ge=0, le=2, description="event: only events about this lane")
     step: float | None = Field(None, gt=0.0, description="max_lane_switch_step: allowed motor-command step")
     nav_mode: str | None = Field(None, description="nav_mode_at: GPS, VO, INERTIAL or LOST")
+
+    @model_validator(mode="after")
+    def _needs(self) -> Expectation:
+        if self.type == "landed_by" and self.t is None:
+            raise ValueError("expectation type 'landed_by' needs t: the time by which the vehicle is on the ground")
+        return self
 
 
 class Camera(S):

@@ -17,11 +17,13 @@ import math
 from typing import NamedTuple
 
 from merlin.core.config import TrustedParams
-from merlin.core.types import Behavior, Setpoint, SetpointKind, Vec3, VehicleState
+from merlin.core.types import Behavior, NavMode, Setpoint, SetpointKind, Vec3, VehicleState
 
 RTL_CLIMB, RTL_RETURN, RTL_DESCEND = 0, 1, 2
 #: Vertical distance within which a climb or takeoff counts as complete, m.
 ALTITUDE_ACCEPTANCE_M = 0.5
+#: LAND's speed below ``land_final_height_m``, as a fraction of ``land_speed_mps``.
+LAND_FINAL_SPEED_FRACTION = 0.5
 
 
 class GuidanceState(NamedTuple):
@@ -93,14 +95,73 @@ def _hold(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> Setpoint:
 
 def _descend_speed(s: VehicleState, cfg: TrustedParams) -> float:
     # Half speed for the last few metres (as PX4's MPC_LAND_ALT2 slow-down), for a gentle touchdown.
-    return cfg.land_speed_mps * (0.5 if s.alt_m < cfg.land_final_height_m else 1.0)
+    return cfg.land_speed_mps * (LAND_FINAL_SPEED_FRACTION if s.alt_m < cfg.land_final_height_m else 1.0)
+
+
+def _time_to_descend(dist_m: float, v_mps: float, accel_mps2: float) -> float:
+    """First time ``t >= 0`` at which ``v t + a t^2 / 2`` (down positive) reaches ``dist_m >= 0`` while
+    descending; infinity if it never does. Solved as ``t = 2 d / (v + sqrt(v^2 + 2 a d))`` (no
+    cancellation), or, moving up now, the return through the start ``(-v + sqrt(...)) / a``."""
+    disc = v_mps * v_mps + 2.0 * accel_mps2 * dist_m
+    if disc < 0.0:
+        return math.inf
+    r = math.sqrt(disc)
+    if v_mps + r > 0.0:
+        return 2.0 * dist_m / (v_mps + r)
+    return (r - v_mps) / accel_mps2 if accel_mps2 > 0.0 else math.inf
+
+
+def land_duration_s(height_m: float, vel_down_mps: float, cfg: TrustedParams) -> float:
+    """How long LAND takes from ``height_m`` above home (descending at ``vel_down_mps`` now) to touchdown.
+
+    The profile is LAND's own (:func:`_land_at` shaped by :func:`step`): the vertical command starts at the
+    present vertical velocity and moves at ``max_vertical_decel_mps2`` towards ``land_speed_mps`` while
+    at or above ``land_final_height_m`` and towards ``LAND_FINAL_SPEED_FRACTION`` of it below. Integrated
+    exactly, phase by phase (constant acceleration until the speed is reached, the final height is crossed
+    either way, or the ground is reached). The vehicle tracking the command lags it and the ground may be
+    off home's height: the caller adds a margin. A height at or below home costs nothing; a non-finite input
+    gives infinity (a landing whose length is unknown is due now).
+    """
+    if not (math.isfinite(height_m) and math.isfinite(vel_down_mps)):
+        return math.inf
+    h, v, t = height_m, vel_down_mps, 0.0
+    final_m, accel = cfg.land_final_height_m, cfg.max_vertical_decel_mps2
+    below = h < final_m
+    # each pass ends a ramp or crosses the final height; a climb crosses it at most twice: <= 6 passes
+    for _ in range(8):
+        if h <= 0.0:
+            return t
+        target = cfg.land_speed_mps * (LAND_FINAL_SPEED_FRACTION if below else 1.0)
+        a = 0.0 if v == target else math.copysign(accel, target - v)
+        ramp_s = abs(target - v) / accel if a != 0.0 else math.inf
+        if below:
+            ground_s = _time_to_descend(h, v, a)
+            cross_s = _time_to_descend(final_m - h, -v, -a)  # back up through the final height
+        else:
+            ground_s = math.inf if final_m > 0.0 else _time_to_descend(h, v, a)
+            cross_s = _time_to_descend(h - final_m, v, a) if final_m > 0.0 else math.inf
+        dt = min(ramp_s, ground_s, cross_s)
+        if dt == ground_s:
+            return t + dt
+        t += dt
+        if dt == cross_s:
+            h, v, below = final_m, v + a * dt, not below
+        else:
+            h, v = h - v * dt - 0.5 * a * dt * dt, target
+    return math.inf  # not reached: the passes above always end on the ground
 
 
 def _land_at(xy: Vec3, g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> Setpoint:
-    target = (xy[0], xy[1], s.pos_ned_m[2])
-    vel = position_to_velocity(
-        target, s.pos_ned_m, (0.0, 0.0, 0.0), cfg.position_gain_per_s, cfg.cruise_speed_mps, 0.0, 0.0
-    )
+    if s.nav_mode is NavMode.INERTIAL or s.nav_mode is NavMode.LOST:
+        # No absolute or visual position aid: the position estimate drifts (sigma tens of metres), and
+        # closing on the landing point would chase the drift, manoeuvring and touching down tilted. Descend
+        # holding zero velocity instead (PX4 lands the same way, as its Descend failsafe, without a position).
+        vel: Vec3 = (0.0, 0.0, 0.0)
+    else:
+        target = (xy[0], xy[1], s.pos_ned_m[2])
+        vel = position_to_velocity(
+            target, s.pos_ned_m, (0.0, 0.0, 0.0), cfg.position_gain_per_s, cfg.cruise_speed_mps, 0.0, 0.0
+        )
     # keep commanding descent on the ground: the velocity loop then winds the collective down and the
     # vehicle stays down until it is disarmed (a zero command would hover it back up)
     down = _descend_speed(s, cfg)

@@ -468,7 +468,13 @@ class NavConfig(Strict):
     experimental_requires_gps: bool = Field(True, description="grant EXPERIMENTAL only on GPS navigation")
     max_pos_sigma_h_m: float = Field(5.0, gt=0.0, description="grant only below this sigma")
     inertial_time_limit_s: float = Field(
-        30.0, gt=0.0, description="inertial-only navigation trusted this long, then LAND"
+        30.0, gt=0.0,
+        description="inertial-only navigation trusted this long: LAND starts early enough to touch down by then",
+    )
+    inertial_land_margin_s: float = Field(
+        3.0, ge=0.0, le=60.0,
+        description="added to LAND's own descent time from the present height when deciding when LAND is due"
+        " on inertial-only navigation (the vehicle lags its command; the ground may be off home's height)",
     )
 
 
@@ -595,6 +601,11 @@ class LinksConfig(Strict):
 
     controller: LinkConfig = LinkConfig()
     gcs: LinkConfig = LinkConfig()
+    params_locked: bool = Field(
+        False, description="refuse every PARAM_SET, on the ground too, so the flight flies exactly this file"
+        " (merlin serve --params-locked does the same); false: the ground station may change the envelope"
+        " parameters while the vehicle is disarmed on the ground"
+    )
 
 
 class HomeConfig(Strict):

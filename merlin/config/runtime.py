@@ -118,6 +118,7 @@ def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig
             experimental_requires_gps=cfg.nav.experimental_requires_gps,
             max_pos_sigma_h_m=cfg.nav.max_pos_sigma_h_m,
             inertial_time_limit_s=cfg.nav.inertial_time_limit_s,
+            inertial_land_margin_s=cfg.nav.inertial_land_margin_s,
         ),
         battery=BatteryParams(low_frac=cfg.battery.low_frac, critical_frac=cfg.battery.critical_frac),
         termination_enabled=cfg.arbiter.termination_enabled,

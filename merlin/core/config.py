@@ -113,6 +113,7 @@ class NavParams:
     experimental_requires_gps: bool = True
     max_pos_sigma_h_m: float = 5.0
     inertial_time_limit_s: float = 30.0
+    inertial_land_margin_s: float = 3.0  # added to LAND's own descent time (guidance.land_duration_s)
 
 
 @dataclass(frozen=True, slots=True)

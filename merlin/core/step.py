@@ -76,6 +76,7 @@ class CoreState(NamedTuple):
     clear_statuses: tuple[MonitorStatus, ...] = ()  # one untripped status per table row, built once
     checked_setpoint: Setpoint | None = None
     checked_setpoint_bad: Reason | None = None
+    inertial_land_due: bool = False  # nav_inertial_timeout has tripped and navigation is still inertial-only
 
 
 def initial_state(cfg: CoreConfig) -> CoreState:
@@ -307,6 +308,34 @@ def _grant_block(
     return _setpoint_consistency(sp, s, cfg)
 
 
+def _inertial_landing_due(cfg: CoreConfig, s: VehicleState, already_due: bool) -> Reason | None:
+    """``nav_inertial_timeout``: LAND is due when the inertial-only time at touchdown would reach the limit.
+
+    The trusted inertial time (``nav.inertial_time_limit_s``) bounds the landing, not its start: LAND is due
+    once ``nav_inertial_s + land_s >= limit``, where ``land_s`` is Merlin's own LAND from the present height
+    above home (:func:`guidance.land_duration_s`) plus ``nav.inertial_land_margin_s``. On the ground there is
+    nothing to land (``land_s = 0``): the rule is then the limit itself. Once due, the landing stays due
+    while navigation stays inertial-only (``already_due``): descending as LAND does keeps the sum about
+    constant, and noise in the height or the vertical speed must not un-trip and re-trip the monitor.
+    """
+    limit_s = cfg.nav.inertial_time_limit_s
+    if s.landed:
+        if s.nav_inertial_s < limit_s and not already_due:
+            return None
+        return Reason(ReasonCode.NAV_DEGRADED, "nav_inertial_timeout", "inertial_at_touchdown_s",
+                      s.nav_inertial_s, limit_s, s.nav_inertial_s,
+                      f"inertial-only navigation on the ground for {s.nav_inertial_s:.1f} s: at its {limit_s:g} s limit")
+    height_m = s.alt_m
+    land_s = guidance.land_duration_s(height_m, s.vel_ned_mps[2], cfg.trusted) + cfg.nav.inertial_land_margin_s
+    due_s = s.nav_inertial_s + land_s  # a non-finite height gives land_s = inf: due now
+    if due_s < limit_s and not already_due:
+        return None
+    return Reason(ReasonCode.NAV_DEGRADED, "nav_inertial_timeout", "inertial_at_touchdown_s", due_s, limit_s,
+                  s.nav_inertial_s,
+                  f"inertial-only navigation for {s.nav_inertial_s:.1f} s: landing from {height_m:.1f} m takes"
+                  f" {land_s:.1f} s, due by the {limit_s:g} s limit")
+
+
 def _arm_block(cfg: CoreConfig, s: VehicleState, tripped: dict[str, Reason]) -> Reason | None:
     r = tripped.get("state_invalid")
     if r is not None:
@@ -356,9 +385,12 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     if env.reason is not None:
         tripped["envelope"] = env.reason
     fence_res = None
+    wind_ne = (0.0, 0.0)
     if cfg.fence is not None:
+        if cfg.fence.params.vehicle == "fixed_wing":  # a fixed wing's escape turn drifts with the wind
+            wind_ne = geofence.wind_triangle_ne(s.vel_ned_mps, s.airspeed_mps, s.att_rpy_rad[2])
         fence_res = geofence.check(cfg.fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, s.pos_sigma_v_m,
-                                   not s.landed)
+                                   not s.landed, wind_ne)
         if fence_res.tripped:
             tripped["geofence"] = _fence_reason(fence_res)
     wd = cfg.watchdogs
@@ -383,10 +415,10 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
         if mode is NavMode.VO or mode is NavMode.INERTIAL:
             tripped["nav_gps_lost"] = Reason(ReasonCode.NAV_DEGRADED, "nav_gps_lost", "nav_mode", float(mode),
                                              float(NavMode.GPS), 0.0, f"GPS not trusted: navigating on {mode.name}")
-        if mode is NavMode.INERTIAL and s.nav_inertial_s >= cfg.nav.inertial_time_limit_s:
-            tripped["nav_inertial_timeout"] = Reason(
-                ReasonCode.NAV_DEGRADED, "nav_inertial_timeout", "nav_inertial_s", s.nav_inertial_s,
-                cfg.nav.inertial_time_limit_s, s.nav_inertial_s, "inertial-only navigation beyond its time limit")
+        if mode is NavMode.INERTIAL:
+            r = _inertial_landing_due(cfg, s, st.inertial_land_due)
+            if r is not None:
+                tripped["nav_inertial_timeout"] = r
         if mode is NavMode.LOST:
             tripped["nav_lost"] = Reason(ReasonCode.NAV_LOST, "nav_lost", "nav_mode", float(mode), 0.0, 0.0,
                                          "navigation lost")
@@ -413,7 +445,7 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
             if cfg.fence is not None and sp.kind is not SetpointKind.ATTITUDE:
                 cmd = setpoint_to_command(sp, s, Authority.SHADOW, cfg.trusted)
                 fr = geofence.check(cfg.fence, s.pos_ned_m, cmd.vel_ned_mps, s.pos_sigma_h_m, s.pos_sigma_v_m,
-                                    not s.landed)
+                                    not s.landed, wind_ne)
                 if fr.tripped:
                     shadow_tripped["geofence"] = _fence_reason(fr, "geofence (commanded)")
     else:
@@ -528,6 +560,7 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
         clear_statuses=st.clear_statuses,
         checked_setpoint=sp,
         checked_setpoint_bad=sp_bad,
+        inertial_land_due="nav_inertial_timeout" in tripped if state_bad is None else st.inertial_land_due,
     )
     all_events = tuple(arb_events) + tuple(events)
     decision = Decision(
