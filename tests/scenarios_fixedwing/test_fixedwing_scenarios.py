@@ -205,3 +205,15 @@ def test_seed_004_lap_two_laps_clockwise_through_the_closed_loop() -> None:
     # (the last one still under way at the end of the run)
     turned = math.degrees(float(np.unwrap(log["truth_yaw"])[-1] - log["truth_yaw"][0]))
     assert turned > 560.0
+
+
+def test_campaign_run_74_in_wind_escapes_on_the_side_that_stays_inside() -> None:
+    """The fixed-wing fence campaign's run 74 as a scenario (fw_fence_corner_wind.yaml): a 23.8 m/s approach
+    to the south-west corner in a 2.9 m/s wind. It breached by 50 m when the escape side was chosen by
+    free path first; now the left turn is flown and the range holds with a wide margin."""
+    r = _run_file("fw_fence_corner_wind.yaml")
+    _expectations_pass(r)
+    turns = [e for e in r.events if e["type"] == "fixed_wing_escape_turn"]
+    assert turns and turns[0]["side"] == "left"
+    assert turns[0]["right_free_path_m"] > turns[0]["left_free_path_m"]
+    assert r.metrics["max_fence_breach_m"] == 0.0 and r.metrics["min_fence_margin_m"] > 10.0
