@@ -47,6 +47,9 @@ def register(sub: Any) -> None:
                    help="allow-list of controller system ids, e.g. 1,42; overrides links.controller")
     p.add_argument("--gcs-sysids", default=None,
                    help="allow-list of ground-station system ids, e.g. 255; overrides links.gcs")
+    p.add_argument("--params-locked", action="store_true",
+                   help="refuse every PARAM_SET, on the ground too: fly exactly the reviewed configuration file "
+                        "(links.params_locked: true in the file does the same; this option cannot unlock it)")
     p.add_argument("--out", default=None, help="directory for flight.tlog and events.jsonl "
                                                "(default out/serve/<UTC timestamp>)")
     p.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
@@ -171,6 +174,7 @@ def options_from_args(args: argparse.Namespace) -> Any:
         controller_policy=setups["controller"].policy, gcs_policy=setups["gcs"].policy,
         controller_key_file=setups["controller"].key_file, gcs_key_file=setups["gcs"].key_file,
         tune_gc=not args.no_gc_tuning, realtime_priority=args.realtime_priority,
+        params_locked=args.params_locked or cfg.links.params_locked,
     )
 
 

@@ -1,21 +1,38 @@
-"""The MAVLink parameter protocol over a flat list of named floats (the effective limits), as a pure class.
+"""The MAVLink parameter protocol over a flat list of named floats (the effective limits), as a pure class,
+and the mapping from an envelope parameter to the configuration it changes.
 
 PARAM_REQUEST_LIST answers every parameter in index order; PARAM_REQUEST_READ one, by index or (index
--1) by name; PARAM_SET is refused while ``read_only`` (the owner sets it whenever the vehicle is armed),
-and always when there is no validator (``merlin serve`` has none: the limits are the reviewed
-configuration file's, see icd/ICD.md section 8.2); otherwise it passes through the validator. A refusal
-is answered with the PARAM_VALUE carrying the value in force, which is how the protocol tells a ground
-station that a write failed (mavlink.io, "Parameter Protocol"; PX4 answers a failed set the same way),
-and a STATUSTEXT saying why. Values are MAV_PARAM_TYPE_REAL32
-in the unit of the limit they expose.
+-1) by name. PARAM_SET (icd/ICD.md section 8.2) goes through these checks in order; the first that fails
+refuses it:
+
+1. an unknown id: a STATUSTEXT and no PARAM_VALUE (see :meth:`ParamProtocol._set`);
+2. ``locked`` (``merlin serve --params-locked`` or ``links.params_locked``): the reviewed file is flown as is;
+3. a link not in ``write_links`` (``merlin serve``: only the ground station's; the experimental controller
+   must never rewrite the limits it is judged by);
+4. no validator: read-only;
+5. ``read_only``, the owner's reason, set on every tick while the vehicle is armed or airborne;
+6. a ``param_type`` other than the one the parameter is published with, a non-finite value;
+7. the validator (``merlin serve``'s builds the new configuration through the configuration models, so
+   every bound and cross-field rule of the YAML file applies), which returns why not, or None.
+
+A refusal is answered with the PARAM_VALUE carrying the value in force, which is how the protocol tells a
+ground station that a write failed (mavlink.io, "Parameter Protocol"; PX4 answers a failed set the same
+way), and a STATUSTEXT saying why. An accepted write is answered with the PARAM_VALUE of the new value (as
+PX4 echoes it) and a STATUSTEXT; the owner takes it with :meth:`ParamProtocol.take_writes` and applies it.
+Values are MAV_PARAM_TYPE_REAL32 in the unit of the limit they expose.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from typing import Literal
 
-from merlin.config.models import ENVELOPE_PARAMETERS, Limit
+import numpy as np
+from pydantic import ValidationError
+
+from merlin.config.models import ENVELOPE_PARAMETERS, Limit, MerlinConfig
 from merlin.link import inbound as i
 from merlin.link import outbound as o
 
@@ -42,6 +59,9 @@ ENVELOPE_PARAM_ABBR: dict[str, str] = {
 }
 assert set(ENVELOPE_PARAM_ABBR) == set(ENVELOPE_PARAMETERS)
 
+#: The suffix of an envelope parameter id and the :class:`Limit` field it is.
+ENVELOPE_PARAM_FIELDS: dict[str, str] = {"MIN": "min", "MAX": "max", "DUR": "duration_s", "EN": "enabled"}
+
 
 def envelope_params(limits: Mapping[str, Limit]) -> list[tuple[str, float]]:
     """Parameter ids and values for an effective envelope: ``ENV_<ABBR>_MIN/_MAX/_DUR`` (s) and ``_EN``
@@ -59,21 +79,98 @@ def envelope_params(limits: Mapping[str, Limit]) -> list[tuple[str, float]]:
     return out
 
 
+def envelope_param_target(param_id: str) -> tuple[str, str] | None:
+    """(envelope parameter, :class:`Limit` field) of an ``ENV_<ABBR>_<MIN|MAX|DUR|EN>`` id, else None."""
+    head, _, suffix = param_id.rpartition("_")
+    if not head.startswith("ENV_") or suffix not in ENVELOPE_PARAM_FIELDS:
+        return None
+    abbr = head[len("ENV_"):]
+    for name, a in ENVELOPE_PARAM_ABBR.items():
+        if a == abbr:
+            return name, ENVELOPE_PARAM_FIELDS[suffix]
+    return None
+
+
+def with_envelope_param(cfg: MerlinConfig, param_id: str, value: float) -> MerlinConfig:
+    """``cfg`` with one envelope parameter of the active stage set to ``value``, validated by the same models
+    that validate the YAML file, so every bound and cross-field rule applies; ValueError saying what is
+    allowed (from the models' own error) when they refuse it.
+
+    The change is written into the active stage as an override of the whole limit (the effective limit with
+    one field changed): the stage's ``extends`` chain is left alone, and a stage extending the active one
+    sees the change exactly as if the reviewer had edited the active stage in the file."""
+    target = envelope_param_target(param_id)
+    if target is None:
+        raise ValueError(f"{param_id} is not an envelope parameter")
+    name, fld = target
+    stage = cfg.envelope.active_stage
+    limit = cfg.envelope.resolve(stage)[name].model_dump(mode="json")
+    # a flag arrives as the float 0.0 or 1.0; the model's bool field decides what it accepts
+    limit[fld] = value
+    data = cfg.model_dump(mode="json")
+    data["envelope"]["stages"][stage][name] = limit
+    try:
+        # (no validation context: the key files of ``links:`` were checked when the file was read, and a
+        # parameter never changes them)
+        return MerlinConfig.model_validate(data)
+    except ValidationError as err:
+        raise ValueError(_allowed(err, ("envelope", "stages", stage), fld)) from None
+
+
+def _allowed(err: ValidationError, prefix: tuple[str, ...], fld: str) -> str:
+    """The models' first complaint, with its key path relative to the stage (``roll_deg.duration_s: Input
+    should be less than or equal to 600``)."""
+    e = err.errors()[0]
+    loc = tuple(str(x) for x in e["loc"])
+    if loc[: len(prefix)] == prefix:
+        loc = loc[len(prefix):]
+    msg = str(e["msg"]).removeprefix("Value error, ")
+    if fld == "enabled" and e["type"].startswith("bool"):
+        msg = "allowed 0 (off) or 1 (on)"
+    return f"{'.'.join(loc) or 'envelope'}: {msg}"
+
+
+def float32_decimal(value: float) -> float:
+    """The shortest decimal with the same REAL32 as ``value``: a ground station that sends 0.1 means 0.1,
+    not 0.100000001490116 (what the 32-bit float on the wire is exactly), and the configuration keeps 0.1."""
+    return float(str(np.float32(value)))
+
+
 Validator = Callable[[str, float], str | None]  # returns None to accept, or why not
 
 
+@dataclass(frozen=True, slots=True)
+class ParamWrite:
+    """One PARAM_SET and what became of it, for the owner's log and, when accepted, to apply."""
+
+    t_s: float
+    link: str
+    sender: tuple[int, int]
+    param_id: str
+    asked: float  # the value received
+    result: Literal["accepted", "refused", "unknown"]
+    old: float | None = None  # the value in force before (None: unknown id)
+    new: float | None = None  # the value in force after
+    reason: str = ""
+
+
 class ParamProtocol:
-    def __init__(self, params: Iterable[tuple[str, float]], validator: Validator | None = None) -> None:
+    def __init__(self, params: Iterable[tuple[str, float]], validator: Validator | None = None, *,
+                 locked: bool = False, write_links: frozenset[str] | None = None) -> None:
         self._names: list[str] = []
         self._values: dict[str, float] = {}
         self.replace(params)
         self.validator = validator
-        self.read_only = True
-        self._changes: list[tuple[str, float]] = []
+        self.locked = locked
+        self.write_links = write_links  # links on which PARAM_SET may be accepted; None: any
+        # why writes are refused now ("while armed", ...), None when they may be accepted; the owner sets it
+        # on every tick, and until it has, nothing is known about the vehicle
+        self.read_only: str | None = "while starting"
+        self._writes: list[ParamWrite] = []
         self.refused = 0
 
     def replace(self, params: Iterable[tuple[str, float]]) -> None:
-        """Install a new list (e.g. after the active envelope stage changed)."""
+        """Install a new list (e.g. after the configuration changed); ids in the same order keep their index."""
         names: list[str] = []
         values: dict[str, float] = {}
         for name, value in params:
@@ -96,41 +193,65 @@ class ParamProtocol:
     def value(self, name: str) -> float:
         return self._values[name]
 
-    def take_changes(self) -> list[tuple[str, float]]:
-        """Accepted writes since the last call, for the owner to apply to the configuration."""
-        out, self._changes = self._changes, []
+    def take_writes(self) -> list[ParamWrite]:
+        """Every PARAM_SET since the last call, accepted or not, in arrival order."""
+        out, self._writes = self._writes, []
         return out
 
-    def _pv(self, name: str) -> o.ParamValueOut:
+    def value_message(self, name: str) -> o.ParamValueOut:
         return o.ParamValueOut(name, self._values[name], MAV_PARAM_TYPE_REAL32, len(self._names),
                                self._names.index(name))
 
     def handle(self, rx: i.Received) -> list[o.OutMessage]:
         m = rx.msg
         if isinstance(m, i.ParamRequestListIn):
-            return [self._pv(n) for n in self._names]
+            return [self.value_message(n) for n in self._names]
         if isinstance(m, i.ParamRequestReadIn):
             if m.param_index >= 0:
                 if m.param_index < len(self._names):
-                    return [self._pv(self._names[m.param_index])]
+                    return [self.value_message(self._names[m.param_index])]
                 return []
-            return [self._pv(m.param_id)] if m.param_id in self._values else []
+            return [self.value_message(m.param_id)] if m.param_id in self._values else []
         if isinstance(m, i.ParamSetIn):
-            if m.param_id not in self._values:
-                return []  # unknown id: no PARAM_VALUE, as PX4 does; the sender times out
-            # the two fixed reasons fit one 50-character STATUSTEXT with any 16-character id
-            why = None
-            if self.read_only:
-                why = "read-only while armed"
-            elif self.validator is None:
-                why = "read-only (config file)"
-            else:
-                reason = self.validator(m.param_id, float(m.value))
-                why = None if reason is None else f"not set: {reason}"
-            if why is not None:
-                self.refused += 1
-                return [self._pv(m.param_id), o.StatusTextOut(o.MAV_SEVERITY_WARNING, f"Merlin: {m.param_id} {why}")]
-            self._values[m.param_id] = float(m.value)
-            self._changes.append((m.param_id, float(m.value)))
-            return [self._pv(m.param_id)]
+            return self._set(rx, m)
         return []
+
+    def _refusal(self, rx: i.Received, m: i.ParamSetIn, value: float) -> str | None:
+        """Why this write is refused (the STATUSTEXT after ``Merlin: <id> ``), or None."""
+        if self.locked:
+            return "read-only (locked)"
+        if self.write_links is not None and rx.link not in self.write_links:
+            return f"read-only on the {rx.link} link"
+        if self.validator is None:
+            return "read-only (config file)"
+        if self.read_only is not None:
+            return f"read-only {self.read_only}"
+        if m.param_type != MAV_PARAM_TYPE_REAL32:
+            return f"type {m.param_type} refused: is REAL32 ({MAV_PARAM_TYPE_REAL32})"
+        if not math.isfinite(value):  # (the codec drops these already; kept so the class stands alone)
+            return f"{value} refused: not a finite number"
+        reason = self.validator(m.param_id, value)
+        return None if reason is None else f"{value:g} refused: {reason}"
+
+    def _set(self, rx: i.Received, m: i.ParamSetIn) -> list[o.OutMessage]:
+        sender = (rx.system_id, rx.component_id)
+        asked = float(m.value)
+        if m.param_id not in self._values:
+            # PX4 answers an unknown id with nothing. A PARAM_VALUE is no better: there is no value or index to
+            # give, and QGroundControl adds any id it has not seen to its parameter list (ParameterManager
+            # creates a new Fact for it). So no PARAM_VALUE, the sender's write times out ("parameter write
+            # failed"), and a STATUSTEXT says why in its message panel.
+            self._writes.append(ParamWrite(rx.t_s, rx.link, sender, m.param_id, asked, "unknown",
+                                           reason="unknown parameter"))
+            return [o.StatusTextOut(o.MAV_SEVERITY_WARNING, f"Merlin: {m.param_id} unknown parameter")]
+        old = self._values[m.param_id]
+        value = float32_decimal(asked) if math.isfinite(asked) else asked
+        why = self._refusal(rx, m, value)
+        if why is not None:
+            self.refused += 1
+            self._writes.append(ParamWrite(rx.t_s, rx.link, sender, m.param_id, asked, "refused", old, old, why))
+            return [self.value_message(m.param_id), o.StatusTextOut(o.MAV_SEVERITY_WARNING, f"Merlin: {m.param_id} {why}")]
+        self._values[m.param_id] = value
+        self._writes.append(ParamWrite(rx.t_s, rx.link, sender, m.param_id, asked, "accepted", old, value))
+        return [self.value_message(m.param_id), o.StatusTextOut(o.MAV_SEVERITY_NOTICE, f"Merlin: {m.param_id} set {old:g} -> "
+                                                                           f"{value:g}")]

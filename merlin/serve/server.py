@@ -16,6 +16,12 @@ Inputs (icd/ICD.md sections 4.2, 6, 8): controller HEARTBEAT (and, for controlle
 SET_ATTITUDE_TARGET -> setpoint; MERLIN_AUTHORITY_REQUEST/ACK and the standard OFFBOARD mode command
 (:class:`OffboardModeBridge`) -> exchange; GCS HEARTBEAT -> ground-station link time; MANUAL_CONTROL ->
 operator RC; COMMAND_LONG/INT -> :func:`interpret_command`; mission (fence) and parameter protocols.
+
+The effective configuration changes only on the ground, disarmed, between ticks: a fence upload or an
+accepted PARAM_SET (icd/ICD.md sections 8.1, 8.2) builds the new configuration through the configuration
+models, and :meth:`Server._install_config` rebuilds the trusted core from it, records ``config_changed``
+with the old and new SHA-256 and rewrites ``effective_config.yaml`` in the output directory, so what was
+flown is always on disk next to the logs.
 """
 
 from __future__ import annotations
@@ -35,6 +41,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from merlin.config.loader import config_sha256
 from merlin.config.models import MerlinConfig
 from merlin.config.runtime import build_core_config
 from merlin.core.step import TrustedCore
@@ -72,12 +79,12 @@ from merlin.link.commands import (
 )
 from merlin.link.endpoint import MavlinkEndpoint
 from merlin.link.fence_protocol import FenceDescription, FenceProtocol
-from merlin.link.params import ParamProtocol, envelope_params
+from merlin.link.params import ParamProtocol, ParamWrite, envelope_params, with_envelope_param
 from merlin.link.security import LinkPolicy
 from merlin.link.signing import write_key_file
 from merlin.link.tlog import TlogWriter
 from merlin.serve.link_security import LinkSetup, describe
-from merlin.serve.records import EventLog, TickStats
+from merlin.serve.records import EventLog, TickStats, write_effective_config
 from merlin.serve.streams import CONTROLLER_RATES_HZ, GCS_RATES_HZ, Stream, plan_streams, replan
 
 log = logging.getLogger("merlin.serve")
@@ -103,6 +110,10 @@ BULK_PER_TICK = 2  # bulk messages per link per tick (an encode costs ~0.1 ms, d
 GC_EVERY_TICKS = 250  # a young-generation collection, done by hand right after a tick (small: < 1 ms)
 GC_MIDDLE_EVERY = 20  # every 20th of them collects the middle generation too
 GC_BULK_OBJECTS = 500  # more new objects than this at a collection point are frozen, not traversed
+EFFECTIVE_CONFIG = "effective_config.yaml"  # in the output directory, next to flight.tlog and events.jsonl
+# PARAM_SET is accepted on the ground station's link only: the experimental controller is untrusted and must
+# never rewrite the limits that judge it (icd/ICD.md section 8.2)
+PARAM_WRITE_LINKS = frozenset({"gcs"})
 #: The messages :meth:`Server._stream_messages` produces (streams, and MAV_CMD_REQUEST_MESSAGE answers).
 STREAM_NAMES = frozenset({
     "HEARTBEAT", "ATTITUDE", "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "GPS_RAW_INT", "VFR_HUD", "SYS_STATUS",
@@ -138,6 +149,7 @@ class ServeOptions:
     setpoint_liveness: bool = True  # a valid setpoint also counts as controller liveness (see module doc)
     tune_gc: bool = True
     realtime_priority: int = 0  # >0: run the scheduler thread SCHED_FIFO at this priority (Linux), as the FCU does
+    params_locked: bool = False  # refuse every PARAM_SET (--params-locked; links.params_locked does the same)
 
 
 @dataclass
@@ -208,7 +220,12 @@ class Server:
         self.fence = FenceProtocol(sid, cid, FenceDescription.from_config(self.cfg.geofence, self.frame))
         self._fence_link: _LinkState | None = None
         self.limits = self.cfg.envelope.resolve(self.cfg.envelope.active_stage)
-        self.params = ParamProtocol(envelope_params(self.limits))
+        self.cfg_sha256 = config_sha256(self.cfg)
+        self.params_locked = opts.params_locked or self.cfg.links.params_locked
+        self.params = ParamProtocol(envelope_params(self.limits), self._check_param, locked=self.params_locked,
+                                    write_links=PARAM_WRITE_LINKS)
+        self.effective_config = opts.out_dir / EFFECTIVE_CONFIG
+        self._write_effective_config()
         self.pending = _Pending()
         self.hb_t: float | None = None
         self.gcs_t: float | None = None
@@ -299,14 +316,14 @@ class Server:
             self._on_command(ls, rx, m, sender)
             return
         if isinstance(m, (i.ParamRequestListIn, i.ParamRequestReadIn, i.ParamSetIn)):
-            refused = self.params.refused
-            ls.bulk.extend(self.params.handle(rx))
-            if isinstance(m, i.ParamSetIn):  # every write is logged with its outcome (ICD 8.2)
-                known = m.param_id in self.params
-                result = "unknown" if not known else ("refused" if self.params.refused > refused else "accepted")
-                self.events.write({"t": t, "type": "param_set", "result": result, "link": ls.name,
-                                   "sender": list(sender), "param": m.param_id, "value": m.value,
-                                   "in_force": self.params.value(m.param_id) if known else None})
+            outs = self.params.handle(rx)
+            changed = False
+            for w in self.params.take_writes():  # (one at most: this is one message)
+                outs, changed = self._on_param_write(w, outs)
+            # a changed value goes to every link, as the protocol asks, so every ground station's list stays
+            # true; anything else answers the sender's link only
+            for dest in (self.links if changed else [ls]):
+                dest.bulk.extend(outs)
             return
         if isinstance(m, i.MissionClearAllIn):
             for out in self.fence.handle_clear_all(sender):
@@ -395,13 +412,75 @@ class Server:
                                "detail": res.detail})
             if res.upload and res.fence is not None and res.result == 0:
                 geo = res.fence.apply_to(self.cfg.geofence)
-                self.cfg = self.cfg.model_copy(update={"geofence": geo})
-                core_cfg = build_core_config(self.cfg, source="fence upload")
-                # uploads are refused while armed (ICD 8.1), so the core is on the ground: its state carries over
-                self.loop.core = TrustedCore(core_cfg, self.loop.core.state)
-                self.loop.core_cfg = core_cfg
+                # uploads are refused while armed (ICD 8.1)
+                self._install_config(self.cfg.model_copy(update={"geofence": geo}), {"source": "fence upload"})
                 self.events.write({"t": self.t, "type": "fence_applied",
                                    "polygons": len(res.fence.polygons), "circles": len(res.fence.circles)})
+
+    # -------------------------------------------------------------------------- configuration
+
+    def _check_param(self, param_id: str, value: float) -> str | None:
+        """The parameter protocol's validator: None if the configuration models accept the new value."""
+        try:
+            with_envelope_param(self.cfg, param_id, value)
+        except ValueError as exc:
+            return str(exc)
+        return None
+
+    def _on_param_write(self, w: ParamWrite, outs: list[o.OutMessage]) -> tuple[list[o.OutMessage], bool]:
+        """Log a PARAM_SET with its outcome (ICD 8.2) and apply it if it changed a value. Returns the answer
+        to send and whether the configuration changed."""
+        self.events.write({"t": w.t_s, "type": "param_set", "result": w.result, "link": w.link,
+                           "sender": list(w.sender), "param": w.param_id, "value": w.asked, "in_force": w.new,
+                           "reason": w.reason or None})
+        if w.result != "accepted" or w.new == w.old:
+            return outs, False
+        assert w.new is not None and w.old is not None
+        try:
+            # (validated a moment ago by _check_param on this same configuration: ~0.5 ms to build again)
+            cfg = with_envelope_param(self.cfg, w.param_id, w.new)
+            self._install_config(cfg, {"source": "PARAM_SET", "link": w.link, "sender": list(w.sender),
+                                       "param": w.param_id, "old": w.old, "new": w.new})
+        except Exception:  # a bug: the configuration in force stays, and the ground station is told so
+            log.exception("applying %s = %g", w.param_id, w.new)
+            self.events.write({"t": self.t, "type": "serve_error", "detail": f"applying PARAM_SET {w.param_id}"})
+            self.params.replace(envelope_params(self.limits))
+            return [self.params.value_message(w.param_id),
+                    o.StatusTextOut(o.MAV_SEVERITY_WARNING, f"Merlin: {w.param_id} not set (internal error)")], False
+        return outs, True
+
+    def _install_config(self, cfg: MerlinConfig, record: dict[str, Any]) -> None:
+        """Make ``cfg`` the effective configuration: rebuild the trusted core from it, publish its envelope
+        as parameters, record ``config_changed`` and rewrite ``effective_config.yaml``.
+
+        Only ever called between ticks (from decoding what arrived), and only on the ground and disarmed:
+        fence uploads are refused while armed, PARAM_SET while armed or airborne. The core's state carries
+        over; if the number of enabled envelope limits changed, the core restarts its exceedance timers
+        itself (``merlin.core.step.step``), which on the ground loses nothing that matters. Building the
+        core's configuration takes ~40 ms (the fence grid): a few ticks start late, on the ground."""
+        if self.loop.armed:
+            raise RuntimeError("the configuration cannot change while armed")
+        core_cfg = build_core_config(cfg, source=str(record.get("source", "<serve>")))
+        self.loop.core = TrustedCore(core_cfg, self.loop.core.state)
+        self.loop.core_cfg = core_cfg
+        self.loop.cfg = cfg
+        old_sha, self.cfg, self.cfg_sha256 = self.cfg_sha256, cfg, core_cfg.config_sha256
+        self.limits = cfg.envelope.resolve(cfg.envelope.active_stage)
+        self.params.replace(envelope_params(self.limits))
+        try:
+            self._write_effective_config()
+        except OSError as exc:  # the change is made and recorded below with its SHA-256 either way
+            log.error("cannot write %s: %s", self.effective_config, exc)
+            self.events.write({"t": self.t, "type": "serve_error", "detail": f"writing {EFFECTIVE_CONFIG}: {exc}"})
+        self.events.write({"t": self.t, "type": "config_changed", **record, "old_sha256": old_sha,
+                           "new_sha256": self.cfg_sha256, "effective_config": str(self.effective_config)})
+
+    def _write_effective_config(self) -> None:
+        write_effective_config(self.effective_config, self.cfg.model_dump(mode="json"), [
+            f"The effective configuration of merlin serve, SHA-256 {self.cfg_sha256}",
+            f"(started from {self.opts.config_source}; every change is a config_changed record in events.jsonl).",
+            "Key files under links: are relative to the directory of the configuration it started from.",
+        ])
 
     # ---------------------------------------------------------------------------------- tick
 
@@ -447,9 +526,9 @@ class Server:
             for msg in due:
                 self._broadcast(msg)
         self.fence.accept_uploads = not d.armed
-        # PARAM_SET is always refused: there is no validator, the limits are the configuration file's (ICD
-        # 8.2); read_only only chooses the reason given (armed, or set by the file)
-        self.params.read_only = d.armed
+        # PARAM_SET may change the configuration only on the ground and disarmed (ICD 8.2); what arrives until
+        # the next tick is judged by this tick's decision and state
+        self.params.read_only = "while armed" if d.armed else (None if state.landed else "while airborne")
         if self.fence.busy:
             outs = self.fence.tick(t)
             if outs and self._fence_link is not None:
@@ -710,7 +789,10 @@ class Server:
         """Serve until the duration elapses or :meth:`stop`; returns the timing and link statistics."""
         opts = self.opts
         self.events.write({"t": 0.0, "type": "serve_start", "rate_hz": opts.rate_hz, "speedup": opts.speedup,
-                           "config": opts.config_source, "links": {
+                           "config": opts.config_source, "config_sha256": self.cfg_sha256,
+                           "effective_config": str(self.effective_config),
+                           "params": "locked" if self.params_locked else "writable on the ground (gcs link)",
+                           "links": {
                                ls.name: {"local": getattr(ls.endpoint.transport, "local_address", None),
                                          "remote": ls.endpoint.remote, "security": self._security(ls)}
                                for ls in self.links}})

@@ -1,23 +1,41 @@
-"""The parameter protocol over the effective limits: list, read, and read-only in flight."""
+"""The parameter protocol over the effective limits: list, read, writes refused in flight, locked or on a link
+that may not write, and writes on the ground through the configuration models."""
 
 from __future__ import annotations
 
-import pytest
+import math
 
-from merlin.config.models import ENVELOPE_PARAMETERS, EnvelopeConfig
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from merlin.config.loader import config_sha256
+from merlin.config.models import ENVELOPE_PARAMETERS, EnvelopeConfig, MerlinConfig
 from merlin.link import inbound as i
 from merlin.link import outbound as o
-from merlin.link.params import ParamProtocol, envelope_params
+from merlin.link.params import (
+    ParamProtocol,
+    envelope_param_target,
+    envelope_params,
+    float32_decimal,
+    with_envelope_param,
+)
 
 GCS = (255, 190)
+IDS = [n for n, _ in envelope_params(EnvelopeConfig().effective())]
 
 
-def _rx(msg: object) -> i.Received:
-    return i.Received(0.0, "gcs", *GCS, False, msg)  # type: ignore[arg-type]
+def _rx(msg: object, link: str = "gcs") -> i.Received:
+    return i.Received(0.0, link, *GCS, False, msg)  # type: ignore[arg-type]
 
 
-def _proto(validator: object = None) -> ParamProtocol:
-    return ParamProtocol(envelope_params(EnvelopeConfig().effective()), validator)  # type: ignore[arg-type]
+def _proto(validator: object = None, **kw: object) -> ParamProtocol:
+    return ParamProtocol(envelope_params(EnvelopeConfig().effective()), validator, **kw)  # type: ignore[arg-type]
+
+
+def _set(name: str, value: float, param_type: int = 9) -> i.ParamSetIn:
+    return i.ParamSetIn(1, 1, name, value, param_type)
 
 
 def test_envelope_params_ids_fit_and_are_unique() -> None:
@@ -26,6 +44,14 @@ def test_envelope_params_ids_fit_and_are_unique() -> None:
     assert len(names) == len(ENVELOPE_PARAMETERS) * 4 == len(set(names))
     assert all(len(n) <= 16 for n in names)
     assert dict(params)["ENV_ROLL_MAX"] == 30.0 and dict(params)["ENV_AIRSPD_EN"] == 0.0
+
+
+def test_every_published_id_names_its_limit_field() -> None:
+    assert envelope_param_target("ENV_ROLL_MAX") == ("roll_deg", "max")
+    assert envelope_param_target("ENV_P_DUR") == ("roll_rate_degps", "duration_s")
+    assert envelope_param_target("ENV_AOA_EN") == ("alpha_deg", "enabled")
+    assert all(envelope_param_target(n) is not None for n in IDS)
+    assert envelope_param_target("ENV_NOPE_MAX") is None and envelope_param_target("ROLL_MAX") is None
 
 
 def test_request_list_and_read() -> None:
@@ -45,31 +71,88 @@ def test_request_list_and_read() -> None:
 
 def test_set_refused_in_flight_echoes_current_value() -> None:
     p = _proto(lambda name, value: None)
-    p.read_only = True
-    out = p.handle(_rx(i.ParamSetIn(1, 1, "ENV_ROLL_MAX", 60.0, 9)))
+    p.read_only = "while armed"
+    out = p.handle(_rx(_set("ENV_ROLL_MAX", 60.0)))
     assert out[0].value == 30.0  # type: ignore[union-attr]
-    assert isinstance(out[1], o.StatusTextOut) and "read-only" in out[1].text
-    assert p.value("ENV_ROLL_MAX") == 30.0 and p.take_changes() == [] and p.refused == 1
+    assert isinstance(out[1], o.StatusTextOut) and out[1].text == "Merlin: ENV_ROLL_MAX read-only while armed"
+    assert p.value("ENV_ROLL_MAX") == 30.0 and p.refused == 1
+    [w] = p.take_writes()
+    assert (w.result, w.old, w.new, w.reason) == ("refused", 30.0, 30.0, "read-only while armed")
+
+
+def test_the_protocol_is_read_only_until_the_owner_says_otherwise() -> None:
+    p = _proto(lambda name, value: None)
+    assert p.handle(_rx(_set("ENV_ROLL_MAX", 25.0)))[0].value == 30.0  # type: ignore[union-attr]
 
 
 def test_set_on_ground_goes_through_the_validator() -> None:
     def validator(name: str, value: float) -> str | None:
-        return None if value <= 45.0 else f"{name} above 45"
+        return None if value <= 45.0 else "roll_deg.max: at most 45"
 
     p = _proto(validator)
-    p.read_only = False
-    assert p.handle(_rx(i.ParamSetIn(1, 1, "ENV_ROLL_MAX", 40.0, 9)))[0].value == 40.0  # type: ignore[union-attr]
-    refused = p.handle(_rx(i.ParamSetIn(1, 1, "ENV_ROLL_MAX", 50.0, 9)))
-    assert refused[0].value == 40.0 and "above 45" in refused[1].text  # type: ignore[union-attr]
-    assert p.take_changes() == [("ENV_ROLL_MAX", 40.0)]
-    assert p.handle(_rx(i.ParamSetIn(1, 1, "UNKNOWN", 1.0, 9))) == []
+    p.read_only = None
+    ok = p.handle(_rx(_set("ENV_ROLL_MAX", 40.0)))
+    assert ok[0].value == 40.0  # type: ignore[union-attr]
+    assert isinstance(ok[1], o.StatusTextOut) and ok[1].text == "Merlin: ENV_ROLL_MAX set 30 -> 40"
+    refused = p.handle(_rx(_set("ENV_ROLL_MAX", 50.0)))
+    assert refused[0].value == 40.0  # type: ignore[union-attr]
+    assert refused[1].text == "Merlin: ENV_ROLL_MAX 50 refused: roll_deg.max: at most 45"  # type: ignore[union-attr]
+    assert [(w.result, w.old, w.new) for w in p.take_writes()] == [("accepted", 30.0, 40.0), ("refused", 40.0, 40.0)]
+
+
+def test_unknown_id_gets_a_statustext_and_no_param_value() -> None:
+    p = _proto(lambda name, value: None)
+    p.read_only = None
+    out = p.handle(_rx(_set("UNKNOWN", 1.0)))
+    assert out == [o.StatusTextOut(o.MAV_SEVERITY_WARNING, "Merlin: UNKNOWN unknown parameter")]
+    [w] = p.take_writes()
+    assert (w.result, w.old, w.new) == ("unknown", None, None)
 
 
 def test_without_validator_parameters_are_read_only_even_on_ground() -> None:
     p = _proto()
-    p.read_only = False
-    out = p.handle(_rx(i.ParamSetIn(1, 1, "ENV_ROLL_MAX", 40.0, 9)))
+    p.read_only = None
+    out = p.handle(_rx(_set("ENV_ROLL_MAX", 40.0)))
     assert out[0].value == 30.0  # type: ignore[union-attr]
+    assert out[1].text == "Merlin: ENV_ROLL_MAX read-only (config file)"  # type: ignore[union-attr]
+
+
+def test_locked_refuses_everything_with_the_reason_locked() -> None:
+    p = _proto(lambda name, value: None, locked=True)
+    for read_only in (None, "while armed"):
+        p.read_only = read_only
+        out = p.handle(_rx(_set("ENV_ROLL_MAX", 25.0)))
+        assert out[0].value == 30.0  # type: ignore[union-attr]
+        assert out[1].text == "Merlin: ENV_ROLL_MAX read-only (locked)"  # type: ignore[union-attr]
+
+
+def test_only_the_write_links_may_write() -> None:
+    p = _proto(lambda name, value: None, write_links=frozenset({"gcs"}))
+    p.read_only = None
+    out = p.handle(_rx(_set("ENV_ROLL_MAX", 25.0), link="controller"))
+    assert out[0].value == 30.0  # type: ignore[union-attr]
+    assert out[1].text == "Merlin: ENV_ROLL_MAX read-only on the controller link"  # type: ignore[union-attr]
+    assert p.handle(_rx(_set("ENV_ROLL_MAX", 25.0), link="gcs"))[0].value == 25.0  # type: ignore[union-attr]
+
+
+def test_wrong_type_and_non_finite_values_are_refused() -> None:
+    p = _proto(lambda name, value: None)
+    p.read_only = None
+    out = p.handle(_rx(_set("ENV_ROLL_MAX", 25.0, param_type=6)))  # MAV_PARAM_TYPE_INT32
+    assert out[0].value == 30.0  # type: ignore[union-attr]
+    assert out[1].text == "Merlin: ENV_ROLL_MAX type 6 refused: is REAL32 (9)"  # type: ignore[union-attr]
+    for bad in (math.nan, math.inf, -math.inf):
+        out = p.handle(_rx(_set("ENV_ROLL_MAX", bad)))
+        assert out[0].value == 30.0 and "not a finite number" in out[1].text  # type: ignore[union-attr]
+
+
+def test_a_real32_on_the_wire_is_kept_as_the_decimal_that_was_meant() -> None:
+    assert float32_decimal(float(np.float32(0.1))) == 0.1
+    assert float32_decimal(float(np.float32(27.3))) == 27.3
+    p = _proto(lambda name, value: None)
+    p.read_only = None
+    p.handle(_rx(_set("ENV_ROLL_DUR", float(np.float32(0.3)))))
+    assert p.value("ENV_ROLL_DUR") == 0.3
 
 
 def test_bad_parameter_lists_are_refused() -> None:
@@ -79,3 +162,49 @@ def test_bad_parameter_lists_are_refused() -> None:
         ParamProtocol([("A", 1.0), ("A", 2.0)])
     with pytest.raises(ValueError, match="finite"):
         ParamProtocol([("A", float("nan"))])
+
+
+# ------------------------------------------------------------------------ parameters -> configuration
+
+
+def test_a_write_changes_the_active_stage_through_the_models() -> None:
+    cfg = MerlinConfig()
+    new = with_envelope_param(cfg, "ENV_ROLL_MAX", 25.0)
+    assert new.envelope.effective()["roll_deg"].max == 25.0
+    assert new.envelope.effective()["roll_deg"].min == -30.0
+    assert config_sha256(new) != config_sha256(cfg)
+    assert config_sha256(with_envelope_param(new, "ENV_ROLL_MAX", 30.0)) != config_sha256(new)
+    off = with_envelope_param(cfg, "ENV_ROLL_EN", 0.0)
+    assert off.envelope.effective()["roll_deg"].enabled is False
+
+
+def test_a_write_to_an_extending_stage_overrides_only_that_stage() -> None:
+    cfg = MerlinConfig.model_validate({"envelope": {"active_stage": "expanded"}})
+    new = with_envelope_param(cfg, "ENV_AIRSPD_MAX", 25.0)  # airspeed: inherited from conservative
+    assert new.envelope.resolve("expanded")["airspeed_mps"].max == 25.0
+    assert new.envelope.resolve("conservative") == cfg.envelope.resolve("conservative")
+
+
+@pytest.mark.parametrize(("param", "value", "allowed"), [
+    ("ENV_ROLL_DUR", 700.0, "roll_deg.duration_s: Input should be less than or equal to 600"),
+    ("ENV_ROLL_DUR", -1.0, "roll_deg.duration_s: Input should be greater than or equal to 0"),
+    ("ENV_ROLL_MAX", -45.0, "roll_deg: min (-30.0) must not exceed max (-45.0)"),
+    ("ENV_ROLL_EN", 0.5, "roll_deg.enabled: allowed 0 (off) or 1 (on)"),
+])
+def test_what_the_models_refuse_is_refused_saying_what_is_allowed(param: str, value: float, allowed: str) -> None:
+    with pytest.raises(ValueError) as err:
+        with_envelope_param(MerlinConfig(), param, value)
+    assert str(err.value) == allowed
+
+
+@given(st.sampled_from(IDS), st.floats(allow_nan=False, allow_infinity=False, width=32))
+def test_a_write_either_changes_exactly_that_parameter_or_is_refused(param: str, value: float) -> None:
+    cfg = MerlinConfig()
+    before = dict(envelope_params(cfg.envelope.effective()))
+    try:
+        new = with_envelope_param(cfg, param, value)
+    except ValueError:
+        return
+    after = dict(envelope_params(new.envelope.effective()))
+    assert after[param] == (float(bool(value)) if param.endswith("_EN") else value)
+    assert {k: v for k, v in after.items() if k != param} == {k: v for k, v in before.items() if k != param}

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 import time
@@ -15,14 +16,15 @@ from tests.serve.conftest import ROOT, ServeProc
 pytestmark = pytest.mark.integration
 
 
-def test_mavproxy_connects_reads_params_arms_and_takes_off(serve: ServeProc, tmp_path: Path) -> None:
+def test_mavproxy_connects_sets_a_param_on_the_ground_arms_and_takes_off(serve: ServeProc, tmp_path: Path) -> None:
     pytest.importorskip("MAVProxy")
     state = tmp_path / "mavproxy"
     state.mkdir()
     # MAVProxy's takeoff altitude is what it sends in MAV_CMD_NAV_TAKEOFF param7: above mean sea level for
     # a PX4-style vehicle (icd/ICD.md section 2); the default home is 30 m AMSL, so 45 is 15 m above home.
-    script = ("sleep 15; echo 'arm throttle'; sleep 4; echo 'takeoff 45'; sleep 8; echo 'param show ENV_ROLL_MAX';"
-              " sleep 2")
+    # A parameter set on the ground is accepted; in flight it is refused (MAVProxy retries, then gives up).
+    script = ("sleep 15; echo 'param set ENV_ROLL_MAX 25'; sleep 3; echo 'arm throttle'; sleep 4; echo 'takeoff 45';"
+              " sleep 8; echo 'param set ENV_ROLL_MAX 40'; sleep 5; echo 'param show ENV_ROLL_MAX'; sleep 2")
     for _ in range(600):  # serve is up (its start record written) before MAVProxy's clock starts
         if any(e["type"] == "serve_start" for e in serve.events()):
             break
@@ -38,9 +40,17 @@ def test_mavproxy_connects_reads_params_arms_and_takes_off(serve: ServeProc, tmp
     assert "Detected vehicle 1:1" in out, out[-2000:]
     assert "COMPONENT_ARM_DISARM: ACCEPTED" in out, out[-2000:]
     assert "NAV_TAKEOFF: ACCEPTED" in out, out[-2000:]
-    assert "ENV_ROLL_MAX" in out and "30" in out, out[-2000:]
-    kinds = [(e["type"], e.get("command")) for e in serve.events()]
+    assert "Merlin: ENV_ROLL_MAX set 30 -> 25" in out, out[-2000:]
+    assert "Merlin: ENV_ROLL_MAX read-only while armed" in out, out[-2000:]
+    assert re.search(r"ENV_ROLL_MAX\s+25(\.0*)?\s*$", out, re.MULTILINE), out[-2000:]  # param show (after a prompt)
+    events = serve.events()
+    kinds = [(e["type"], e.get("command")) for e in events]
     assert ("command_ack", "TAKEOFF") in kinds
+    assert [(e["param"], e["old"], e["new"]) for e in events if e["type"] == "config_changed"] == [
+        ("ENV_ROLL_MAX", 30.0, 25.0)]
+    refused = {(e["param"], e["value"], e["in_force"]) for e in events if e["type"] == "param_set"
+               and e["result"] == "refused"}
+    assert refused == {("ENV_ROLL_MAX", 40.0, 25.0)}
     # the tlog MAVProxy wrote parses with pymavlink and holds Merlin's heartbeats
     from pymavlink import mavutil
 

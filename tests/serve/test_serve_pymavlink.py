@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from merlin.config.loader import config_sha256, load_config
 from tests.serve.conftest import (
     ServeProc,
     arm_and_takeoff,
@@ -117,6 +118,12 @@ def test_fence_upload_then_fence_revocation(serve: ServeProc) -> None:
     pos = wait_for(m, lambda x: x.get_type() == "LOCAL_POSITION_NED")
     assert math.hypot(pos.x, pos.y) < 60.0, "the revocation comes before the fence, not after"
     assert any(e["type"] == "fence_applied" for e in serve.events())
+    # the upload changed the effective configuration: recorded with both hashes, and on disk
+    [changed] = [e for e in serve.events() if e["type"] == "config_changed"]
+    assert changed["source"] == "fence upload" and changed["old_sha256"] != changed["new_sha256"]
+    flown = load_config(serve.out / "effective_config.yaml")
+    assert config_sha256(flown) == changed["new_sha256"]
+    assert [c.radius_m for c in flown.geofence.inclusion_circles] == [60.0]
 
 
 def test_signing_and_hostile_frames(tmp_path: Path) -> None:

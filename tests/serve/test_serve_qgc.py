@@ -1,5 +1,5 @@
 """QGroundControl's connection sequence, replayed with pymavlink against a ``merlin serve`` subprocess, and the
-parameter protocol's refusal of PARAM_SET.
+parameter protocol's refusal of PARAM_SET in flight.
 
 QGroundControl cannot run here (no display). What it sends on connecting to a PX4 vehicle was read from its
 sources (``src/Vehicle/InitialConnectStateMachine.cc``, ``Vehicle.cc``, ``MissionManager``/``PlanManager``,
@@ -132,7 +132,8 @@ def test_qgroundcontrol_initial_connection_completes(serve: ServeProc) -> None:
     assert stop_rec["links"]["gcs"]["frame_errors"] == {} and stop_rec["links"]["gcs"]["rejected"] == {}
 
 
-def test_param_set_is_refused_with_the_value_in_force_and_a_reason(serve: ServeProc) -> None:
+def test_param_set_in_flight_is_refused_with_the_value_in_force_and_a_reason(serve: ServeProc) -> None:
+    # (on the ground, disarmed, a write is accepted: tests/serve/test_serve_params.py)
     m = gcs_connection(serve.gcs_port)
     m.mav.param_request_read_send(1, 1, b"ENV_ROLL_MAX", -1)
     before = wait_for(m, lambda x: x.get_type() == "PARAM_VALUE" and x.param_id == "ENV_ROLL_MAX")
@@ -144,24 +145,25 @@ def test_param_set_is_refused_with_the_value_in_force_and_a_reason(serve: ServeP
         text = wait_for(m, lambda x: x.get_type() == "STATUSTEXT" and x.text.startswith("Merlin: ENV_ROLL_MAX "))
         return pv, text
 
-    pv, text = set_and_answer(60.0)  # on the ground
-    assert pv is not None and pv.param_value == pytest.approx(30.0)
-    assert (pv.param_index, pv.param_count) == (before.param_index, before.param_count)
-    assert text is not None and text.text == "Merlin: ENV_ROLL_MAX read-only (config file)"
-    ack = command(m, 400, 1.0)  # armed: refused as well, for the other reason
+    ack = command(m, 400, 1.0)  # armed: the limits in force are the ones flown
     assert ack is not None and ack.result == MAV_RESULT_ACCEPTED
     pv, text = set_and_answer(45.0)
     assert pv is not None and pv.param_value == pytest.approx(30.0)
+    assert (pv.param_index, pv.param_count) == (before.param_index, before.param_count)
     assert text is not None and text.text == "Merlin: ENV_ROLL_MAX read-only while armed"
-    m.mav.param_set_send(1, 1, b"NO_SUCH_PARAM", 1.0, 9)  # unknown id: no answer (as PX4), but logged
-    assert wait_for(m, lambda x: x.get_type() == "PARAM_VALUE" and x.param_id == "NO_SUCH_PARAM", 2.0) is None
+    # unknown id: no PARAM_VALUE (QGroundControl would add it to its list), a STATUSTEXT, and logged
+    m.mav.param_set_send(1, 1, b"NO_SUCH_PARAM", 1.0, 9)
+    text = wait_for(m, lambda x: x.get_type() in ("PARAM_VALUE", "STATUSTEXT") and "NO_SUCH_PARAM" in (
+        getattr(x, "param_id", "") + getattr(x, "text", "")))
+    assert text is not None and text.get_type() == "STATUSTEXT" and text.text == "Merlin: NO_SUCH_PARAM unknown parameter"
     m.mav.param_request_read_send(1, 1, b"ENV_ROLL_MAX", -1)
     after = wait_for(m, lambda x: x.get_type() == "PARAM_VALUE" and x.param_id == "ENV_ROLL_MAX")
     assert after is not None and after.param_value == pytest.approx(30.0)
     m.close()
     stop(serve)
     sets = [e for e in serve.events() if e["type"] == "param_set"]
-    assert [(e["param"], e["result"], e["value"], e["in_force"]) for e in sets] == [
-        ("ENV_ROLL_MAX", "refused", 60.0, 30.0), ("ENV_ROLL_MAX", "refused", 45.0, 30.0),
-        ("NO_SUCH_PARAM", "unknown", 1.0, None)]
+    assert [(e["param"], e["result"], e["value"], e["in_force"], e["reason"]) for e in sets] == [
+        ("ENV_ROLL_MAX", "refused", 45.0, 30.0, "read-only while armed"),
+        ("NO_SUCH_PARAM", "unknown", 1.0, None, "unknown parameter")]
     assert all(e["link"] == "gcs" and e["sender"] == [255, 190] for e in sets)
+    assert not [e for e in serve.events() if e["type"] == "config_changed"]
