@@ -73,25 +73,9 @@ def open_flight(seed: int, minutes: float, with_vo: bool) -> dict[str, float]:
 
 def closed_flight(seed: int, minutes: float, texture: str) -> dict[str, float]:
     from sims.runner import run_scenario
-    from sims.scenario import Scenario
+    from sims.vision_loop import nominal_mission
 
-    rng = np.random.default_rng(7000 + seed)
-    duration = minutes * 60.0
-    wps: list[list[float]] = []
-    while len(wps) < duration * 6.0 / 40.0 + 2:  # legs of ~40 m at the 6 m/s cruise speed
-        n, e = rng.uniform(-60.0, 60.0, 2)
-        wps.append([float(n), float(e), -float(rng.uniform(10.0, 25.0))])
-    sc = Scenario.model_validate({
-        "name": f"nominal_nav_{seed}",
-        "duration_s": duration,
-        "seed": seed,
-        "estimator": "ekf",
-        "camera": {"texture": texture, "rate_hz": 15},
-        "config": {"name": "nav-hour", "trusted": {"mission_ned_m": wps, "rtl_altitude_m": 20.0}},
-        "gcs": [{"t": 0.5, "command": "arm"}, {"t": 1.0, "command": "takeoff", "param": 10},
-                {"t": 8.0, "command": "mission"}],
-        "log_rate_hz": 5.0,
-    })
+    sc = nominal_mission(seed, minutes, texture)
     from sims.scenario import resolve_config
 
     cfg = resolve_config(sc, Path("."), "<bench_nav_hour>")
@@ -99,7 +83,11 @@ def closed_flight(seed: int, minutes: float, texture: str) -> dict[str, float]:
     r = run_scenario(sc, cfg, source="<bench_nav_hour>")
     cpu = time.process_time() - c0
     g = r.nav.get("gps", {})
-    airborne = float(np.sum(r.log["landed"] < 0.5)) / 5.0
+    air = r.log["landed"] < 0.5
+    airborne = float(np.sum(air)) / 5.0
+    height_err = np.abs(r.log["est_d"] - r.log["truth_d"])[air]
+    vo = r.nav.get("vo", {})
+    vo_err = np.hypot(vo["err_vn"], vo["err_ve"]) if len(vo.get("err_vn", ())) else np.array([np.nan])
     return {
         "flown_s": airborne,
         "exclusions": sum(e["type"] == "nav_excluded" for e in r.events),
@@ -111,6 +99,9 @@ def closed_flight(seed: int, minutes: float, texture: str) -> dict[str, float]:
         "vo_cusum": float(np.nanmax(g["vo_cusum"])) if len(g.get("vo_cusum", ())) else 0.0,
         "vo_valid": float(np.mean(r.nav["vo"]["valid"])) if r.nav.get("vo") else 0.0,
         "battery_end": float(r.log["battery_frac"][-1]),
+        "height_err": float(height_err.max()) if len(height_err) else math.nan,
+        "sigma_v": float(np.nanmax(g["sigma_v_m"])) if len(g.get("sigma_v_m", ())) else math.nan,
+        "vo_err_rms": float(np.sqrt(np.nanmean(vo_err**2))),
         "cpu_s": cpu,
     }
 
@@ -158,7 +149,9 @@ def main() -> None:
             print(f"| closed | {textures[i % 3]} | seed {i + 1} | {res['flown_s'] / 60:.1f} min airborne | "
                   f"{res['exclusions']} excl | {res['rejections']} GPS rej | {res['vo_rejections']} VO rej | "
                   f"CUSUM {res['cusum']:.2f} | window {res['window_cusum']:.2f} | GPS-VO {res['vo_cusum']:.2f} | "
-                  f"VO valid {res['vo_valid']:.3f} | battery {res['battery_end']:.2f} | {res['cpu_s']:.0f} s CPU |",
+                  f"VO valid {res['vo_valid']:.3f} | VO error rms {res['vo_err_rms']:.3f} m/s | largest height error "
+                  f"{res['height_err']:.2f} m (largest sigma_v {res['sigma_v']:.2f} m) | battery {res['battery_end']:.2f} | "
+                  f"{res['cpu_s']:.0f} s CPU |",
                   flush=True)
             for k, v in res.items():
                 add = k in ("flown_s", "exclusions", "rejections", "vo_rejections", "cpu_s")

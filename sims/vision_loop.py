@@ -29,7 +29,7 @@ from merlin.nav.estimator import GpsStatus, NavEstimator
 from merlin.vision.camera_model import CameraModel
 from merlin.vision.vo import VisualOdometry
 from sims.camera import DownwardCamera, load_texture
-from sims.scenario import Camera
+from sims.scenario import Camera, Scenario
 from sims.sensors import dipole_field_ned_gauss
 
 # Below this true height the camera sees the landing pad, not the textured ground (and a rendered plane
@@ -50,6 +50,30 @@ def nav_filter_config(cfg: MerlinConfig) -> NavConfig:
     return NavConfig(
         inertial_time_limit_s=cfg.nav.inertial_time_limit_s, mag_declination_rad=math.atan2(east, north)
     )
+
+
+def nominal_mission(seed: int, minutes: float, texture: str) -> Scenario:
+    """The nominal closed-loop flight of the false-exclusion benchmark (``benchmarks/bench_nav_hour.py
+    --part closed``): a random polygon mission at the 6 m/s cruise speed, legs of ~40 m at 10-25 m, the
+    camera over ``texture`` at 15 frames/s, no fault. The waypoints depend on ``seed`` only (the first
+    ones do not change with ``minutes``)."""
+    rng = np.random.default_rng(7000 + seed)
+    duration = minutes * 60.0
+    wps: list[list[float]] = []
+    while len(wps) < duration * 6.0 / 40.0 + 2:
+        n, e = rng.uniform(-60.0, 60.0, 2)
+        wps.append([float(n), float(e), -float(rng.uniform(10.0, 25.0))])
+    return Scenario.model_validate({
+        "name": f"nominal_nav_{seed}",
+        "duration_s": duration,
+        "seed": seed,
+        "estimator": "ekf",
+        "camera": {"texture": texture, "rate_hz": 15},
+        "config": {"name": "nav-hour", "trusted": {"mission_ned_m": wps, "rtl_altitude_m": 20.0}},
+        "gcs": [{"t": 0.5, "command": "arm"}, {"t": 1.0, "command": "takeoff", "param": 10},
+                {"t": 8.0, "command": "mission"}],
+        "log_rate_hz": 5.0,
+    })
 
 
 @dataclass(slots=True)
@@ -116,6 +140,8 @@ class VisionLoop:
                 "window_cusum": g.window_cusum, "vo_stat": g.vo_stat, "vo_cusum": g.vo_cusum,
                 "fused_pos": float(g.fused_pos), "fused_vel": float(g.fused_vel),
                 "excluded": float(g.status is GpsStatus.EXCLUDED),
+                "window_sigma_m": g.window_sigma_m, "sigma_v_m": ekf.pos_sigma_v_m,
+                "vel_sigma_h_mps": math.sqrt(max(ekf.kf.P[3, 3], ekf.kf.P[4, 4])),
             })
         if self.camera is None or self.vo is None or t < self._next_s - 1e-9:
             return None
@@ -146,5 +172,9 @@ class VisionLoop:
             "repetition": float(getattr(q, "repetition", math.nan)),
             "err_vn": sample.vel_ned_mps[0] - v[0] if q.valid else math.nan,
             "err_ve": sample.vel_ned_mps[1] - v[1] if q.valid else math.nan,
+            "err_vd": sample.vel_ned_mps[2] - v[2] if q.valid else math.nan,
+            "sigma_vn": math.sqrt(sample.vel_cov_m2ps2[0]) if q.valid else math.nan,
+            "sigma_ve": math.sqrt(sample.vel_cov_m2ps2[1]) if q.valid else math.nan,
+            "height_err_m": -st.pos_ned_m[2] + truth.pos_ned_m[2],
         })
         return sample

@@ -3,8 +3,11 @@
 State (Solà 2017, "Quaternion kinematics for the error-state Kalman filter", arXiv:1711.02508, sec. 5
 and 7): the nominal state ``p`` (NED position, m), ``v`` (NED velocity, m/s), ``q`` (body FRD -> NED
 attitude), ``b_g`` (gyro bias, rad/s), ``b_a`` (accelerometer bias, m/s²) is integrated from every IMU
-sample; a 15-element error state ``δx = [δp, δv, δθ, δb_g, δb_a]`` with the attitude error expressed in
-the NED frame ("global" error, Solà sec. 7) carries the covariance. The error-state Kalman filter itself is
+sample; a 19-element error state ``δx = [δp, δv, δθ, δb_g, δb_a, δb_gps, δb_baro]`` with the attitude error
+expressed in the NED frame ("global" error, Solà sec. 7) carries the covariance. ``b_gps`` (the receiver's
+slowly wandering position error, first-order Gauss-Markov) and ``b_baro`` (the barometer's drifting offset,
+a random walk) are there because treating either error as white lets the filter average it away and
+publish a sigma several times smaller than the true error. The error-state Kalman filter itself is
 filterpy's :class:`~filterpy.kalman.ExtendedKalmanFilter`, used as the textbook equations it implements:
 ``predict()`` propagates ``P = F P Fᵀ + Q`` and ``update(z, HJacobian, Hx, R)`` computes the gain and the
 Joseph-form covariance; after each update the error mean is injected into the nominal state and reset to
@@ -48,7 +51,8 @@ from merlin.nav.quaternion import (
 # error-state indices
 P_, V_, TH_, BG_, BA_ = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15)
 BGPS_ = slice(15, 18)  # the GPS receiver's slowly wandering position error (first-order Gauss-Markov)
-N_ERR = 18
+BBARO = 18  # the barometer's drifting offset (random walk): the height's reference is not white either
+N_ERR = 19
 
 
 class GpsStatus(Enum):
@@ -86,6 +90,8 @@ class GpsCheck:
     status: GpsStatus
     vo_stat: float = math.nan  # GPS-versus-VO velocity statistic, per degree of freedom (nan: no VO match)
     vo_cusum: float = 0.0
+    # the window test's 1-sigma per axis, sqrt(C) (nan until the window fills)
+    window_sigma_m: float = math.nan
 
 
 @dataclass(frozen=True, slots=True)
@@ -120,7 +126,8 @@ def _mag_heading(field: Vec3, roll: float, pitch: float, declination_rad: float)
 
 
 class NavEstimator:
-    """Error-state EKF over [p, v, θ, b_g, b_a] driven by the IMU, fusing GPS, VO, baro and magnetometer.
+    """Error-state EKF over [p, v, θ, b_g, b_a, b_gps, b_baro] driven by the IMU, fusing GPS, VO, baro and
+    magnetometer.
 
     Call :meth:`predict` with every IMU sample (400 Hz) and the ``update_*`` methods as samples arrive, in
     time order; read :meth:`state` and :meth:`pop_events`. Measurements are applied at the current filter
@@ -139,6 +146,7 @@ class NavEstimator:
         self._bg = np.zeros(3)
         self._ba = np.zeros(3)
         self._b_gps = np.zeros(3)
+        self._b_baro = 0.0
         self._g = np.array([0.0, 0.0, config.gravity_mps2])
         self._last_gyro: Vec3 = ZERO3
         self._last_accel: Vec3 = (0.0, 0.0, -config.gravity_mps2)
@@ -154,6 +162,7 @@ class NavEstimator:
             + [config.init_accel_bias_sigma_mps2**2] * 3
             + [config.gps_bias_sigma_h_m**2] * 2
             + [config.gps_bias_sigma_v_m**2]
+            + [config.init_baro_bias_sigma_m**2]
         )
         self.kf = kf
         self._F = np.eye(N_ERR)
@@ -167,6 +176,8 @@ class NavEstimator:
             # Gauss-Markov driving noise 2σ²/τ keeps the bias at its stationary σ (Groves 2013, sec. 3.4.3)
             + [2.0 * config.gps_bias_sigma_h_m**2 / config.gps_bias_tau_s] * 2
             + [2.0 * config.gps_bias_sigma_v_m**2 / config.gps_bias_tau_s]
+            # barometer offset: a random walk (thermal and weather drift; Groves 2013, sec. 6.2.1)
+            + [config.baro_bias_rw_m_rts**2]
         )
         # pending covariance prediction (cov_predict_every_n > 1): accumulated time and specific force
         self._pend_n = 0
@@ -312,6 +323,7 @@ class NavEstimator:
         self._bg += dx[BG_]
         self._ba += dx[BA_]
         self._b_gps += dx[BGPS_]
+        self._b_baro += float(dx[BBARO])
         # reset: the global-error reset Jacobian G = diag(I, I, I + [δθ/2]×, I, I) (Solà sec. 7.3)
         G = np.eye(N_ERR)
         G[TH_, TH_] += skew(0.5 * dth)
@@ -392,7 +404,7 @@ class NavEstimator:
                     )
             else:
                 self._gps_agree_since = None
-        s_win = math.nan
+        s_win = sig_win = math.nan
         if self.gps_status is GpsStatus.OK:
             s = min((nis_p + nis_v) / 6.0, cfg.gps_cusum_clip)
             self._gps_cusum = max(0.0, self._gps_cusum + s - cfg.gps_cusum_allowance)
@@ -403,7 +415,7 @@ class NavEstimator:
             # displacement of the last `lag` seconds must not count as a disagreement in a turn)
             dr_n = float(self._dr[0] - self._v[0] * lag + 0.5 * a_n[0] * lag * lag)
             dr_e = float(self._dr[1] - self._v[1] * lag + 0.5 * a_n[1] * lag * lag)
-            s_win = self._window_statistic(t, gps.pos_ned_m, dr_n, dr_e)
+            s_win, sig_win = self._window_statistic(t, gps.pos_ned_m, dr_n, dr_e)
             if not math.isnan(s_win):
                 s_w = min(s_win, cfg.gps_cusum_clip)
                 self._gps_wcusum = max(0.0, self._gps_wcusum + s_w - cfg.gps_cusum_allowance)
@@ -486,12 +498,13 @@ class NavEstimator:
             self.gps_status,
             s_vo,
             self._gps_vcusum,
+            sig_win,
         )
         self.last_gps = check
         self._update_mode()
         return check
 
-    def _window_statistic(self, t: float, pos_ned_m: Vec3, dr_n: float, dr_e: float) -> float:
+    def _window_statistic(self, t: float, pos_ned_m: Vec3, dr_n: float, dr_e: float) -> tuple[float, float]:
         """d = (GPS displacement) - (mechanisation displacement) over the last gps_window_s, horizontal;
         returns dᵀ C⁻¹ d / 2 with C = (σ_w² + P_vv W²) I, or nan until the window has filled."""
         cfg = self.cfg
@@ -502,12 +515,12 @@ class NavEstimator:
         t0, n0, e0, dn0, de0 = win[0]
         w = t - t0
         if w < 0.5 * cfg.gps_window_s:
-            return math.nan
+            return math.nan, math.nan
         d_n = (pos_ned_m[0] - n0) - (dr_n - dn0)
         d_e = (pos_ned_m[1] - e0) - (dr_e - de0)
         P = self.kf.P
         var = cfg.gps_window_sigma_m**2 + max(P[3, 3], P[4, 4]) * w * w
-        return float((d_n * d_n + d_e * d_e) / var / 2.0)
+        return float((d_n * d_n + d_e * d_e) / var / 2.0), math.sqrt(var)
 
     def _vo_velocity_statistic(self, gps: GpsSample, a_ned: np.ndarray) -> float:
         """s = dᵀ C⁻¹ d / 2 for d = (GPS − VO) horizontal velocity, with the VO sample nearest the GPS time
@@ -545,14 +558,17 @@ class NavEstimator:
         # kept for the GPS-VO velocity cross-check whatever the gate below says: the check must not
         # depend on a filter velocity the GPS under test may already have dragged
         self._vo_recent.append((vo.t_s, vo.vel_ned_mps[0], vo.vel_ned_mps[1], var[0], var[1]))
-        z = np.array(vo.vel_ned_mps, dtype=float)
+        # Horizontal only: the vertical velocity, from the change of image scale between frames, is a
+        # weak and coloured measurement (docs/navigation.md, "VO"); the height is the barometer's and GPS's.
+        z = np.array(vo.vel_ned_mps[:2], dtype=float)
+        hx = self._v[:2].copy()
         H = self._vo_jacobian()
-        R = np.diag(var)
-        y, S = self._innovation(z, self._v.copy(), H, R)
+        R = np.diag(var[:2])
+        y, S = self._innovation(z, hx, H, R)
         nis = self._nis(y, S)
         fused = nis <= cfg.vo_gate
         if fused:
-            self._fuse(z, self._v.copy(), H, R)
+            self._fuse(z, hx, H, R)
             self._vo_fused_t = self._t
             self._aid_t = self._t
             if self._vo_lost_reported:
@@ -573,25 +589,32 @@ class NavEstimator:
         home altitude) scales the motion by ĥ / h ≈ 1 + δp_d / h. The rotation between frames comes from
         this filter's bias-corrected gyro (``gyro_attitude``): a gyro bias error δb_g turns the second
         frame by ε = R δb_g Δt, which shifts its nadir ground points by h (ε_e, −ε_n): a velocity error
-        h (−(R δb_g)_e, (R δb_g)_n). Hence H = [e_d v/h, I, [v]× e_d, h [−R₂; R₁; 0], 0] (R_i the rows)."""
-        H = np.zeros((3, N_ERR))
-        H[:, 3:6] = np.eye(3)
+        h (−(R δb_g)_e, (R δb_g)_n). Hence, for the horizontal velocity that is fused,
+        H = [v_h/h along δp_d, I₂ along δv_h, (v_e, −v_n) along δθ_d, h [−R₂; R₁] along δb_g] (R_i the rows
+        of R)."""
+        H = np.zeros((2, N_ERR))
+        H[0, 3] = H[1, 4] = 1.0
         if self.cfg.vo_model_coupling:
             v = self._v
             H[0, 8] = v[1]
             H[1, 8] = -v[0]
             h = -self._p[2]
             if h > 1.0:
-                H[:, 2] = v / h
+                H[:, 2] = v[:2] / h
                 R = quat_to_dcm(self._q)
                 H[0, 9:12] = -h * R[1, :]
                 H[1, 9:12] = h * R[0, :]
         return H
 
     def update_baro(self, baro: BaroSample) -> Check:
+        """Height above home: z = h + b_baro + w, h(x̂) = −p̂_d + b̂_baro, H = [δp_d: −1, δb_baro: +1],
+        R = baro_sigma_m². The offset b_baro is a random walk (``baro_bias_rw_m_rts``; a barometer drifts
+        with temperature and weather, Groves 2013 sec. 6.2.1; PX4's EKF2 estimates it too), so the height
+        is not pinned to the barometer alone: GPS height and the VO's scale (the δp_d column of the VO
+        Jacobian) share in it, and the published height sigma grows when nothing but the baro holds it."""
         cfg = self.cfg
         z = np.array([baro.alt_m])
-        hx = np.array([-self._p[2]])
+        hx = np.array([-self._p[2] + self._b_baro])
         R = np.array([[cfg.baro_sigma_m**2]])
         y, S = self._innovation(z, hx, _H_BARO, R)
         nis = self._nis(y, S)
@@ -839,6 +862,7 @@ _H_VEL = np.zeros((3, N_ERR))
 _H_VEL[:, 3:6] = np.eye(3)
 _H_BARO = np.zeros((1, N_ERR))
 _H_BARO[0, 2] = -1.0
+_H_BARO[0, BBARO] = 1.0
 _H_GPS.setflags(write=False)
 _H_VEL.setflags(write=False)
 _H_BARO.setflags(write=False)
