@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import itertools
 import math
+from bisect import bisect_left
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 # (state of charge, cell open-circuit volts), ascending; typical LiPo at C/5 discharge.
 LIPO_OCV_CURVE: tuple[tuple[float, float], ...] = (
@@ -49,8 +51,10 @@ class BatterySagFault:
     capacity_loss_frac: float = 0.0  # of the nominal capacity, while active
 
 
-@dataclass(frozen=True, slots=True)
-class BatteryStatus:
+class BatteryStatus(NamedTuple):
+    """The pack at ``t_s``. A ``NamedTuple``, not a frozen dataclass: one is built every simulator tick, at
+    half the cost."""
+
     t_s: float
     voltage_v: float
     current_a: float
@@ -59,13 +63,24 @@ class BatteryStatus:
     supply_scale: float  # fraction of the nominal maximum rotor speed available (Multirotor.step)
 
 
+# The curve's segments, for a binary search instead of a walk along them (the pack spends a flight in
+# the upper segments, the last ones a walk reaches): the upper state of charge of each segment, and its
+# (s0, v0, v1 - v0, s1 - s0). The differences are the ones the interpolation computed each call.
+_OCV_UPPER_SOC: tuple[float, ...] = tuple(s1 for s1, _v1 in LIPO_OCV_CURVE[1:])
+_OCV_SEGMENTS: tuple[tuple[float, float, float, float], ...] = tuple(
+    (s0, v0, v1 - v0, s1 - s0) for (s0, v0), (s1, v1) in itertools.pairwise(LIPO_OCV_CURVE)
+)
+
+
 def cell_ocv_v(soc: float) -> float:
-    curve = LIPO_OCV_CURVE
-    s = min(1.0, max(0.0, soc))
-    for (s0, v0), (s1, v1) in itertools.pairwise(curve):
-        if s <= s1:
-            return v0 + (v1 - v0) * (s - s0) / (s1 - s0)
-    return curve[-1][1]
+    s = soc if soc > 0.0 else 0.0  # max(0.0, soc), NaN -> 0.0
+    if not s < 1.0:
+        s = 1.0
+    i = bisect_left(_OCV_UPPER_SOC, s)  # the first segment with s <= s1
+    if i < len(_OCV_SEGMENTS):
+        s0, v0, dv, ds = _OCV_SEGMENTS[i]
+        return v0 + dv * (s - s0) / ds
+    return LIPO_OCV_CURVE[-1][1]
 
 
 class Battery:
@@ -81,6 +96,8 @@ class Battery:
         self._consumed_mah = params.capacity_mah * (1.0 - min(1.0, max(0.0, initial_frac)))
 
     def step(self, shaft_power_w: float, t_s: float, dt_s: float) -> BatteryStatus:
+        # Runs every simulator tick: ``x if x > 0.0 else 0.0`` is ``max(0.0, x)`` (NaN -> 0.0 too) and
+        # ``x if x < 1.0 else 1.0`` is ``min(1.0, x)``, without the builtin calls.
         p = self.p
         r = p.internal_resistance_ohm
         cap = p.capacity_mah
@@ -88,16 +105,26 @@ class Battery:
             if f.start_s <= t_s < f.end_s:
                 r += f.extra_resistance_ohm
                 cap *= max(0.0, 1.0 - f.capacity_loss_frac)
-        soc = max(0.0, 1.0 - self._consumed_mah / cap) if cap > 0.0 else 0.0
+        if cap > 0.0:
+            soc = 1.0 - self._consumed_mah / cap
+            soc = soc if soc > 0.0 else 0.0
+        else:
+            soc = 0.0
         e = p.cells * cell_ocv_v(soc)
-        pw = max(0.0, shaft_power_w) / p.drive_efficiency + p.avionics_power_w
+        pw = (shaft_power_w if shaft_power_w > 0.0 else 0.0) / p.drive_efficiency + p.avionics_power_w
         disc = e * e - 4.0 * r * pw
         if disc <= 0.0:  # the pack cannot deliver this power: it collapses to the maximum-power point
             current = e / (2.0 * r)
         else:
             current = (e - math.sqrt(disc)) / (2.0 * r)
         v = e - current * r
-        self._consumed_mah += current * dt_s / 3.6
-        soc = max(0.0, 1.0 - self._consumed_mah / cap) if cap > 0.0 else 0.0
-        scale = min(1.0, max(0.0, v / (p.cells * p.full_authority_cell_v)))
-        return BatteryStatus(t_s, v, current, soc, self._consumed_mah, scale)
+        consumed = self._consumed_mah = self._consumed_mah + current * dt_s / 3.6
+        if cap > 0.0:
+            soc = 1.0 - consumed / cap
+            soc = soc if soc > 0.0 else 0.0
+        else:
+            soc = 0.0
+        scale = v / (p.cells * p.full_authority_cell_v)
+        scale = scale if scale > 0.0 else 0.0
+        scale = scale if scale < 1.0 else 1.0
+        return BatteryStatus(t_s, v, current, soc, consumed, scale)

@@ -248,10 +248,12 @@ class Multirotor:
 
     __slots__ = (
         "_alpha",
+        "_body",
         "_ground",
         "_kf",
         "_kf_i",
         "_km",
+        "_trans",
         "_wmax",
         "crashed",
         "dt_s",
@@ -306,6 +308,22 @@ class Multirotor:
         self._kf = params.motor_thrust_coeff_n_per_radps2
         self._km = params.motor_torque_coeff_nm_per_radps2
         self._wmax = params.motor_max_speed_radps
+        # the constants step() reads, bound once (the same numbers it computed from ``p`` each step)
+        self._trans = (
+            params.drag_linear_xy_n_per_mps,
+            params.drag_quad_xy_n_per_mps2,
+            params.drag_linear_z_n_per_mps,
+            params.drag_quad_z_n_per_mps2,
+            1.0 / params.mass_kg,
+            params.gravity_mps2,
+        )
+        self._body = (
+            params.arm_length_m * 0.7071067811865476,
+            params.rot_drag_nm_per_radps,
+            params.inertia_xx_kgm2,
+            params.inertia_yy_kgm2,
+            params.inertia_zz_kgm2,
+        )
         spread = rng.standard_normal(4) * params.motor_thrust_spread_frac
         kf_i = tuple(float(self._kf * max(0.5, 1.0 + s)) for s in spread)
         self._kf_i: tuple[float, float, float, float] = (kf_i[0], kf_i[1], kf_i[2], kf_i[3])
@@ -346,7 +364,6 @@ class Multirotor:
         )
 
     def step(self, motor_cmd: Sequence[float], wind_ned_mps: Vec3 = ZERO3, supply_scale: float = 1.0) -> None:
-        p = self.p
         dt = self.dt_s
         sqrt = math.sqrt
         # --- motors: steady speed for a command, first-order lag integrated exactly
@@ -388,14 +405,11 @@ class Multirotor:
         bu = r00 * an + r10 * ae + r20 * ad
         bv = r01 * an + r11 * ae + r21 * ad
         bw = r02 * an + r12 * ae + r22 * ad
-        dlxy, dqxy = p.drag_linear_xy_n_per_mps, p.drag_quad_xy_n_per_mps2
-        dlz, dqz = p.drag_linear_z_n_per_mps, p.drag_quad_z_n_per_mps2
+        dlxy, dqxy, dlz, dqz, inv_m, g = self._trans  # drag coefficients, 1 / mass, gravity
         fx = -(dlxy + dqxy * abs(bu)) * bu
         fy = -(dlxy + dqxy * abs(bv)) * bv
         fz = -(dlz + dqz * abs(bw)) * bw - thrust
-        inv_m = 1.0 / p.mass_kg
         sfx, sfy, sfz = fx * inv_m, fy * inv_m, fz * inv_m
-        g = p.gravity_mps2
         acc_n = r00 * sfx + r01 * sfy + r02 * sfz
         acc_e = r10 * sfx + r11 * sfy + r12 * sfz
         acc_d = r20 * sfx + r21 * sfy + r22 * sfz + g
@@ -411,13 +425,11 @@ class Multirotor:
                 return
 
         # --- torques (FRD): thrust moments, rotor reaction torques, rotational damping
-        h = p.arm_length_m * 0.7071067811865476
+        h, cd, ixx, iyy, izz = self._body  # arm / sqrt(2), rotational damping, inertia
         tl = h * (-t0 + t1 + t2 - t3)  # roll: sum(-y_i T_i)
         tm = h * (t0 - t1 + t2 - t3)  # pitch: sum(x_i T_i)
         tn = self._km * (s0 + s1 - s2 - s3)
         wp, wq, wr = self.wp, self.wq, self.wr
-        cd = p.rot_drag_nm_per_radps
-        ixx, iyy, izz = p.inertia_xx_kgm2, p.inertia_yy_kgm2, p.inertia_zz_kgm2
         wp_n = wp + dt * (tl - cd * wp - wq * wr * (izz - iyy)) / ixx
         wq_n = wq + dt * (tm - cd * wq - wr * wp * (ixx - izz)) / iyy
         wr_n = wr + dt * (tn - cd * wr - wp * wq * (iyy - ixx)) / izz
@@ -526,17 +538,18 @@ class Multirotor:
                 + (1.0 - 2.0 * (qx * qx + qy * qy)) * sfz
                 + self.p.gravity_mps2,
             )
+        vx, vy, vz, w = self.vx, self.vy, self.vz, self.wind
         return MultirotorTruth(
             self.t_s,
             (self.px, self.py, self.pz),
-            (self.vx, self.vy, self.vz),
+            (vx, vy, vz),
             (qw, qx, qy, qz),
             rpy_from_quat(qw, qx, qy, qz),
             (self.wp, self.wq, self.wr),
             (sfx, sfy, sfz),
             acc,
-            self.wind,
-            self.airspeed_mps,
+            w,
+            math.sqrt((vx - w[0]) ** 2 + (vy - w[1]) ** 2 + (vz - w[2]) ** 2),  # airspeed_mps, inlined
             (self.w0, self.w1, self.w2, self.w3),
             self.landed,
             self.crashed,

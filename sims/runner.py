@@ -13,7 +13,8 @@ from __future__ import annotations
 import math
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from collections.abc import Set as AbstractSet
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,13 @@ import numpy as np
 
 from experimental_controllers.api import ControllerOutput, ExperimentalController, Observation, ParamError
 from experimental_controllers.examples import make_controller
-from merlin.autopilot.multirotor_control import DEFAULT_GAINS, MOTORS_OFF, control_step, reset_from_state
+from merlin.autopilot.multirotor_control import (
+    DEFAULT_GAINS,
+    MOTORS_OFF,
+    ControllerState,
+    control_step,
+    reset_from_state,
+)
 from merlin.config.loader import ConfigError, config_sha256
 from merlin.config.models import MerlinConfig
 from merlin.config.runtime import build_core_config
@@ -70,14 +77,14 @@ RC_PERIOD_S = 0.02  # 50 Hz RC frames
 _NOTIFY = {EventKind.GRANTED, EventKind.DENIED, EventKind.REVOKED, EventKind.RELEASED, EventKind.AUTHORITY,
            EventKind.ACKNOWLEDGED, EventKind.SHADOW_VIOLATION}
 _GCS_KIND = {k.name.lower(): k for k in GcsCommandKind}
+# Enum members read on every tick, bound once (``merlin.core.types``, "Enum members on the hot path").
+_NAV_GPS, _NAV_INERTIAL = NavMode.GPS, NavMode.INERTIAL
+_CMD_IDLE, _CMD_VELOCITY, _CMD_TERMINATE = CommandKind.IDLE, CommandKind.VELOCITY, CommandKind.TERMINATE
+_AUTH_TRUSTED = Authority.TRUSTED
 
 
 def _end(f: Fault) -> float:
     return math.inf if f.end_s is None else f.end_s
-
-
-def _active(f: Fault, t: float) -> bool:
-    return f.start_s <= t < _end(f)
 
 
 def sensor_faults(faults: list[Fault]) -> list[SensorFault]:
@@ -138,16 +145,13 @@ class TruthPlusNoiseEstimator:
         self.lost_since: float | None = None
         self.drift_v = [0.0, 0.0]
         self.drift_p = [0.0, 0.0]
-        self._rows: list[list[float]] = []
-        self._i = 0
+        # the next row of 5 standard normals; a block of 4096 is drawn when the previous one is used up
+        self._noise: Callable[[], list[float]] = self._noise_rows().__next__
 
-    def _noise(self) -> list[float]:
-        if self._i >= len(self._rows):
-            self._rows = self.rng.standard_normal((4096, 5)).tolist()
-            self._i = 0
-        r = self._rows[self._i]
-        self._i += 1
-        return r
+    def _noise_rows(self) -> Iterator[list[float]]:
+        while True:
+            rows: list[list[float]] = self.rng.standard_normal((4096, 5)).tolist()
+            yield from rows
 
     def estimate(self, t: float, truth: Any, armed: bool, battery_frac: float) -> VehicleState:
         n = self._noise()
@@ -155,8 +159,12 @@ class TruthPlusNoiseEstimator:
         e[0] = self.phi * e[0] + self.q * n[0]
         e[1] = self.phi * e[1] + self.q * n[1]
         e[2] = self.phi * e[2] + self.q * n[2]
-        lost = any(a <= t < b for a, b in self.losses)
-        mode = NavMode.GPS
+        lost = False
+        for a, b in self.losses:  # a loop, not any() over a generator: this runs every tick
+            if a <= t < b:
+                lost = True
+                break
+        mode = _NAV_GPS
         sigma = self.POS_SIGMA_M
         inertial_s = 0.0
         if lost:
@@ -168,29 +176,31 @@ class TruthPlusNoiseEstimator:
             self.drift_v[1] += w * n[4]
             self.drift_p[0] += self.drift_v[0] * self.dt
             self.drift_p[1] += self.drift_v[1] * self.dt
-            mode = NavMode.INERTIAL
+            mode = _NAV_INERTIAL
             # sigma of a random walk in acceleration integrated twice: q * t^1.5 / sqrt(3), plus the aided sigma
             sigma = math.hypot(self.POS_SIGMA_M, self.INERTIAL_ACCEL_WALK * inertial_s**1.5 / math.sqrt(3.0))
-        else:
+        elif self.lost_since is not None:  # the loss has ended (the drift is zero outside losses)
             self.lost_since = None
             self.drift_v = [0.0, 0.0]
             self.drift_p = [0.0, 0.0]
         p, v = truth.pos_ned_m, truth.vel_ned_mps
+        dp, dv = self.drift_p, self.drift_v
+        sv = self.VEL_SIGMA_MPS
+        # positional, in VehicleState's field order (every tick; keywords cost ~30 % more)
         return VehicleState(
-            pos_ned_m=(p[0] + e[0] + self.drift_p[0], p[1] + e[1] + self.drift_p[1], p[2] + 0.3 * e[2]),
-            vel_ned_mps=(v[0] + self.VEL_SIGMA_MPS * n[2] + self.drift_v[0], v[1] + self.VEL_SIGMA_MPS * n[3]
-                         + self.drift_v[1], v[2] + self.VEL_SIGMA_MPS * n[4]),
-            att_rpy_rad=truth.rpy_rad,
-            rates_frd_radps=truth.omega_frd_radps,
-            accel_frd_mps2=truth.specific_force_frd_mps2,
-            airspeed_mps=truth.airspeed_mps,
-            pos_sigma_h_m=sigma,
-            pos_sigma_v_m=0.5,
-            nav_mode=mode,
-            nav_inertial_s=inertial_s,
-            armed=armed,
-            landed=truth.landed,
-            battery_frac=battery_frac,
+            (p[0] + e[0] + dp[0], p[1] + e[1] + dp[1], p[2] + 0.3 * e[2]),  # pos_ned_m
+            (v[0] + sv * n[2] + dv[0], v[1] + sv * n[3] + dv[1], v[2] + sv * n[4]),  # vel_ned_mps
+            truth.rpy_rad,  # att_rpy_rad
+            truth.omega_frd_radps,  # rates_frd_radps
+            truth.specific_force_frd_mps2,  # accel_frd_mps2
+            truth.airspeed_mps,
+            sigma,  # pos_sigma_h_m
+            0.5,  # pos_sigma_v_m
+            mode,  # nav_mode
+            inertial_s,  # nav_inertial_s
+            armed,
+            truth.landed,
+            battery_frac,
         )
 
 
@@ -209,15 +219,63 @@ class RunResult:
 
 
 class _Log:
-    def __init__(self) -> None:
-        self.cols: dict[str, list[float]] = {}
+    """The run's log, by column. Every row has the columns ``fixed_keys``, given as one tuple of values in
+    that order (no dict per row, no per-column append: a 50 Hz row has ~70 columns), plus any others as a
+    dict (the monitors, the loop's extra columns), whose keys may change from row to row.
 
-    def add(self, row: dict[str, float]) -> None:
-        for k, v in row.items():
-            self.cols.setdefault(k, []).append(v)
+    :meth:`arrays` gives exactly what appending every row's items, the fixed ones first, to a dict of
+    lists would give: a column per key in the order keys first appeared, holding the row values it was in;
+    an extra key equal to a fixed one replaces that row's fixed value, as a dict update would.
+    """
+
+    def __init__(self, fixed_keys: tuple[str, ...]) -> None:
+        self.fixed_keys = fixed_keys
+        self._fixed_index = {k: i for i, k in enumerate(fixed_keys)}  # (the last one, as a dict keeps)
+        self.rows: list[tuple[float, ...]] = []
+        self.extra: dict[str, list[float]] = {}
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def add(self, fixed: tuple[float, ...], extra: dict[str, float]) -> None:
+        cols = self.extra
+        for k, v in extra.items():
+            col = cols.get(k)
+            if col is not None:  # (an extra column is never a fixed one: checked when it was made)
+                col.append(v)
+                continue
+            i = self._fixed_index.get(k)
+            if i is not None:  # an extra value for a fixed column: it replaces the row's fixed value
+                fixed = (*fixed[:i], v, *fixed[i + 1:])
+            else:
+                cols[k] = [v]
+        self.rows.append(fixed)
 
     def arrays(self) -> dict[str, np.ndarray]:
-        return {k: np.asarray(v) for k, v in self.cols.items()}
+        out: dict[str, np.ndarray] = {}
+        if self.rows:
+            for k, col in zip(self.fixed_keys, zip(*self.rows, strict=True), strict=True):
+                out[k] = np.asarray(col)
+        for k, v in self.extra.items():
+            out[k] = np.asarray(v)
+        return out
+
+
+#: The log columns every row has, before the envelope's (``env_<parameter>``); run_scenario's log row
+#: gives their values in this order.
+_LOG_COLUMNS = (
+    "t",
+    "truth_n", "truth_e", "truth_d", "truth_vn", "truth_ve", "truth_vd", "truth_roll", "truth_pitch", "truth_yaw",
+    "est_n", "est_e", "est_d", "est_vn", "est_ve", "est_vd",
+    "sigma_h", "nav_mode",
+    "authority", "behavior", "armed", "landed",
+    "cmd_kind", "cmd_vn", "cmd_ve", "cmd_vd", "cmd_roll", "cmd_pitch", "cmd_thrust", "cmd_blend",
+    "sp_vn",
+    "sp_roll",
+    "m0", "m1", "m2", "m3",
+    "battery_frac", "wind_n", "wind_e",
+    "fence_margin",
+)
 
 
 def _controller_call(
@@ -267,6 +325,12 @@ class ClosedLoop:
     vision: Any = None
     #: extra log columns, called at the log rate when set (run_scenario's hook)
     extra_log_row: Callable[[], dict[str, float]] | None = None
+    #: the state the inner loops restart from after motors-off ticks (see :attr:`ctl`), None when running
+    _ctl_reset_from: VehicleState | None = None
+    #: whether :meth:`sense` samples the simulated sensors into :attr:`frame` every tick. ``__init__``
+    #: turns it off when nothing reads the frame (see there); a driver that wants the sensor samples
+    #: anyway sets it back to True right after construction, before the first tick.
+    sensor_frame_wanted: bool = True
 
     def __init__(self, sc: Scenario, cfg: MerlinConfig, source: str = "<scenario>") -> None:
         self.sc = sc
@@ -332,6 +396,28 @@ class ClosedLoop:
             self.redundancy = Redundancy(sc, root.spawn(1)[0], fld, self.params.hover_thrust, self.gains)
             self.extra_log_row = self.redundancy.log_row
         # --- end hardware redundancy
+        # The sensor frame's only readers are the fusion EKF (``_ekf_estimate``) and the redundancy stage
+        # (``act``); the stand-in estimator reads the truth, and neither run_scenario nor merlin serve reads
+        # ``frame``. Without those readers, sampling the sensors (~10 us of a ~75 us tick) changes nothing
+        # anyone sees: the sensors and the fault injector draw from their own generators (rng_sensors,
+        # rng_faults, spawned above), so skipping them shifts no other random stream, and the runs'
+        # digests stay bit-identical (benchmarks/check_digests.py). ``frame`` then stays None.
+        self.sensor_frame_wanted = self.ekf is not None or self.redundancy is not None
+
+    @property
+    def ctl(self) -> ControllerState:
+        """The inner loops' state. After motors-off ticks it is ``reset_from_state`` of the last one's state
+        estimate, computed when first needed (the next flying tick) rather than on every motors-off tick:
+        the reset is pure, so the value is the same, and only the last one was ever used."""
+        if self._ctl_reset_from is not None:
+            self._ctl = reset_from_state(self._ctl_reset_from, self.params.hover_thrust)
+            self._ctl_reset_from = None
+        return self._ctl
+
+    @ctl.setter
+    def ctl(self, value: ControllerState) -> None:
+        self._ctl = value
+        self._ctl_reset_from = None
 
     @property
     def actuators(self) -> tuple[float, float, float, float]:
@@ -344,10 +430,12 @@ class ClosedLoop:
 
     def sense(self) -> VehicleState:
         """First half of a tick: read the truth, sample the sensors, form the estimate the core will see."""
-        t = self.t
+        t = self.k * self.dt  # self.t
         self.truth = self.vehicle.truth()
-        # the sensor frame feeds the fusion EKF (issue 4); the stand-in estimator reads the truth
-        self.frame = self.injector.apply(self.sensors.step(self.truth))
+        # the sensor frame feeds the fusion EKF (issue 4) and the redundancy stage; the stand-in estimator
+        # reads the truth (``sensor_frame_wanted``)
+        if self.sensor_frame_wanted:
+            self.frame = self.injector.apply(self.sensors.step(self.truth))
         if self.ekf is None:
             self.state = self.estimator.estimate(t, self.truth, self.armed, self.batt_frac)
             return self.state
@@ -398,16 +486,17 @@ class ClosedLoop:
     def act(self, inputs: Inputs) -> Decision:
         """Second half: the core's tick on ``inputs`` (whose ``state`` must be :meth:`sense`'s), then the
         inner loops and the dynamics advance one period."""
-        t = self.t
+        t = self.k * self.dt  # self.t
         decision = self.core.step(t, inputs)
         self.decision = decision
         self.armed = decision.armed
         cmd = decision.command
-        if cmd.kind is CommandKind.IDLE or cmd.kind is CommandKind.TERMINATE:
+        if cmd.kind is _CMD_IDLE or cmd.kind is _CMD_TERMINATE:
             self.motors = MOTORS_OFF
-            self.ctl = reset_from_state(inputs.state, self.params.hover_thrust)
+            self._ctl_reset_from = inputs.state  # the inner loops restart from it (``ctl``)
         else:
-            self.motors, self.ctl = control_step(cmd, inputs.state, self.ctl, self.gains, self.dt)
+            ctl = self._ctl if self._ctl_reset_from is None else self.ctl
+            self.motors, self._ctl = control_step(cmd, inputs.state, ctl, self.gains, self.dt)
         red = self.redundancy
         if red is not None:  # hardware redundancy: the voted autopilot lanes drive the motors
             if red.lanes is not None:
@@ -449,17 +538,17 @@ def run_scenario(
         raise ConfigError(source, [f"controller.params / controller.type {sc.controller.type!r}: {exc}"]) from None
     ctrl_every = max(1, round(1.0 / (sc.controller.rate_hz * dt))) if sc.controller else 0
     budget_s = sc.controller.cpu_budget_ms / 1e3 if sc.controller else 0.0
-    faults_of = {k: [f for f in sc.faults if f.type == k] for k in
-                 ("controller_crash", "controller_hang", "controller_nan", "controller_absurd", "gcs_link_loss",
-                  "rc_link_loss")}
-
-    def any_active(kind: str, t: float) -> bool:
-        return any(_active(f, t) for f in faults_of[kind])
-
+    # (index, type, start, end) of every scenario fault: one pass per tick gives both the fault edges (as
+    # events) and the set of the fault types active at that tick (start <= t < end), which the link and
+    # controller glue below test by membership
+    fault_spans = [(i, f.type, f.start_s, _end(f)) for i, f in enumerate(sc.faults)]
+    no_faults: frozenset[str] = frozenset()
     gcs_steps = sorted(sc.gcs, key=lambda s: s.t)
     op_steps = sorted(sc.operator, key=lambda s: s.t)
     rc_connected = sc.rc_connected or bool(op_steps)
-    log = _Log()
+    env_cols = tuple((lim.index, lim.display_scale) for lim in core_cfg.envelope)
+    log = _Log(_LOG_COLUMNS + tuple(f"env_{lim.name}" for lim in core_cfg.envelope))
+    mon_keys: dict[str, str] = {}  # monitor name -> its log column
     log_every = max(1, round(1.0 / (sc.log_rate_hz * dt)))
     events: list[dict[str, Any]] = []
     fence_triggers: list[tuple[float, float, float]] = []
@@ -471,7 +560,15 @@ def run_scenario(
     gcs_t: float | None = None
     rc_t: float | None = None
     op_input = OperatorInput()
+    # The inputs' parts are immutable and the core only reads them: a part whose values did not change
+    # since the previous tick is passed again as the same object instead of an equal new one.
+    no_operator = OperatorInput()
+    operator_in = no_operator
+    operator_key: tuple[float | None, OperatorInput] | None = None
+    experimental_in: ExperimentalInput | None = None
+    no_commands: tuple[GcsCommand, ...] = ()
     gi = oi = 0
+    n_gcs, n_op = len(gcs_steps), len(op_steps)
     last_cmd_vel: tuple[float, float, float] | None = None
     max_jump = 0.0
     prev_auth = Authority.TRUSTED
@@ -487,53 +584,66 @@ def run_scenario(
     for k in range(n_ticks):
         t = k * dt
         # scenario fault edges, as events (what was injected, when)
-        for i, f in enumerate(sc.faults):
-            a = _active(f, t)
-            if a != fault_state.get(i, False):
-                fault_state[i] = a
-                events.append({"t": t, "type": "fault_start" if a else "fault_end", "fault": f.type})
+        active: AbstractSet[str] = no_faults
+        if fault_spans:
+            active = set()
+            for i, f_type, f_start, f_end in fault_spans:
+                a = f_start <= t < f_end
+                if a:
+                    active.add(f_type)
+                if a != fault_state.get(i, False):
+                    fault_state[i] = a
+                    events.append({"t": t, "type": "fault_start" if a else "fault_end", "fault": f_type})
         state = loop.sense()
         truth = loop.truth
         # links
-        if not any_active("gcs_link_loss", t) and (gcs_t is None or t - gcs_t >= GCS_HEARTBEAT_PERIOD_S - 1e-9):
+        if "gcs_link_loss" not in active and (gcs_t is None or t - gcs_t >= GCS_HEARTBEAT_PERIOD_S - 1e-9):
             gcs_t = t
-        if rc_connected and not any_active("rc_link_loss", t) and (rc_t is None or t - rc_t >= RC_PERIOD_S - 1e-9):
+        if rc_connected and "rc_link_loss" not in active and (rc_t is None or t - rc_t >= RC_PERIOD_S - 1e-9):
             rc_t = t
-        while oi < len(op_steps) and op_steps[oi].t <= t + 1e-9:
+        while oi < n_op and op_steps[oi].t <= t + 1e-9:
             o = op_steps[oi]
             op_input = OperatorInput(takeover=o.takeover, roll=o.roll, pitch=o.pitch, yaw=o.yaw, throttle=o.throttle)
             oi += 1
-        commands: list[GcsCommand] = []
-        while gi < len(gcs_steps) and gcs_steps[gi].t <= t + 1e-9:
-            g = gcs_steps[gi]
-            commands.append(GcsCommand(_GCS_KIND[g.command], g.param, gi + 1, g.force))
-            gi += 1
+        commands = no_commands
+        if gi < n_gcs and gcs_steps[gi].t <= t + 1e-9:
+            due: list[GcsCommand] = []
+            while gi < n_gcs and gcs_steps[gi].t <= t + 1e-9:
+                g = gcs_steps[gi]
+                due.append(GcsCommand(_GCS_KIND[g.command], g.param, gi + 1, g.force))
+                gi += 1
+            commands = tuple(due)
         # the experimental controller, beside the core at its own rate
-        if ctrl is not None and k % ctrl_every == 0 and not any_active("controller_crash", t):
-            auth = decision.authority if decision is not None else Authority.TRUSTED
+        if ctrl is not None and k % ctrl_every == 0 and "controller_crash" not in active:
+            auth = decision.authority if decision is not None else _AUTH_TRUSTED
             obs = Observation(t, state, auth, tuple(notifications))
             notifications = []
             out = _controller_call(ctrl, obs, budget_s, events, t)
             if out.heartbeat:
                 hb_t = t
-            if out.setpoint is not None and not any_active("controller_hang", t):
+                experimental_in = None
+            if out.setpoint is not None and "controller_hang" not in active:
                 s_out = out.setpoint
-                if any_active("controller_nan", t):
+                if "controller_nan" in active:
                     s_out = Setpoint(SetpointKind.VELOCITY, vel_ned_mps=(math.nan, math.nan, math.nan))
-                elif any_active("controller_absurd", t):
+                elif "controller_absurd" in active:
                     s_out = Setpoint(SetpointKind.VELOCITY, vel_ned_mps=(1.0e6, 0.0, 0.0))
                 sp, sp_t = s_out, t
-            if not any_active("controller_hang", t):
+                experimental_in = None
+            if "controller_hang" not in active:
                 pending_reqs = pending_reqs + out.requests
-        inputs = Inputs(
-            state=state,
-            experimental=ExperimentalInput(hb_t, sp, sp_t, pending_reqs),
-            operator=OperatorInput(rc_t, op_input.takeover, op_input.roll, op_input.pitch, op_input.yaw,
-                                   op_input.throttle) if rc_connected else OperatorInput(),
-            gcs_link_t_s=gcs_t,
-            gcs_commands=tuple(commands),
-        )
-        pending_reqs = ()
+                if pending_reqs:
+                    experimental_in = None
+        if experimental_in is None:
+            experimental_in = ExperimentalInput(hb_t, sp, sp_t, pending_reqs)
+        if rc_connected and (operator_key is None or operator_key[0] != rc_t or operator_key[1] is not op_input):
+            operator_key = (rc_t, op_input)
+            operator_in = OperatorInput(rc_t, op_input.takeover, op_input.roll, op_input.pitch, op_input.yaw,
+                                        op_input.throttle)
+        inputs = Inputs(state, experimental_in, operator_in, gcs_t, commands)  # positional: every tick
+        if pending_reqs:  # requests are delivered once
+            pending_reqs = ()
+            experimental_in = None
         decision = loop.act(inputs)
         cmd = decision.command
         for e in decision.events:
@@ -543,15 +653,14 @@ def run_scenario(
             if e.reason.monitor.startswith("geofence") and e.kind in (EventKind.REVOKED, EventKind.MONITOR_TRIPPED):
                 fence_triggers.append((t, state.pos_ned_m[0], state.pos_ned_m[1]))
         # command continuity at authority changes (what bumpless transfer must keep small)
-        if cmd.kind is CommandKind.VELOCITY:
+        if cmd.kind is _CMD_VELOCITY:
             if last_cmd_vel is not None and decision.authority is not prev_auth:
                 max_jump = max(max_jump, math.dist(last_cmd_vel, cmd.vel_ned_mps))
             last_cmd_vel = cmd.vel_ned_mps
         prev_auth = decision.authority
-        motors, w, batt_frac = loop.actuators, loop.wind_ned, loop.batt_frac
         if k % log_every == 0:
             # the exact margin costs a geometry query: every 5th log row (10 Hz at the default log rate)
-            if len(log.cols.get("t", ())) % 5 == 0:
+            if len(log) % 5 == 0:
                 margin = geofence.signed_margin_m(core_cfg.fence, truth.pos_ned_m, airborne=not truth.landed) \
                     if core_cfg.fence is not None else math.inf
             airborne = not truth.landed
@@ -559,32 +668,35 @@ def run_scenario(
                 min_margin = min(min_margin, margin)
                 max_breach = max(max_breach, -margin)
             ev = envelope_values(state)
-            row = {
-                "t": t,
-                "truth_n": truth.pos_ned_m[0], "truth_e": truth.pos_ned_m[1], "truth_d": truth.pos_ned_m[2],
-                "truth_vn": truth.vel_ned_mps[0], "truth_ve": truth.vel_ned_mps[1], "truth_vd": truth.vel_ned_mps[2],
-                "truth_roll": truth.rpy_rad[0], "truth_pitch": truth.rpy_rad[1], "truth_yaw": truth.rpy_rad[2],
-                "est_n": state.pos_ned_m[0], "est_e": state.pos_ned_m[1], "est_d": state.pos_ned_m[2],
-                "est_vn": state.vel_ned_mps[0], "est_ve": state.vel_ned_mps[1], "est_vd": state.vel_ned_mps[2],
-                "sigma_h": state.pos_sigma_h_m, "nav_mode": float(state.nav_mode),
-                "authority": float(decision.authority), "behavior": float(decision.behavior),
-                "armed": float(decision.armed), "landed": float(truth.landed),
-                "cmd_kind": float(cmd.kind), "cmd_vn": cmd.vel_ned_mps[0], "cmd_ve": cmd.vel_ned_mps[1],
-                "cmd_vd": cmd.vel_ned_mps[2], "cmd_roll": cmd.att_rpy_rad[0], "cmd_pitch": cmd.att_rpy_rad[1],
-                "cmd_thrust": cmd.thrust, "cmd_blend": cmd.blend,
-                "sp_vn": sp.vel_ned_mps[0] if sp is not None else math.nan,
-                "sp_roll": sp.att_rpy_rad[0] if sp is not None else math.nan,
-                "m0": motors[0], "m1": motors[1], "m2": motors[2], "m3": motors[3],
-                "battery_frac": batt_frac, "wind_n": w[0], "wind_e": w[1],
-                "fence_margin": margin,
-            }
-            for lim in core_cfg.envelope:
-                row[f"env_{lim.name}"] = ev[lim.index] * lim.display_scale
+            motors, w = loop.actuators, loop.wind_ned
+            tp, tv, ta = truth.pos_ned_m, truth.vel_ned_mps, truth.rpy_rad
+            ep, evel = state.pos_ned_m, state.vel_ned_mps
+            cv, ca = cmd.vel_ned_mps, cmd.att_rpy_rad
+            # the values of _LOG_COLUMNS, in that order, then the envelope's
+            fixed = (
+                t,
+                tp[0], tp[1], tp[2], tv[0], tv[1], tv[2], ta[0], ta[1], ta[2],
+                ep[0], ep[1], ep[2], evel[0], evel[1], evel[2],
+                state.pos_sigma_h_m, float(state.nav_mode),
+                float(decision.authority), float(decision.behavior), float(decision.armed), float(truth.landed),
+                float(cmd.kind), cv[0], cv[1], cv[2], ca[0], ca[1], cmd.thrust, cmd.blend,
+                sp.vel_ned_mps[0] if sp is not None else math.nan,
+                sp.att_rpy_rad[0] if sp is not None else math.nan,
+                motors[0], motors[1], motors[2], motors[3],
+                loop.batt_frac, w[0], w[1],
+                margin,
+                *[ev[i] * scale for i, scale in env_cols],
+            )
+            extra: dict[str, float] = {}
             for ms in decision.monitors:
-                row[f"mon_{ms.name}"] = float(ms.tripped)
+                name = ms.name
+                key = mon_keys.get(name)
+                if key is None:
+                    key = mon_keys[name] = f"mon_{name}"
+                extra[key] = float(ms.tripped)
             if loop.extra_log_row is not None:
-                row.update(loop.extra_log_row())
-            log.add(row)
+                extra.update(loop.extra_log_row())
+            log.add(fixed, extra)
         if progress is not None and k % 4000 == 0:
             progress(t / sc.duration_s)
     wall = time.perf_counter() - wall0

@@ -14,7 +14,7 @@ actuator stage (:mod:`merlin.autopilot.multirotor_control`).
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Final, NamedTuple
 
 from merlin.core.config import TrustedParams
 from merlin.core.types import Behavior, NavMode, Setpoint, SetpointKind, Vec3, VehicleState
@@ -24,6 +24,16 @@ RTL_CLIMB, RTL_RETURN, RTL_DESCEND = 0, 1, 2
 ALTITUDE_ACCEPTANCE_M = 0.5
 #: LAND's speed below ``land_final_height_m``, as a fraction of ``land_speed_mps``.
 LAND_FINAL_SPEED_FRACTION = 0.5
+
+# Enum members read on every tick, bound once (``merlin.core.types``, "Enum members on the hot path").
+_HOLD: Final = Behavior.HOLD
+_TAKEOFF: Final = Behavior.TAKEOFF
+_LAND: Final = Behavior.LAND
+_RTL: Final = Behavior.RTL
+_MISSION: Final = Behavior.MISSION
+_NAV_INERTIAL: Final = NavMode.INERTIAL
+_NAV_LOST: Final = NavMode.LOST
+_SP_VELOCITY: Final = SetpointKind.VELOCITY
 
 
 class GuidanceState(NamedTuple):
@@ -90,7 +100,7 @@ def _hold(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> Setpoint:
         cfg.climb_speed_mps,
         cfg.land_speed_mps * 2.0,
     )
-    return Setpoint(SetpointKind.VELOCITY, pos_ned_m=g.anchor_ned_m, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
+    return Setpoint(_SP_VELOCITY, pos_ned_m=g.anchor_ned_m, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
 
 
 def _descend_speed(s: VehicleState, cfg: TrustedParams) -> float:
@@ -152,7 +162,7 @@ def land_duration_s(height_m: float, vel_down_mps: float, cfg: TrustedParams) ->
 
 
 def _land_at(xy: Vec3, g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> Setpoint:
-    if s.nav_mode is NavMode.INERTIAL or s.nav_mode is NavMode.LOST:
+    if s.nav_mode is _NAV_INERTIAL or s.nav_mode is _NAV_LOST:
         # No absolute or visual position aid: the position estimate drifts (sigma tens of metres), and
         # closing on the landing point would chase the drift, manoeuvring and touching down tilted. Descend
         # holding zero velocity instead (PX4 lands the same way, as its Descend failsafe, without a position).
@@ -166,7 +176,7 @@ def _land_at(xy: Vec3, g: GuidanceState, s: VehicleState, cfg: TrustedParams) ->
     # vehicle stays down until it is disarmed (a zero command would hover it back up)
     down = _descend_speed(s, cfg)
     return Setpoint(
-        SetpointKind.VELOCITY,
+        _SP_VELOCITY,
         pos_ned_m=(xy[0], xy[1], 0.0),
         vel_ned_mps=(vel[0], vel[1], down),
         yaw_rad=g.yaw_rad,
@@ -185,7 +195,11 @@ def step(g: GuidanceState, s: VehicleState, cfg: TrustedParams, dt: float) -> tu
     v = limit_velocity_change(
         g2.vel_cmd, sp.vel_ned_mps, cfg.max_horizontal_decel_mps2 * dt, cfg.max_vertical_decel_mps2 * dt
     )
-    return g2._replace(vel_cmd=v), sp._replace(vel_ned_mps=v)
+    # g2._replace(vel_cmd=v) and sp._replace(vel_ned_mps=v), built directly: _replace costs twice as much
+    return (
+        GuidanceState(g2.behavior, g2.anchor_ned_m, g2.yaw_rad, g2.phase, g2.mission_index, g2.done, v),
+        Setpoint(sp.kind, sp.pos_ned_m, v, sp.yaw_rad, sp.yaw_rate_radps, sp.att_rpy_rad, sp.thrust),
+    )
 
 
 def limit_velocity_change(prev: Vec3, target: Vec3, max_dh_mps: float, max_dv_mps: float) -> Vec3:
@@ -202,10 +216,10 @@ def limit_velocity_change(prev: Vec3, target: Vec3, max_dh_mps: float, max_dv_mp
 def _target(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[GuidanceState, Setpoint]:
     """The behaviour's unlimited velocity setpoint."""
     b = g.behavior
-    if b is Behavior.HOLD:
+    if b is _HOLD:
         return g, _hold(g, s, cfg)
 
-    if b is Behavior.TAKEOFF:
+    if b is _TAKEOFF:
         target_alt = cfg.takeoff_altitude_m
         target = (g.anchor_ned_m[0], g.anchor_ned_m[1], -target_alt)
         done = g.done or s.alt_m >= target_alt - ALTITUDE_ACCEPTANCE_M
@@ -214,12 +228,12 @@ def _target(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[Guid
             cfg.climb_speed_mps, cfg.land_speed_mps,
         )
         g2 = g if done == g.done else g._replace(done=done)
-        return g2, Setpoint(SetpointKind.VELOCITY, pos_ned_m=target, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
+        return g2, Setpoint(_SP_VELOCITY, pos_ned_m=target, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
 
-    if b is Behavior.LAND:
+    if b is _LAND:
         return g, _land_at(g.anchor_ned_m, g, s, cfg)
 
-    if b is Behavior.RTL:
+    if b is _RTL:
         safe_alt = max(cfg.rtl_altitude_m, -g.anchor_ned_m[2])
         if g.phase != RTL_CLIMB and math.hypot(g.anchor_ned_m[0], g.anchor_ned_m[1]) <= cfg.rtl_direct_radius_m:
             safe_alt = -g.anchor_ned_m[2]  # returning from close by: stay at the present height
@@ -239,9 +253,9 @@ def _target(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[Guid
             target, s.pos_ned_m, (0.0, 0.0, 0.0), cfg.position_gain_per_s, cfg.cruise_speed_mps,
             cfg.climb_speed_mps, cfg.land_speed_mps * 2.0,
         )
-        return g2, Setpoint(SetpointKind.VELOCITY, pos_ned_m=target, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
+        return g2, Setpoint(_SP_VELOCITY, pos_ned_m=target, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
 
-    if b is Behavior.MISSION:
+    if b is _MISSION:
         wps = cfg.mission_ned_m
         i = g.mission_index
         if i < len(wps):
@@ -259,7 +273,7 @@ def _target(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[Guid
             cfg.climb_speed_mps, cfg.land_speed_mps * 2.0,
         )
         g2 = g if i == g.mission_index else g._replace(mission_index=i, done=False)
-        return g2, Setpoint(SetpointKind.VELOCITY, pos_ned_m=wp, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
+        return g2, Setpoint(_SP_VELOCITY, pos_ned_m=wp, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
 
     # IDLE and TERMINATE: nothing to fly; the command stage turns the motors off.
     return g, Setpoint(SetpointKind.VELOCITY, pos_ned_m=s.pos_ned_m, yaw_rad=g.yaw_rad)

@@ -212,7 +212,7 @@ def mix_quad_x(
     what was asked; if they still do not fit they are scaled down together. Yaw is then limited to
     the room left on every motor.
     """
-    c = _clamp(collective, 0.0, 1.0)
+    c = 0.0 if collective < 0.0 else (1.0 if collective > 1.0 else collective)  # _clamp(collective, 0, 1)
     k = abs(roll) + abs(pitch)  # largest roll/pitch excursion of any motor (the rows are +-1)
     sat_r = sat_p = sat_y = 0
     sat_t = 0
@@ -344,8 +344,10 @@ def control_step(
         return MOTORS_OFF, st
     g = gains
     dt = dt_s if (math.isfinite(dt_s) and 1e-5 <= dt_s <= 0.1) else 0.0025
+    ri, vi, rd = st.rate_int, st.vel_int_xy_mps2, st.rate_d_filt
+    # the memories' sum is non-finite when any of them is (NaN, infinite) or when they overflow together
     if not st.active or not math.isfinite(
-        st.hover_thrust_est + sum(st.rate_int) + sum(st.vel_int_xy_mps2) + sum(st.rate_d_filt)
+        st.hover_thrust_est + (ri[0] + ri[1] + ri[2]) + (vi[0] + vi[1]) + (rd[0] + rd[1] + rd[2])
     ):
         learned = st.hover_thrust_est
         known = math.isfinite(learned) and learned > 0.0
@@ -367,7 +369,10 @@ def control_step(
 
     # --- outer loop: desired attitude quaternion and collective
     ixy, h, sat_xy, sat_t = st.vel_int_xy_mps2, st.hover_thrust_est, False, 0
-    yaw_rate_ff = _clamp(_fin(cmd.yaw_rate_radps, 0.0), -g.rate_max_yaw_radps, g.rate_max_yaw_radps)
+    ymax = g.rate_max_yaw_radps
+    yaw_rate_ff = cmd.yaw_rate_radps
+    if not -ymax <= yaw_rate_ff <= ymax:  # _clamp(_fin(...)) inlined: NaN and infinities become 0
+        yaw_rate_ff = _clamp(_fin(yaw_rate_ff, 0.0), -ymax, ymax)
     if kind is _VELOCITY:
         acc_n = acc_e = 0.0
         if att_ok and g.vel_d_xy != 0.0:
@@ -430,8 +435,8 @@ def control_step(
         if mw < 0.0:
             mw, mz = -mw, -mz
         yw = g.yaw_weight
-        cw = math.cos(yw * math.acos(_clamp(mw, -1.0, 1.0)))
-        sz = math.sin(yw * math.asin(_clamp(mz, -1.0, 1.0)))
+        cw = math.cos(yw * math.acos(-1.0 if mw < -1.0 else (1.0 if mw > 1.0 else mw)))  # clamped to [-1, 1]
+        sz = math.sin(yw * math.asin(-1.0 if mz < -1.0 else (1.0 if mz > 1.0 else mz)))
         # f = a * (cw, 0, 0, sz): the setpoint with the yaw correction weighted
         fw, fx, fy, fz = aw * cw - az * sz, ax * cw + ay * sz, ay * cw - ax * sz, az * cw + aw * sz
         # e = conj(q) * f: the attitude error in body axes
@@ -447,8 +452,11 @@ def control_step(
     else:
         rsx = rsy = 0.0
         rsz = yaw_rate_ff
-    rmax, ymax = g.rate_max_rp_radps, g.rate_max_yaw_radps
-    rsx, rsy, rsz = _clamp(rsx, -rmax, rmax), _clamp(rsy, -rmax, rmax), _clamp(rsz, -ymax, ymax)
+    rmax = g.rate_max_rp_radps
+    # _clamp(x, -max, max), inlined (per tick)
+    rsx = -rmax if rsx < -rmax else (rmax if rsx > rmax else rsx)
+    rsy = -rmax if rsy < -rmax else (rmax if rsy > rmax else rsy)
+    rsz = -ymax if rsz < -ymax else (ymax if rsz > ymax else rsz)
 
     # --- rate loop: PID, derivative on the measurement through a first-order low-pass
     px, py, pz = st.rate_prev_frd_radps
@@ -465,12 +473,17 @@ def control_step(
     motors, sat, sat_thr = mix_quad_x(tx, ty, tz, collective)
     if not est.landed:  # on the ground the gear, not the integrator, holds the attitude
         sr, sp, sy = sat
+        # _clamp(integrator, -max, max), inlined (per tick)
+        imax, iymax = g.rate_i_rp_max, g.rate_i_yaw_max
         if not (sr > 0 and erx > 0.0) and not (sr < 0 and erx < 0.0):
-            irx = _clamp(irx + g.rate_i_rp * erx * dt, -g.rate_i_rp_max, g.rate_i_rp_max)
+            irx = irx + g.rate_i_rp * erx * dt
+            irx = -imax if irx < -imax else (imax if irx > imax else irx)
         if not (sp > 0 and ery > 0.0) and not (sp < 0 and ery < 0.0):
-            iry = _clamp(iry + g.rate_i_rp * ery * dt, -g.rate_i_rp_max, g.rate_i_rp_max)
+            iry = iry + g.rate_i_rp * ery * dt
+            iry = -imax if iry < -imax else (imax if iry > imax else iry)
         if not (sy > 0 and erz > 0.0) and not (sy < 0 and erz < 0.0):
-            irz = _clamp(irz + g.rate_i_yaw * erz * dt, -g.rate_i_yaw_max, g.rate_i_yaw_max)
+            irz = irz + g.rate_i_yaw * erz * dt
+            irz = -iymax if irz < -iymax else (iymax if irz > iymax else irz)
     if sat_thr > 0:
         sat_t = 1
     return motors, ControllerState(

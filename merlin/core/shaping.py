@@ -12,11 +12,12 @@ command has caught up, the new source's command passes through unchanged (the en
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Final, NamedTuple
 
 from merlin.autopilot.guidance import limit_velocity_change, position_to_velocity, stopping_point
 from merlin.core.config import HandoverParams, OperatorParams, TrustedParams
 from merlin.core.types import (
+    ZERO3,
     Authority,
     Command,
     CommandKind,
@@ -27,6 +28,13 @@ from merlin.core.types import (
     VehicleState,
 )
 
+# Enum members read on every tick, bound once (``merlin.core.types``, "Enum members on the hot path").
+_TRUSTED: Final = Authority.TRUSTED
+_SP_POSITION: Final = SetpointKind.POSITION
+_SP_ATTITUDE: Final = SetpointKind.ATTITUDE
+_CMD_VELOCITY: Final = CommandKind.VELOCITY
+_CMD_ATTITUDE: Final = CommandKind.ATTITUDE
+
 
 def _wrap_pi(x: float) -> float:
     return math.atan2(math.sin(x), math.cos(x))
@@ -34,15 +42,15 @@ def _wrap_pi(x: float) -> float:
 
 def setpoint_to_command(sp: Setpoint, s: VehicleState, source: Authority, tp: TrustedParams) -> Command:
     """A source's setpoint as a command at the actuator stage's level (position closed by the P loop)."""
-    if sp.kind is SetpointKind.ATTITUDE:
+    if sp.kind is _SP_ATTITUDE:
         return Command(
-            CommandKind.ATTITUDE,
+            _CMD_ATTITUDE,
             source,
             att_rpy_rad=sp.att_rpy_rad,
             yaw_rad=sp.att_rpy_rad[2],
             thrust=min(max(sp.thrust, 0.0), 1.0),
         )
-    if sp.kind is SetpointKind.POSITION:
+    if sp.kind is _SP_POSITION:
         vel = position_to_velocity(
             sp.pos_ned_m,
             s.pos_ned_m,
@@ -52,21 +60,26 @@ def setpoint_to_command(sp: Setpoint, s: VehicleState, source: Authority, tp: Tr
             math.inf,
             math.inf,
         )
+        # positional, in Command's field order (every tick: keywords cost twice as much)
         return Command(
-            CommandKind.VELOCITY,
-            source,
-            vel_ned_mps=vel,
-            yaw_rad=sp.yaw_rad,
-            yaw_rate_radps=sp.yaw_rate_radps,
-            pos_target_ned_m=sp.pos_ned_m,
+            _CMD_VELOCITY,  # kind
+            source,  # source
+            vel,  # vel_ned_mps
+            sp.yaw_rad,  # yaw_rad
+            sp.yaw_rate_radps,  # yaw_rate_radps
+            ZERO3,  # att_rpy_rad: Command's default (a velocity command has no attitude)
+            0.0,  # thrust: Command's default
+            sp.pos_ned_m,  # pos_target_ned_m
         )
-    return Command(
-        CommandKind.VELOCITY,
-        source,
-        vel_ned_mps=sp.vel_ned_mps,
-        yaw_rad=sp.yaw_rad,
-        yaw_rate_radps=sp.yaw_rate_radps,
-        pos_target_ned_m=sp.pos_ned_m if source is Authority.TRUSTED else None,
+    return Command(  # positional, as above
+        _CMD_VELOCITY,  # kind
+        source,  # source
+        sp.vel_ned_mps,  # vel_ned_mps
+        sp.yaw_rad,  # yaw_rad
+        sp.yaw_rate_radps,  # yaw_rate_radps
+        ZERO3,  # att_rpy_rad: Command's default
+        0.0,  # thrust: Command's default
+        sp.pos_ned_m if source is _TRUSTED else None,  # pos_target_ned_m
     )
 
 
@@ -182,7 +195,7 @@ def shape(
     window = hp.blend_window_s
     alpha = 1.0 if window <= 0.0 else min(max((now - blend.t0_s) / window, 0.0), 1.0)
     a = blend.start
-    if incoming.kind is CommandKind.ATTITUDE:
+    if incoming.kind is _CMD_ATTITUDE:
         tgt_att = tuple(
             _wrap_pi(a.att_rpy_rad[i] + alpha * _wrap_pi(incoming.att_rpy_rad[i] - a.att_rpy_rad[i]))
             for i in range(3)

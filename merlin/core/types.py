@@ -8,6 +8,13 @@ tick"). Vectors are tuples of floats rather than numpy arrays for the same reaso
 they are an order of magnitude cheaper to build and read than a numpy array.
 
 Frames and units follow PX4/MAVLink: local frame NED about home, body frame FRD, SI units and radians.
+
+Enum members on the hot path: in Python 3.11 reading a member through its class (``Authority.SHADOW``)
+costs ~0.13 µs, ten times a module global, because ``enum.EnumType`` defines ``__getattr__``, which sends
+every attribute lookup on an enum class through CPython's slow path (3.12 removed it). The modules that
+run every tick (the core's step, shaping and guidance, the inner loops, the simulator's runner) therefore
+bind the members they read per tick to module constants once (``_SHADOW: Final = Authority.SHADOW``): the
+same objects, so every comparison gives what it gave; about 2.5 µs of a closed-loop tick.
 """
 
 from __future__ import annotations

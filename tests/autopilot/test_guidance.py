@@ -100,3 +100,18 @@ def test_land_without_a_position_aid_descends_holding_zero_velocity(mode: NavMod
     assert sp_gps.vel_ned_mps[0] < -1.0
     assert sp_ins.vel_ned_mps[:2] == (0.0, 0.0)
     assert sp_ins.vel_ned_mps[2] == sp_gps.vel_ned_mps[2] == CFG.land_speed_mps
+
+
+def test_step_limits_the_setpoint_and_keeps_every_other_field() -> None:
+    """``step`` builds its two results field by field (cheaper than ``_replace``): every field but the
+    limited velocity must come through, whatever fields the records gain later."""
+    cfg = TrustedParams()
+    s = VehicleState(pos_ned_m=(3.0, -2.0, -6.0), vel_ned_mps=(1.0, 0.5, -0.2), att_rpy_rad=(0.0, 0.0, 0.7))
+    for behavior in (Behavior.HOLD, Behavior.TAKEOFF, Behavior.LAND, Behavior.RTL, Behavior.MISSION):
+        g = guidance.enter(behavior, s, cfg)
+        g2, sp = guidance._target(g, s, cfg)
+        got_g, got_sp = guidance.step(g, s, cfg, 0.0025)
+        v = got_g.vel_cmd
+        assert got_sp.vel_ned_mps == v
+        assert got_g == g2._replace(vel_cmd=v)
+        assert got_sp == sp._replace(vel_ned_mps=v)

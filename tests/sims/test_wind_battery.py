@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from sims.battery import Battery, BatteryParams, BatterySagFault, cell_ocv_v
+from sims.battery import LIPO_OCV_CURVE, Battery, BatteryParams, BatterySagFault, cell_ocv_v
 from sims.wind import DiscreteGust, WindModel, WindParams, dryden_low_altitude, gust_profile
 
 DT = 0.0025
@@ -87,3 +87,20 @@ def test_ocv_curve_is_monotonic() -> None:
     assert all(b >= a for a, b in itertools.pairwise(v))
     assert v[0] == 3.3 and v[-1] == 4.2
     assert not math.isnan(cell_ocv_v(float("nan")))
+
+
+def _ocv_by_walking(soc: float) -> float:
+    """The OCV lookup as first written: walk the segments, take the first with soc <= its upper end."""
+    s = min(1.0, max(0.0, soc))
+    for (s0, v0), (s1, v1) in itertools.pairwise(LIPO_OCV_CURVE):
+        if s <= s1:
+            return v0 + (v1 - v0) * (s - s0) / (s1 - s0)
+    return LIPO_OCV_CURVE[-1][1]
+
+
+def test_ocv_binary_search_is_the_segment_walk_bit_for_bit() -> None:
+    knots = [s for s, _ in LIPO_OCV_CURVE]
+    socs = [*np.linspace(-0.2, 1.2, 2001).tolist(), *knots, math.nan, math.inf, -math.inf, -0.0]
+    socs += [math.nextafter(s, d) for s in knots for d in (-1.0, 2.0)]
+    for soc in socs:
+        assert cell_ocv_v(soc) == _ocv_by_walking(soc), soc
