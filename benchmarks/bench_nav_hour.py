@@ -34,20 +34,18 @@ from benchmarks.bench_nav import SYNTH_VO, new_estimator
 from merlin.measurements import GpsSample
 from merlin.nav.config import NavConfig
 from merlin.nav.events import NavEventKind
-from merlin.nav.synthetic import SensorModel, replay, synthesize, waypoint_trajectory
+from merlin.nav.synthetic import (
+    SensorModel,
+    random_polygon_waypoints,
+    replay,
+    synthesize,
+    waypoint_trajectory,
+)
 
 
 def open_flight(seed: int, minutes: float, with_vo: bool) -> dict[str, float]:
     rng = np.random.default_rng(5000 + seed)
-    wps = []
-    legs_m = minutes * 60.0 * 10.0
-    p = np.zeros(2)
-    total = 0.0
-    while total < legs_m:
-        q = rng.uniform(-400.0, 400.0, 2)
-        total += float(np.linalg.norm(q - p))
-        p = q
-        wps.append((float(q[0]), float(q[1]), -30.0 - float(rng.uniform(0.0, 20.0))))
+    wps = random_polygon_waypoints(rng, minutes)
     traj = waypoint_trajectory(wps, speed_mps=float(rng.uniform(8.0, 12.0)), imu_rate_hz=200.0)
     samples = synthesize(traj, rng, SensorModel(imu_rate_hz=200.0), with_vo=with_vo)
     est = new_estimator(traj, SYNTH_VO)

@@ -80,6 +80,21 @@ def _dcm_to_quat(R: np.ndarray) -> Quat:
     return quat_normalize(q)
 
 
+def random_polygon_waypoints(rng: np.random.Generator, minutes: float) -> list[tuple[float, float, float]]:
+    """Waypoints of a nominal test flight: random corners within 400 m of home at 30-50 m up, enough of
+    them for ``minutes`` of flight at 10 m/s (the false-exclusion benchmarks' flights)."""
+    wps: list[tuple[float, float, float]] = []
+    legs_m = minutes * 60.0 * 10.0
+    p = np.zeros(2)
+    total = 0.0
+    while total < legs_m:
+        q = rng.uniform(-400.0, 400.0, 2)
+        total += float(np.linalg.norm(q - p))
+        p = q
+        wps.append((float(q[0]), float(q[1]), -30.0 - float(rng.uniform(0.0, 20.0))))
+    return wps
+
+
 def waypoint_trajectory(
     waypoints_ned_m: Sequence[tuple[float, float, float]],
     speed_mps: float = 10.0,
