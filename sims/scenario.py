@@ -11,7 +11,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from merlin.config.loader import ConfigError, load_config, parse_yaml, validate_model
+from merlin.config.loader import ConfigError, load_config, read_yaml_file, validate_model
 from merlin.config.models import MerlinConfig
 
 Vec3L = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -229,11 +229,7 @@ class Scenario(S):
 def load_scenario(path: str | Path, seed: int | None = None) -> tuple[Scenario, MerlinConfig]:
     """Load and validate a scenario file and the configuration it names."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(str(p), [f"cannot read the scenario: {exc.strerror or exc}"]) from None
-    data, lines = parse_yaml(text, str(p))
+    data, lines = read_yaml_file(p, "the scenario")
     sc = validate_model(Scenario, data, str(p), lines)
     if seed is not None:
         sc = sc.model_copy(update={"seed": seed})

@@ -15,8 +15,6 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from pydantic import ValidationError
-
 
 def register(sub: Any) -> None:
     p = sub.add_parser("serve", help="run the simulated vehicle and the trusted core in real time over MAVLink")
@@ -77,26 +75,14 @@ def _ids(text: str | None, what: str) -> frozenset[int] | None:
 def _load(path: str | None) -> tuple[Any, Path]:
     """The configuration, validated with the directory of its file known, so that the ``links:`` key files
     are checked (relative to that directory) as part of validation; and that directory."""
-    from merlin.config.loader import ConfigError, describe_validation_error, parse_yaml
+    from merlin.config.loader import read_yaml_file, validate_model
     from merlin.config.models import MerlinConfig
 
     if path is None:
         return MerlinConfig(), Path.cwd()
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(str(p), [f"cannot read the file: {exc.strerror or exc}"]) from None
-    data, lines = parse_yaml(text, str(p))
-    if data is None:
-        data = {}
-    if not isinstance(data, dict):
-        raise ConfigError(str(p), [f"(top level): expected a mapping of keys, got {type(data).__name__}"])
-    config_dir = p.resolve().parent
-    try:
-        return MerlinConfig.model_validate(data, context={"config_dir": config_dir}), config_dir
-    except ValidationError as err:
-        raise ConfigError(str(p), describe_validation_error(err, lines)) from None
+    data, lines = read_yaml_file(path)
+    config_dir = Path(path).resolve().parent
+    return validate_model(MerlinConfig, data, path, lines, {"config_dir": config_dir}), config_dir
 
 
 def _vehicle_config(vehicle: str, path: str | None, cfg: Any) -> Any:

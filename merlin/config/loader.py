@@ -92,13 +92,32 @@ def parse_yaml(text: str, source: str) -> tuple[Any, dict[tuple[str | int, ...],
     return data, _line_index(text)
 
 
-def validate_model(model: type[M], data: Any, source: str, lines: Mapping[tuple[str | int, ...], int]) -> M:
+def read_yaml_file(path: str | Path, what: str = "the file") -> tuple[Any, dict[tuple[str | int, ...], int]]:
+    """Read and parse a YAML file: (data, line index). An unreadable file or bad YAML is a ConfigError that
+    names the file (``what`` says what it is in the message: "the file", "the scenario")."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(str(p), [f"cannot read {what}: {exc.strerror or exc}"]) from None
+    return parse_yaml(text, str(p))
+
+
+def validate_model(
+    model: type[M],
+    data: Any,
+    source: str,
+    lines: Mapping[tuple[str | int, ...], int],
+    context: dict[str, Any] | None = None,
+) -> M:
+    """``data`` validated as ``model`` (``context`` goes to pydantic's validators); a ConfigError naming
+    ``source``, the key path, its line, the value and what is allowed otherwise."""
     if data is None:
         data = {}
     if not isinstance(data, dict):
         raise ConfigError(source, [f"(top level): expected a mapping of keys, got {type(data).__name__}"])
     try:
-        return model.model_validate(data)
+        return model.model_validate(data, context=context)
     except ValidationError as err:
         raise ConfigError(source, describe_validation_error(err, lines)) from None
 
@@ -109,12 +128,8 @@ def load_config_text(text: str, source: str = "<config>") -> MerlinConfig:
 
 
 def load_config(path: str | Path) -> MerlinConfig:
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(str(p), [f"cannot read the file: {exc.strerror or exc}"]) from None
-    return load_config_text(text, str(p))
+    data, lines = read_yaml_file(path)
+    return validate_model(MerlinConfig, data, str(path), lines)
 
 
 def canonical_json(cfg: BaseModel) -> str:
