@@ -21,9 +21,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from merlin.core.types import ZERO3, Vec3
+from sims.sensors import _BLOCK, normal_rows
 
 _FT = 0.3048
-_BLOCK = 1024
 _PREFETCH_AT = 7 * _BLOCK // 8  # the IMU lanes draw at 1/8, 3/8, 5/8 of theirs, the fault noise at 1/2
 
 
@@ -55,11 +55,10 @@ def dryden_low_altitude(w20_mps: float, height_m: float) -> tuple[float, float, 
 class WindModel:
     """``step(t_s)`` once per simulation tick of ``dt_s``: returns the wind (air velocity) in NED, m/s."""
 
-    __slots__ = ("_g", "_i", "_pending", "_phi", "_q", "_rng", "_rows", "p")
+    __slots__ = ("_g", "_n", "_phi", "_q", "p")
 
     def __init__(self, params: WindParams, rng: np.random.Generator, dt_s: float) -> None:
         self.p = params
-        self._rng = rng
         su, sw, lu, lw = dryden_low_altitude(params.turbulence_w20_mps, params.turbulence_height_m)
         v = max(params.reference_speed_mps, 0.5)
         phi_u, phi_w = math.exp(-dt_s * v / lu), math.exp(-dt_s * v / lw)
@@ -67,21 +66,12 @@ class WindModel:
         self._q = (su * math.sqrt(1 - phi_u**2), su * math.sqrt(1 - phi_u**2), sw * math.sqrt(1 - phi_w**2))
         start = rng.standard_normal(3)
         self._g = [float(start[0]) * su, float(start[1]) * su, float(start[2]) * sw]
-        self._rows: list[list[float]] = []
-        self._pending: list[list[float]] = []
-        self._i = _BLOCK
+        # drawn 1024 rows at a time, the next block at row 7/8 of the current one, so the wind never refills
+        # on the same tick as the sensor streams (sims/sensors.py staggered_rows); same values either way
+        self._n = normal_rows(rng, 3, _PREFETCH_AT)
 
     def step(self, t_s: float) -> Vec3:
-        if self._i >= _BLOCK:
-            self._rows = self._pending or self._rng.standard_normal((_BLOCK, 3)).tolist()
-            self._pending = []
-            self._i = 0
-        elif self._i == _PREFETCH_AT:
-            # the next block is drawn here, not when this one runs out, so the wind never refills on the
-            # same tick as the sensor streams (sims/sensors.py staggered_rows); same values either way
-            self._pending = self._rng.standard_normal((_BLOCK, 3)).tolist()
-        n = self._rows[self._i]
-        self._i += 1
+        n = self._n()
         g, phi, q = self._g, self._phi, self._q
         g[0] = phi[0] * g[0] + q[0] * n[0]
         g[1] = phi[1] * g[1] + q[1] * n[1]

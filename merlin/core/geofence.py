@@ -595,12 +595,13 @@ def check(
         leg = v * tr
         radius = v * v / (prm.gravity_mps2 * math.tan(prm.bank_limit_rad))
         d = leg + math.pi * radius
+        drift = _drift_m(wind, v, tr, radius)
         # farthest point of either turn from the position, plus the drift over the whole manoeuvre
-        reach = math.hypot(leg, radius) + radius + _drift_m(wind, v, tr, radius)
+        reach = math.hypot(leg, radius) + radius + drift
         # the polyline's chord error (beyond the finest table only for turns wider than ~2.6 km)
         sag = _WIND_SAG_FACTOR * max(ARC_CHORD_ERROR_M, radius * fence._arc_tables[-1][1])
     else:
-        leg = radius = sag = 0.0
+        leg = radius = sag = drift = 0.0
         d = v * tr + v * v / (2.0 * prm.max_h_decel_mps2)
         reach = d
 
@@ -610,8 +611,7 @@ def check(
         if not (lb > reach + w + sag):
             if _outside_box(fence, n, e):
                 trip_h = True
-            elif fence._grid_nj and _grid_clears_path(fence, n, e, vn, ve, v, d, leg, radius, w, fixed_wing,
-                                                       _drift_m(wind, v, tr, radius)):
+            elif fence._grid_nj and _grid_clears_path(fence, n, e, vn, ve, v, d, leg, radius, w, fixed_wing, drift):
                 trip_h = False
             else:
                 trip_h = _path_hits(fence, n, e, vn, ve, v, d, leg, radius, w, sag, reach, fixed_wing, wind)
