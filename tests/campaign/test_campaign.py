@@ -197,38 +197,46 @@ def _descendants(pid: int) -> list[int]:
 @pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux /proc to find the worker")
 def test_a_lost_worker_costs_only_its_run(reference: tuple[Path, dict], tmp_path: Path) -> None:
-    """SIGKILL the worker process mid-campaign: the driver starts a fresh pool and flies what is missing."""
+    """SIGKILL the worker process mid-campaign: the driver starts a fresh pool and flies what is missing.
+
+    The kill comes after the first run is stored, while many remain, so the worker is certainly busy: a tiny
+    run takes a fraction of a second, and killing on a timer raced the worker finishing everything."""
     _, ref = reference
     out = tmp_path / "lost"
-    cmd = [sys.executable, "-m", "merlin.cli", "campaign", TINY, "--runs", "3", "--seed", "11", "--workers", "1",
-           "--out", str(out), "--quiet"]
+    n_runs = 12
+    cmd = [sys.executable, "-m", "merlin.cli", "campaign", TINY, "--runs", str(n_runs), "--seed", "11",
+           "--workers", "1", "--out", str(out), "--quiet"]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    killed = False
+    killed_after = -1
     deadline = time.monotonic() + 240
+    results = out / "results.jsonl"
     try:
-        while time.monotonic() < deadline and proc.poll() is None and not killed:
-            for pid in _descendants(proc.pid):
-                try:
-                    cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
-                except OSError:
-                    continue
-                if b"spawn_main" in cmdline and b"resource_tracker" not in cmdline:
-                    time.sleep(1.0)  # let it start its run
-                    os.kill(pid, signal.SIGKILL)
-                    killed = True
-                    break
-            time.sleep(0.1)
+        while time.monotonic() < deadline and proc.poll() is None and killed_after < 0:
+            stored = len(results.read_text().splitlines()) if results.exists() else 0
+            if stored >= 1:
+                for pid in _descendants(proc.pid):
+                    try:
+                        cmdline = Path(f"/proc/{pid}/cmdline").read_bytes()
+                        if b"spawn_main" in cmdline and b"resource_tracker" not in cmdline:
+                            os.kill(pid, signal.SIGKILL)
+                            killed_after = stored
+                            break
+                    except (OSError, ProcessLookupError):
+                        continue  # gone between listing and kill: look again
+            time.sleep(0.02)
         _, err = proc.communicate(timeout=300)
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert killed, "no worker process found to kill"
+    assert 1 <= killed_after < n_runs, "no busy worker process found to kill"
     assert proc.returncode in (0, 1), err
     got = read_results(out / "results.jsonl")
-    assert set(got) == {"00000-tiny", "00001-tiny", "00002-tiny"}
+    assert set(got) == {f"{i:05d}-tiny" for i in range(n_runs)}
     agg = json.loads((out / "campaign.json").read_text())
-    assert agg["runs"] == 3 and agg["complete"] and (out / "report.html").exists()
-    assert _stable(got) == {k: v for k, v in _stable(ref).items() if k in got}
+    assert agg["runs"] == n_runs and agg["complete"] and (out / "report.html").exists()
+    sg, sr = _stable(got), _stable(ref)
+    assert {k: sg[k] for k in sr} == sr, "the runs the reference also flew are bit-identical, re-flown or not"
+    assert all(r["status"] != "error" for r in got.values())
 
 
 def test_another_campaign_in_the_same_directory_is_refused(reference: tuple[Path, dict]) -> None:

@@ -153,7 +153,10 @@ def test_serve_enforces_the_links_section(tmp_path: Path) -> None:
                                               source_component=190)
         intruder.setup_signing(KEY, sign_outgoing=True)  # even with the key: system 77 is not on the list
         intruder.mav.command_long_send(1, 1, 400, 0, 1.0, 0, 0, 0, 0, 0, 0)
-        assert wait_for(m, lambda x: x.get_type() == "HEARTBEAT" and x.get_srcComponent() == 1) is not None
+        # the intruder's datagram is queued on the vehicle's GCS socket before this one, so the answer to this
+        # signed command proves the intruder's was read (and refused) first; a heartbeat proved nothing
+        ack = command(m, 400, 0.0)
+        assert ack is not None and ack.result == 0
     finally:
         stop(sp)
     ev = sp.events()
