@@ -53,7 +53,8 @@ def register(sub: Any) -> None:
     p.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
     p.add_argument("--no-gc-tuning", action="store_true", help="leave Python's garbage collector automatic")
     p.add_argument("--realtime-priority", type=int, default=0, metavar="N",
-                   help="run the tick scheduler SCHED_FIFO at priority N (Linux, needs the privilege); 0 off")
+                   help="run the tick scheduler SCHED_FIFO at priority N and lock the process in RAM (mlockall) "
+                        "(Linux, needs the privilege); 0 off")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=run)
 

@@ -82,6 +82,13 @@ class TickStats:
     slow: list[tuple[int, float, float]] = field(default_factory=list)  # (tick, late ms, work ms)
     missed_at: list[tuple[int, float, float]] = field(default_factory=list)  # (tick, late ms, previous work ms)
     _prev_work_ns: int = 0
+    # why each missed tick started late, judged from what the guest kernel saw of the scheduler thread
+    # between the previous tick's start and this one's (getrusage(RUSAGE_THREAD) deltas): the previous
+    # tick worked a whole period; a major page fault; preempted (involuntary context switch); or nothing
+    # the guest can see -- the virtual CPU itself did not run (hypervisor steal)
+    missed_causes: dict[str, int] = field(default_factory=dict)
+    # the first missed ticks: (tick, involuntary switches, minor faults, major faults) in that interval
+    missed_context: list[tuple[int, int, int, int]] = field(default_factory=list)
     gc_runs: int = 0
     gc_frozen: int = 0  # objects moved to the never-scanned generation instead of traversed (see Server)
     gc_unreachable: int = 0  # cyclic garbage the collections found and freed
@@ -93,7 +100,10 @@ class TickStats:
         if len(self.setpoint_latency_ns) < self.keep:
             self.setpoint_latency_ns.append(ns)
 
-    def record(self, late_ns: int, start_ns: int, prev_start_ns: int | None, work_ns: int, k: int = 0) -> None:
+    def record(self, late_ns: int, start_ns: int, prev_start_ns: int | None, work_ns: int, k: int = 0,
+               thread_ctx: tuple[int, int, int] | None = None) -> None:
+        """``thread_ctx``: (involuntary context switches, minor faults, major faults) of the scheduler
+        thread since the previous tick started, when the caller measures them."""
         self.ticks += 1
         if late_ns >= self.period_ns:
             self.missed += 1
@@ -101,6 +111,19 @@ class TickStats:
                 # a late start after a long previous tick is that tick's work; after a short one, the
                 # thread did not run (descheduled, or the machine's CPU taken by the hypervisor)
                 self.missed_at.append((k, round(late_ns / 1e6, 3), round(self._prev_work_ns / 1e6, 3)))
+            if thread_ctx is not None:
+                nivcsw, minflt, majflt = thread_ctx
+                if self._prev_work_ns >= self.period_ns:
+                    cause = "previous_tick_long"
+                elif majflt > 0:
+                    cause = "major_page_fault"
+                elif nivcsw > 0:
+                    cause = "preempted_in_guest"
+                else:
+                    cause = "not_visible_in_guest"
+                self.missed_causes[cause] = self.missed_causes.get(cause, 0) + 1
+                if len(self.missed_context) < SLOW_KEPT:
+                    self.missed_context.append((k, nivcsw, minflt, majflt))
         self._prev_work_ns = work_ns
         self.max_late_ns = max(self.max_late_ns, late_ns)
         self.max_work_ns = max(self.max_work_ns, work_ns)
@@ -138,6 +161,7 @@ class TickStats:
             "gc_frozen": self.gc_frozen, "gc_unreachable": self.gc_unreachable,
             "slow_gc": self.slow_gc,
             "slow_ticks": self.slow, "missed_at": self.missed_at,
+            "missed_causes": dict(self.missed_causes), "missed_context": self.missed_context,
             "setpoints_used": len(self.setpoint_latency_ns), "setpoints_coalesced": self.coalesced,
             "setpoint_latency_p50_ms": pct(self.setpoint_latency_ns, 0.5),
             "setpoint_latency_p99_ms": pct(self.setpoint_latency_ns, 0.99),

@@ -807,6 +807,7 @@ class Server:
             except (AttributeError, OSError) as exc:
                 log.warning("cannot switch to SCHED_FIFO (%s); running with the normal scheduler", exc)
                 self.events.write({"t": 0.0, "type": "realtime", "policy": "normal", "detail": str(exc)})
+            self.events.write({"t": 0.0, "type": "memory_lock", **_lock_memory()})
         for ls in self.links:
             if hasattr(ls.endpoint.transport, "max_datagrams_per_read"):
                 ls.endpoint.transport.max_datagrams_per_read = MAX_DATAGRAMS_PER_READ
@@ -822,6 +823,8 @@ class Server:
         t0 = time.monotonic_ns()
         deadline = t0
         prev_start: int | None = None
+        usage = _thread_usage()
+        prev_usage = usage() if usage else None
         try:
             while not self._stop and (n_ticks is None or self.loop.k < n_ticks):
                 self._wait_until(deadline, fd_list, fds)
@@ -837,7 +840,14 @@ class Server:
                     self._drain(ls, budget_end)
                 self._tick()
                 work = time.monotonic_ns() - start
-                self.stats.record(late, start, prev_start, work, self.loop.k)
+                ctx = None
+                if usage is not None and prev_usage is not None:
+                    # one getrusage(2) per tick (about a microsecond): what the guest kernel saw of this
+                    # thread since the previous tick started, to explain a missed tick (records.TickStats)
+                    u = usage()
+                    ctx = (u[0] - prev_usage[0], u[1] - prev_usage[1], u[2] - prev_usage[2])
+                    prev_usage = u
+                self.stats.record(late, start, prev_start, work, self.loop.k, ctx)
                 prev_start = start
                 if self.on_tick is not None:
                     self.on_tick(self)
@@ -895,6 +905,46 @@ def _lone_setpoint_sender(data: bytes) -> tuple[int, int] | None:
     if data[7] | data[8] << 8 | data[9] << 16 not in _SETPOINT_IDS:
         return None
     return (data[5], data[6])
+
+
+def _thread_usage() -> Callable[[], tuple[int, int, int]] | None:
+    """(involuntary context switches, minor faults, major faults) of the calling thread, or None where
+    the platform has no per-thread usage (RUSAGE_THREAD is Linux)."""
+    try:
+        import resource
+
+        who = resource.RUSAGE_THREAD
+    except (ImportError, AttributeError):
+        return None
+
+    def read() -> tuple[int, int, int]:
+        r = resource.getrusage(who)
+        return (r.ru_nivcsw, r.ru_minflt, r.ru_majflt)
+
+    return read
+
+
+def _lock_memory() -> dict[str, object]:
+    """Lock the process's pages in RAM (mlockall(MCL_CURRENT | MCL_FUTURE)), as real-time flight software
+    on Linux does, so the scheduler thread never waits for a page to come back from disk or from the
+    kernel's reclaim. Only where locking cannot later make an allocation fail: the lock limit is unlimited
+    (RLIMIT_MEMLOCK, or root's CAP_IPC_LOCK); otherwise nothing is locked and the record says why."""
+    try:
+        import ctypes
+        import ctypes.util
+        import resource
+
+        soft, _ = resource.getrlimit(resource.RLIMIT_MEMLOCK)
+        if soft != resource.RLIM_INFINITY and os.geteuid() != 0:
+            return {"locked": False, "detail": f"RLIMIT_MEMLOCK is {soft} bytes, not unlimited"}
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        mcl_current, mcl_future = 1, 2  # <sys/mman.h> on Linux
+        if libc.mlockall(mcl_current | mcl_future) != 0:
+            err = ctypes.get_errno()
+            return {"locked": False, "detail": f"mlockall: {os.strerror(err)}"}
+        return {"locked": True, "detail": "mlockall(MCL_CURRENT | MCL_FUTURE)"}
+    except (ImportError, AttributeError, OSError) as exc:  # not Linux, or no C library to call
+        return {"locked": False, "detail": str(exc)}
 
 
 def _package_version() -> list[int]:

@@ -16,7 +16,7 @@ from merlin.config.loader import ConfigError, load_config_text
 from merlin.config.models import LinksConfig, signing_key_from_file_bytes
 from merlin.link.security import DEFAULT_SIGNED_CLASSES
 from merlin.serve.link_security import KeyFileProblem, LinkOverrides, link_setups
-from tests.serve.conftest import command, gcs_connection, start_serve, stop, wait_for
+from tests.serve.conftest import command, gcs_connection, start_serve, stop
 
 KEY = bytes(range(32))
 

@@ -104,3 +104,18 @@ def test_a_missed_tick_records_the_previous_ticks_work() -> None:
     summary = st.summary()
     assert summary["missed_ticks"] == 1 and summary["missed_at"] == [(2, 5.0, 9.0)]
     assert summary["work_max_ms"] == 9.0
+
+
+def test_a_missed_tick_is_explained_by_what_the_guest_kernel_saw() -> None:
+    st = TickStats(period_ns=4_000_000)
+    st.record(0, 0, None, 5_000_000, k=1, thread_ctx=(0, 0, 0))
+    st.record(6_000_000, 10_000_000, 0, 1_000_000, k=2, thread_ctx=(0, 3, 0))  # after a 5 ms tick
+    st.record(4_500_000, 18_500_000, 10_000_000, 1_000_000, k=3, thread_ctx=(0, 2, 1))  # waited for a page
+    st.record(4_000_000, 26_000_000, 18_500_000, 1_000_000, k=4, thread_ctx=(2, 0, 0))  # preempted
+    st.record(9_000_000, 35_000_000, 26_000_000, 1_000_000, k=5, thread_ctx=(0, 0, 0))  # nothing visible
+    st.record(3_999_999, 38_999_999, 35_000_000, 1_000_000, k=6, thread_ctx=(5, 0, 9))  # late, not missed
+    assert st.missed == 4
+    assert st.missed_causes == {"previous_tick_long": 1, "major_page_fault": 1, "preempted_in_guest": 1,
+                                "not_visible_in_guest": 1}
+    assert st.missed_context == [(2, 0, 3, 0), (3, 0, 2, 1), (4, 2, 0, 0), (5, 0, 0, 0)]
+    assert st.summary()["missed_causes"] == st.missed_causes
