@@ -278,6 +278,33 @@ _LOG_COLUMNS = (
 )
 
 
+def _fill_margins(arrays: dict[str, np.ndarray], fence: geofence.Fence | None,
+                  rows: list[tuple[int, float, float, float, bool]]) -> tuple[float, float]:
+    """Write the fence margin into the log's ``fence_margin`` column: measured at ``rows`` (every 5th log
+    row: the truth's position and whether it was airborne), each held until the next; returns the least
+    margin and the largest breach over the airborne log rows (0 breach when never outside)."""
+    col = arrays["fence_margin"]
+    air = arrays["landed"] == 0.0
+    if fence is None or not rows:
+        col[:] = math.inf
+        return math.inf, 0.0
+    at = np.array([r[0] for r in rows], dtype=np.int64)
+    measured = geofence.signed_margins_m(fence, np.array([r[1:4] for r in rows], dtype=float),
+                                         np.array([r[4] for r in rows], dtype=bool))
+    # row i holds the margin measured at the last measured row <= i (rows[0] is log row 0)
+    held = measured[np.searchsorted(at, np.arange(col.size), side="right") - 1]
+    col[:] = held
+    if not air.any():
+        return math.inf, 0.0
+    m = held[air]
+    # min()/max() in Python semantics, as when they were taken row by row (a NaN margin never wins)
+    min_margin, max_breach = math.inf, 0.0
+    for x in m.tolist():
+        min_margin = min(min_margin, x)
+        max_breach = max(max_breach, -x)
+    return min_margin, max_breach
+
+
 def _controller_call(
     ctrl: ExperimentalController, obs: Observation, budget_s: float, events: list[dict[str, Any]], t: float
 ) -> ControllerOutput:
@@ -572,15 +599,13 @@ def run_scenario(
     last_cmd_vel: tuple[float, float, float] | None = None
     max_jump = 0.0
     prev_auth = Authority.TRUSTED
-    min_margin = math.inf
-    max_breach = 0.0
     import hashlib
 
     digest = hashlib.sha256()
     wall0 = time.perf_counter()
     fault_state: dict[int, bool] = {}
     decision: Decision | None = None
-    margin = math.inf
+    margin_rows: list[tuple[int, float, float, float, bool]] = []  # (log row, n, e, d, airborne)
     for k in range(n_ticks):
         t = k * dt
         # scenario fault edges, as events (what was injected, when)
@@ -659,14 +684,11 @@ def run_scenario(
             last_cmd_vel = cmd.vel_ned_mps
         prev_auth = decision.authority
         if k % log_every == 0:
-            # the exact margin costs a geometry query: every 5th log row (10 Hz at the default log rate)
+            # the exact margin costs a geometry query: every 5th log row (10 Hz at the default log rate),
+            # held for the rows between; measured for all of them at once after the run (nothing in the
+            # loop reads it), then written into the log's margin column (_fill_margins)
             if len(log) % 5 == 0:
-                margin = geofence.signed_margin_m(core_cfg.fence, truth.pos_ned_m, airborne=not truth.landed) \
-                    if core_cfg.fence is not None else math.inf
-            airborne = not truth.landed
-            if airborne:
-                min_margin = min(min_margin, margin)
-                max_breach = max(max_breach, -margin)
+                margin_rows.append((len(log), *truth.pos_ned_m, not truth.landed))
             ev = envelope_values(state)
             motors, w = loop.actuators, loop.wind_ned
             tp, tv, ta = truth.pos_ned_m, truth.vel_ned_mps, truth.rpy_rad
@@ -684,7 +706,7 @@ def run_scenario(
                 sp.att_rpy_rad[0] if sp is not None else math.nan,
                 motors[0], motors[1], motors[2], motors[3],
                 loop.batt_frac, w[0], w[1],
-                margin,
+                math.inf,  # fence_margin, filled in after the run
                 *[ev[i] * scale for i, scale in env_cols],
             )
             extra: dict[str, float] = {}
@@ -707,6 +729,7 @@ def run_scenario(
         events.append(note if isinstance(note, dict) else {"t": loop.t, "type": "note", "detail": str(note)})
     events.sort(key=lambda e: e["t"])
     arrays = log.arrays()
+    min_margin, max_breach = _fill_margins(arrays, core_cfg.fence, margin_rows)
     for key in sorted(arrays):
         digest.update(key.encode())
         digest.update(np.ascontiguousarray(arrays[key]).tobytes())

@@ -37,6 +37,7 @@ from merlin.core.geofence import (
     circle_polygon_ne,
     contains,
     signed_margin_m,
+    signed_margins_m,
     trigger_distance_m,
 )
 from merlin.geodesy import LocalFrame
@@ -775,3 +776,34 @@ def test_fence_survives_pickling_with_prepared_geometry() -> None:
     for pos, vel in [((200.0, 200.0, -30.0), (3.0, 4.0, 0.0)), ((585.0, 100.0, -30.0), (10.0, 0.0, 0.0))]:
         assert check(g, pos, vel, SIG, SIG, True) == check(f, pos, vel, SIG, SIG, True)
     assert check(f, (585.0, 100.0, -30.0), (10.0, 0.0, 0.0), SIG, SIG, True).tripped
+
+
+def _margin_fences() -> list[Fence]:
+    floor = FenceParams(altitude_floor_m=2.0, altitude_ceiling_m=100.0)
+    return [
+        mixed_fence().with_params(floor),  # inclusion with a hole, exclusions, floor and ceiling
+        Fence(MR, exclusion_circles=(CircleNE((0.0, 0.0), 50.0),)),  # keep-out only
+        Fence(FenceParams(altitude_ceiling_m=60.0)),  # no horizontal boundary: the ceiling alone
+    ]
+
+
+_coord = st.one_of(st.floats(-800.0, 800.0), st.sampled_from([math.nan, math.inf, -math.inf, 2.0e6, 0.0]))
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    which=st.integers(0, 2),
+    points=st.lists(st.tuples(_coord, _coord, st.one_of(st.floats(-150.0, 10.0), _coord), st.booleans()),
+                    min_size=1, max_size=30),
+)
+def test_property_vectorised_margins_equal_the_scalar_ones(which: int, points: list) -> None:  # type: ignore[type-arg]
+    """The simulator measures its log's margins after the run with ``signed_margins_m``: it must give
+    exactly (bit for bit, NaN where the scalar gives NaN) what ``signed_margin_m`` gives point by point."""
+    fence = _margin_fences()[which]
+    pos = np.array([p[:3] for p in points], dtype=float)
+    air = np.array([p[3] for p in points], dtype=bool)
+    got = signed_margins_m(fence, pos, air)
+    want = [signed_margin_m(fence, p[:3], airborne=p[3]) for p in points]
+    assert got.shape == (len(points),)
+    for g, w, pt in zip(got.tolist(), want, points, strict=True):
+        assert (math.isnan(g) and math.isnan(w)) or g == w, (pt, g, w)
