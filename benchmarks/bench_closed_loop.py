@@ -26,10 +26,9 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=5)
     a = ap.parse_args()
     sc, cfg = load_scenario(a.scenario)
-    import merlin.core.step as step_mod
+    from merlin import _build
 
-    print(f"scenario {sc.name}: {sc.duration_s:.0f} s simulated at {1 / sc.dt_s:.0f} Hz;"
-          f" compiled core: {not step_mod.__file__.endswith('.py')}")
+    print(f"scenario {sc.name}: {sc.duration_s:.0f} s simulated at {1 / sc.dt_s:.0f} Hz; {_build.describe()}")
     rtf_wall, rtf_cpu = [], []
     for i in range(a.runs):
         c0, w0 = time.process_time(), time.perf_counter()

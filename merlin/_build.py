@@ -141,6 +141,22 @@ class _SourceFinder(importlib.abc.MetaPathFinder):
         return None
 
 
+#: Set to 1 to run the ``.py`` sources of the hot modules in a compiled install (no rebuild needed after
+#: editing one; the coverage gate of ``run.py test`` sets it, since coverage cannot see inside compiled code).
+SOURCES_ENV = "MERLIN_USE_SOURCES"
+
+
+def use_sources_if_asked() -> None:
+    """:func:`use_pure_python` when :data:`SOURCES_ENV` is ``1`` (called by the ``merlin`` and ``sims``
+    packages' ``__init__``, i.e. before any hot module is imported)."""
+    import os
+
+    if os.environ.get(SOURCES_ENV, "").strip() == "1" and not any(
+        isinstance(f, _SourceFinder) for f in sys.meta_path
+    ):
+        use_pure_python()
+
+
 def use_pure_python() -> None:
     """Make this process import the pure-Python sources of the hot modules, compiled build or not.
 

@@ -17,6 +17,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from merlin import _build
 from merlin.config.runtime import build_core_config, envelope_limits
 from merlin.core.types import Authority, Behavior
 from sims.expectations import Verdict
@@ -53,7 +54,9 @@ def summary_dict(r: RunResult, verdicts: list[Verdict]) -> dict[str, Any]:
         "events": r.events,
         "metrics": {k: v for k, v in r.metrics.items() if k != "wall_time_s"},
         # wall-clock figures: the only fields that differ between two runs of the same scenario and seed
-        "timing": {"wall_time_s": r.metrics["wall_time_s"], "realtime_factor": r.metrics["realtime_factor"]},
+        # (and the build that ran: compiled or pure Python, merlin._build)
+        "timing": {"wall_time_s": r.metrics["wall_time_s"], "realtime_factor": r.metrics["realtime_factor"],
+                   "build": _build.describe()},
         "log_digest_sha256": r.decisions_digest,
         "fence_triggers": [{"t": t, "north_m": n, "east_m": e} for t, n, e in r.fence_triggers],
         "controller_log": r.controller_log,

@@ -99,13 +99,27 @@ def core_decision_digest(n_ticks: int = 1600) -> str:
     return digest.hexdigest()
 
 
-def closed_loop_digest(seconds: float = 3.0) -> str:
-    """The start of the nominal scenario (dynamics, sensors, core, inner loops): its decision digest."""
+#: Closed-loop runs compared between the builds: the nominal flight's start, a fence revocation at 12 m/s
+#: (a flyaway, the bumpless take-back, the fence's projection) and the triplex voter isolating a stuck
+#: IMU lane (redundancy with the duplex FDI behind it); (scenario file, seconds flown).
+PARITY_SCENARIOS: tuple[tuple[str, float], ...] = (
+    ("nominal.yaml", 3.0), ("figure4_projection_12mps.yaml", 49.0), ("imu_stuck_isolated.yaml", 30.0),
+)
+
+
+def closed_loop_digest(seconds: float = 3.0, scenario: str = "nominal.yaml") -> str:
+    """A scenario's first ``seconds`` (dynamics, sensors, core, inner loops): its decision digest, and
+    the digest of its events and metrics (wall-clock metrics left out)."""
     from sims.runner import run_scenario
     from sims.scenario import load_scenario
 
-    sc, cfg = load_scenario(ROOT / "examples" / "scenarios" / "nominal.yaml")
-    return run_scenario(sc.model_copy(update={"duration_s": seconds}), cfg).decisions_digest
+    sc, cfg = load_scenario(ROOT / "examples" / "scenarios" / scenario)
+    r = run_scenario(sc.model_copy(update={"duration_s": seconds}), cfg)
+    h = hashlib.sha256(r.decisions_digest.encode())
+    h.update(json.dumps(r.events, sort_keys=True, default=str).encode())
+    h.update(json.dumps({k: v for k, v in r.metrics.items() if k not in ("wall_time_s", "realtime_factor")},
+                        sort_keys=True).encode())
+    return h.hexdigest()
 
 
 def _pure_digests() -> dict[str, str]:
@@ -115,7 +129,9 @@ def _pure_digests() -> dict[str, str]:
         "_build.use_pure_python()\n"
         "from tests.test_compiled import closed_loop_digest, core_decision_digest\n"
         "import merlin.core.step, sims.multirotor\n"
-        "print(json.dumps({'core': core_decision_digest(), 'loop': closed_loop_digest(),\n"
+        "from tests.test_compiled import PARITY_SCENARIOS\n"
+        "loops = {name: closed_loop_digest(sec, name) for name, sec in PARITY_SCENARIOS}\n"
+        "print(json.dumps({'core': core_decision_digest(), 'loop': loops,\n"
         "    'compiled': _build.compiled(), 'files': [merlin.core.step.__file__, sims.multirotor.__file__]}))\n"
     )
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
@@ -178,4 +194,18 @@ def test_compiled_and_pure_make_the_same_decisions() -> None:
     assert pure["compiled"] is False
     assert all(f.endswith(".py") for f in pure["files"]), pure["files"]
     assert core_decision_digest() == pure["core"]
-    assert closed_loop_digest() == pure["loop"]
+    assert {name: closed_loop_digest(sec, name) for name, sec in PARITY_SCENARIOS} == pure["loop"]
+
+
+def test_merlin_use_sources_runs_the_sources_in_any_build() -> None:
+    """MERLIN_USE_SOURCES=1 (run.py's coverage gate, a developer between rebuilds) loads every hot module
+    from its .py, whether the install is compiled or not."""
+    code = ("import merlin.core.step, sims.multirotor, sims.wind\n"
+            "from merlin import _build\n"
+            "print(_build.compiled(), merlin.core.step.__file__, sims.multirotor.__file__, sims.wind.__file__)\n")
+    env = {**os.environ, "MERLIN_USE_SOURCES": "1"}
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    flag, *files = proc.stdout.split()
+    assert flag == "False" and all(f.endswith(".py") for f in files), proc.stdout
