@@ -85,7 +85,9 @@ class TickStats:
     # why each missed tick started late, judged from what the guest kernel saw of the scheduler thread
     # between the previous tick's start and this one's (getrusage(RUSAGE_THREAD) deltas): the previous
     # tick worked a whole period; a major page fault; preempted (involuntary context switch); or nothing
-    # the guest can see -- the virtual CPU itself did not run (hypervisor steal)
+    # the guest accounts for -- the thread was neither preempted nor faulting, so its virtual CPU did not
+    # run (hypervisor steal) or its wake-up from the wait came late (a halted virtual CPU woken by the
+    # host, or a kernel without preemption busy elsewhere)
     missed_causes: dict[str, int] = field(default_factory=dict)
     # the first missed ticks: (tick, involuntary switches, minor faults, major faults) in that interval
     missed_context: list[tuple[int, int, int, int]] = field(default_factory=list)
