@@ -443,8 +443,10 @@ class FixedWingLoop(ClosedLoop):
         for side in (1.0, -1.0):
             cn = s.pos_ned_m[0] + side * (-ve / speed) * r
             ce = s.pos_ned_m[1] + side * (vn / speed) * r
-            worst.append(min(geofence.signed_margin_m(fence, (cn + r * math.cos(a), ce + r * math.sin(a), 0.0))
-                             for a in np.linspace(0.0, math.tau, _TURN_SAMPLES, endpoint=False)))
+            circle = [(cn + r * math.cos(a), ce + r * math.sin(a), 0.0)
+                      for a in np.linspace(0.0, math.tau, _TURN_SAMPLES, endpoint=False)]
+            # the circle's margins in one call (equal to signed_margin_m point by point); Python's min as before
+            worst.append(min(geofence.signed_margins_m(fence, np.array(circle), np.zeros(len(circle), bool)).tolist()))
         return worst[0] >= worst[1]
 
     def _trusted_targets(self, t: float, decision: Decision, s: VehicleState) -> fc.FixedWingTargets:

@@ -282,11 +282,10 @@ def _fill_margins(arrays: dict[str, np.ndarray], fence: geofence.Fence | None,
     """Write the fence margin into the log's ``fence_margin`` column: measured at ``rows`` (every 5th log
     row: the truth's position and whether it was airborne), each held until the next; returns the least
     margin and the largest breach over the airborne log rows (0 breach when never outside)."""
+    if fence is None or not rows:
+        return math.inf, 0.0  # the column holds the inf every row was logged with
     col = arrays["fence_margin"]
     air = arrays["landed"] == 0.0
-    if fence is None or not rows:
-        col[:] = math.inf
-        return math.inf, 0.0
     at = np.array([r[0] for r in rows], dtype=np.int64)
     measured = geofence.signed_margins_m(fence, np.array([r[1:4] for r in rows], dtype=float),
                                          np.array([r[4] for r in rows], dtype=bool))
