@@ -114,6 +114,9 @@ def evaluate(x: Expectation, events: list[dict[str, Any]], log: dict[str, np.nda
     if kind == "max_command_jump":
         lim = x.mps if x.mps is not None else 0.5
         j = metrics["max_authority_change_command_jump_mps"]
+        if math.isnan(j):  # the vehicle does not fly the velocity command itself (the fixed wing)
+            return Verdict(name, False, "not applicable: this vehicle's actuator stage does not fly the core's"
+                           " velocity command (max_authority_change_command_jump_mps is null)")
         return Verdict(name, j <= lim, f"largest command step at a change of authority {j:.3f} m/s (allowed {lim})")
     if kind == "max_lane_switch_step":
         # hardware redundancy (sims/lanes.py): within SWITCH_WINDOW_S of an autopilot-lane switch, the
@@ -131,6 +134,8 @@ def evaluate(x: Expectation, events: list[dict[str, Any]], log: dict[str, np.nda
         return _height_loss_after_revocation(name, x, events, log)
     if kind in ("nav_mode_at", "max_nav_error"):
         return _evaluate_nav(x, name, log)
+    if kind == "max_tracking_error":
+        return _tracking_error(name, x, log)
     return Verdict(name, False, f"unknown expectation type {kind!r}")  # unreachable: the model validates types
 
 
@@ -189,6 +194,41 @@ def _height_loss_after_revocation(name: str, x: Expectation, events: list[dict[s
     loss = float(h[0] - h.min())
     return Verdict(name, loss <= x.m, f"height lost after the revocation at t={t0:.3f}: {loss:.2f} m "
                    f"(allowed {x.m} m)")
+
+
+def _tracking_error(name: str, x: Expectation, log: dict[str, np.ndarray]) -> Verdict:
+    """How well a quantity is held after capture, e.g. a fixed wing's height and airspeed on a lap (the seed
+    FCU thesis's +-10 m and +-2 m/s after capture, Table 6.1). ``parameter`` is ``height_m`` (the true height
+    above home) or an envelope parameter (its ``env_`` log column: what the core saw, in display units).
+    Within ``[after_s, after_s + within_s]`` (to the end without ``within_s``) the quantity is captured at
+    the first row within ``capture`` (default ``tolerance / 5``) of ``target`` (by ``t`` when given), and
+    from there to the window's end its error must stay within ``tolerance``."""
+    assert x.parameter is not None and x.target is not None and x.tolerance is not None
+    if x.parameter == "height_m":
+        values = -np.asarray(log["truth_d"], dtype=float)
+    elif f"env_{x.parameter}" in log:
+        values = np.asarray(log[f"env_{x.parameter}"], dtype=float)
+    else:
+        env = sorted(k.removeprefix("env_") for k in log if k.startswith("env_"))
+        return Verdict(name, False, f"parameter {x.parameter!r} is not tracked; allowed: height_m, {', '.join(env)}")
+    ts = log["t"]
+    end = x.after_s + x.within_s if x.within_s is not None else math.inf
+    sel = np.flatnonzero((ts >= x.after_s - 1e-9) & (ts <= end + 1e-9))
+    capture = x.capture if x.capture is not None else x.tolerance / 5.0
+    err = values[sel] - x.target
+    inside = np.flatnonzero(np.abs(err) <= capture)
+    if not inside.size:
+        return Verdict(name, False, f"{x.parameter} never within {capture:g} of {x.target:g} (not captured)")
+    c = int(inside[0])
+    t_cap = float(ts[sel][c])
+    if x.t is not None and t_cap > x.t + 1e-9:
+        return Verdict(name, False, f"{x.parameter} captured at t={t_cap:.2f}, later than t={x.t}")
+    after = err[c:]
+    k = int(np.argmax(np.abs(after)))
+    worst = float(after[k])
+    return Verdict(name, abs(worst) <= x.tolerance,
+                   f"{x.parameter} captured at t={t_cap:.2f}; largest error after capture {worst:+.2f} at "
+                   f"t={float(ts[sel][c + k]):.2f} (allowed +-{x.tolerance:g})")
 
 
 def evaluate_all(expectations: list[Expectation], events: list[dict[str, Any]], log: dict[str, np.ndarray],

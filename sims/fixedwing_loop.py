@@ -87,6 +87,9 @@ LAUNCH_RELEASE_HEIGHT_M = 3.0
 #: After the launch, TAKEOFF climbs along the launch heading (a line this long, at the takeoff height) until
 #: the core's takeoff completes (height reached), which makes it HOLD: a loiter where the aircraft is.
 LAUNCH_LINE_M = 5000.0
+#: The pitch an experimental ATTITUDE command may reach with ``experimental_stall_protection`` off (the
+#: pitch loop's own limit is 20 deg; PullUp asks for 30).
+UNPROTECTED_PITCH_MAX_DEG = 45.0
 #: Points per loiter circle when comparing the two sides' loiter circles against the fence.
 _TURN_SAMPLES = 24
 
@@ -142,6 +145,79 @@ class FixedWingEstimator(TruthPlusNoiseEstimator):
                             s.armed, s.landed, s.battery_frac, truth.alpha_rad)
 
 
+#: Scenario faults the fixed-wing loop acts on whatever the estimator: the stand-in models ``gps_loss`` itself,
+#: the others act on the links, the controller, the battery or the wind. Every other fault type (gps_jump,
+#: gps_spoof, imu_*, mag_*, baro_*, ...) acts on the sensor frame, which only the fusion EKF and the IMU
+#: voter read; ``autopilot_lane_fail`` needs the multirotor's autopilot lanes and is refused.
+NON_SENSOR_FAULTS = ("gps_loss", "controller_crash", "controller_hang", "controller_nan", "controller_absurd",
+                     "gcs_link_loss", "rc_link_loss", "battery_sag", "wind_gust")
+#: Scenario fields the fixed-wing loop implements; any other one set to a non-default value is refused (a
+#: feature added for the multirotor must not be silently ignored here). ``redundancy`` and ``camera`` are
+#: checked in detail.
+FIXED_WING_SCENARIO_FIELDS = ("name", "description", "duration_s", "seed", "dt_s", "vehicle", "config", "estimator",
+                              "initial", "wind", "gcs", "operator", "rc_connected", "controller", "faults",
+                              "expectations", "log_rate_hz", "redundancy", "camera")
+#: ``redundancy`` fields the fixed wing implements: the IMU voter before the EKF (autopilot_lanes must be 1).
+FIXED_WING_REDUNDANCY_FIELDS = ("sensor_voter", "fdi_preset", "autopilot_lanes", "bumpless_step")
+
+
+def _non_default(model: Any, allowed: tuple[str, ...]) -> list[tuple[str, Any]]:
+    """(field, value) of every field of the pydantic ``model`` outside ``allowed`` whose value is not its
+    default."""
+    out = []
+    for name, info in type(model).model_fields.items():
+        if name in allowed:
+            continue
+        value = getattr(model, name)
+        default = info.get_default(call_default_factory=True)
+        if value != default:
+            out.append((name, value))
+    return out
+
+
+def _refuse_what_cannot_act(sc: Scenario, source: str, on_launcher: bool) -> None:
+    """A ConfigError for every part of the scenario this aircraft's loop would not act on: it must never run
+    and pass with a fault that was not injected or a stage that was not there."""
+    errors: list[str] = []
+    for name, value in _non_default(sc, FIXED_WING_SCENARIO_FIELDS):
+        errors.append(f"{name} = {value!r}: not implemented on the fixed wing ({sc.vehicle}); leave it at its"
+                      " default")
+    for name, value in _non_default(sc.redundancy, FIXED_WING_REDUNDANCY_FIELDS):
+        errors.append(f"redundancy.{name} = {value!r}: not implemented on the fixed wing ({sc.vehicle}); leave it"
+                      " at its default")
+    if sc.redundancy.autopilot_lanes != 1:
+        errors.append(f"redundancy.autopilot_lanes = {sc.redundancy.autopilot_lanes}: the three voted autopilot"
+                      f" lanes are a multirotor's inner loops; the fixed wing ({sc.vehicle}) flies one"
+                      " (allowed: 1)")
+    if sc.camera is not None:
+        errors.append(f"camera: {sc.camera.texture!r}: the downward camera and visual odometry are not modelled"
+                      f" on the fixed wing ({sc.vehicle}); allowed: no camera (null)")
+    if sc.estimator == "ekf" and on_launcher:
+        errors.append("estimator = 'ekf' with a catapult start (initial.pos_ned_m down >= 0): the launch stroke"
+                      " is not simulated, so the IMU never sees the aircraft reach flying speed and the filter"
+                      " would reject every GPS fix after the release; start the EKF airborne (down < 0) or use"
+                      " estimator: truth_plus_noise")
+    from sims.lanes import sensor_voter_on
+
+    voter = sensor_voter_on(sc)
+    for i, f in enumerate(sc.faults):
+        if f.type == "autopilot_lane_fail":
+            errors.append(f"faults[{i}].type = 'autopilot_lane_fail': the fixed wing ({sc.vehicle}) has one"
+                          " autopilot lane (redundancy.autopilot_lanes must be 1)")
+        elif (f.type not in NON_SENSOR_FAULTS and sc.estimator != "ekf"
+              and not (voter and f.type.startswith("imu_"))):
+            errors.append(f"faults[{i}].type = {f.type!r} acts on the simulated sensors, which only the fusion EKF"
+                          " reads (the truth-plus-noise stand-in reads the truth); allowed with"
+                          " estimator: ekf (or, for IMU faults, redundancy.sensor_voter: true)")
+    for i, x in enumerate(sc.expectations):
+        if x.type in ("max_command_jump", "max_lane_switch_step"):
+            errors.append(f"expectations[{i}].type = {x.type!r}: not applicable to the fixed wing ({sc.vehicle}),"
+                          " whose actuator stage re-initialises its own loops at a change of authority and flies"
+                          " one autopilot lane")
+    if errors:
+        raise ConfigError(source, errors)
+
+
 def turn_clearances_m(fence: geofence.Fence, s: VehicleState) -> tuple[float, float]:
     """The margins of the fence projection's right and left turns, (right_m, left_m): the shortest distance
     from each projected path (reaction leg, then the half turn at the bank limit) to a hazard, minus the
@@ -193,6 +269,14 @@ class FixedWingLoop(ClosedLoop):
     #: Fly the escape turn before a trusted behaviour when the fence is tripped (off only to show, in the
     #: tests, what guidance alone does next to the notch).
     escape_turns: bool = True
+    flies_velocity_command = False  # the stage flies course/speed/climb targets (metric not applicable)
+    #: Fly an experimental ATTITUDE command through the inner loops' pitch limit and angle-of-attack
+    #: protection (:func:`merlin.autopilot.fixedwing_control.control_step`). Off only for the stall
+    #: counterfactual (tests/scenarios_fixedwing/test_stall_counterfactual.py): the experimental controller's
+    #: pitch then reaches the pitch loop unlimited up to :data:`UNPROTECTED_PITCH_MAX_DEG`, as a controller
+    #: driving the elevator itself would, so that only the trusted core's envelope stands between it and the
+    #: stall. Merlin's own behaviours always fly with the protections.
+    experimental_stall_protection: bool = True
 
     def __init__(self, sc: Scenario, cfg: MerlinConfig, source: str = "<scenario>") -> None:
         self.sc = sc
@@ -227,7 +311,7 @@ class FixedWingLoop(ClosedLoop):
         except ValueError as exc:
             raise ConfigError(source, [f"initial.airspeed_mps = {airspeed!r}: {exc}"]) from None
         self.fw: FixedWingSim = self.vehicle  # type: ignore[assignment]
-        self.sensors = SensorSuite(SensorParams(), rng_sensors, home_lat_deg=cfg.home.lat_deg,
+        self.sensors = SensorSuite(sc.sensors.apply(SensorParams()), rng_sensors, home_lat_deg=cfg.home.lat_deg,
                                    home_lon_deg=cfg.home.lon_deg)
         self.injector = SensorFaultInjector(sensor_faults(sc.faults), rng_faults)
         gusts = [DiscreteGust(g.start_s, g.duration_s, tuple(g.amplitude_ned_mps)) for g in sc.wind.gusts]  # type: ignore[arg-type]
@@ -241,6 +325,31 @@ class FixedWingLoop(ClosedLoop):
         ])
         losses = [(f.start_s, _end(f)) for f in sc.faults if f.type == "gps_loss"]
         self.estimator = FixedWingEstimator(rng_est, dt, losses)
+        _refuse_what_cannot_act(sc, source, self.on_launcher)
+        self.nav_events: list[dict[str, Any]] = []
+        if sc.estimator == "ekf":
+            # the multirotor's fusion EKF on this aircraft's sensor frame (ClosedLoop._ekf_estimate). The
+            # scenario starts airborne, so there is no alignment on the ground: the filter starts from the
+            # state at t = 0 with NavInit's default uncertainties (1 m, 0.2 m/s, 1.7 deg of tilt, 11 deg of
+            # yaw), as a filter handed over after an in-flight alignment would
+            from merlin.nav.estimator import NavEstimator, NavInit
+            from sims.vision_loop import VisionLoop, nav_filter_config
+
+            tr0 = self.fw.truth()
+            self.ekf = NavEstimator(nav_filter_config(cfg), init=NavInit(
+                pos_ned_m=tr0.pos_ned_m, vel_ned_mps=tr0.vel_ned_mps, att_rpy_rad=tr0.rpy_rad))
+            self.vision = VisionLoop(None, sc.seed)  # no camera (refused above): the GPS test trace only
+        from sims.lanes import Redundancy
+
+        if Redundancy.wanted(sc):  # the IMU voter (on by default with the EKF); autopilot lanes refused above
+            from merlin.autopilot.multirotor_control import DEFAULT_GAINS
+            from sims.sensors import dipole_field_ned_gauss
+
+            fld = self.sensors.params.mag.field_ned_gauss or dipole_field_ned_gauss(cfg.home.lat_deg,
+                                                                                    cfg.home.lon_deg)
+            # hover thrust and gains are the autopilot lanes' (a multirotor's), never built here
+            self.redundancy = Redundancy(sc, root.spawn(1)[0], fld, 0.0, DEFAULT_GAINS)
+            self.extra_log_row = self.redundancy.log_row
 
         # ---- the fixed-wing actuator stage: parameters from the configuration where it has them
         trusted = cfg.trusted
@@ -249,6 +358,9 @@ class FixedWingLoop(ClosedLoop):
         # The autopilot banks up to its own 35 deg; the configuration's vehicle.bank_limit_deg is the bank the
         # fence projection assumes, which should be what the autopilot holds in a sustained turn (less).
         self.cp = replace(cp0, airspeed_cruise_mps=cruise)
+        # the experimental controller's attitude without the stall protections (experimental_stall_protection)
+        self.cp_unprotected = replace(self.cp, pitch_max_rad=math.radians(UNPROTECTED_PITCH_MAX_DEG),
+                                      alpha_protect_rad=math.radians(90.0))
         self.gp = fg.GuidanceParams(rtl_height_m=trusted.rtl_altitude_m, rtl_airspeed_mps=cruise)
         self.mission = tuple(fg.Waypoint(float(n), float(e), -float(d), cruise) for n, e, d in trusted.mission_ned_m)
         fence = self.core_cfg.fence
@@ -311,11 +423,18 @@ class FixedWingLoop(ClosedLoop):
     def sense(self) -> VehicleState:
         """First half of a tick; on the catapult the truth is the aircraft at rest (JSBSim is not run)."""
         if not self.on_launcher:
-            return super().sense()
+            return super().sense()  # sensors (+ faults) -> the stand-in or the fusion EKF (_ekf_estimate)
         t = self.t
         self.truth = self._on_launcher_truth(t)
         self.frame = self.injector.apply(self.sensors.step(self.truth))
         self.state = self.estimator.estimate(t, self.truth, self.armed, self.batt_frac)
+        return self.state
+
+    def _ekf_estimate(self, t: float) -> VehicleState:
+        """The fusion EKF on this aircraft's sensor frame (the multirotor's path), plus the alpha vane (read as
+        truth, as the stand-in's: :class:`FixedWingEstimator`)."""
+        s = super()._ekf_estimate(t)
+        self.state = replace(s, alpha_rad=self.truth.alpha_rad)
         return self.state
 
     def act(self, inputs: Inputs) -> Decision:
@@ -325,6 +444,8 @@ class FixedWingLoop(ClosedLoop):
         decision = self.core.step(t, inputs)
         self.decision = decision
         self.armed = decision.armed
+        if self.redundancy is not None and self.frame is not None:
+            self.redundancy.observe(t, self.frame)  # the IMU voter's events (a no-op when the EKF voted)
         if self.on_launcher:
             if not (decision.armed and decision.behavior is Behavior.TAKEOFF):
                 self.wind_ned = self.wind.step(t)
@@ -337,8 +458,11 @@ class FixedWingLoop(ClosedLoop):
             armed=True, battery_frac=self.batt_frac)
         self._launched_now = False
         if self._source_key(decision) != self.mode_key or self._since_autopilot >= self.autopilot_every:
-            targets = self._targets(t, decision, s)
-            self.cstate, out = fc.control_step(self.cp, self.cstate, s, targets, self.autopilot_dt_s)
+            cp = self.cp
+            if not self.experimental_stall_protection and decision.authority is Authority.EXPERIMENTAL:
+                cp = self.cp_unprotected
+            targets = self._targets(t, decision, s, cp)
+            self.cstate, out = fc.control_step(cp, self.cstate, s, targets, self.autopilot_dt_s)
             self.surfaces = out.surfaces
             self._since_autopilot = 0
         self._since_autopilot += 1
@@ -371,15 +495,17 @@ class FixedWingLoop(ClosedLoop):
             return ("command", auth, cmd.kind)
         return ("trusted", decision.behavior)
 
-    def _targets(self, t: float, decision: Decision, s: VehicleState) -> fc.FixedWingTargets:
-        """What the inner loops fly this tick; re-initialises them bumplessly on a change of source."""
+    def _targets(self, t: float, decision: Decision, s: VehicleState,
+                 cp: fc.FixedWingControlParams) -> fc.FixedWingTargets:
+        """What the inner loops fly this tick (with ``cp``: :attr:`cp`, or :attr:`cp_unprotected` for the stall
+        counterfactual); re-initialises them bumplessly on a change of source."""
         cmd = decision.command
         key = self._source_key(decision)
         from_command = key[0] == "command"
         changed = key != self.mode_key
         if from_command:
             self.escape_side = 0.0
-            targets = fg.targets_from_command(self.gp, self.cp, cmd, s)
+            targets = fg.targets_from_command(self.gp, cp, cmd, s)
         else:
             if changed:
                 self._enter(t, decision, s)

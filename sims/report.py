@@ -21,7 +21,7 @@ from merlin import _build
 from merlin.config.runtime import build_core_config, envelope_limits
 from merlin.core.types import Authority, Behavior
 from sims.expectations import Verdict
-from sims.runner import RunResult
+from sims.runner import FIXED_WING_VEHICLES, RunResult
 
 SUMMARY_VERSION = 1
 
@@ -45,8 +45,9 @@ def summary_dict(r: RunResult, verdicts: list[Verdict]) -> dict[str, Any]:
         "seed": sc.seed,
         "duration_s": sc.duration_s,
         "estimator": sc.estimator,
-        "estimator_note": "truth plus modelled navigation errors (a stand-in for the EKF)"
-        if sc.estimator == "truth_plus_noise" else "fusion EKF",
+        "estimator_note": ("truth plus modelled navigation errors (a stand-in for the EKF)"
+                           if sc.estimator == "truth_plus_noise" else "fusion EKF on the simulated sensors")
+        + ("; angle of attack from a vane read as truth" if sc.vehicle in FIXED_WING_VEHICLES else ""),
         "passed": all(v.passed for v in verdicts),
         "config_name": r.config.name,
         "config_sha256": r.config_sha256,

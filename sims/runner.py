@@ -356,6 +356,10 @@ class ClosedLoop:
     #: turns it off when nothing reads the frame (see there); a driver that wants the sensor samples
     #: anyway sets it back to True right after construction, before the first tick.
     sensor_frame_wanted: bool = True
+    #: whether the inner loops fly the core's velocity command itself; False on the fixed wing, whose actuator
+    #: stage turns it into course, speed and climb targets: the command-jump metric is then not applicable
+    #: (NaN in the metrics, null in summary.json)
+    flies_velocity_command: bool = True
 
     def __init__(self, sc: Scenario, cfg: MerlinConfig, source: str = "<scenario>") -> None:
         self.sc = sc
@@ -737,7 +741,7 @@ def run_scenario(
         "max_fence_breach_m": max_breach,
         "min_fence_margin_m": min_margin if math.isfinite(min_margin) else 0.0,
         "realtime_factor": sc.duration_s / wall if wall > 0 else math.inf,
-        "max_authority_change_command_jump_mps": max_jump,
+        "max_authority_change_command_jump_mps": max_jump if loop.flies_velocity_command else math.nan,
         "wall_time_s": wall,
         "final_distance_from_home_m": math.hypot(loop.truth.pos_ned_m[0], loop.truth.pos_ned_m[1]),
         "final_landed": float(loop.truth.landed),

@@ -144,6 +144,7 @@ class Expectation(S):
         "nav_mode_at",
         "max_nav_error",
         "max_height_loss_after_revocation",
+        "max_tracking_error",
     ]
     name: str = ""
     t: float | None = None
@@ -162,11 +163,21 @@ class Expectation(S):
     lane: int | None = Field(None, ge=0, le=2, description="event: only events about this lane")
     step: float | None = Field(None, gt=0.0, description="max_lane_switch_step: allowed motor-command step")
     nav_mode: str | None = Field(None, description="nav_mode_at: GPS, VO, INERTIAL or LOST")
+    # max_tracking_error: ``parameter`` (height_m, or an envelope parameter such as airspeed_mps) stays within
+    # ``tolerance`` of ``target`` from its capture (first within ``capture`` of it) to the end of the window
+    target: float | None = Field(None, description="max_tracking_error: the value tracked, in the parameter's units")
+    tolerance: float | None = Field(None, gt=0.0, description="max_tracking_error: allowed |error| after capture")
+    capture: float | None = Field(
+        None, gt=0.0, description="max_tracking_error: |error| that counts as captured (default: tolerance / 5)")
 
     @model_validator(mode="after")
     def _needs(self) -> Expectation:
         if self.type == "landed_by" and self.t is None:
             raise ValueError("expectation type 'landed_by' needs t: the time by which the vehicle is on the ground")
+        if self.type == "max_tracking_error" and (self.parameter is None or self.target is None
+                                                  or self.tolerance is None):
+            raise ValueError("expectation type 'max_tracking_error' needs parameter (height_m or an envelope"
+                             " parameter), target and tolerance")
         return self
 
 

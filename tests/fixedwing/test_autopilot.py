@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import itertools
 import math
+from dataclasses import replace
+from pathlib import Path
 
 import pytest
 from hypothesis import given, settings
@@ -12,6 +14,9 @@ from hypothesis import strategies as st
 
 from merlin.autopilot import fixedwing_control as fc
 from merlin.autopilot import fixedwing_guidance as fg
+from merlin.config.loader import load_config
+from merlin.config.runtime import envelope_limits
+from merlin.core import envelope
 from merlin.core.types import Authority, Command, CommandKind, VehicleState
 from sims.fixedwing import FixedWingTruth, SurfaceCommand
 from tests.fixedwing.harness import AUTOPILOT_HZ, FRAMES_PER_TICK, make_loop
@@ -28,6 +33,7 @@ TABLE_6_1 = (
 HEIGHT_TOL_M = 10.0
 AIRSPEED_TOL_MPS = 2.0
 ALPHA_STALL_DEG = 23.5  # the model's C_L,max angle (test_vehicle.py)
+FIXEDWING_CONFIG = Path(__file__).resolve().parents[2] / "examples" / "configs" / "fixedwing_default.yaml"
 
 
 def test_seed_004_lap_two_laps_clockwise_holding_height_and_airspeed() -> None:
@@ -128,15 +134,18 @@ def test_velocity_command_mapping_clamps_speed_and_keeps_course_below_threshold(
 
 
 def test_stall_protection_revokes_before_the_stall_and_recovers() -> None:
-    """An experimental controller ramps the elevator up at idle; the airspeed limit of the envelope preset
-    (min 18.5 m/s, 0.5 s) revokes it; Merlin resets from the state and recovers (RTL, the default rule)."""
+    """An experimental controller ramps the elevator up at idle; the core's envelope monitor
+    (:func:`merlin.core.envelope.update`, the exceedance timers of the trusted core) with the fixed-wing
+    configuration's limits (airspeed min 18.5 m/s for 0.5 s, alpha max 17 deg for 0.3 s, ...) trips; Merlin
+    resets from the state and recovers (RTL, the default rule)."""
     loop = make_loop(pos_ned_m=(0.0, 0.0, -160.0), heading_rad=0.0)
     sim = loop.sim
     assert sim.trim_result is not None
     e0 = sim.trim_result.surfaces.elevator
-    v_min_limit, duration = 18.5, 0.5
-    violated, t, exp_cmd = 0.0, 0.0, sim.trim_result.surfaces
-    while violated < duration - 1e-9:
+    limits = envelope_limits(load_config(FIXEDWING_CONFIG))
+    since: tuple[float | None, ...] = (None,) * len(limits)
+    t, exp_cmd = 0.0, sim.trim_result.surfaces
+    while True:
         tr = sim.truth()
         exp_cmd = SurfaceCommand(
             aileron=-1.5 * tr.rpy_rad[0] - 0.1 * tr.omega_frd_radps[0],
@@ -145,8 +154,13 @@ def test_stall_protection_revokes_before_the_stall_and_recovers() -> None:
         )
         tr = sim.advance(exp_cmd, FRAMES_PER_TICK)
         t += 1.0 / AUTOPILOT_HZ
-        violated = violated + 1.0 / AUTOPILOT_HZ if tr.airspeed_mps < v_min_limit else 0.0
+        vs = replace(tr.to_vehicle_state(), alpha_rad=tr.alpha_rad)
+        verdict = envelope.update(limits, since, envelope.envelope_values(vs), t)
+        since = verdict.since
+        if verdict.tripped:
+            break
         assert t < 20.0
+    assert verdict.reason is not None and verdict.reason.parameter in ("airspeed_mps", "alpha_deg")
     at_revoke = sim.truth()
     assert math.degrees(at_revoke.alpha_rad) < ALPHA_STALL_DEG  # revoked before the stall
     vs = at_revoke.to_vehicle_state()
