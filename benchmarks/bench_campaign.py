@@ -4,9 +4,14 @@ scheduling overhead per run (workers' capacity not spent inside ``run_scenario``
     .venv/bin/python benchmarks/bench_campaign.py                 # small: 8 runs per configuration
     .venv/bin/python benchmarks/bench_campaign.py --runs 1000     # the 1,000-run mixed campaign
 
-The mixed campaign is ``examples/campaigns/*.yaml`` (nominal, every controller fault, every sensor /
-link / battery / wind fault, fence approaches). Each configuration flies a fresh directory with the same
-seed, so all fly the same runs. The machine is shared: numbers vary with its load.
+    .venv/bin/python benchmarks/bench_campaign.py --runs 100 --configs ray2 --repeats 3
+
+The mixed campaign is every file in ``examples/campaigns/`` (docs/campaigns.md lists them: nominal flight,
+every controller fault, every sensor / link / battery / wind fault on the fusion EKF, GPS faults with the
+camera and visual odometry, autopilot-lane and IMU-lane redundancy, fence approaches, the JSBSim fixed
+wing). Adding a file changes the mix and so the mean run time: compare runs per minute only between
+measurements of the same set of files (the JSON names them). Each configuration flies a fresh directory
+with the same seed, so all fly the same runs. The machine is shared: numbers vary with its load.
 """
 
 from __future__ import annotations
@@ -54,7 +59,8 @@ def main() -> int:
                   f"{t['overhead_per_run_s']:.2f} s ({100 * t['overhead_fraction']:.1f} %), after start-up "
                   f"{100 * t['overhead_fraction_after_startup']:.1f} %, start-up {t['startup_s']:.1f} s, in-worker "
                   f"{t['worker_overhead_per_run_s']:.3f} s/run, {passed} passed, {errors} errors", flush=True)
-        results[name] = {"runs": args.runs, "runs_per_min_median": statistics.median(rates),
+        results[name] = {"runs": args.runs, "files": [Path(p).name for p in scenarios],
+                         "runs_per_min_median": statistics.median(rates),
                          "runs_per_min_spread": [min(rates), max(rates)],
                          "overhead_per_run_s_median": statistics.median(overheads),
                          "overhead_fraction_median": statistics.median(fracs),

@@ -376,7 +376,7 @@ class ClosedLoop:
         ini = sc.initial
         self.vehicle = Multirotor(self.params, rng_vehicle, dt_s=dt, pos_ned_m=tuple(ini.pos_ned_m),  # type: ignore[arg-type]
                                   rpy_rad=(0.0, 0.0, math.radians(ini.yaw_deg)))
-        self.sensors = SensorSuite(SensorParams(), rng_sensors, home_lat_deg=cfg.home.lat_deg,
+        self.sensors = SensorSuite(sc.sensors.apply(SensorParams()), rng_sensors, home_lat_deg=cfg.home.lat_deg,
                                    home_lon_deg=cfg.home.lon_deg)
         self.injector = SensorFaultInjector(sensor_faults(sc.faults), rng_faults)
         gusts = [DiscreteGust(g.start_s, g.duration_s, tuple(g.amplitude_ned_mps)) for g in sc.wind.gusts]  # type: ignore[arg-type]

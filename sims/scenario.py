@@ -7,12 +7,15 @@ Errors name the file, the line, the key path, the value and what is allowed, lik
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from merlin.config.loader import ConfigError, load_config, read_yaml_file, validate_model
 from merlin.config.models import MerlinConfig
+
+if TYPE_CHECKING:
+    from sims.sensors import SensorParams
 
 Vec3L = Annotated[list[float], Field(min_length=3, max_length=3)]
 
@@ -207,6 +210,39 @@ class Redundancy(S):
         None, gt=0.0, le=1.0, description="motor-command change allowed per tick at a hand-over; null: default")
 
 
+class SensorNoise(S):
+    """Scale factors on the simulated sensor units' baseline noise (``sims/sensors.py``: datasheet values,
+    cited there; 1 = those). Campaigns vary them to fly noisier or cleaner units. They act on the sensor
+    frame: the fusion EKF, the IMU voter and the autopilot lanes see them; the stand-in estimator
+    (``truth_plus_noise``) draws its own noise and does not."""
+
+    imu_noise_scale: float = Field(
+        1.0, ge=0.0, le=10.0, description="gyro and accelerometer white-noise densities")
+    gps_noise_scale: float = Field(
+        1.0, ge=0.0, le=10.0, description="GPS position error (slow wander and white) and velocity noise sigmas")
+    baro_noise_scale: float = Field(1.0, ge=0.0, le=10.0, description="barometer white-noise sigma")
+    mag_noise_scale: float = Field(1.0, ge=0.0, le=10.0, description="magnetometer white-noise sigma")
+
+    def apply(self, params: SensorParams) -> SensorParams:
+        """``params`` with the noise scaled; the very same object when every scale is 1 (bit-identical)."""
+        from dataclasses import replace
+
+        scales = (self.imu_noise_scale, self.gps_noise_scale, self.baro_noise_scale, self.mag_noise_scale)
+        if scales == (1.0, 1.0, 1.0, 1.0):
+            return params
+        i, g, k = params.imu, params.gps, self.gps_noise_scale
+        imu = replace(
+            i, gyro_noise_density_radps_per_rthz=i.gyro_noise_density_radps_per_rthz * self.imu_noise_scale,
+            accel_noise_density_mps2_per_rthz=i.accel_noise_density_mps2_per_rthz * self.imu_noise_scale)
+        gps = replace(
+            g, pos_h_markov_sigma_m=g.pos_h_markov_sigma_m * k, pos_v_markov_sigma_m=g.pos_v_markov_sigma_m * k,
+            pos_h_white_sigma_m=g.pos_h_white_sigma_m * k, pos_v_white_sigma_m=g.pos_v_white_sigma_m * k,
+            vel_h_sigma_mps=g.vel_h_sigma_mps * k, vel_v_sigma_mps=g.vel_v_sigma_mps * k)
+        baro = replace(params.baro, noise_sigma_m=params.baro.noise_sigma_m * self.baro_noise_scale)
+        mag = replace(params.mag, noise_sigma_gauss=params.mag.noise_sigma_gauss * self.mag_noise_scale)
+        return replace(params, imu=imu, gps=gps, baro=baro, mag=mag)
+
+
 class Scenario(S):
     name: str
     description: str = ""
@@ -229,6 +265,7 @@ class Scenario(S):
     log_rate_hz: float = Field(50.0, gt=0.0, le=400.0)
     redundancy: Redundancy = Redundancy()
     camera: Camera | None = Field(None, description="downward camera + visual odometry (needs estimator: ekf)")
+    sensors: SensorNoise = SensorNoise()
 
     @model_validator(mode="after")
     def _camera_needs_ekf(self) -> Scenario:

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-CAMPAIGN_VERSION = 1
+CAMPAIGN_VERSION = 2  # 2: failed_runs; crashed runs count against every expectation of their scenario
 Z95 = 1.959963984540054  # two-sided 95 % standard normal quantile
 DISTRIBUTION_METRICS = ("takeover_latency_s", "min_fence_margin_m", "max_fence_breach_m", "nav_error_max_m")
 
@@ -55,6 +55,18 @@ def repro_command(out_dir: str, rec: dict[str, Any]) -> str:
     return f"merlin sim {shlex.quote(yaml_path)} --out {shlex.quote(repro_dir)}"
 
 
+def _stem(rec: dict[str, Any]) -> str:
+    return str(rec["run_id"]).split("-", 1)[1]
+
+
+def failed_run(rec: dict[str, Any], out_dir: str) -> dict[str, Any]:
+    """One failed or crashed run, with what is needed to fly it again alone."""
+    return {"run_id": rec["run_id"], "scenario_file": rec.get("scenario_file"), "seed": rec.get("seed"),
+            "samples": rec.get("samples"), "status": rec.get("status"),
+            "failed_expectations": [x["name"] for x in rec.get("expectations", []) if not x["passed"]],
+            "error": rec.get("error"), "reproduce": repro_command(out_dir, rec)}
+
+
 def severity(rec: dict[str, Any]) -> tuple[float, ...]:
     """Sort key, worst first: errors, then failed runs, then by breach (larger worse) and margin (smaller)."""
     m = rec.get("metrics") or {}
@@ -72,16 +84,23 @@ def aggregate(records: list[dict[str, Any]], *, seed: int, planned: int, out_dir
     passed = sum(1 for r in recs if r.get("passed"))
     per_exp: dict[tuple[str, str], list[int]] = {}
     for r in ok:
-        stem = r["run_id"].split("-", 1)[1]
         for x in r.get("expectations", []):
-            c = per_exp.setdefault((stem, x["name"]), [0, 0])
+            c = per_exp.setdefault((_stem(r), x["name"]), [0, 0, 0])
             c[0] += bool(x["passed"])
             c[1] += 1
+    # A crashed run showed none of its scenario's expectations to hold: it counts as a failure of each
+    # (the conservative reading for a safety board; leaving it out would raise every pass rate).
+    for r in errors:
+        names = r.get("expectation_names") or sorted({n for (st, n) in per_exp if st == _stem(r)})
+        for name in names:
+            c = per_exp.setdefault((_stem(r), name), [0, 0, 0])
+            c[1] += 1
+            c[2] += 1
     expectations = []
-    for (stem, name), (k, n) in per_exp.items():
+    for (stem, name), (k, n, crashed) in per_exp.items():
         lo, hi = wilson_interval(k, n)
-        expectations.append({"scenario": stem, "name": name, "passed": k, "n": n, "pass_rate": k / n,
-                             "wilson95": [lo, hi]})
+        expectations.append({"scenario": stem, "name": name, "passed": k, "n": n, "crashed": crashed,
+                             "pass_rate": k / n, "wilson95": [lo, hi]})
     lo, hi = wilson_interval(passed, len(recs))
     dists = {k: distribution([(r.get("metrics") or {}).get(k) for r in ok]) for k in DISTRIBUTION_METRICS}
     worst_runs = []
@@ -110,6 +129,8 @@ def aggregate(records: list[dict[str, Any]], *, seed: int, planned: int, out_dir
         "expectations": sorted(expectations, key=lambda e: (e["scenario"], e["name"])),
         "distributions": dists,
         "worst_runs": worst_runs,
+        # every failed or crashed run, in run order, never capped: the report folds a long list away
+        "failed_runs": [failed_run(r, out_dir) for r in recs if not r.get("passed")],
         "error_runs": [{"run_id": r["run_id"], "error": r.get("error"), "reproduce": repro_command(out_dir, r)}
                        for r in errors],
     }

@@ -7,6 +7,7 @@ its traceback: a crashed run is evidence, never silently dropped.
 from __future__ import annotations
 
 import math
+import signal
 import time
 import traceback
 from pathlib import Path
@@ -65,15 +66,56 @@ def one_thread_per_run() -> dict[str, Any]:
             "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS"), "opencv": cv2.getNumThreads()}
 
 
+def _identity(spec: RunSpec) -> dict[str, Any]:
+    return {"run_id": spec.run_id, "index": spec.index, "scenario_file": spec.scenario_file,
+            "scenario": spec.scenario.get("name", ""), "seed": spec.seed, "samples": spec.samples}
+
+
+def expectation_names(scenario: dict[str, Any]) -> list[str]:
+    """The names the run's expectations are reported under, for a run that never got to evaluate them (a
+    crash counts against each, merlin.campaign.aggregate)."""
+    raw = scenario.get("expectations") or []
+    try:
+        from sims.expectations import _describe  # the naming the verdicts use
+        from sims.scenario import Expectation
+
+        return [_describe(Expectation.model_validate(x)) for x in raw]
+    except Exception:  # an invalid expectation is itself why the run crashed: name it as written
+        return [str(x.get("name") or x.get("type")) if isinstance(x, dict) else str(x) for x in raw]
+
+
+def death_cause(exitcode: int) -> str:
+    """``exit code 3`` or ``killed by signal SIGKILL (9)`` (multiprocessing's negative exit codes)."""
+    if exitcode < 0:
+        try:
+            name = signal.Signals(-exitcode).name
+        except ValueError:
+            name = "signal"
+        return f"killed by signal {name} ({-exitcode})"
+    return f"exit code {exitcode}"
+
+
+def worker_died_record(spec: RunSpec, exitcodes: list[int], detail: str = "",
+                       attempts: int | None = None) -> dict[str, Any]:
+    """The record of a run whose worker process died on every attempt (``exitcodes``, one per attempt;
+    empty when the backend reports only ``detail``, as Ray does). There is no traceback: the process that
+    could have written one is gone. ``merlin sim`` on the run's YAML reproduces the crash in the
+    foreground."""
+    causes = list(dict.fromkeys(death_cause(c) for c in exitcodes))  # each cause once, in order
+    why = "; ".join(causes) if causes else detail
+    n = attempts if attempts is not None else len(exitcodes)
+    tries = f" ({n} attempts)" if n > 1 else ""
+    return {**_identity(spec), "run_yaml": f"runs/{spec.run_id}.yaml", "status": "error", "passed": False,
+            "error": f"worker died: {why}{tries}", "traceback": None, "worker_died": True,
+            "expectation_names": expectation_names(spec.scenario),
+            "worker_exit_codes": exitcodes, "wall_s": 0.0}
+
+
 def execute(spec: RunSpec) -> dict[str, Any]:
     """Fly ``spec``; the record for ``results.jsonl``. Reads and writes no file: on a Ray cluster the
     worker's machine need not share the campaign directory (the driver writes the run's YAML)."""
     wall0 = time.perf_counter()
-    rec: dict[str, Any] = {
-        "run_id": spec.run_id, "index": spec.index, "scenario_file": spec.scenario_file,
-        "scenario": spec.scenario.get("name", ""), "seed": spec.seed, "samples": spec.samples,
-        "threads": one_thread_per_run(),
-    }
+    rec: dict[str, Any] = {**_identity(spec), "threads": one_thread_per_run()}
     try:
         rec["run_yaml"] = f"runs/{spec.run_id}.yaml"
         p = Path(rec["run_yaml"])
@@ -109,7 +151,7 @@ def execute(spec: RunSpec) -> dict[str, Any]:
         })
     except Exception as exc:  # a crashing run is recorded, with its traceback, and the campaign goes on
         rec.update({"status": "error", "passed": False, "error": f"{type(exc).__name__}: {exc}",
-                    "traceback": traceback.format_exc()})
+                    "traceback": traceback.format_exc(), "expectation_names": expectation_names(spec.scenario)})
     rec["wall_s"] = time.perf_counter() - wall0
     for k, v in list(rec.get("metrics", {}).items()):
         if isinstance(v, float) and not math.isfinite(v):

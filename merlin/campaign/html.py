@@ -83,6 +83,31 @@ def _fmt(x: Any, digits: int = 3) -> str:
     return _e(x)
 
 
+#: Failed runs listed in the page itself; beyond this the full list is folded into a <details> element
+#: (no script needed). campaign.json always holds every failed run.
+MAX_FAILED_ROWS = 50
+MAX_TRACEBACKS = 20
+
+
+def failed_runs_html(failed: list[dict[str, Any]]) -> str:
+    """Every failed or crashed run with its seed and reproduction command, in run order."""
+    if not failed:
+        return "<h3>All failed and crashed runs</h3><p>None.</p>"
+    rows = [[_e(f["run_id"]), _e(f["seed"]), _e(f["status"] if f["status"] != "ok" else "failed"),
+             _e(f["error"] or ", ".join(f["failed_expectations"]) or "-"),
+             _e(", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                          for k, v in (f["samples"] or {}).items())),
+             f"<code>{_e(f['reproduce'])}</code>"] for f in failed]
+    head = ["run", "seed", "status", "failed expectations / error", "varied values", "reproduce"]
+    title = f"<h3>All failed and crashed runs ({len(failed)})</h3>"
+    if len(rows) <= MAX_FAILED_ROWS:
+        return title + rows_html(head, rows)
+    return (title + f"<p>The first {MAX_FAILED_ROWS} are listed; open the full list below (also in "
+            "campaign.json, <code>failed_runs</code>).</p>" + rows_html(head, rows[:MAX_FAILED_ROWS])
+            + f"<details><summary>all {len(rows)} failed and crashed runs</summary>" + rows_html(head, rows)
+            + "</details>")
+
+
 def render(agg: dict[str, Any], records: list[dict[str, Any]], scenarios: list[CampaignScenario]) -> str:
     ok_all = agg["passed"] == agg["runs"]
     lo, hi = agg["pass_rate_wilson95"]
@@ -131,11 +156,17 @@ def render(agg: dict[str, Any], records: list[dict[str, Any]], scenarios: list[C
          _fmt(w["min_fence_margin_m"]), _e("; ".join(w["revocations"]) or "-"),
          _e(", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in (w["samples"] or {}).items())),
          f"<code>{_e(w['reproduce'])}</code>"] for w in agg["worst_runs"]]))
+    out.append(failed_runs_html(agg.get("failed_runs", [])))
     errs = [r for r in records if r.get("status") == "error"]
     if errs:
-        out.append("<h3>Crashed runs (tracebacks)</h3>")
-        for r in sorted(errs, key=lambda r: r["index"])[:20]:
-            out.append(f"<h4>{_e(r['run_id'])}</h4><pre>{_e(r.get('traceback', ''))}</pre>")
+        shown = sorted(errs, key=lambda r: r["index"])[:MAX_TRACEBACKS]
+        more = f" (the first {len(shown)} of {len(errs)}; all are in results.jsonl)" if len(errs) > len(shown) else ""
+        out.append(f"<h3>Crashed runs (tracebacks){more}</h3>")
+        for r in shown:
+            tb = r.get("traceback") or (f"No traceback: {r.get('error') or 'the run crashed'}. The process that "
+                                        "could have written one is gone; the reproduction command above "
+                                        "flies the run in the foreground.")
+            out.append(f"<h4>{_e(r['run_id'])}</h4><pre>{_e(tb)}</pre>")
     t = agg.get("timing") or {}
     if "runs_per_min" in t:
         out.append(f"<h2>Timing</h2><p>{t['runs_flown']} runs in {t['wall_s']:.1f} s on {t['workers']} workers: "

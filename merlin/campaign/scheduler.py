@@ -1,33 +1,39 @@
 """Plan a campaign, fly the missing runs on a backend, store each result as it completes.
 
-Backends: ``local`` -- a ``ProcessPoolExecutor`` (spawn context, recycled every ``max_tasks_per_child``
-runs per worker to bound a worker's memory), all cores by default; ``ray`` -- Ray tasks, on a local instance started here when no
-address is given, or unchanged on a cluster address (the cluster's nodes need this repository importable;
-the driver alone writes the campaign directory). Either way the driver appends each finished run to
-``results.jsonl`` at once, so an interrupted campaign loses at most the runs in flight; the same command
-resumes it and flies only what is missing.
+Backends: ``local`` -- worker processes owned by the driver (spawn context, each retired after
+``max_tasks_per_child`` runs to bound its memory), all cores by default; ``ray`` -- Ray tasks, on a local
+instance started here when no address is given, or unchanged on a cluster address (the cluster's nodes
+need this repository importable; the driver alone writes the campaign directory). Either way the driver
+appends each finished run to ``results.jsonl`` at once, so an interrupted campaign loses at most the runs
+in flight; the same command resumes it and flies only what is missing. A run that kills its worker twice
+is stored as an error (``worker died: ...``) and the campaign goes on.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import multiprocessing
 import os
+import signal
 import time
+from collections import deque
 from collections.abc import Callable, Iterable
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
+from multiprocessing.connection import wait as mp_wait
 from pathlib import Path
 from typing import Any
 
-from merlin.campaign.execute import execute, write_run_yaml
+from merlin.campaign.execute import execute, worker_died_record, write_run_yaml
 from merlin.campaign.spec import CampaignScenario, RunSpec, derive_run, load_campaign_scenario
 from merlin.campaign.store import ResultStore, read_results
 from merlin.config.loader import ConfigError
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
-MAX_POOL_RESTARTS = 3  # a worker lost this many times in one campaign stops it (resume continues it)
+#: A run whose worker dies is flown again on a fresh worker; when it has cost this many workers it is
+#: recorded as an error (``worker died: ...``) instead. Two, not one: a worker can also die of something
+#: that is not the run's doing (the out-of-memory killer choosing it, a stray kill).
+WORKER_ATTEMPTS = 2
 
 
 @dataclass(frozen=True, slots=True)
@@ -44,6 +50,7 @@ class CampaignOptions:
     # waiting for the last run, which at 25 runs per worker cost ~10 % of a 2-worker campaign.
     max_tasks_per_child: int = 200
     quiet: bool = True
+    retry_errors: bool = False  # fly again the runs stored as errors (default: a stored error is final)
 
     @property
     def n_workers(self) -> int:
@@ -108,40 +115,119 @@ def worker_env() -> dict[str, str]:
     return {k: os.environ.get(k, v) for k, v in WORKER_THREAD_ENV.items()}
 
 
-def _local(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
-    """Fly ``specs`` on a process pool, recycling the pool every ``max_tasks_per_child`` runs per worker.
+@dataclass(slots=True)
+class _Worker:
+    """One worker process of the local backend and the run it is flying (None: idle)."""
 
-    The recycling is done here, by generations of pools, and NOT with ``ProcessPoolExecutor``'s own
-    ``max_tasks_per_child``: on CPython 3.11 to 3.15.0b3 that option deadlocks once a worker exits at its
-    limit while work is queued (no replacement worker is started; CPython gh-115634). A 1,000-run campaign
-    hung that way after 2 x 25 runs.
+    proc: Any
+    conn: Any
+    spec: RunSpec | None = None
+    flown: int = 0
+
+
+def _worker_main(conn: Any) -> None:
+    """A local worker: fly each spec the driver sends, send back its record; ``None`` or EOF ends it.
+
+    Ctrl-C reaches the whole foreground process group: the driver handles it and stops its workers, so a
+    worker ignores it rather than printing a traceback per run in flight."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    while True:
+        try:
+            spec = conn.recv()
+        except (EOFError, OSError):  # the driver is gone
+            return
+        if spec is None:
+            return
+        conn.send(execute(spec))
+
+
+def _start_worker(ctx: Any) -> _Worker:
+    parent, child = ctx.Pipe()
+    proc = ctx.Process(target=_worker_main, args=(child,), name="merlin-campaign-worker")
+    proc.start()
+    child.close()  # the worker's end lives in the worker only: its death shows here as EOF
+    return _Worker(proc, parent)
+
+
+def _stop_worker(w: _Worker, timeout_s: float = 5.0) -> None:
+    with contextlib.suppress(OSError, ValueError):  # already gone
+        w.conn.send(None)
+    w.proc.join(timeout_s if w.spec is None else 0.0)
+    if w.proc.is_alive():  # busy (interrupted campaign) or not answering: no clean-up owed to it
+        w.proc.kill()
+        w.proc.join()
+    w.conn.close()
+
+
+def _local(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
+    """Fly ``specs`` on ``n_workers`` processes the driver owns, one run at a time each.
+
+    Each worker is the driver's own ``spawn`` process with a pipe, not a ``ProcessPoolExecutor``: the
+    driver always knows which run each worker is flying, so a worker that dies (a run calling
+    ``os._exit``, a segfault in a native library, the out-of-memory killer, a stray SIGKILL) costs only
+    that run. The run is flown once more on a fresh worker; if that one dies too, the run is recorded as
+    an error (:func:`~merlin.campaign.execute.worker_died_record`) and the campaign goes on. The runs on
+    the other workers are neither lost nor flown twice. (A pool breaks as a whole: every run in flight
+    fails with ``BrokenProcessPool`` and the culprit cannot be told apart.)
+
+    A worker retires after ``max_tasks_per_child`` runs and a fresh one takes its place, which bounds a
+    worker's memory. ``ProcessPoolExecutor``'s own ``max_tasks_per_child`` is not usable for this: on
+    CPython 3.11 to 3.15.0b3 it deadlocks once a worker exits at its limit while work is queued (CPython
+    gh-115634; a 1,000-run campaign hung that way after 2 x 25 runs).
     """
     ctx = multiprocessing.get_context("spawn")
     # spawned workers inherit the environment: the limits must be in it before numpy loads in them
     os.environ.update(worker_env())
-    pending = {s.run_id: s for s in specs}
-    restarts = 0
-    generation = max(1, opts.max_tasks_per_child) * opts.n_workers
-    while pending:
-        batch = list(pending.values())[:generation]
-        ex = ProcessPoolExecutor(max_workers=min(opts.n_workers, len(batch)), mp_context=ctx)
-        try:
-            futs = {ex.submit(execute, s): s for s in batch}
-            live = set(futs)
-            while live:
-                done, live = wait(live, return_when=FIRST_COMPLETED)
-                for f in done:
-                    spec = futs[f]
-                    emit(spec, f.result())
-                    pending.pop(spec.run_id, None)
-            ex.shutdown(wait=True)  # this generation's workers exit before the next one starts
-        except BrokenProcessPool:
-            # a worker died (killed, out of memory): fly what is missing on a fresh pool
-            restarts += 1
-            if restarts > MAX_POOL_RESTARTS:
-                raise
-        finally:
-            ex.shutdown(wait=False, cancel_futures=True)
+    todo = deque(specs)
+    deaths: dict[str, list[int]] = {}
+    workers: list[_Worker] = []
+    per_worker = max(1, opts.max_tasks_per_child)
+    try:
+        while todo or any(w.spec is not None for w in workers):
+            for w in workers:
+                if w.spec is None and todo:
+                    w.spec = todo.popleft()
+                    w.conn.send(w.spec)
+            while todo and len(workers) < opts.n_workers:
+                w = _start_worker(ctx)
+                workers.append(w)
+                w.spec = todo.popleft()
+                w.conn.send(w.spec)
+            busy = [w for w in workers if w.spec is not None]
+            ready = set(mp_wait([w.conn for w in busy] + [w.proc.sentinel for w in busy]))
+            for w in busy:
+                if w.conn not in ready and w.proc.sentinel not in ready:
+                    continue
+                spec = w.spec
+                assert spec is not None
+                rec: dict[str, Any] | None = None
+                try:
+                    if w.conn.poll():
+                        rec = w.conn.recv()
+                except (EOFError, OSError):  # the worker died before it could answer
+                    rec = None
+                if rec is not None:
+                    w.spec = None
+                    w.flown += 1
+                    emit(spec, rec)
+                    if w.flown >= per_worker:
+                        _stop_worker(w)
+                        workers.remove(w)
+                    continue
+                if w.proc.is_alive() and w.proc.sentinel not in ready:
+                    continue  # not an answer yet (a spurious wake-up)
+                w.proc.join()
+                died = deaths.setdefault(spec.run_id, [])
+                died.append(w.proc.exitcode if w.proc.exitcode is not None else 0)
+                w.conn.close()
+                workers.remove(w)
+                if len(died) >= WORKER_ATTEMPTS:
+                    emit(spec, worker_died_record(spec, died))
+                else:
+                    todo.appendleft(spec)  # once more, on a fresh worker
+    finally:
+        for w in workers:
+            _stop_worker(w)
 
 
 def _ray(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
@@ -158,8 +244,9 @@ def _ray(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
                      object_store_memory=200 * 1024 * 1024, runtime_env={"env_vars": env})
         started = True
     try:
-        # max_retries: Ray flies a task again when its worker process or node is lost
-        task = ray.remote(num_cpus=1, max_retries=3)(execute)
+        # max_retries: Ray flies a task again when its worker process or node is lost; after that the
+        # run is stored as an error, as on the local backend (WORKER_ATTEMPTS in all)
+        task = ray.remote(num_cpus=1, max_retries=WORKER_ATTEMPTS - 1)(execute)
         window = 4 * opts.n_workers if not opts.address else 4 * int(ray.cluster_resources().get("CPU", 1))  # type: ignore[no-untyped-call]
         todo = list(specs)
         refs: dict[Any, RunSpec] = {}
@@ -169,7 +256,16 @@ def _ray(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
                 refs[task.remote(s)] = s
             ready, _ = ray.wait(list(refs), num_returns=1)
             for r in ready:
-                emit(refs.pop(r), ray.get(r))
+                spec = refs.pop(r)
+                try:
+                    rec = ray.get(r)
+                except ray.exceptions.RayError as exc:
+                    # the worker or its node died on every attempt (execute itself never raises an
+                    # Exception: a run's own crash is already an error record with its traceback)
+                    first_line = (str(exc).strip().splitlines() or [""])[0]
+                    rec = worker_died_record(spec, [], detail=f"{type(exc).__name__}: {first_line}",
+                                             attempts=WORKER_ATTEMPTS)
+                emit(spec, rec)
     finally:
         if started:
             ray.shutdown()
@@ -187,7 +283,12 @@ def load_scenarios(paths: Iterable[str]) -> list[CampaignScenario]:
 
 
 def run_campaign(opts: CampaignOptions, scenarios: list[CampaignScenario] | None = None) -> Outcome:
-    """Fly every planned run not yet in ``out/results.jsonl``; returns all records (old and new)."""
+    """Fly every planned run not yet in ``out/results.jsonl``; returns all records (old and new).
+
+    A run stored as an error (it raised, or killed its worker twice) counts as done: resuming does not fly
+    it again, so a run that kills its worker cannot stall every resume. ``retry_errors`` flies those runs
+    again (after a fix, say); the new record replaces the old one (the store keeps both lines, the last
+    one wins)."""
     if opts.runs < 1:
         raise ConfigError("merlin campaign", [f"--runs: must be at least 1, got {opts.runs}"])
     if opts.backend not in ("local", "ray"):
@@ -198,9 +299,12 @@ def run_campaign(opts: CampaignOptions, scenarios: list[CampaignScenario] | None
     results_path = opts.out / "results.jsonl"
     records = read_results(results_path)
     planned_ids = {s.run_id for s in specs}
-    todo = [s for s in specs if s.run_id not in records]
-    outcome = Outcome(planned=len(specs), skipped=len(planned_ids & set(records)))
-    failures = sum(1 for r in records.values() if r["run_id"] in planned_ids and not r.get("passed"))
+    todo = [s for s in specs if s.run_id not in records
+            or (opts.retry_errors and records[s.run_id].get("status") == "error")]
+    todo_ids = {s.run_id for s in todo}
+    outcome = Outcome(planned=len(specs), skipped=len(specs) - len(todo))
+    failures = sum(1 for r in records.values()
+                   if r["run_id"] in planned_ids and r["run_id"] not in todo_ids and not r.get("passed"))
     bar = None
     if not opts.quiet:
         from tqdm import tqdm

@@ -1,9 +1,10 @@
 """``merlin campaign SCENARIO.yaml... --runs N [--seed S] [--backend local|ray] [--address ADDR]
-[--workers K] [--keep-runs K] --out DIR``: a randomised campaign, resumable, with its report.
+[--workers K] [--keep-runs K] [--retry-errors] --out DIR``: a randomised campaign, resumable, with its report.
 
 Writes ``DIR/results.jsonl`` (one line per finished run, as it finishes), ``DIR/runs/<id>.yaml`` (each
 run's resolved scenario: ``merlin sim`` reproduces it), ``DIR/campaign.json`` and ``DIR/report.html``.
-Running the same command again resumes an interrupted campaign. Exit codes: 0 every run passed, 1 a run
+Running the same command again resumes an interrupted campaign (runs stored as errors are not flown
+again unless ``--retry-errors``). Exit codes: 0 every run passed, 1 a run
 failed or crashed, 2 invalid input, 130 interrupted (the stored runs are kept).
 """
 
@@ -14,6 +15,8 @@ import json
 import sys
 from pathlib import Path
 from typing import Any
+
+PRINT_FAILED = 20  # failed runs printed with their commands; campaign.json lists every one
 
 
 def register(sub: Any) -> None:
@@ -26,6 +29,8 @@ def register(sub: Any) -> None:
     p.add_argument("--workers", type=int, default=0, help="worker processes (default: every core)")
     p.add_argument("--keep-runs", type=int, default=0, help="re-fly the worst K runs with full outputs")
     p.add_argument("--out", required=True, help="campaign directory (resumable)")
+    p.add_argument("--retry-errors", action="store_true",
+                   help="on resume, fly again the runs stored as errors (by default a stored error is final)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -65,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     opts = CampaignOptions(scenarios=tuple(args.scenarios), runs=args.runs, out=out, seed=args.seed,
-                           backend=args.backend, address=args.address, workers=args.workers, quiet=args.quiet)
+                           backend=args.backend, address=args.address, workers=args.workers, quiet=args.quiet,
+                           retry_errors=args.retry_errors)
     scenarios = load_scenarios(opts.scenarios)
     try:
         outcome = run_campaign(opts, scenarios)
@@ -81,8 +87,11 @@ def run(args: argparse.Namespace) -> int:
     rate = f", {t['runs_per_min']:.1f} runs/min" if "runs_per_min" in t else ""
     print(f"campaign: {agg['runs']}/{agg['runs_planned']} runs, {agg['passed']} passed, {agg['failed']} failed,"
           f" {agg['errors']} errors{rate} -> {out}/campaign.json, {out}/report.html")
-    for w in agg["worst_runs"]:
-        if w["status"] != "ok" or not w["passed"]:
-            why = w["error"] or ", ".join(w["failed_expectations"])
-            print(f"  {w['run_id']} (seed {w['seed']}): {why}\n    {w['reproduce']}")
+    failed = agg["failed_runs"]
+    for w in failed[:PRINT_FAILED]:
+        why = w["error"] or ", ".join(w["failed_expectations"])
+        print(f"  {w['run_id']} (seed {w['seed']}): {why}\n    {w['reproduce']}")
+    if len(failed) > PRINT_FAILED:
+        print(f"  ... and {len(failed) - PRINT_FAILED} more failed run(s), each with its command: failed_runs in"
+              f" {out}/campaign.json")
     return 0 if agg["passed"] == agg["runs"] else 1

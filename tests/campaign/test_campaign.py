@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import shutil
 import signal
 import subprocess
@@ -26,6 +27,7 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
 TINY = str(HERE / "tiny.yaml")
 EXPLODING = str(HERE / "exploding.yaml")
+DYING = str(HERE / "dying.yaml")
 TIMING_KEYS = {"wall_s", "run_wall_s"}
 
 
@@ -102,6 +104,51 @@ def test_bad_vary_entries_are_refused_at_load(tmp_path: Path, vary: str, needle:
     p.write_text("name: x\nduration_s: 2\nvary:\n  " + vary + "\n")
     with pytest.raises(ConfigError, match=needle):
         load_campaign_scenario(p)
+
+
+def _synthetic(i: int, stem: str, status: str, passed: bool) -> dict:
+    r = {"run_id": f"{i:05d}-{stem}", "index": i, "scenario_file": f"{stem}.yaml", "seed": 1000 + i,
+         "samples": {"faults.0.start_s": 10.0 + i}, "status": status, "passed": passed}
+    if status == "ok":
+        r["expectations"] = [{"name": "no_fence_breach", "passed": True, "detail": ""},
+                             {"name": "revoked", "passed": passed, "detail": ""}]
+        r["metrics"] = {"max_fence_breach_m": 0.0, "min_fence_margin_m": 5.0 + i}
+    else:
+        r.update(error="worker died: exit code 3 (2 attempts)", traceback=None,
+                 expectation_names=["no_fence_breach", "revoked"])
+    return r
+
+
+def test_every_failed_run_is_listed_with_its_command_beyond_the_worst_ten() -> None:
+    """Two thirds of 100 runs fail, 3 of them crash: campaign.json lists all of them with seed and command
+    (the worst list stays at 10), and the report shows 50 rows and folds the full list into <details>."""
+    from merlin.campaign.html import failed_runs_html
+
+    recs = [_synthetic(i, "s", "error", False) if i in (7, 40, 99) else _synthetic(i, "s", "ok", i % 3 == 0)
+            for i in range(100)]
+    want = [r["run_id"] for r in recs if not r["passed"]]
+    agg = aggregate(recs, seed=3, planned=100, out_dir="D", scenarios=[])
+    assert len(agg["worst_runs"]) == 10
+    got = agg["failed_runs"]
+    assert [f["run_id"] for f in got] == want and len(got) == agg["failed"] + agg["errors"] > 60
+    for f, r in zip(got, [r for r in recs if not r["passed"]], strict=True):
+        assert f["seed"] == r["seed"]
+        assert f["reproduce"] == f"merlin sim D/runs/{r['run_id']}.yaml --out D/repro/{r['run_id']}"
+    crashed = {f["run_id"]: f for f in got if f["status"] == "error"}
+    assert set(crashed) == {"00007-s", "00040-s", "00099-s"}
+    assert crashed["00007-s"]["error"].startswith("worker died")
+    page = failed_runs_html(got)
+    assert page.count("<details>") == 1 and f"all {len(got)} failed and crashed runs" in page
+    assert all(f"D/runs/{rid}.yaml" in page for rid in want)
+
+
+def test_a_crashed_run_counts_as_a_failure_of_every_expectation_of_its_scenario() -> None:
+    recs = [_synthetic(0, "a", "ok", True), _synthetic(1, "a", "ok", False), _synthetic(2, "a", "error", False),
+            _synthetic(3, "b", "error", False)]
+    agg = aggregate(recs, seed=0, planned=4, out_dir="D", scenarios=[])
+    by = {(e["scenario"], e["name"]): (e["passed"], e["n"], e["crashed"]) for e in agg["expectations"]}
+    assert by == {("a", "no_fence_breach"): (2, 3, 1), ("a", "revoked"): (1, 3, 1),
+                  ("b", "no_fence_breach"): (0, 1, 1), ("b", "revoked"): (0, 1, 1)}
 
 
 # ----------------------------------------------------------------------------------------------- store
@@ -257,6 +304,46 @@ def test_a_run_that_raises_is_recorded_as_an_error(tmp_path: Path) -> None:
     assert agg["error_runs"][0]["reproduce"].startswith("merlin sim ")
 
 
+def _dying(tmp_path: Path, how: str) -> str:
+    p = tmp_path / "dying.yaml"
+    p.write_text(Path(DYING).read_text().replace("die: exit", f"die: {how}"))
+    return str(p)
+
+
+@pytest.mark.parametrize("how, cause", [("exit", "exit code 3 (2 attempts)"),
+                                        ("kill", "killed by signal SIGKILL (9) (2 attempts)")])
+def test_a_run_that_kills_its_worker_is_an_error_and_the_campaign_goes_on(
+        reference: tuple[Path, dict], tmp_path: Path, how: str, cause: str) -> None:
+    """Runs 1 and 3 take their worker down every time (os._exit / SIGKILL): each is flown twice, then
+    stored as an error naming how the worker died; runs 0 and 2 (tiny, on the other worker) are stored
+    once each, bit-identical to the reference. Resuming flies nothing; --retry-errors flies only the two."""
+    _, ref = reference
+    out = tmp_path / "c"
+    scen = (TINY, _dying(tmp_path, how))
+    o = run_campaign(CampaignOptions(scenarios=scen, runs=4, out=out, seed=11, workers=2))
+    assert o.flown_now == 4 and set(o.records) == {"00000-tiny", "00001-dying", "00002-tiny", "00003-dying"}
+    lines = [json.loads(x) for x in (out / "results.jsonl").read_text().splitlines()]
+    assert sorted(r["run_id"] for r in lines) == sorted(o.records), "every run stored exactly once"
+    healthy = _stable({k: v for k, v in o.records.items() if k.endswith("tiny")})
+    assert healthy == {k: v for k, v in _stable(ref).items() if k in healthy}
+    for rid in ("00001-dying", "00003-dying"):
+        r = o.records[rid]
+        assert r["status"] == "error" and r["passed"] is False and r["worker_died"] is True
+        assert r["error"] == f"worker died: {cause}"
+        assert r["traceback"] is None and len(r["worker_exit_codes"]) == 2
+        assert r["seed"] == plan(load_scenarios(scen), 4, 11)[r["index"]].seed
+        assert (out / "runs" / f"{rid}.yaml").exists()
+    agg = aggregate(list(o.records.values()), seed=11, planned=4, out_dir=str(out), scenarios=[])
+    assert agg["errors"] == 2 and agg["passed"] == 2
+    again = run_campaign(CampaignOptions(scenarios=scen, runs=4, out=out, seed=11, workers=2))
+    assert again.flown_now == 0 and again.skipped == 4
+    retried = run_campaign(CampaignOptions(scenarios=scen, runs=4, out=out, seed=11, workers=2,
+                                           retry_errors=True))
+    assert retried.flown_now == 2 and retried.skipped == 2
+    assert retried.records["00001-dying"]["error"] == f"worker died: {cause}"
+    assert _stable({k: v for k, v in retried.records.items() if k.endswith("tiny")}) == healthy
+
+
 def test_worst_run_reproduces_bit_for_bit_with_merlin_sim(reference: tuple[Path, dict], tmp_path: Path) -> None:
     out, ref = reference
     agg = aggregate(list(ref.values()), seed=11, planned=4, out_dir=str(out), scenarios=[])
@@ -270,12 +357,51 @@ def test_worst_run_reproduces_bit_for_bit_with_merlin_sim(reference: tuple[Path,
     assert summary["seed"] == w["seed"]
 
 
+@pytest.mark.parametrize("scenario", ["tiny_ekf.yaml", "tiny_fw.yaml"])
+def test_an_ekf_and_a_fixed_wing_run_reproduce_with_the_printed_command(tmp_path: Path, scenario: str,
+                                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    """The command `merlin campaign` prints and stores for a run, executed as printed (through the CLI),
+    flies it again bit for bit: on the fusion EKF with the camera and VO (OpenCV on one thread in the
+    worker, its default pool in `merlin sim`), and on the JSBSim fixed wing."""
+    from merlin.cli import main
+
+    out = tmp_path / "c"
+    rc = main(["campaign", str(HERE / scenario), "--runs", "1", "--seed", "5", "--workers", "1", "--out", str(out),
+               "--quiet"])
+    assert rc in (0, 1)
+    capsys.readouterr()
+    rec = next(iter(read_results(out / "results.jsonl").values()))
+    assert rec["status"] == "ok", rec.get("traceback")
+    agg = json.loads((out / "campaign.json").read_text())
+    argv = shlex.split(agg["worst_runs"][0]["reproduce"])
+    assert argv[:2] == ["merlin", "sim"]
+    assert main(argv[1:]) in (0, 1)
+    summary = json.loads((Path(argv[argv.index("--out") + 1]) / "summary.json").read_text())
+    assert summary["log_digest_sha256"] == rec["log_digest_sha256"]
+    assert summary["seed"] == rec["seed"]
+
+
 def test_ray_backend_flies_the_same_runs(reference: tuple[Path, dict], tmp_path: Path) -> None:
     pytest.importorskip("ray")
     _, ref = reference
     o = run_campaign(CampaignOptions(scenarios=(TINY,), runs=2, out=tmp_path, seed=11, backend="ray", workers=1))
     assert len(o.records) == 2
     assert _stable(o.records) == {k: v for k, v in _stable(ref).items() if k in o.records}
+
+
+def test_ray_backend_stores_a_run_that_kills_its_worker_as_an_error(reference: tuple[Path, dict],
+                                                                     tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    _, ref = reference
+    scen = (TINY, _dying(tmp_path, "kill"))
+    o = run_campaign(CampaignOptions(scenarios=scen, runs=2, out=tmp_path / "c", seed=11, backend="ray",
+                                     workers=1))
+    assert set(o.records) == {"00000-tiny", "00001-dying"}
+    assert _stable(o.records)["00000-tiny"] == _stable(ref)["00000-tiny"]
+    r = o.records["00001-dying"]
+    assert r["status"] == "error" and r["worker_died"] is True and r["error"].startswith("worker died: ")
+    assert r["error"].startswith("worker died: WorkerCrashedError: ") and r["error"].endswith("(2 attempts)")
+    assert len((tmp_path / "c" / "results.jsonl").read_text().splitlines()) == 2
 
 
 def test_report_is_self_contained_and_renders_in_headless_chromium(reference: tuple[Path, dict],
