@@ -24,7 +24,7 @@ import numpy as np
 
 from merlin.config.models import MerlinConfig
 from merlin.measurements import VoSample
-from merlin.nav.config import NavConfig
+from merlin.nav.config import NavConfig, nav_config_from_model
 from merlin.nav.estimator import GpsStatus, NavEstimator
 from merlin.vision.camera_model import CameraModel
 from merlin.vision.vo import VisualOdometry
@@ -41,15 +41,15 @@ _CAMERA_STREAM = 0x56_4F
 
 
 def nav_filter_config(cfg: MerlinConfig) -> NavConfig:
-    """The fusion EKF's configuration for a run: its INERTIAL -> LOST limit is the core's inertial time
+    """The fusion EKF's configuration for a run: the ``nav.filter`` section of the configuration; its
+    INERTIAL -> LOST limit is the core's inertial time
     limit, and its magnetic declination is the one at home (from the simulator's field model, as a real
     vehicle takes it from a world magnetic model: PX4 looks it up in its WMM table). Without it the
     heading is biased by the declination, and when the vehicle pitches hard the biased heading update
-    leaks into roll (found in the closed loop: 3 degrees of roll error after an RTL pitch-up)."""
+    leaks into roll (found in the closed loop: 3 degrees of roll error after an RTL pitch-up). A declination
+    set in ``nav.filter.mag_declination_deg`` takes precedence."""
     north, east, _ = dipole_field_ned_gauss(cfg.home.lat_deg, cfg.home.lon_deg)
-    return NavConfig(
-        inertial_time_limit_s=cfg.nav.inertial_time_limit_s, mag_declination_rad=math.atan2(east, north)
-    )
+    return nav_config_from_model(cfg.nav.filter, cfg.nav.inertial_time_limit_s, math.atan2(east, north))
 
 
 def nominal_mission(seed: int, minutes: float, texture: str) -> Scenario:

@@ -464,6 +464,194 @@ class TrustedConfig(Strict):
     mission_acceptance_m: float = Field(2.0, gt=0.0)
 
 
+# The fusion EKF's tunables (merlin/nav/config.py NavConfig is built from this, field for field; see
+# docs/navigation.md). Chi-square gates are quantiles of the chi-square distribution with the measurement's
+# degrees of freedom: P(chi2 > gate) = 1e-4 for the single-epoch gates, 1e-2 for re-admission
+# (scipy.stats.chi2.isf; Bar-Shalom, Li & Kirubarajan 2001, sec. 5.4).
+
+
+class NavFilterConfig(Strict):
+    """The navigation filter, its per-source fault tests and its mode logic (``merlin/nav``).
+
+    Defaults describe a small multirotor with MEMS sensors (ICM-20602/BMI088-class IMU, u-blox M8/M9-class
+    receiver, MS5611-class barometer), a little pessimistic as PX4's EKF2 defaults are. SI units, radians.
+    The inertial-only time limit is ``nav.inertial_time_limit_s`` (shared with the core)."""
+
+    # ------------------------------------------------------------------ IMU model (prediction)
+    gravity_mps2: float = Field(9.80665, ge=9.7, le=9.9, description="local gravity, m/s² (standard gravity)")
+    gyro_noise_radps_rthz: float = Field(
+        5.0e-3, gt=0.0, le=0.1, description="gyro white noise density (angle random walk), rad/s/√Hz"
+    )
+    accel_noise_mps2_rthz: float = Field(
+        5.0e-2, gt=0.0, le=1.0, description="accelerometer white noise density (velocity random walk), m/s²/√Hz"
+    )
+    gyro_bias_rw_radps2_rthz: float = Field(
+        1.0e-4, ge=0.0, le=0.01, description="gyro bias random walk density, rad/s²/√Hz"
+    )
+    accel_bias_rw_mps3_rthz: float = Field(
+        1.0e-3, ge=0.0, le=0.1, description="accelerometer bias random walk density, m/s³/√Hz"
+    )
+    init_gyro_bias_sigma_radps: float = Field(0.01, gt=0.0, le=0.5, description="initial gyro bias σ, rad/s")
+    init_accel_bias_sigma_mps2: float = Field(
+        0.1, gt=0.0, le=2.0, description="initial accelerometer bias σ, m/s²"
+    )
+    max_imu_dt_s: float = Field(
+        0.05, gt=0.0, le=0.5, description="a longer IMU gap is integrated as this long and reported (imu_gap)"
+    )
+    cov_predict_every_n: int = Field(
+        1, ge=1, le=40,
+        description="covariance prediction every n IMU samples (the nominal state integrates every one);"
+        " 1 is the exact discrete filter",
+    )
+    # ------------------------------------------------------------------ GPS
+    gps_min_fix_type: int = Field(
+        3, ge=2, le=6, description="lowest usable GPS_RAW_INT fix_type (2 2D, 3 3D, 4 DGPS, 5/6 RTK)"
+    )
+    gps_min_satellites: int = Field(
+        6, ge=4, le=40,
+        description="fewer satellites: GPS unusable (lost) whatever the fix type (paper: 'at least three to"
+        " four' for a fix; 6 for a trustworthy one)",
+    )
+    gps_bias_sigma_h_m: float = Field(
+        1.2, gt=0.0, le=50.0,
+        description="stationary σ of the receiver's slowly wandering horizontal error (Gauss-Markov state), m",
+    )
+    gps_bias_sigma_v_m: float = Field(2.0, gt=0.0, le=50.0, description="same, vertical, m")
+    gps_bias_tau_s: float = Field(
+        60.0, gt=0.0, le=3600.0, description="correlation time of the receiver's wandering error, s"
+    )
+    gps_white_fraction: float = Field(
+        0.35, gt=0.0, le=1.0, description="white part of the GPS position noise as a fraction of eph/epv"
+    )
+    gps_pos_sigma_floor_m: float = Field(0.3, gt=0.0, le=10.0, description="white GPS position σ floor, m")
+    gps_vel_sigma_mps: float = Field(0.15, gt=0.0, le=5.0, description="receiver Doppler velocity σ, m/s")
+    gps_timeout_s: float = Field(1.0, gt=0.0, le=30.0, description="no usable GPS for this long: GPS lost")
+    gps_max_lag_s: float = Field(
+        0.5, ge=0.0, le=5.0, description="a late GPS sample is carried forward to the filter time by at most this"
+    )
+    gps_gate_pos: float = Field(
+        21.108, ge=1.0, le=1000.0, description="single-epoch position gate, χ² 3 dof at 1e-4 (a jump fails its first epoch)"
+    )
+    gps_gate_vel: float = Field(21.108, ge=1.0, le=1000.0, description="single-epoch velocity gate, χ² 3 dof at 1e-4")
+    gps_reject_exclude_s: float = Field(
+        1.0, gt=0.0, le=60.0, description="GPS rejected on every epoch for this long: excluded"
+    )
+    gps_cusum_allowance: float = Field(
+        2.0, gt=1.0, le=20.0,
+        description="CUSUM allowance k on the per-dof innovation energy (mean 1 when healthy: must exceed 1;"
+        " Page 1954, Basseville & Nikiforov 1993 sec. 2.2)",
+    )
+    gps_cusum_threshold: float = Field(12.0, gt=0.0, le=1000.0, description="CUSUM alarm threshold h")
+    gps_cusum_clip: float = Field(
+        6.0, gt=0.0, le=1000.0, description="per-epoch CUSUM statistic clipped here (one wild epoch cannot trip it)"
+    )
+    gps_window_s: float = Field(
+        3.0, gt=0.0, le=60.0, description="window of the GPS-versus-mechanisation displacement test, s"
+    )
+    gps_window_sigma_m: float = Field(
+        0.6, gt=0.0, le=20.0, description="receiver short-term stability over the window, 1σ per axis, m"
+    )
+    gps_vo_check: bool = Field(True, description="cross-check GPS velocity against VO velocity (third CUSUM)")
+    gps_vo_match_s: float = Field(
+        0.08, gt=0.0, le=1.0, description="the VO sample nearest the GPS time must be this close to be compared, s"
+    )
+    gps_readmit_gate_pos: float = Field(
+        11.345, ge=1.0, le=1000.0, description="re-admission position gate, χ² 3 dof at 1e-2"
+    )
+    gps_readmit_gate_vel: float = Field(
+        11.345, ge=1.0, le=1000.0, description="re-admission velocity gate, χ² 3 dof at 1e-2"
+    )
+    gps_readmit_gate_vo: float = Field(
+        4.605, gt=0.0, le=100.0, description="re-admission GPS-VO velocity gate per dof, χ² 2 dof at 1e-2 / 2"
+    )
+    gps_readmit_s: float = Field(
+        10.0, ge=0.0, le=600.0,
+        description="an excluded GPS must pass the re-admission gates on every epoch for this long, s",
+    )
+    # ------------------------------------------------------------------ barometer, magnetometer
+    baro_sigma_m: float = Field(0.5, gt=0.0, le=20.0, description="barometer white noise σ, m")
+    baro_bias_rw_m_rts: float = Field(
+        0.03, gt=0.0, le=1.0, description="barometer offset random walk density, m/√s"
+    )
+    init_baro_bias_sigma_m: float = Field(
+        0.1, gt=0.0, le=50.0, description="initial barometer offset σ (zeroed at home before take-off), m"
+    )
+    baro_gate: float = Field(15.137, ge=1.0, le=1000.0, description="barometer gate, χ² 1 dof at 1e-4")
+    mag_heading_sigma_rad: float = Field(
+        0.05, gt=0.0, le=1.0, description="magnetic heading σ (calibration residual, motor interference), rad"
+    )
+    mag_gate: float = Field(15.137, ge=1.0, le=1000.0, description="magnetic heading gate, χ² 1 dof at 1e-4")
+    mag_declination_deg: float | None = Field(
+        None, ge=-180.0, le=180.0,
+        description="magnetic declination at home, deg east; null: from the field model at home (the"
+        " simulator's IGRF dipole; a real vehicle's world magnetic model)",
+    )
+    mag_min_horizontal_gauss: float = Field(
+        0.05, ge=0.0, le=1.0, description="below this levelled horizontal field the heading is not fused, gauss"
+    )
+    mag_fusion: Literal["heading", "euler_yaw", "tilt_coupled"] = Field(
+        "heading",
+        description="heading: the magnetometer corrects the rotation about the vertical only (tilt gain"
+        " zeroed, Joseph-form covariance); euler_yaw / tilt_coupled: optimal gain with the Euler yaw's or the"
+        " exact tilt-levelled Jacobian, which let the heading leak into roll and pitch (docs/navigation.md)",
+    )
+    # ------------------------------------------------------------------ visual odometry
+    vo_gate: float = Field(18.421, ge=1.0, le=1000.0, description="VO horizontal velocity gate, χ² 2 dof at 1e-4")
+    vo_timeout_s: float = Field(0.5, gt=0.0, le=30.0, description="no accepted VO for this long: VO lost")
+    vo_sigma_floor_mps: float = Field(0.05, gt=0.0, le=5.0, description="VO velocity σ floor, m/s")
+    vo_min_features: int = Field(25, ge=4, le=5000, description="fewer tracked features: the frame is refused")
+    vo_min_inlier_ratio: float = Field(0.5, ge=0.0, le=1.0, description="lower RANSAC inlier ratio: refused")
+    vo_max_reprojection_px: float = Field(
+        1.5, gt=0.0, le=20.0, description="larger mean reprojection error: refused, px"
+    )
+    vo_min_texture_score: float = Field(0.25, ge=0.0, le=1.0, description="lower texture score: refused")
+    vo_good_features: int = Field(
+        80, ge=4, le=5000, description="from this feature count up the VO σ is not inflated"
+    )
+    vo_good_inlier_ratio: float = Field(
+        0.85, ge=0.0, le=1.0, description="from this inlier ratio up the VO σ is not inflated"
+    )
+    vo_max_noise_scale: float = Field(
+        4.0, ge=1.0, le=100.0, description="VO σ factor at the acceptance limit (linear from 1 at 'good')"
+    )
+    vo_good_repetition: float = Field(
+        0.3, ge=0.0, le=1.0, description="above this scene repetition score the VO σ is inflated"
+    )
+    vo_max_repetition: float = Field(
+        0.99, ge=0.0, le=1.0, description="above this scene repetition score the frame is refused"
+    )
+    vo_model_coupling: bool = Field(
+        True, description="model the VO's shared attitude, height and gyro-bias error in its Jacobian"
+    )
+    # ------------------------------------------------------------------ modes
+    lost_sigma_h_m: float = Field(
+        50.0, gt=0.0, le=10000.0, description="beyond this horizontal σ the solution is LOST, m"
+    )
+
+    @model_validator(mode="after")
+    def _ordered(self) -> NavFilterConfig:
+        """The VO's "good" levels lie on the accepted side of its limits: vo_good_features >= vo_min_features,
+        vo_good_inlier_ratio >= vo_min_inlier_ratio, vo_good_repetition <= vo_max_repetition."""
+        problems = []
+        if self.vo_good_features < self.vo_min_features:
+            problems.append(
+                f"vo_good_features ({self.vo_good_features}) must not be below vo_min_features ({self.vo_min_features})"
+            )
+        if self.vo_good_inlier_ratio < self.vo_min_inlier_ratio:
+            problems.append(
+                f"vo_good_inlier_ratio ({self.vo_good_inlier_ratio}) must not be below vo_min_inlier_ratio"
+                f" ({self.vo_min_inlier_ratio})"
+            )
+        if self.vo_good_repetition > self.vo_max_repetition:
+            problems.append(
+                f"vo_good_repetition ({self.vo_good_repetition}) must not exceed vo_max_repetition"
+                f" ({self.vo_max_repetition})"
+            )
+        if problems:
+            raise ValueError("; ".join(problems))
+        return self
+
+
 class NavConfig(Strict):
     experimental_requires_gps: bool = Field(True, description="grant EXPERIMENTAL only on GPS navigation")
     max_pos_sigma_h_m: float = Field(5.0, gt=0.0, description="grant only below this sigma")
@@ -475,6 +663,9 @@ class NavConfig(Strict):
         3.0, ge=0.0, le=60.0,
         description="added to LAND's own descent time from the present height when deciding when LAND is due"
         " on inertial-only navigation (the vehicle lags its command; the ground may be off home's height)",
+    )
+    filter: NavFilterConfig = Field(
+        default_factory=NavFilterConfig, description="the fusion EKF's noise model, fault tests and modes"
     )
 
 

@@ -1,7 +1,11 @@
 """Every tunable of the navigation filter, its fault tests and its mode logic, with documented defaults.
 
-One frozen dataclass so that a run is reproducible from its configuration alone; the lead mirrors it into
-the pydantic models (``merlin/config/models.py``) later. Units are in the names; SI and radians.
+One frozen dataclass so that a run is reproducible from its configuration alone. A flight's values come
+from the configuration file: ``nav.filter`` (``merlin.config.models.NavFilterConfig``, with the bounds and
+the descriptions of docs/config-reference.md) holds every field here under the same name, except the two
+in ``FROM_ELSEWHERE``; :func:`nav_config_from_model` builds this dataclass from it. The defaults here equal
+that model's (``tests/nav/test_nav_config.py``), so a filter built without a file is the same filter.
+Units are in the names; SI and radians.
 
 Where a default comes from a source it is cited. The sensor noise defaults describe a typical small
 multirotor with MEMS sensors (an ICM-20602/BMI088-class IMU, a u-blox M8/M9-class receiver, an
@@ -12,7 +16,12 @@ the datasheet densities in flight (PX4's EKF2 defaults make the same choice: ``E
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from merlin.config.models import NavFilterConfig
 
 # Chi-square quantiles used as innovation gates, P(chi2_dof > gate) = 1e-4 under a correct model
 # (scipy.stats.chi2.isf(1e-4, dof)); kept as literals so importing the config needs no scipy.
@@ -20,6 +29,8 @@ CHI2_1E4: dict[int, float] = {1: 15.137, 2: 18.421, 3: 21.108, 4: 23.513, 6: 27.
 # ... and P = 1e-2, used for the stricter re-admission test (a GPS that is to be trusted again must look
 # ordinary, not merely not-absurd).
 CHI2_1E2: dict[int, float] = {1: 6.635, 2: 9.210, 3: 11.345, 4: 13.277, 6: 16.812}
+# How the magnetometer's heading is fused (NavConfig.mag_fusion).
+MAG_FUSIONS: tuple[str, ...] = ("heading", "euler_yaw", "tilt_coupled")
 
 
 @dataclass(frozen=True, slots=True)
@@ -97,14 +108,17 @@ class NavConfig:
     baro_bias_rw_m_rts: float = 0.03
     init_baro_bias_sigma_m: float = 0.1  # the baro is zeroed at home before take-off
     baro_gate: float = CHI2_1E4[1]
-    baro_timeout_s: float = 1.0
     mag_heading_sigma_rad: float = 0.05  # ~3 deg: calibration residual and motor interference
     mag_gate: float = CHI2_1E4[1]
     mag_declination_rad: float = 0.0
     mag_min_horizontal_gauss: float = 0.05  # below this the heading is not observable (near a pole/iron)
-    # Model that the heading is levelled with the *estimated* tilt (exact Jacobian, NavEstimator.update_mag)
-    # rather than treat it as a measurement of the true yaw. Off by default: see docs/navigation.md.
-    mag_tilt_coupling: bool = False
+    # How the heading is fused (NavEstimator.update_mag, docs/navigation.md "Magnetometer"):
+    # "heading" (default): a measurement of the rotation about the vertical only; the gain's tilt rows are
+    #   zeroed (the covariance follows in Joseph form, exact for any gain), so the heading never moves roll
+    #   or pitch. The other two fuse it with the optimal gain, which lets it leak into the tilt:
+    # "euler_yaw": H = the Euler yaw's Jacobian (treats the heading as the true yaw);
+    # "tilt_coupled": H = the exact Jacobian of a heading levelled with the *estimated* tilt.
+    mag_fusion: str = "heading"
 
     # ------------------------------------------------------------------ visual odometry
     vo_gate: float = CHI2_1E4[2]  # the horizontal velocity (2 dof): the VO's vertical is not fused
@@ -163,7 +177,32 @@ class NavConfig:
                 f"gps_cusum_allowance={self.gps_cusum_allowance} must exceed 1 (the mean of the statistic"
                 " under a healthy GPS), or the CUSUM drifts up without a fault"
             )
+        if self.mag_fusion not in MAG_FUSIONS:
+            problems.append(f"mag_fusion={self.mag_fusion!r} must be one of {MAG_FUSIONS}")
         if self.vo_max_noise_scale < 1.0:
             problems.append(f"vo_max_noise_scale={self.vo_max_noise_scale} must be >= 1")
         if problems:
             raise ValueError("invalid NavConfig: " + "; ".join(problems))
+
+
+#: The fields of :class:`NavConfig` that ``nav.filter`` does not hold under the same name, and where they come from.
+FROM_ELSEWHERE: dict[str, str] = {
+    "inertial_time_limit_s": "nav.inertial_time_limit_s (shared with the core's inertial-timeout rule)",
+    "mag_declination_rad": "nav.filter.mag_declination_deg, or the field model at home when that is null",
+}
+
+
+def nav_config_from_model(
+    model: NavFilterConfig, inertial_time_limit_s: float, home_declination_rad: float
+) -> NavConfig:
+    """The filter's configuration from the validated ``nav.filter`` section: every field by name, the
+    inertial time limit from ``nav``, the declination from ``mag_declination_deg`` or, when that is null,
+    ``home_declination_rad`` (the field model at home)."""
+    values = model.model_dump()
+    declination_deg = values.pop("mag_declination_deg")
+    declination = home_declination_rad if declination_deg is None else math.radians(declination_deg)
+    own = {f.name for f in fields(NavConfig)}
+    unknown = sorted(set(values) - own)
+    if unknown:  # a bug (the field-for-field test guards it), not a user error
+        raise TypeError(f"nav.filter fields without a NavConfig counterpart: {unknown}")
+    return NavConfig(**values, inertial_time_limit_s=inertial_time_limit_s, mag_declination_rad=declination)

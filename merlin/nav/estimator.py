@@ -315,6 +315,31 @@ class NavEstimator:
         self.kf.update(
             z.reshape(-1, 1), HJacobian=lambda _x: H, Hx=lambda _x: hx.reshape(-1, 1), R=R, residual=residual
         )
+        self._inject()
+
+    def _fuse_heading_only(self, z: np.ndarray, hx: np.ndarray, H: np.ndarray, R: np.ndarray) -> None:
+        """An update whose gain may not touch the tilt: K = P Hᵀ S⁻¹ with its δθ_n, δθ_e rows set to zero,
+        so the attitude correction is a rotation about the vertical (the heading) and roll and pitch are
+        left to the accelerometer's coupling with GPS and VO. The gain is then not the optimal one, and the
+        covariance must follow the gain actually applied: the Joseph form
+        P⁺ = (I − K H) P (I − K H)ᵀ + K R Kᵀ holds for any gain (Simon 2006, "Optimal State Estimation",
+        sec. 5.2; filterpy's ``update`` uses it with the optimal K). The result is stored in filterpy's
+        attributes (x, P, K, y, S) as its own update would."""
+        kf = self.kf
+        P = kf.P
+        PHT = P @ H.T
+        S = H @ PHT + R
+        K = PHT @ np.linalg.inv(S)
+        K[6:8, :] = 0.0
+        y = _angle_residual(z, hx).reshape(-1, 1)
+        I_KH = np.eye(N_ERR) - K @ H
+        kf.x = K @ y
+        kf.P = I_KH @ P @ I_KH.T + K @ R @ K.T
+        kf.K, kf.y, kf.S = K, y, S
+        self._inject()
+
+    def _inject(self) -> None:
+        """Inject the error mean into the nominal state and reset it (Solà sec. 6.2-6.3, 7.3)."""
         dx = self.kf.x[:, 0]
         self._p += dx[P_]
         self._v += dx[V_]
@@ -629,25 +654,32 @@ class NavEstimator:
     def update_mag(self, mag: MagSample) -> Check | None:
         """Magnetic heading, levelled with the estimated roll and pitch: z = ψ̂ + D − heading(R̂ m_b).
 
+        The magnetometer is there for the heading; roll and pitch are the accelerometer's (through the
+        velocity aiding). With ``mag_fusion = "heading"`` (the default) it is fused as a measurement of the
+        rotation about the vertical, H_θ = [0, 0, 1] (a rotation of the global error δθ about the NED down
+        axis changes the Euler yaw by exactly δθ_d and leaves roll and pitch alone), and the gain's tilt
+        rows are zeroed (:meth:`_fuse_heading_only`): the heading can no longer leak into roll and pitch.
+
         The levelling uses the *estimated* tilt, so z is not the true yaw: with the global error
         R = (I + [δθ]×) R̂, R̂ m_b = m − δθ × m (m the NED field), and to first order
-        z − ψ̂ = δθ_d − m_d (m_n δθ_n + m_e δθ_e) / |m_h|², i.e. H_θ = [−m_d m_n, −m_d m_e, |m_h|²] / |m_h|²
-        (docs/navigation.md, "Magnetometer"). The field's direction is taken from R̂ m_b itself (an error
-        of second order) (``mag_heading_jacobian``, used with ``mag_tilt_coupling``). The default uses the
-        Jacobian of the Euler yaw (``yaw_jacobian_global``), which treats z as a measurement of the true
-        yaw and the tilt-induced part as noise: in the closed loop the exact Jacobian let the unobservable
-        tilt / accelerometer-bias combination wander by ~1° under GPS, and the Euler one lets a hard
-        pitch-up leak ~2° into roll; both are measured in docs/benchmarks/nav.md."""
+        z − ψ̂ = δθ_d − m_d (m_n δθ_n + m_e δθ_e) / |m_h|² (``mag_heading_jacobian``). The default treats the
+        tilt-induced part as part of the heading noise. The alternatives, kept for comparison, fuse with the
+        optimal gain: ``"tilt_coupled"`` with that exact Jacobian (in the closed loop it let the unobservable
+        tilt / accelerometer-bias combination wander by ~1° under GPS), ``"euler_yaw"`` with the Euler yaw's
+        Jacobian (``yaw_jacobian_global``; a hard pitch-up leaked ~2° into roll, and under manoeuvres the
+        inertial-only error outgrew its σ); measured in docs/benchmarks/nav.md."""
         cfg = self.cfg
         roll, pitch, yaw = quat_to_euler(self._q)
         heading, strength = _mag_heading(mag.field_frd_gauss, roll, pitch, cfg.mag_declination_rad)
         if strength < cfg.mag_min_horizontal_gauss:
             return None
         H = np.zeros((1, N_ERR))
-        if cfg.mag_tilt_coupling:
+        if cfg.mag_fusion == "tilt_coupled":
             H[0, 6:9] = mag_heading_jacobian(quat_rotate(self._q, mag.field_frd_gauss))
-        else:
+        elif cfg.mag_fusion == "euler_yaw":
             H[0, 6:9] = yaw_jacobian_global(quat_to_dcm(self._q))
+        else:
+            H[0, 8] = 1.0
         z = np.array([heading])
         hx = np.array([yaw])
         R = np.array([[cfg.mag_heading_sigma_rad**2]])
@@ -655,7 +687,10 @@ class NavEstimator:
         nis = self._nis(y, S)
         fused = nis <= cfg.mag_gate
         if fused:
-            self._fuse(z, hx, H, R, angle=True)
+            if cfg.mag_fusion == "heading":
+                self._fuse_heading_only(z, hx, H, R)
+            else:
+                self._fuse(z, hx, H, R, angle=True)
         else:
             self._emit(
                 NavEventKind.REJECTED, "mag", nis, cfg.mag_gate, "nis", "magnetic heading inconsistent"

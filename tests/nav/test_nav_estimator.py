@@ -318,3 +318,35 @@ def test_late_gps_sample_is_carried_to_the_filter_time():
     # uncarried, the 1.1 m lag would give NIS ~ 1.1² / 1.3² ~ 0.7 on the along-track axis alone
     assert check.nis_pos < 0.05
     assert est.state().pos_ned_m[0] == pytest.approx(10.0 * t, abs=0.15)
+
+
+def test_heading_only_magnetometer_never_moves_roll_or_pitch():
+    """mag_fusion="heading": one heading update on a tilted vehicle with a yaw error corrects the yaw and
+    leaves roll and pitch exactly where they were; the optimal gain with the Euler yaw's Jacobian (the old
+    default) moves them."""
+    from merlin.measurements import MagSample
+
+    rpy_true = (0.15, -0.45, 0.2)  # a hard pitch, as in an RTL's climb towards home
+    q_true = quat_from_euler(*rpy_true)
+    m_body = quat_rotate((q_true[0], -q_true[1], -q_true[2], -q_true[3]), (0.24, 0.0, 0.41))
+    moved = {}
+    for fusion in ("heading", "euler_yaw"):
+        cfg = NavConfig(mag_fusion=fusion)
+        init = NavInit(att_rpy_rad=(0.15, -0.45, 0.5), tilt_sigma_rad=0.05, yaw_sigma_rad=0.5)
+        est = NavEstimator(cfg, init)
+        est.predict(ImuSample(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, -cfg.gravity_mps2)))
+        before = est.state().att_rpy_rad
+        check = est.update_mag(MagSample(0.0, m_body))
+        assert check is not None and check.fused
+        after = est.state().att_rpy_rad
+        assert abs(after[2] - rpy_true[2]) < abs(before[2] - rpy_true[2]) / 2
+        moved[fusion] = max(abs(after[0] - before[0]), abs(after[1] - before[1]))
+        P = est.covariance
+        assert np.allclose(P, P.T) and np.all(np.linalg.eigvalsh(P) > 0.0)
+    assert moved["heading"] < 1e-9
+    assert moved["euler_yaw"] > 1e-3
+
+
+def test_an_unknown_mag_fusion_is_refused():
+    with pytest.raises(ValueError, match="mag_fusion='exact' must be one of"):
+        NavConfig(mag_fusion="exact")
