@@ -24,7 +24,7 @@ from multiprocessing.connection import wait as mp_wait
 from pathlib import Path
 from typing import Any
 
-from merlin.campaign.execute import execute, worker_died_record, write_run_yaml
+from merlin.campaign.execute import death_cause, execute, worker_died_record, write_run_yaml
 from merlin.campaign.spec import CampaignScenario, RunSpec, derive_run, load_campaign_scenario
 from merlin.campaign.store import ResultStore, read_results
 from merlin.config.loader import ConfigError
@@ -34,6 +34,7 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 #: recorded as an error (``worker died: ...``) instead. Two, not one: a worker can also die of something
 #: that is not the run's doing (the out-of-memory killer choosing it, a stray kill).
 WORKER_ATTEMPTS = 2
+WORKER_READY = "ready"  # a local worker's first message: its imports are done
 
 
 @dataclass(frozen=True, slots=True)
@@ -123,6 +124,7 @@ class _Worker:
     conn: Any
     spec: RunSpec | None = None
     flown: int = 0
+    started: bool = False  # it has said WORKER_READY (imported everything)
 
 
 def _worker_main(conn: Any) -> None:
@@ -131,6 +133,7 @@ def _worker_main(conn: Any) -> None:
     Ctrl-C reaches the whole foreground process group: the driver handles it and stops its workers, so a
     worker ignores it rather than printing a traceback per run in flight."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    conn.send(WORKER_READY)  # imports done: a death from here on is a run's doing
     while True:
         try:
             spec = conn.recv()
@@ -159,6 +162,28 @@ def _stop_worker(w: _Worker, timeout_s: float = 5.0) -> None:
     w.conn.close()
 
 
+def _receive(w: _Worker) -> Any:
+    """The worker's next message if one is waiting (a record or ``WORKER_READY``), else None (nothing
+    yet, or the pipe closed because the worker died)."""
+    try:
+        return w.conn.recv() if w.conn.poll() else None
+    except (EOFError, OSError):
+        return None
+
+
+def _hand_over(w: _Worker, todo: deque[RunSpec]) -> bool:
+    """Send ``w`` the next run; False (the run stays first in ``todo``) if the worker is already dead: no
+    run of its own killed it, so no run is charged."""
+    spec = todo.popleft()
+    try:
+        w.conn.send(spec)
+    except OSError:  # BrokenPipeError: nobody reads the other end any more
+        todo.appendleft(spec)
+        return False
+    w.spec = spec
+    return True
+
+
 def _local(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
     """Fly ``specs`` on ``n_workers`` processes the driver owns, one run at a time each.
 
@@ -184,15 +209,17 @@ def _local(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
     per_worker = max(1, opts.max_tasks_per_child)
     try:
         while todo or any(w.spec is not None for w in workers):
-            for w in workers:
-                if w.spec is None and todo:
-                    w.spec = todo.popleft()
-                    w.conn.send(w.spec)
+            for w in [w for w in workers if w.spec is None]:
+                if todo and not _hand_over(w, todo):
+                    workers.remove(w)  # an idle worker died: its replacement is started below
+                    _stop_worker(w)
             while todo and len(workers) < opts.n_workers:
                 w = _start_worker(ctx)
                 workers.append(w)
-                w.spec = todo.popleft()
-                w.conn.send(w.spec)
+                if not _hand_over(w, todo):
+                    workers.remove(w)
+                    _stop_worker(w)
+                    raise RuntimeError("a campaign worker died as it was started (before its first run)")
             busy = [w for w in workers if w.spec is not None]
             ready = set(mp_wait([w.conn for w in busy] + [w.proc.sentinel for w in busy]))
             for w in busy:
@@ -200,27 +227,30 @@ def _local(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
                     continue
                 spec = w.spec
                 assert spec is not None
-                rec: dict[str, Any] | None = None
-                try:
-                    if w.conn.poll():
-                        rec = w.conn.recv()
-                except (EOFError, OSError):  # the worker died before it could answer
-                    rec = None
-                if rec is not None:
+                msg = _receive(w)
+                while msg == WORKER_READY:
+                    w.started = True
+                    msg = _receive(w)
+                if isinstance(msg, dict):
                     w.spec = None
                     w.flown += 1
-                    emit(spec, rec)
+                    emit(spec, msg)
                     if w.flown >= per_worker:
                         _stop_worker(w)
                         workers.remove(w)
                     continue
-                if w.proc.is_alive() and w.proc.sentinel not in ready:
-                    continue  # not an answer yet (a spurious wake-up)
+                if w.proc.is_alive():
+                    continue  # it said it is ready, or a spurious wake-up: the run is still flying
                 w.proc.join()
-                died = deaths.setdefault(spec.run_id, [])
-                died.append(w.proc.exitcode if w.proc.exitcode is not None else 0)
+                code = w.proc.exitcode if w.proc.exitcode is not None else 0
                 w.conn.close()
                 workers.remove(w)
+                if not w.started:
+                    # before any run could start (imports, environment): a bug to see, not a run to blame
+                    raise RuntimeError(f"a campaign worker died while starting ({death_cause(code)}); run "
+                                       f"{spec.run_id} was not charged. Is the environment importable?")
+                died = deaths.setdefault(spec.run_id, [])
+                died.append(code)
                 if len(died) >= WORKER_ATTEMPTS:
                     emit(spec, worker_died_record(spec, died))
                 else:
