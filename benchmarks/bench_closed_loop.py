@@ -2,7 +2,8 @@
 
 The whole loop: multirotor dynamics, three IMU lanes + GPS + baro + mag with fault injection, the
 navigation estimate, the trusted core, Merlin's inner loops, the plug-in controller and the 50 Hz log,
-at 400 Hz. Plots and files are not included (they are written after the run).
+at 400 Hz. Plots and files are not included (they are written after the run). The process pins itself to
+one core (the first it may run on), as benchmarks/bench_fixedwing.py does, so the figure is one core's.
 
     .venv/bin/python benchmarks/bench_closed_loop.py [--scenario examples/scenarios/nominal.yaml] [--runs 5]
 """
@@ -10,6 +11,7 @@ at 400 Hz. Plots and files are not included (they are written after the run).
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 from pathlib import Path
@@ -25,10 +27,14 @@ def main() -> None:
     ap.add_argument("--scenario", default=str(ROOT / "examples" / "scenarios" / "nominal.yaml"))
     ap.add_argument("--runs", type=int, default=5)
     a = ap.parse_args()
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})  # one core
     sc, cfg = load_scenario(a.scenario)
     from merlin import _build
 
-    print(f"scenario {sc.name}: {sc.duration_s:.0f} s simulated at {1 / sc.dt_s:.0f} Hz; {_build.describe()}")
+    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else "all"
+    print(f"scenario {sc.name}: {sc.duration_s:.0f} s simulated at {1 / sc.dt_s:.0f} Hz; {_build.describe()};"
+          f" pinned to core(s) {cores}")
     rtf_wall, rtf_cpu = [], []
     for i in range(a.runs):
         c0, w0 = time.process_time(), time.perf_counter()

@@ -58,7 +58,8 @@ class PullUp(ExperimentalController):
 
 class FwFlyaway(ExperimentalController):
     """VELOCITY: the course ``heading_deg`` at ``speed_mps`` (reached at ``accel_mps2``), holding the height
-    at the grant; it never turns back."""
+    at the grant, or with ``climb_mps`` non-zero climbing (> 0) or descending (< 0) at that rate; it never
+    turns back and never levels off: what the fence's ceiling and floor projections are for."""
 
     name = "fw_flyaway"
     defaults: ClassVar[dict[str, Any]] = {
@@ -67,10 +68,14 @@ class FwFlyaway(ExperimentalController):
         "speed_mps": 22.0,
         "accel_mps2": 1.0,
         "height_gain_per_s": 0.2,
+        "climb_mps": 0.0,  # 0: hold the height at the grant; > 0 climb, < 0 descend at this rate
     }
 
     def __init__(self, **params: Any) -> None:
         super().__init__(**params)
+        climb = float(self.params["climb_mps"])
+        if not -8.0 <= climb <= 8.0:
+            raise ParamError(f"climb_mps must be in [-8, 8] m/s, got {self.params['climb_mps']!r}")
         self.v = 0.0
         self.hold_alt_m: float | None = None
 
@@ -87,8 +92,12 @@ class FwFlyaway(ExperimentalController):
         step = float(self.params["accel_mps2"]) / 50.0  # the runner calls controllers at 50 Hz by default
         self.v = min(target, self.v + step) if self.v < target else max(target, self.v - step)
         h = math.radians(float(self.params["heading_deg"]))
-        vd = -float(self.params["height_gain_per_s"]) * (self.hold_alt_m - s.alt_m)
-        vd = min(max(vd, -2.0), 2.0)
+        climb = float(self.params["climb_mps"])
+        if climb != 0.0:
+            vd = -climb
+        else:
+            vd = -float(self.params["height_gain_per_s"]) * (self.hold_alt_m - s.alt_m)
+            vd = min(max(vd, -2.0), 2.0)
         return ControllerOutput(Setpoint(SetpointKind.VELOCITY,
                                          vel_ned_mps=(self.v * math.cos(h), self.v * math.sin(h), vd),
                                          yaw_rad=h))

@@ -164,3 +164,91 @@ def corner_case(fence: geofence.Fence, course_deg: float, speed_mps: float) -> S
     return _course_scenario(f"fw_fence_corner_{int(course_deg)}deg_{int(v)}mps",
                             f"fixed wing: course {course_deg:g} deg across the notch's re-entrant corner, {v:g} m/s",
                             fence.params, start, course_deg, v)
+
+
+# ------------------------------------------------------------------------- the ceiling and the floor
+
+#: The range's ceiling and floor (examples/configs/fixedwing_default.yaml), heights above home.
+CEILING_M = 250.0
+FLOOR_M = 30.0
+#: The autopilot's maximum climb and sink rates (merlin.autopilot.fixedwing_control: climb_max_mps,
+#: sink_max_mps): the steepest a VELOCITY command is flown.
+CLIMB_RATES_MPS = (2.0, 4.0)
+#: How far below the ceiling (above the floor) an altitude case starts: 10 s of climb at the highest rate.
+ALTITUDE_LEAD_M = 40.0
+EXPECT_ALTITUDE = [
+    Expectation(type="granted", name="the flyaway is granted authority"),
+    Expectation(type="revoked", reason="geofence", name="the fence takes control back"),
+    Expectation(type="no_fence_breach", name="the fixed wing levels off inside the range"),
+]
+
+
+def altitude_case(params: geofence.FenceParams, limit: str, speed_mps: float, climb_mps: float = 4.0,
+                  seed: int = 7) -> Scenario:
+    """Towards the ceiling (``limit`` "ceiling": climbing at ``climb_mps``) or the floor ("floor": descending
+    at it), on a course north from 600 m south of home, far from every horizontal boundary: the projection's
+    vertical part (the climb or descent over the reaction time plus the vertical stopping distance) must trip
+    and the recovery level off inside the range."""
+    v = speed_mps
+    if limit not in ("ceiling", "floor"):
+        raise ValueError(f"limit must be 'ceiling' or 'floor', got {limit!r}")
+    up = limit == "ceiling"
+    start_h = CEILING_M - ALTITUDE_LEAD_M if up else FLOOR_M + ALTITUDE_LEAD_M
+    rate = climb_mps if up else -climb_mps
+    rate_name = f"{climb_mps:g}".replace(".", "p")
+    return Scenario(
+        name=f"fw_fence_{limit}_{int(v)}mps" if climb_mps == 4.0 else f"fw_fence_{limit}_{int(v)}mps_{rate_name}",
+        description=f"fixed wing: {'climbing' if up else 'descending'} at {climb_mps:g} m/s towards the range's"
+                    f" {limit} at {v:g} m/s",
+        duration_s=round(GRANT_S + ALTITUDE_LEAD_M / climb_mps + 15.0, 1),
+        seed=seed,
+        dt_s=DT_S,
+        vehicle="aerosonde",
+        config="../configs/fixedwing_default.yaml",
+        initial=Initial(pos_ned_m=[-600.0, 0.0, -start_h], yaw_deg=0.0, airspeed_mps=v),
+        gcs=[{"t": 0.0, "command": "arm"}, {"t": 0.0, "command": "hold"}],  # type: ignore[list-item]
+        controller=ControllerSpec(type=CONTROLLER, params={"request_at_s": GRANT_S, "heading_deg": 0.0,
+                                                           "speed_mps": v, "climb_mps": rate}),
+        expectations=EXPECT_ALTITUDE,
+    )
+
+
+# --------------------------------------------------------------------------- the tables of the docs
+
+
+def _measure(sc: Scenario) -> dict[str, object]:
+    from pathlib import Path
+
+    from sims.runner import run_scenario
+    from sims.scenario import resolve_config
+
+    base = Path(__file__).resolve().parents[2] / "examples" / "scenarios"
+    r = run_scenario(sc, resolve_config(sc, base, "<generated>"), source=sc.name)
+    turns = [e for e in r.events if e["type"] == "fixed_wing_escape_turn"]
+    return {"name": sc.name, "revoked": [e["reason"] for e in r.events if e["type"] == "revoked"],
+            "min_margin_m": round(r.metrics["min_fence_margin_m"], 1),
+            "max_breach_m": round(r.metrics["max_fence_breach_m"], 2),
+            "side": turns[0]["side"] if turns else "-"}
+
+
+def main() -> None:
+    """Print every generated case's minimum margin, breach and escape side (docs/fixed-wing.md's tables):
+    ``.venv/bin/python -m tests.scenarios_fixedwing.fence_cases``."""
+    from merlin.config.loader import load_config
+    from merlin.config.runtime import build_core_config
+
+    root = __import__("pathlib").Path(__file__).resolve().parents[2]
+    fence = build_core_config(load_config(root / "examples" / "configs" / "fixedwing_default.yaml")).fence
+    assert fence is not None
+    cases: list[Scenario] = [approach_case(fence.params, a, v) for a in ANGLES_DEG for v in SPEEDS_MPS]
+    cases += [notch_case(fence.params, v) for v in SPEEDS_MPS]
+    cases += [course_case(fence, c, v) for c in COURSES_DEG for v in SPEEDS_MPS]
+    cases += [sc for c in COURSES_DEG for v in SPEEDS_MPS if (sc := corner_case(fence, c, v)) is not None]
+    cases += [altitude_case(fence.params, lim, v, r) for lim in ("ceiling", "floor") for v in SPEEDS_MPS
+              for r in CLIMB_RATES_MPS]
+    for sc in cases:
+        print(_measure(sc), flush=True)
+
+
+if __name__ == "__main__":
+    main()

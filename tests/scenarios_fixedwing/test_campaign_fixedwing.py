@@ -1,5 +1,6 @@
-"""The fixed wing in the campaign mix: ``examples/campaigns/fixed_wing.yaml`` (flyaway on a random course and
-speed towards a non-convex range) and ``fixed_wing_stall.yaml`` (a random pull-up), two runs: one of each.
+"""The fixed wing in the campaign mix: ``examples/campaigns/fixed_wing.yaml`` (flyaway on a random course,
+speed and climb rate towards a non-convex range, its ceiling or floor), ``fixed_wing_stall.yaml`` (a random
+pull-up) and ``fixed_wing_lap.yaml`` (the seed thesis's lap in a random wind), three runs: one of each.
 
 Also the ``max_height_loss_after_revocation`` expectation type on hand-made logs.
 """
@@ -17,15 +18,16 @@ from sims.scenario import Expectation
 
 ROOT = Path(__file__).resolve().parents[2]
 CAMPAIGNS = (str(ROOT / "examples" / "campaigns" / "fixed_wing.yaml"),
-             str(ROOT / "examples" / "campaigns" / "fixed_wing_stall.yaml"))
+             str(ROOT / "examples" / "campaigns" / "fixed_wing_stall.yaml"),
+             str(ROOT / "examples" / "campaigns" / "fixed_wing_lap.yaml"))
 
 
 @pytest.mark.slow
 def test_fixed_wing_campaigns_pass(tmp_path: Path) -> None:
-    o = run_campaign(CampaignOptions(scenarios=CAMPAIGNS, runs=2, out=tmp_path, seed=5, workers=1))
-    assert o.flown_now == 2 and len(o.records) == 2
+    o = run_campaign(CampaignOptions(scenarios=CAMPAIGNS, runs=3, out=tmp_path, seed=5, workers=1))
+    assert o.flown_now == 3 and len(o.records) == 3
     by_file = {Path(r["scenario_file"]).name: r for r in o.records.values()}
-    assert set(by_file) == {"fixed_wing.yaml", "fixed_wing_stall.yaml"}
+    assert set(by_file) == {"fixed_wing.yaml", "fixed_wing_stall.yaml", "fixed_wing_lap.yaml"}
     for r in o.records.values():
         failed = [x for x in r["expectations"] if not x["passed"]]
         assert r["passed"] and not failed, (r["run_id"], r["samples"], failed)
@@ -36,6 +38,10 @@ def test_fixed_wing_campaigns_pass(tmp_path: Path) -> None:
     # the samples are the campaign's: a random course and speed, a random pull-up
     assert 22.0 <= fence["samples"]["controller.params.speed_mps"] <= 30.0
     assert 1.0 <= stall["samples"]["controller.params.pitch_rate_degps"] <= 5.0
+    assert -4.0 <= fence["samples"]["controller.params.climb_mps"] <= 4.0
+    lap = by_file["fixed_wing_lap.yaml"]
+    assert lap["revocations"] == [] and "wind.steady_ned_mps.0" in lap["samples"]
+    assert sum("after capture" in x["detail"] for x in lap["expectations"]) == 2
 
 
 def _log(heights: list[float]) -> dict[str, np.ndarray]:

@@ -10,7 +10,6 @@ the lap's errors agree with 200 Hz to 0.03 m RMS; docs/fixed-wing.md, "Closed lo
 from __future__ import annotations
 
 import math
-import os
 from functools import cache
 from pathlib import Path
 
@@ -25,8 +24,12 @@ from sims.runner import RunResult, run_scenario
 from sims.scenario import Scenario, load_scenario, resolve_config
 from tests.scenarios_fixedwing.fence_cases import (
     ANGLES_DEG,
+    CEILING_M,
+    CLIMB_RATES_MPS,
     COURSES_DEG,
+    FLOOR_M,
     SPEEDS_MPS,
+    altitude_case,
     approach_case,
     corner_case,
     course_case,
@@ -135,6 +138,30 @@ def test_fence_approach_holds_at_every_angle_and_speed(kind: str, speed_mps: flo
     assert _surface_steps_at_changes(r) < 0.1  # the log is at 50 Hz here: two to four autopilot ticks
 
 
+ALTITUDE_CASES = [(lim, v, c) for lim in ("ceiling", "floor") for v in SPEEDS_MPS for c in CLIMB_RATES_MPS]
+
+
+@pytest.mark.parametrize(("limit", "speed_mps", "climb_mps"), ALTITUDE_CASES,
+                         ids=[f"{lim}_{int(v)}mps_climb{c:g}" for lim, v, c in ALTITUDE_CASES])
+def test_fence_altitude_approach_levels_off_inside(limit: str, speed_mps: float, climb_mps: float) -> None:
+    """The projection's vertical part: climbing to the ceiling (descending to the floor) at 2 and 4 m/s, at
+    cruise and maximum speed, the fence revokes the flyaway on the projected climb (descent) and Merlin's
+    RTL levels off (climbs back) inside: zero breach, the ceiling and floor never reached."""
+    sc = altitude_case(FENCE_PARAMS, limit, speed_mps, climb_mps)
+    r = run_scenario(sc, resolve_config(sc, SCENARIOS, "<generated>"), source=sc.name)
+    _expectations_pass(r)
+    rev = next(e for e in r.events if e["type"] == "revoked")
+    assert f"the {limit} boundary" in rev["reason_detail"]["text"], rev["reason_detail"]["text"]
+    assert r.metrics["max_fence_breach_m"] == 0.0 and r.metrics["min_fence_margin_m"] > 0.0
+    h = -r.log["truth_d"]
+    k = _row(r.log, rev["t"])
+    if limit == "ceiling":
+        assert h.max() < CEILING_M and h[k] - h[0] > 20.0  # it did climb towards the ceiling
+    else:
+        assert h.min() > FLOOR_M and h[0] - h[k] > 20.0
+        assert h[-1] > h[k]  # climbing back to the RTL height
+
+
 def test_guidance_alone_turns_into_the_notch(monkeypatch: pytest.MonkeyPatch) -> None:
     """Why the escape turn exists: without it the RTL guidance turns the short way home, into the notch."""
     monkeypatch.setattr(FixedWingLoop, "escape_turns", False)
@@ -143,28 +170,32 @@ def test_guidance_alone_turns_into_the_notch(monkeypatch: pytest.MonkeyPatch) ->
     assert r.metrics["max_fence_breach_m"] > 20.0
 
 
+#: All 40 runs of the sweep fly in the suite (about 90 s of one core; docs/fixed-wing.md, "The fence sweep").
 SWEEP = [("course", c, v) for c in COURSES_DEG for v in SPEEDS_MPS] + [
     ("corner", c, v) for c in COURSES_DEG for v in SPEEDS_MPS if corner_case(FENCE, c, v) is not None]
-#: The sweep's tightest runs (smallest margins in the full sweep of docs/fixed-wing.md), flown by default;
-#: MERLIN_FW_FULL_SWEEP=1 flies all 40 (about 150 s of CPU).
-SWEEP_TIGHTEST = [("corner", 210.0, 30.0), ("corner", 270.0, 22.0), ("corner", 0.0, 22.0),
-                  ("corner", 300.0, 30.0), ("course", 30.0, 22.0)]
-SWEEP_RUN = SWEEP if os.environ.get("MERLIN_FW_FULL_SWEEP") == "1" else SWEEP_TIGHTEST
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("kind", "course_deg", "speed_mps"), SWEEP_RUN,
-                         ids=[f"{k}_{int(c)}deg_{int(v)}mps" for k, c, v in SWEEP_RUN])
+@pytest.mark.parametrize(("kind", "course_deg", "speed_mps"), SWEEP,
+                         ids=[f"{k}_{int(c)}deg_{int(v)}mps" for k, c, v in SWEEP])
 def test_fence_sweep_every_30_degrees_has_no_breach(kind: str, course_deg: float, speed_mps: float) -> None:
     """Courses 0-330 deg in 30 deg steps at cruise and maximum speed: from home to whichever side of the
     range the course meets (the notch's bottom at 0 deg), and across the notch's re-entrant corner from
     every direction the allowed area offers. Zero breach in every run (docs/fixed-wing.md)."""
-    assert (kind, course_deg, speed_mps) in SWEEP
     sc = course_case(FENCE, course_deg, speed_mps) if kind == "course" else corner_case(FENCE, course_deg, speed_mps)
     assert sc is not None
     r = run_scenario(sc, resolve_config(sc, SCENARIOS, "<generated>"), source=sc.name)
     _expectations_pass(r)
     assert r.metrics["max_fence_breach_m"] == 0.0
+
+
+@pytest.mark.parametrize("name", ["fw_fence_ceiling_22mps", "fw_fence_ceiling_30mps", "fw_fence_floor_22mps",
+                                  "fw_fence_floor_30mps"])
+def test_shipped_altitude_files_are_the_generated_cases(name: str) -> None:
+    """The altitude YAML files are exactly altitude_case's 4 m/s cases (the parametrised runs stand for them)."""
+    sc, _cfg = load_scenario(SCENARIOS / f"{name}.yaml")
+    limit, speed = name.removeprefix("fw_fence_").split("_")
+    assert sc.model_dump() == altitude_case(FENCE_PARAMS, limit, float(speed.removesuffix("mps"))).model_dump()
 
 
 @pytest.mark.parametrize("name", ["fw_fence_0deg_22mps", "fw_fence_60deg_30mps", "fw_fence_notch_22mps"])
