@@ -286,7 +286,14 @@ class FixedWingLoop(ClosedLoop):
         # JSBSim is deterministic), so a sensor or wind draw never depends on which vehicle flies.
         root = np.random.default_rng(sc.seed)
         _rng_vehicle, rng_sensors, rng_wind, rng_est, rng_faults = root.spawn(5)
-        self.core_cfg = build_core_config(cfg, source=source)
+        # As the multirotor's loop (ClosedLoop.__init__): a scenario with a redundancy: section flies a
+        # vehicle that reports its redundancy level to the core, when the configuration has the redundancy
+        # section (issue 5; read with getattr so that this loop does not depend on which fields it has).
+        red_cfg = getattr(cfg, "redundancy", None)
+        core_src = cfg
+        if red_cfg is not None and "redundancy" in sc.model_fields_set and not red_cfg.enabled:
+            core_src = cfg.model_copy(update={"redundancy": red_cfg.model_copy(update={"enabled": True})})
+        self.core_cfg = build_core_config(core_src, source=source)
         self.core = TrustedCore(self.core_cfg)
         ini = sc.initial
         height = -ini.pos_ned_m[2]
@@ -347,9 +354,14 @@ class FixedWingLoop(ClosedLoop):
 
             fld = self.sensors.params.mag.field_ned_gauss or dipole_field_ned_gauss(cfg.home.lat_deg,
                                                                                     cfg.home.lon_deg)
-            # hover thrust and gains are the autopilot lanes' (a multirotor's), never built here
-            self.redundancy = Redundancy(sc, root.spawn(1)[0], fld, 0.0, DEFAULT_GAINS)
+            # hover thrust and gains are the autopilot lanes' (a multirotor's), never built here; the
+            # configuration's redundancy section (presets, miscompare limits) when it has one
+            with_cfg = (red_cfg,) if red_cfg is not None else ()
+            self.redundancy = Redundancy(sc, root.spawn(1)[0], fld, 0.0, DEFAULT_GAINS, *with_cfg)
             self.extra_log_row = self.redundancy.log_row
+        #: whether run_scenario hands the redundancy stage's level to the core each tick (as the multirotor's)
+        self.reports_redundancy = bool(red_cfg is not None and core_src.redundancy.enabled
+                                       and self.redundancy is not None)
 
         # ---- the fixed-wing actuator stage: parameters from the configuration where it has them
         trusted = cfg.trusted

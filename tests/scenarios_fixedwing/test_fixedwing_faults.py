@@ -130,7 +130,11 @@ def test_imu_faults_act_on_the_voter_without_the_ekf() -> None:
                                   "faults": [{"type": "imu_stuck", "start_s": 1.0, "lane": 2}]})
     from sims.scenario import resolve_config
 
-    r = run_scenario(sc, resolve_config(sc, SCENARIOS, "<generated>"), source="<generated>")
+    cfg = resolve_config(sc, SCENARIOS, "<generated>")
+    # as on the multirotor, a scenario with a redundancy: section reports its level to the core, when the
+    # configuration has the redundancy section
+    assert make_loop(sc, cfg).reports_redundancy is (getattr(cfg, "redundancy", None) is not None)
+    r = run_scenario(sc, cfg, source="<generated>")
     assert r.metrics["imu_lanes_isolated"] == 1.0
     assert any(e["type"] == "imu_isolated" and e.get("lane") == 2 for e in r.events)
 
