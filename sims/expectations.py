@@ -122,14 +122,22 @@ def evaluate(x: Expectation, events: list[dict[str, Any]], log: dict[str, np.nda
         # hardware redundancy (sims/lanes.py): within SWITCH_WINDOW_S of an autopilot-lane switch, the
         # largest per-tick motor-command step the hand-over adds beyond the incoming lane's own change;
         # default limit: the run's bumpless limit. At least one switch must have happened.
+        # Also the raw actuated step near the switch, against the larger of the limit and the largest step
+        # the inner loops make elsewhere in the same flight (a hand-over must not stand out of normal
+        # control), and the incoming lane must command within one tick of the switch.
         n = metrics.get("lane_switches", 0.0)
         lim = x.step if x.step is not None else metrics.get("bumpless_limit", 0.0)
         s = metrics.get("max_lane_switch_added_step", math.inf)
-        return Verdict(name, n >= 1 and s <= lim + 1e-12,
+        raw = metrics.get("max_lane_switch_motor_step", math.inf)
+        normal = metrics.get("max_motor_step_outside_switches", math.nan)
+        raw_lim = max(lim, normal) if math.isfinite(normal) else lim
+        delay = metrics.get("lane_switch_command_delay_ticks", math.inf)
+        return Verdict(name, n >= 1 and s <= lim + 1e-12 and raw <= raw_lim + 1e-12 and delay <= 1.0,
                        f"{int(n)} lane switch(es); step added by the hand-over {s:.4f} per tick (allowed {lim:.4f});"
                        f" gap at the switch {metrics.get('lane_switch_handover_gap', math.nan):.4f}; largest "
-                       f"step near the switch {metrics.get('max_lane_switch_motor_step', math.nan):.4f}, elsewhere "
-                       f"in flight {metrics.get('max_motor_step_outside_switches', math.nan):.4f}")
+                       f"step near the switch {raw:.4f} (allowed {raw_lim:.4f}: the limit or the largest"
+                       f" elsewhere in flight, {normal:.4f}); incoming lane commanding {delay:g} tick(s) after"
+                       f" the switch (allowed 1)")
     if kind == "max_height_loss_after_revocation":
         return _height_loss_after_revocation(name, x, events, log)
     if kind in ("nav_mode_at", "max_nav_error"):

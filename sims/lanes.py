@@ -34,6 +34,7 @@ the unit concerned (-1: the channel).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -50,8 +51,9 @@ from merlin.autopilot.multirotor_control import (
     control_step,
     reset_from_state,
 )
-from merlin.core.types import Command, CommandKind, NavMode, VehicleState
-from merlin.measurements import ImuSample, MagSample
+from merlin.config.models import RedundancyConfig
+from merlin.core.types import Command, CommandKind, NavMode, RedundancyReport, VehicleState
+from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
 from merlin.redundancy.duplex_fdi import FDI_PRESETS, FdiState
 from merlin.redundancy.events import FaultReport, RedundancyLevel
 from merlin.redundancy.lane_voter import (
@@ -66,6 +68,7 @@ from merlin.redundancy.lane_voter import (
     Selector,
 )
 from merlin.redundancy.sensor_suite import SensorSuiteVoter
+from merlin.redundancy.sensor_voter import CHANNEL_SPECS, ChannelSpec, LaneState
 from sims.scenario import Fault, Scenario
 
 # The bumpless limit: the most a hand-over may move any one motor command (0..1) per 400 Hz tick.
@@ -117,19 +120,28 @@ class ImuVoterStage:
     """The three IMU lanes voted (with the degradation chain) before the estimator; one call per tick."""
 
     def __init__(self, rng: np.random.Generator, field_ned_gauss: tuple[float, float, float],
-                 fdi_preset: str = "merlin") -> None:
+                 fdi_preset: str = "merlin", specs: dict[str, ChannelSpec] | None = None) -> None:
         base = FDI_PRESETS[fdi_preset]
         # the PF's reference field must be the one the simulated magnetometer measures (seed 003 assumed
         # southern Italy's; the simulator's is the IGRF dipole at the scenario's home)
         cfg = replace(base, pf=replace(base.pf, earth_field_ned_gauss=field_ned_gauss,
                                        sigma_mag_gauss=PF_SIGMA_MAG_GAUSS))
-        self.suite = SensorSuiteVoter(rng, cfg)
+        self.suite = SensorSuiteVoter(rng, cfg, specs)
         self.events: list[dict[str, Any]] = []
         self._imu: tuple[ImuSample | None, ...] = (None, None, None)
         self._mag: MagSample | None = None
+        # with three magnetometer / barometer / GPS units: each unit's newest sample, and the voted
+        # samples of this tick (None when no unit delivered one this tick): what the EKF fuses
+        self._mags: list[MagSample | None] = [None] * N_LANES
+        self._baros: list[BaroSample | None] = [None] * N_LANES
+        self._gpss: list[GpsSample | None] = [None] * N_LANES
+        self.voted_mag: MagSample | None = None
+        self.voted_baro: BaroSample | None = None
+        self.voted_gps: GpsSample | None = None
         self._t: float | None = None
         self.voted: ImuSample | None = None
         self.level = RedundancyLevel.TRIPLEX
+        self.levels: dict[str, RedundancyLevel] = {}
         self.nav_health = 1.0
 
     def vote(self, t: float, frame: Any) -> ImuSample | None:
@@ -147,17 +159,39 @@ class ImuVoterStage:
         # the voter's clock is the sensors' (the samples' time of validity): with healthy lanes the voted
         # sample is then bit for bit the per-axis median the runner used before the voter
         ts = frame.imu[0].t_s if frame.imu else t
-        out = self.suite.step(ts, self._imu, (self._mag,), (frame.baro,), (frame.gps,))
+        if frame.gps_lanes:
+            if len(frame.gps_lanes) != N_LANES:
+                raise ValueError(f"the sensor voter needs {N_LANES} GPS/baro/mag units, got {len(frame.gps_lanes)}")
+            new = [False, False, False]
+            for k, (held, lanes) in enumerate(((self._mags, frame.mag_lanes), (self._baros, frame.baro_lanes),
+                                               (self._gpss, frame.gps_lanes))):
+                for i, smp in enumerate(lanes):
+                    if smp is not None:
+                        held[i] = smp  # type: ignore[assignment]
+                        new[k] = True
+            out = self.suite.step(ts, self._imu, tuple(self._mags), tuple(self._baros), tuple(self._gpss))
+            self.voted_mag = out.mag if new[0] else None
+            self.voted_baro = out.baro if new[1] else None
+            self.voted_gps = out.gps if new[2] else None
+        else:
+            out = self.suite.step(ts, self._imu, (self._mag,), (frame.baro,), (frame.gps,))
         for r in out.events:
             self.events.append(_event(r))
         self.voted = out.imu
-        self.level = dict(out.levels)["imu"]
+        self.levels = dict(out.levels)
+        self.level = self.levels["imu"]
         self.nav_health = out.nav_health
         return out.imu
 
     @property
     def isolated(self) -> tuple[bool, ...]:
         return tuple(ln.isolated for ln in self.suite.imu.voter.state.lanes)
+
+    def channel_lanes(self, channel: str) -> tuple[LaneState, ...]:
+        """The voter's lane states of ``channel`` (imu, mag, baro, gps)."""
+        voter = self.suite.imu.voter if channel == "imu" else getattr(self.suite, channel)
+        lanes: tuple[LaneState, ...] = voter.state.lanes
+        return lanes
 
     @property
     def fdi_state(self) -> float:
@@ -201,7 +235,7 @@ class LaneFailure:
     lane: int
     start_s: float
     end_s: float
-    mode: str  # "silent" or "garbage"
+    mode: str  # "silent", "garbage" or "mute" (its messages no longer reach its peers; it hears them)
 
 
 @dataclass(frozen=True, slots=True)
@@ -210,6 +244,120 @@ class SwitchRecord:
     from_lane: int
     to_lane: int
     handover_gap: float  # max over motors |incoming lane's own command - last actuated| at the switch
+
+
+@dataclass(frozen=True, slots=True)
+class LaneContext:
+    """The health a lane reads from outside its own sensors, the same for every lane: the battery reading,
+    whether the core's last decision acts on a failsafe, and the ground-station link watchdog (seed 000
+    §4.3's battery_healthy, failsafe and data_link_lost flags come from the same vehicle-wide sources)."""
+
+    battery_ok: bool = True
+    no_failsafe: bool = True
+    data_link_ok: bool = True
+
+
+NO_CONTEXT = LaneContext()
+
+# A lane's own position stops being valid after this long without a position aid (GPS or VO): PX4's
+# COM_POS_FS_DELAY default, 1 s, the delay after which the commander declares local position invalid when
+# its estimator stops fusing a position source (the thesis's local_position_valid comes from there).
+LANE_DEAD_RECKONING_S = 1.0
+# The lane's altitude is valid while its barometer was fused within this long (4 samples at 50 Hz
+# missed, or rejected by the filter's gate for as long)
+LANE_BARO_STALE_S = 0.1
+# A lane's own sensors count as initialised while each unit delivered a sample within its voter timeout
+# (merlin.redundancy.sensor_voter's channel presets: IMU 0.02 s, mag 0.1 s, baro 0.2 s, GPS 0.5 s)
+_SENSOR_TIMEOUT_S = {name: spec.timeout_s for name, spec in CHANNEL_SPECS.items()}
+
+
+class LaneNavigation:
+    """Each autopilot lane's own estimator on its own sensor lane (``redundancy.lane_navigation: own``).
+
+    Lane i's filter predicts with IMU lane i and fuses magnetometer, barometer and GPS unit i (with
+    ``sensor_lanes: 3``; with one unit of each, that unit): the fusion EKF when the scenario flies
+    ``estimator: ekf``, else the stand-in (truth plus noise, in an outage of its own GPS unit). Its
+    health flags come from its own filter and its own sensors (:meth:`flags`), so a lane whose sensors fail
+    shows it to its peers the way a PX4 instance does in seed 000. The core sees the navigation solution of
+    the selected lane: the one whose commands fly the vehicle.
+
+    Cost: three filters per tick instead of one (``docs/benchmarks/redundancy.md``).
+    """
+
+    def __init__(self, ekfs: list[Any] | None, standins: list[Any] | None, aux_lanes: int) -> None:
+        self.ekfs = ekfs
+        self.standins = standins
+        self.aux_lanes = aux_lanes
+        self.states: list[VehicleState] = [VehicleState()] * N_LANES
+        self.last_seen: list[dict[str, float]] = [{} for _ in range(N_LANES)]
+        self.events: list[dict[str, Any]] = []
+
+    def _unit(self, frame: Any, name: str, lane: int) -> Any:
+        lanes = getattr(frame, f"{name}_lanes")
+        if lanes:
+            return lanes[lane]
+        return getattr(frame, name)
+
+    def sense(self, t: float, frame: Any, truth: Any, armed: bool, batt_frac: float) -> list[VehicleState]:
+        """Every lane's estimate at ``t`` from its own sensor lane (after the fault injector)."""
+        for i in range(N_LANES):
+            seen = self.last_seen[i]
+            imu = frame.imu[i] if frame.imu and len(frame.imu) > i else None
+            if imu is not None:
+                seen["imu"] = t
+            gps, baro, mag = self._unit(frame, "gps", i), self._unit(frame, "baro", i), self._unit(frame, "mag", i)
+            for name, smp in (("gps", gps), ("baro", baro), ("mag", mag)):
+                if smp is not None:
+                    seen[name] = t
+            if self.ekfs is not None:
+                ekf = self.ekfs[i]
+                if imu is not None:
+                    ekf.predict(imu)
+                if gps is not None:
+                    ekf.update_gps(gps)
+                if baro is not None:
+                    ekf.update_baro(baro)
+                if mag is not None:
+                    ekf.update_mag(mag)
+                for e in ekf.pop_events():
+                    self.events.append({"t": e.t_s, "type": f"nav_{e.kind.value}", "lane": i, "source": e.source,
+                                        "parameter": e.parameter, "statistic": e.statistic, "limit": e.limit,
+                                        "text": f"lane {i}: {e.describe()}"})
+                self.states[i] = replace(ekf.state(), armed=armed, landed=truth.landed, battery_frac=batt_frac,
+                                         airspeed_mps=truth.airspeed_mps)
+            else:
+                assert self.standins is not None
+                self.states[i] = self.standins[i].estimate(t, truth, armed, batt_frac)
+        return self.states
+
+    def flags(self, lane: int, t: float, imu: ImuSample | None, imu_isolated: bool, ctx: LaneContext,
+              max_sigma_h_m: float) -> tuple[bool, ...]:
+        """Lane ``lane``'s health flags in THESIS_FLAGS order (True = healthy), from its own filter, its own
+        sensors and the vehicle-wide ``ctx``."""
+        st = self.states[lane]
+        seen = self.last_seen[lane]
+        sensors_ok = all(k in seen and t - seen[k] <= _SENSOR_TIMEOUT_S[k] + 1e-9
+                         for k in ("imu", "mag", "baro", "gps"))
+        gyro_ok = imu is not None and not imu_isolated and all(math.isfinite(v) for v in imu.gyro_frd_radps) \
+            and "imu" in seen and t - seen["imu"] <= _SENSOR_TIMEOUT_S["imu"] + 1e-9
+        aided = st.nav_mode is NavMode.GPS or st.nav_mode is NavMode.VO or (
+            st.nav_mode is NavMode.INERTIAL and st.nav_inertial_s <= LANE_DEAD_RECKONING_S)
+        pos_ok = aided and all(math.isfinite(v) for v in st.pos_ned_m) and st.pos_sigma_h_m <= max_sigma_h_m
+        vel_ok = aided and all(math.isfinite(v) for v in st.vel_ned_mps)
+        att_ok = gyro_ok and all(math.isfinite(v) for v in st.att_rpy_rad)
+        alt_ok = math.isfinite(st.pos_ned_m[2])
+        if self.ekfs is not None:
+            b = self.ekfs[lane].last_baro
+            alt_ok = alt_ok and b is not None and b.fused and t - b.t_s <= LANE_BARO_STALE_S
+        else:
+            alt_ok = alt_ok and "baro" in seen and t - seen["baro"] <= _SENSOR_TIMEOUT_S["baro"] + 1e-9
+        flags = {
+            "local_position_valid": pos_ok, "local_velocity_valid": vel_ok, "global_position_valid": pos_ok,
+            "angular_velocity_valid": gyro_ok, "attitude_valid": att_ok, "local_altitude_valid": alt_ok,
+            "battery_healthy": ctx.battery_ok, "sensors_initialized": sensors_ok,
+            "no_failsafe": ctx.no_failsafe, "data_link_ok": ctx.data_link_ok,
+        }
+        return tuple(flags[name] for name in THESIS_FLAGS)
 
 
 class AutopilotLanes:
@@ -243,6 +391,11 @@ class AutopilotLanes:
         self.max_switch_added_step = 0.0  # the part of it the hand-over adds (beyond the lane's own change)
         self.max_step_elsewhere = 0.0  # the same outside those windows, in flight (for comparison)
         self._window_until = -math.inf
+        self.max_command_delay_ticks = 0.0  # ticks from a switch to the incoming lane's first actuated command
+        self._await_cmd: int | None = None
+        self.nav: LaneNavigation | None = None  # each lane's own estimator (lane_navigation: own)
+        self.max_sigma_h_m = math.inf  # a lane's position is invalid beyond this sigma (config nav limit)
+        self._ctx = NO_CONTEXT
 
     def failed(self, t: float) -> tuple[str | None, ...]:
         out: list[str | None] = [None] * N_LANES
@@ -252,8 +405,12 @@ class AutopilotLanes:
         return tuple(out)
 
     @staticmethod
-    def own_flags(state: VehicleState, imu: ImuSample | None, imu_isolated: bool) -> tuple[bool, ...]:
-        """The lane's health flags in THESIS_FLAGS order, True = healthy (seed 000 §4.3)."""
+    def own_flags(state: VehicleState, imu: ImuSample | None, imu_isolated: bool,
+                  ctx: LaneContext = NO_CONTEXT) -> tuple[bool, ...]:
+        """The lane's health flags in THESIS_FLAGS order, True = healthy (seed 000 §4.3), when the lanes
+        share one navigation solution (``lane_navigation: shared``): the navigation flags then come from the
+        shared estimate and can differ between lanes only through the lane's own IMU; battery, failsafe
+        and data link from ``ctx``. With ``lane_navigation: own`` see :meth:`LaneNavigation.flags`."""
         gyro_ok = imu is not None and not imu_isolated and all(math.isfinite(v) for v in imu.gyro_frd_radps)
         nav_ok = state.nav_mode is not NavMode.LOST
         pos_ok = nav_ok and all(math.isfinite(v) for v in state.pos_ned_m)
@@ -262,8 +419,8 @@ class AutopilotLanes:
         flags = {
             "local_position_valid": pos_ok, "local_velocity_valid": vel_ok, "global_position_valid": pos_ok,
             "angular_velocity_valid": gyro_ok, "attitude_valid": att_ok,
-            "local_altitude_valid": math.isfinite(state.pos_ned_m[2]), "battery_healthy": True,
-            "sensors_initialized": True, "no_failsafe": True, "data_link_ok": True,
+            "local_altitude_valid": math.isfinite(state.pos_ned_m[2]), "battery_healthy": ctx.battery_ok,
+            "sensors_initialized": imu is not None, "no_failsafe": ctx.no_failsafe, "data_link_ok": ctx.data_link_ok,
         }
         return tuple(flags[name] for name in THESIS_FLAGS)
 
@@ -273,9 +430,11 @@ class AutopilotLanes:
         return replace(state, rates_frd_radps=imu.gyro_frd_radps, accel_frd_mps2=imu.accel_frd_mps2)
 
     def step(self, t: float, cmd: Command, state: VehicleState, imu: tuple[ImuSample | None, ...],
-             imu_isolated: tuple[bool, ...]) -> MotorCommands:
+             imu_isolated: tuple[bool, ...], ctx: LaneContext = NO_CONTEXT) -> MotorCommands:
         """One 400 Hz tick: every live lane computes, lanes exchange at the preset's rate, the selector
-        picks, the switch actuates, the standby lanes track. Returns the four motor commands."""
+        picks, the switch actuates, the standby lanes track. Returns the four motor commands. With
+        :attr:`nav` set (``lane_navigation: own``) lane i flies on its own estimate ``nav.states[i]``."""
+        self._ctx = ctx
         failed = self.failed(t)
         flying = cmd.kind is CommandKind.VELOCITY or cmd.kind is CommandKind.ATTITUDE
         if flying and self.takeoff_t is None:
@@ -289,11 +448,11 @@ class AutopilotLanes:
                 g = self.rng.random(4)
                 own[i] = (float(g[0]), float(g[1]), float(g[2]), float(g[3]))
                 continue
+            lane_state = self._lane_state(state, imu[i]) if self.nav is None else self.nav.states[i]
             if flying:
-                own[i], self.ctl[i] = control_step(cmd, self._lane_state(state, imu[i]), self.ctl[i], self.gains,
-                                                   self.dt)
+                own[i], self.ctl[i] = control_step(cmd, lane_state, self.ctl[i], self.gains, self.dt)
             else:
-                self.ctl[i] = reset_from_state(state, self.hover, self.gains)
+                self.ctl[i] = reset_from_state(lane_state, self.hover, self.gains)
                 own[i] = MOTORS_OFF
 
         if self.k % self.every == 0:
@@ -321,7 +480,17 @@ class AutopilotLanes:
             else:
                 o = self.switch.step(sel, placeholder)
                 out = (o[0], o[1], o[2], o[3])
+        if self._await_cmd is not None:  # ticks from a switch until the incoming lane's command is actuated
+            if flying and target is not None:
+                self.max_command_delay_ticks = max(self.max_command_delay_ticks, float(self._await_cmd))
+                self._await_cmd = None
+            else:
+                self._await_cmd += 1
         if sel != prev_sel:
+            if flying and target is not None:
+                self.max_command_delay_ticks = max(self.max_command_delay_ticks, 0.0)
+            else:
+                self._await_cmd = 1
             prev_own = self.own[sel]
             gap = max(abs(a - b) for a, b in zip(prev_own, prev_motors, strict=True)) if prev_own else math.nan
             self.switches.append(SwitchRecord(t, prev_sel, sel, gap))
@@ -357,7 +526,11 @@ class AutopilotLanes:
             mode = failed[i]
             if mode == "silent":
                 continue
-            flags = self.own_flags(state, imu[i], imu_isolated[i] if i < len(imu_isolated) else False)
+            iso = imu_isolated[i] if i < len(imu_isolated) else False
+            if self.nav is None:
+                flags = self.own_flags(state, imu[i], iso, self._ctx)
+            else:
+                flags = self.nav.flags(i, t, imu[i], iso, self._ctx, self.max_sigma_h_m)
             if mode == "garbage":
                 # a lane gone mad: it keeps talking, claims the opposite of every flag and votes for itself
                 msgs[i] = LaneMessage(i, t, tuple(not f for f in flags), i, (True, True, True))
@@ -369,11 +542,29 @@ class AutopilotLanes:
             msgs[i] = v.message
             self.selector.receive(t, i, v.vote)
         for i, m in enumerate(msgs):
-            if m is None:
+            if m is None or failed[i] == "mute":  # mute: its link to the peers is cut, it still hears them
                 continue
             for j in range(N_LANES):
                 if j != i:
                     self.inbox[j][i] = Received(t, m)
+
+    def healthy_lanes(self, t: float) -> int:
+        """How many lanes the selected lane's voter counts as healthy: heard, and no health flag latched
+        against them (what the vote sees; the simulator's knowledge of a failure is not used)."""
+        sel = self.selected
+        st = self.voters[sel].state
+        n = 0
+        for j in range(N_LANES):
+            if j != sel:  # silent as the selected lane hears it now (its voter's view is one exchange old)
+                r = self.inbox[sel][j]
+                # never heard: starting up for the first exchange periods and the peer timeout, then lost
+                since = r.t_rx_s if r is not None else self.cfg.period_s
+                if t - since > self.cfg.peer_timeout_s + 1e-6:
+                    continue
+            if st.latched_until and any(u > t for u in st.latched_until[j]):
+                continue
+            n += 1
+        return n
 
     def metrics(self) -> dict[str, float]:
         gaps = [s.handover_gap for s in self.switches if math.isfinite(s.handover_gap)]
@@ -384,6 +575,7 @@ class AutopilotLanes:
             "max_motor_step_outside_switches": self.max_step_elsewhere,
             "lane_switch_handover_gap": max(gaps) if gaps else 0.0,
             "bumpless_limit": self.max_step,
+            "lane_switch_command_delay_ticks": self.max_command_delay_ticks if self.switches else 0.0,
         }
 
 
@@ -395,26 +587,126 @@ def lane_failures(faults: list[Fault]) -> list[LaneFailure]:
 # ------------------------------------------------------------------------------- the runner's handle
 
 
+def channel_specs(rc: RedundancyConfig) -> dict[str, ChannelSpec]:
+    """The sensor voter's channel limits: the presets of :mod:`merlin.redundancy.sensor_voter` with the
+    configuration's overrides (``redundancy.*_miscompare_*``, ``imu_persistence_s``, ``reintegration_s``)."""
+    out: dict[str, ChannelSpec] = {}
+    for name, spec in CHANNEL_SPECS.items():
+        mis = list(spec.miscompare)
+        if name == "imu":
+            if rc.imu_gyro_miscompare_radps is not None:
+                mis[:3] = [rc.imu_gyro_miscompare_radps] * 3
+            if rc.imu_accel_miscompare_mps2 is not None:
+                mis[3:] = [rc.imu_accel_miscompare_mps2] * 3
+        elif name == "mag" and rc.mag_miscompare_gauss is not None:
+            mis = [rc.mag_miscompare_gauss] * 3
+        elif name == "baro" and rc.baro_miscompare_m is not None:
+            mis = [rc.baro_miscompare_m]
+        elif name == "gps" and rc.gps_pos_miscompare_m is not None:
+            # the vertical threshold keeps the preset's ratio (GPS height is 1.5x noisier)
+            mis[:3] = [rc.gps_pos_miscompare_m, rc.gps_pos_miscompare_m, 1.5 * rc.gps_pos_miscompare_m]
+        persistence = rc.imu_persistence_s if name == "imu" and rc.imu_persistence_s is not None \
+            else spec.persistence_s
+        out[name] = replace(spec, miscompare=tuple(mis), persistence_s=persistence,
+                            reintegration_s=rc.reintegration_s)
+    return out
+
+
+def lane_config(rc: RedundancyConfig, preset: str | None = None) -> LaneVoterConfig:
+    """The lane voter's preset (the scenario's choice, else the configuration's) with the configuration's
+    overrides of persistence, latch and peer silence."""
+    base = PRESETS[preset or rc.lane_preset]
+    return replace(
+        base,
+        persistence_s=base.persistence_s if rc.lane_persistence_s is None else rc.lane_persistence_s,
+        latch_s=base.latch_s if rc.lane_latch_s is None else rc.lane_latch_s,
+        peer_timeout_s=base.peer_timeout_s if rc.lane_peer_timeout_s is None else rc.lane_peer_timeout_s,
+    )
+
+
+_LEVEL_WORD = {3: "TRIPLEX", 2: "DUPLEX", 1: "SIMPLEX", 0: "NONE"}
+
+
 class Redundancy:
     """What :class:`sims.runner.ClosedLoop` holds when the scenario's ``redundancy:`` section is active:
     the IMU voter stage (or None), the autopilot lanes (or None), their events, log row and metrics."""
 
     def __init__(self, sc: Scenario, rng: np.random.Generator, field_ned_gauss: tuple[float, float, float],
-                 hover_thrust: float, gains: MultirotorGains) -> None:
+                 hover_thrust: float, gains: MultirotorGains, rc: RedundancyConfig | None = None,
+                 ekf_factory: Callable[[], Any] | None = None,
+                 standin_factory: Callable[[np.random.Generator, int], Any] | None = None,
+                 max_sigma_h_m: float = math.inf) -> None:
+        """``ekf_factory`` (a new fusion EKF) or ``standin_factory`` (rng, lane -> a stand-in estimator)
+        builds each lane's own estimator when the scenario asks for ``lane_navigation: own``."""
+        rc = RedundancyConfig() if rc is None else rc
         r_vote, r_lanes = rng.spawn(2)
-        self.voter = ImuVoterStage(r_vote, field_ned_gauss, sc.redundancy.fdi_preset) if sensor_voter_on(sc) \
+        fdi = sc.redundancy.fdi_preset or rc.fdi_preset
+        self.voter = ImuVoterStage(r_vote, field_ned_gauss, fdi, channel_specs(rc)) if sensor_voter_on(sc) \
             else None
+        self.aux_voted = sc.redundancy.sensor_lanes == 3
         self.lanes: AutopilotLanes | None = None
         if sc.redundancy.autopilot_lanes == 3:
             step = sc.redundancy.bumpless_step
-            self.lanes = AutopilotLanes(PRESETS[sc.redundancy.lane_preset], sc.dt_s, hover_thrust, gains,
+            self.lanes = AutopilotLanes(lane_config(rc, sc.redundancy.lane_preset), sc.dt_s, hover_thrust, gains,
                                         lane_failures(sc.faults), r_lanes, max_step=step)
+        self.lane_nav: LaneNavigation | None = None
+        if sc.redundancy.lane_navigation == "own" and self.lanes is not None:
+            # streams spawned after the voter's and the lanes' (theirs stay as they were)
+            r_nav = rng.spawn(N_LANES)
+            if ekf_factory is not None:
+                self.lane_nav = LaneNavigation([ekf_factory() for _ in range(N_LANES)], None,
+                                               sc.redundancy.sensor_lanes)
+            else:
+                assert standin_factory is not None
+                self.lane_nav = LaneNavigation(None, [standin_factory(r_nav[i], i) for i in range(N_LANES)],
+                                               sc.redundancy.sensor_lanes)
+            self.lanes.nav = self.lane_nav
+            self.lanes.max_sigma_h_m = max_sigma_h_m
+        self._report = RedundancyReport()
+        self._report_key: tuple[int, str, float] = (3, "", 1.0)
+
+    def report(self, t: float) -> RedundancyReport:
+        """The redundancy level handed to the core (``Inputs.redundancy``): the fewest healthy lanes of any
+        redundant channel, the nav health, and the channels at that level with their isolated lanes. A unit
+        the airframe carries once by design (one GPS with ``sensor_lanes: 1``) is not a degradation and is
+        left out. The same object is returned while nothing changes."""
+        parts: list[tuple[int, str]] = []
+        health = 1.0
+        v = self.voter
+        if v is not None:
+            health = v.nav_health
+            for ch, lvl in v.levels.items():
+                if ch != "imu" and not self.aux_voted:
+                    continue
+                iso = [i for i, ln in enumerate(v.channel_lanes(ch)) if ln.isolated]
+                parts.append((int(lvl), f"{ch} {_LEVEL_WORD.get(int(lvl), str(int(lvl)))}"
+                                        + (f" (lane{'s' if len(iso) > 1 else ''} {', '.join(map(str, iso))}"
+                                           " isolated)" if iso else "")))
+        if self.lanes is not None:
+            n = self.lanes.healthy_lanes(t)
+            parts.append((n, f"autopilot lanes {_LEVEL_WORD.get(n, str(n))}"))
+        if not parts:
+            return self._report
+        low = min(p[0] for p in parts)
+        cause = ", ".join(text for n, text in parts if n == low)
+        key = (low, cause, health)
+        if key != self._report_key:
+            self._report_key = key
+            self._report = RedundancyReport(low, health, cause)
+        return self._report
 
     @staticmethod
     def wanted(sc: Scenario) -> bool:
         return sensor_voter_on(sc) or sc.redundancy.autopilot_lanes == 3
 
-    def motors(self, t: float, cmd: Command, state: VehicleState, frame: Any) -> MotorCommands:
+    def sense(self, t: float, frame: Any, truth: Any, armed: bool, batt_frac: float) -> VehicleState:
+        """With ``lane_navigation: own``: every lane's own estimate; the core sees the selected lane's."""
+        assert self.lane_nav is not None and self.lanes is not None
+        states = self.lane_nav.sense(t, frame, truth, armed, batt_frac)
+        return states[self.lanes.selected]
+
+    def motors(self, t: float, cmd: Command, state: VehicleState, frame: Any,
+               ctx: LaneContext = NO_CONTEXT) -> MotorCommands:
         """The actuated command from the three lanes (call only when ``lanes`` is set)."""
         assert self.lanes is not None
         if self.voter is not None:
@@ -424,7 +716,7 @@ class Redundancy:
         else:
             imu = tuple(frame.imu) if frame.imu and len(frame.imu) == N_LANES else (None, None, None)
             iso = (False, False, False)
-        return self.lanes.step(t, cmd, state, imu, iso)
+        return self.lanes.step(t, cmd, state, imu, iso, ctx)
 
     def observe(self, t: float, frame: Any) -> None:
         """Run the voter for its events when no EKF consumes it (estimator: truth_plus_noise)."""
@@ -436,6 +728,8 @@ class Redundancy:
         out = list(self.voter.events) if self.voter is not None else []
         if self.lanes is not None:
             out += self.lanes.events
+        if self.lane_nav is not None:
+            out += self.lane_nav.events
         return out
 
     def log_row(self) -> dict[str, float]:

@@ -57,15 +57,20 @@ from sims.battery import Battery, BatteryParams, BatterySagFault
 from sims.multirotor import DEFAULT_PARAMS_PATH, Multirotor, load_multirotor_params
 from sims.scenario import Fault, Scenario
 from sims.sensor_faults import (
+    BaroBias,
     BaroDrift,
+    BaroStuck,
     GpsJump,
     GpsLoss,
     GpsSpoofDrift,
+    GpsStuck,
     ImuBiasStep,
     ImuDrift,
     ImuNoise,
     ImuStuck,
+    MagBias,
     MagStuck,
+    SensorDropout,
     SensorFault,
     SensorFaultInjector,
 )
@@ -87,6 +92,17 @@ def _end(f: Fault) -> float:
     return math.inf if f.end_s is None else f.end_s
 
 
+def gps_loss_spans(sc: Scenario, lanes: tuple[int, ...] | None = None) -> list[tuple[float, float]]:
+    """The (start, end) spans in which every GPS unit of ``lanes`` (default: all the airframe carries) is
+    lost: what the stand-in estimator treats as a GPS outage. With one unit, its ``gps_loss`` faults."""
+    units = lanes if lanes is not None else tuple(range(sc.redundancy.sensor_lanes))
+    per = [[(f.start_s, _end(f)) for f in sc.faults if f.type == "gps_loss" and f.lane == u] for u in units]
+    spans = per[0]
+    for other in per[1:]:  # intersect lane by lane
+        spans = [(max(a, c), min(b, d)) for a, b in spans for c, d in other if max(a, c) < min(b, d)]
+    return spans
+
+
 def sensor_faults(faults: list[Fault]) -> list[SensorFault]:
     """The scenario's sensor faults as the simulator's fault models."""
     out: list[SensorFault] = []
@@ -95,14 +111,16 @@ def sensor_faults(faults: list[Fault]) -> list[SensorFault]:
         g = tuple(f.gyro) if f.gyro else (0.0, 0.0, 0.0)
         a = tuple(f.accel) if f.accel else (0.0, 0.0, 0.0)
         if f.type == "gps_loss":
-            out.append(GpsLoss(f.start_s, end))
+            out.append(GpsLoss(f.start_s, end, lane=f.lane))
         elif f.type == "gps_jump":
             assert f.offset_ned_m is not None
-            out.append(GpsJump(f.start_s, tuple(f.offset_ned_m), end))  # type: ignore[arg-type]
+            out.append(GpsJump(f.start_s, tuple(f.offset_ned_m), end, lane=f.lane))  # type: ignore[arg-type]
         elif f.type == "gps_spoof":
             assert f.rate_mps is not None
             d = tuple(f.direction_ned) if f.direction_ned else (1.0, 0.0, 0.0)
-            out.append(GpsSpoofDrift(f.start_s, f.rate_mps, d, end))  # type: ignore[arg-type]
+            out.append(GpsSpoofDrift(f.start_s, f.rate_mps, d, end, lane=f.lane))  # type: ignore[arg-type]
+        elif f.type == "gps_stuck":
+            out.append(GpsStuck(f.start_s, f.lane, end))
         elif f.type == "imu_stuck":
             out.append(ImuStuck(f.start_s, f.lane, end))
         elif f.type == "imu_bias":
@@ -114,9 +132,19 @@ def sensor_faults(faults: list[Fault]) -> list[SensorFault]:
             out.append(ImuNoise(f.start_s, f.lane, sg, 10.0 * sg, end))
         elif f.type == "mag_stuck":
             out.append(MagStuck(f.start_s, end, f.lane))
+        elif f.type in ("mag_bias", "mag_drift"):
+            assert f.field_gauss is not None
+            out.append(MagBias(f.start_s, tuple(f.field_gauss), f.lane, end, ramp=f.type == "mag_drift"))  # type: ignore[arg-type]
         elif f.type == "baro_drift":
             assert f.rate_mps is not None
-            out.append(BaroDrift(f.start_s, f.rate_mps, end))
+            out.append(BaroDrift(f.start_s, f.rate_mps, end, lane=f.lane))
+        elif f.type == "baro_bias":
+            assert f.offset_m is not None
+            out.append(BaroBias(f.start_s, f.offset_m, f.lane, end))
+        elif f.type == "baro_stuck":
+            out.append(BaroStuck(f.start_s, f.lane, end))
+        elif f.type in ("mag_loss", "baro_loss"):
+            out.append(SensorDropout(f.start_s, f.type.split("_")[0], f.lane, end))
     return out
 
 
@@ -371,13 +399,20 @@ class ClosedLoop:
             self.params = load_multirotor_params(vehicle_params_path(sc.vehicle))
         except FileNotFoundError:
             raise ConfigError(source, [f"vehicle: {sc.vehicle!r} is not a file in sims/vehicles"]) from None
-        self.core_cfg = build_core_config(cfg, source=source)
+        # a scenario with a redundancy: section flies a vehicle that reports its redundancy level to the
+        # core (config redundancy.enabled: the nav_redundancy monitor and its rule row); without one the
+        # core sees no report and has no such row, as before (sims/lanes.py, docs/redundancy.md)
+        core_src = cfg
+        if "redundancy" in sc.model_fields_set and not cfg.redundancy.enabled:
+            core_src = cfg.model_copy(update={"redundancy": cfg.redundancy.model_copy(update={"enabled": True})})
+        self.reports_redundancy = core_src.redundancy.enabled
+        self.core_cfg = build_core_config(core_src, source=source)
         self.core = TrustedCore(self.core_cfg)
         ini = sc.initial
         self.vehicle = Multirotor(self.params, rng_vehicle, dt_s=dt, pos_ned_m=tuple(ini.pos_ned_m),  # type: ignore[arg-type]
                                   rpy_rad=(0.0, 0.0, math.radians(ini.yaw_deg)))
-        self.sensors = SensorSuite(sc.sensors.apply(SensorParams()), rng_sensors, home_lat_deg=cfg.home.lat_deg,
-                                   home_lon_deg=cfg.home.lon_deg)
+        self.sensors = SensorSuite(sc.sensors.apply(SensorParams(aux_lanes=sc.redundancy.sensor_lanes)), rng_sensors,
+                                   home_lat_deg=cfg.home.lat_deg, home_lon_deg=cfg.home.lon_deg)
         self.injector = SensorFaultInjector(sensor_faults(sc.faults), rng_faults)
         gusts = [DiscreteGust(g.start_s, g.duration_s, tuple(g.amplitude_ned_mps)) for g in sc.wind.gusts]  # type: ignore[arg-type]
         gusts += [DiscreteGust(f.start_s, (_end(f) - f.start_s) if f.end_s else 2.0, tuple(f.amplitude_ned_mps))  # type: ignore[arg-type]
@@ -389,11 +424,12 @@ class ClosedLoop:
             BatterySagFault(f.start_s, _end(f), f.extra_resistance_ohm or 0.0, f.capacity_loss_frac or 0.0)
             for f in sc.faults if f.type == "battery_sag"
         ])
-        losses = [(f.start_s, _end(f)) for f in sc.faults if f.type == "gps_loss"]
+        losses = gps_loss_spans(sc)
         self.estimator = TruthPlusNoiseEstimator(rng_est, dt, losses)
         self.ekf: Any = None
         self.nav_events: list[dict[str, Any]] = []
-        if sc.estimator == "ekf":
+        # with lane_navigation: own each autopilot lane runs its own estimator (sims/lanes.py), no shared one
+        if sc.estimator == "ekf" and sc.redundancy.lane_navigation != "own":
             from merlin.nav.estimator import NavEstimator, NavInit
             from sims.vision_loop import VisionLoop, nav_filter_config
 
@@ -422,8 +458,25 @@ class ClosedLoop:
 
             fld = self.sensors.params.mag.field_ned_gauss or dipole_field_ned_gauss(cfg.home.lat_deg,
                                                                                     cfg.home.lon_deg)
-            self.redundancy = Redundancy(sc, root.spawn(1)[0], fld, self.params.hover_thrust, self.gains)
+            ekf_factory = standin_factory = None
+            if sc.redundancy.lane_navigation == "own":
+                if sc.estimator == "ekf":
+                    from merlin.nav.estimator import NavEstimator, NavInit
+                    from sims.vision_loop import nav_filter_config
+
+                    nav_cfg = nav_filter_config(cfg)
+                    init = NavInit(pos_ned_m=tuple(ini.pos_ned_m), att_rpy_rad=(0.0, 0.0, math.radians(ini.yaw_deg)))  # type: ignore[arg-type]
+
+                    def ekf_factory() -> Any:
+                        return NavEstimator(nav_cfg, init=init)
+                else:
+                    def standin_factory(rng: np.random.Generator, lane: int) -> Any:
+                        units = (lane,) if sc.redundancy.sensor_lanes == 3 else (0,)
+                        return TruthPlusNoiseEstimator(rng, dt, gps_loss_spans(sc, units))
+            self.redundancy = Redundancy(sc, root.spawn(1)[0], fld, self.params.hover_thrust, self.gains,
+                                         cfg.redundancy, ekf_factory, standin_factory, cfg.nav.max_pos_sigma_h_m)
             self.extra_log_row = self.redundancy.log_row
+        self.reports_redundancy = self.reports_redundancy and self.redundancy is not None
         # --- end hardware redundancy
         # The sensor frame's only readers are the fusion EKF (``_ekf_estimate``) and the redundancy stage
         # (``act``); the stand-in estimator reads the truth, and neither run_scenario nor merlin serve reads
@@ -466,6 +519,10 @@ class ClosedLoop:
         if self.sensor_frame_wanted:
             self.frame = self.injector.apply(self.sensors.step(self.truth))
         if self.ekf is None:
+            red = self.redundancy
+            if red is not None and red.lane_nav is not None:  # each autopilot lane's own estimator
+                self.state = red.sense(t, self.frame, self.truth, self.armed, self.batt_frac)
+                return self.state
             self.state = self.estimator.estimate(t, self.truth, self.armed, self.batt_frac)
             return self.state
         return self._ekf_estimate(t)
@@ -495,12 +552,17 @@ class ClosedLoop:
             else:
                 imu = lanes[0]
             ekf.predict(imu)
-        if fr.gps is not None:
-            ekf.update_gps(fr.gps)
-        if fr.baro is not None:
-            ekf.update_baro(fr.baro)
-        if fr.mag is not None:
-            ekf.update_mag(fr.mag)
+        gps, baro, mag = fr.gps, fr.baro, fr.mag
+        if fr.gps_lanes and red is not None and red.voter is not None:
+            # three units of each (redundancy.sensor_lanes: 3): the voted samples, not lane 0's
+            v = red.voter
+            gps, baro, mag = v.voted_gps, v.voted_baro, v.voted_mag
+        if gps is not None:
+            ekf.update_gps(gps)
+        if baro is not None:
+            ekf.update_baro(baro)
+        if mag is not None:
+            ekf.update_mag(mag)
         if self.vision is not None:  # the camera's VO frame when one is due, and the nav trace
             self.vision.step(t, self.truth, ekf)
         for e in ekf.pop_events():
@@ -511,6 +573,27 @@ class ClosedLoop:
         self.state = dc_replace(st, armed=self.armed, landed=self.truth.landed, battery_frac=self.batt_frac,
                                 airspeed_mps=self.truth.airspeed_mps)
         return self.state
+
+    def _lane_context(self, decision: Decision) -> Any:
+        """What every autopilot lane reads beside its own sensors (sims/lanes.LaneContext): the battery
+        reading against the configured critical level, whether the core acts on a failsafe (a tripped monitor
+        whose rule gives more than a warning under the present authority), and the GCS link watchdog."""
+        from merlin.core.arbiter import column
+        from merlin.core.types import Action
+        from sims.lanes import LaneContext
+
+        rows = {r.monitor: r for r in self.core_cfg.rules}
+        failsafe = False
+        link_ok = True
+        for m in decision.monitors:
+            if not m.tripped:
+                continue
+            if m.name == "gcs_link":
+                link_ok = False
+            row = rows.get(m.name)
+            if row is not None and column(row, decision.authority) > Action.WARN:
+                failsafe = True
+        return LaneContext(self.batt_frac > self.core_cfg.battery.critical_frac, not failsafe, link_ok)
 
     def act(self, inputs: Inputs) -> Decision:
         """Second half: the core's tick on ``inputs`` (whose ``state`` must be :meth:`sense`'s), then the
@@ -529,7 +612,7 @@ class ClosedLoop:
         red = self.redundancy
         if red is not None:  # hardware redundancy: the voted autopilot lanes drive the motors
             if red.lanes is not None:
-                self.motors = red.motors(t, cmd, inputs.state, self.frame)
+                self.motors = red.motors(t, cmd, inputs.state, self.frame, self._lane_context(decision))
             else:
                 red.observe(t, self.frame)
         self.wind_ned = self.wind.step(t)
@@ -610,6 +693,8 @@ def run_scenario(
     fault_state: dict[int, bool] = {}
     decision: Decision | None = None
     margin_rows: list[tuple[int, float, float, float, bool]] = []  # (log row, n, e, d, airborne)
+    # hardware redundancy: the level the redundancy stage reports to the core each tick (None: no report)
+    red_report = loop.redundancy.report if getattr(loop, "reports_redundancy", False) else None
     for k in range(n_ticks):
         t = k * dt
         # scenario fault edges, as events (what was injected, when)
@@ -669,7 +754,8 @@ def run_scenario(
             operator_key = (rc_t, op_input)
             operator_in = OperatorInput(rc_t, op_input.takeover, op_input.roll, op_input.pitch, op_input.yaw,
                                         op_input.throttle)
-        inputs = Inputs(state, experimental_in, operator_in, gcs_t, commands)  # positional: every tick
+        inputs = Inputs(state, experimental_in, operator_in, gcs_t, commands,  # positional: every tick
+                        None if red_report is None else red_report(t))
         if pending_reqs:  # requests are delivered once
             pending_reqs = ()
             experimental_in = None

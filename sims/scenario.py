@@ -76,7 +76,14 @@ FaultType = Literal[
     "imu_drift",
     "imu_noise",
     "mag_stuck",
+    "mag_bias",
+    "mag_drift",
+    "mag_loss",
     "baro_drift",
+    "baro_bias",
+    "baro_stuck",
+    "baro_loss",
+    "gps_stuck",
     "controller_crash",
     "controller_hang",
     "controller_nan",
@@ -98,6 +105,8 @@ class Fault(S):
     lane: int = Field(0, ge=0, le=2)
     offset_ned_m: Vec3L | None = None  # gps_jump
     rate_mps: float | None = None  # gps_spoof, baro_drift
+    offset_m: float | None = None  # baro_bias: altitude step, m (positive: reads high)
+    field_gauss: Vec3L | None = None  # mag_bias (G, body FRD), mag_drift (G/s)
     direction_ned: Vec3L | None = None  # gps_spoof
     gyro: Vec3L | None = None  # imu_bias (rad/s), imu_drift (rad/s^2)
     accel: Vec3L | None = None  # imu_bias (m/s^2), imu_drift (m/s^3)
@@ -106,8 +115,10 @@ class Fault(S):
     extra_resistance_ohm: float | None = None  # battery_sag
     capacity_loss_frac: float | None = None  # battery_sag
     # autopilot_lane_fail: "silent" (the lane's computer stops: no messages, no vote, no motor output) or
-    # "garbage" (it keeps talking, but every health flag it sends is wrong and its motor output is noise)
-    mode: Literal["silent", "garbage"] = "silent"
+    # "garbage" (it keeps talking, but every health flag it sends is wrong and its motor output is noise) or
+    # "mute" (its link to the peers is cut one way: they stop hearing it, it still hears them and still
+    # reaches the selector; seed 000 §6's "isolated unit unaware of its isolation")
+    mode: Literal["silent", "garbage", "mute"] = "silent"
 
     @model_validator(mode="after")
     def _params(self) -> Fault:
@@ -115,6 +126,9 @@ class Fault(S):
             "gps_jump": ["offset_ned_m"],
             "gps_spoof": ["rate_mps"],
             "baro_drift": ["rate_mps"],
+            "baro_bias": ["offset_m"],
+            "mag_bias": ["field_gauss"],
+            "mag_drift": ["field_gauss"],
             "wind_gust": ["amplitude_ned_mps"],
         }.get(self.type, [])
         missing = [k for k in need if getattr(self, k) is None]
@@ -203,11 +217,19 @@ class Redundancy(S):
 
     sensor_voter: bool | None = Field(
         None, description="vote the three IMU lanes (merlin.redundancy) before the EKF; null: on with ekf")
-    fdi_preset: Literal["merlin", "table2"] = Field("merlin", description="duplex PF FDI preset (seed 003)")
+    fdi_preset: Literal["merlin", "table2"] | None = Field(
+        None, description="duplex PF FDI preset (seed 003); null: the configuration's redundancy.fdi_preset")
     autopilot_lanes: Literal[1, 3] = Field(1, description="3: three inner-loop lanes voted by seed 000's scheme")
-    lane_preset: Literal["fast", "thesis", "thesis_sitl"] = "fast"
+    lane_preset: Literal["fast", "thesis", "thesis_sitl"] | None = Field(
+        None, description="autopilot-lane voter preset (seed 000); null: the configuration's redundancy.lane_preset")
     bumpless_step: float | None = Field(
         None, gt=0.0, le=1.0, description="motor-command change allowed per tick at a hand-over; null: default")
+    sensor_lanes: Literal[1, 3] = Field(
+        1, description="magnetometer, barometer and GPS units: 1 (one of each, passed through) or 3 (lane i "
+                       "beside IMU i, voted like the IMU, the voted samples feed the EKF)")
+    lane_navigation: Literal["shared", "own"] = Field(
+        "shared", description="autopilot_lanes 3: 'own' gives each lane its own estimator on its own sensor "
+                              "lane (health flags from it); 'shared': one navigation solution for all")
 
 
 class SensorNoise(S):
@@ -271,6 +293,20 @@ class Scenario(S):
     def _camera_needs_ekf(self) -> Scenario:
         if self.camera is not None and self.estimator != "ekf":
             raise ValueError("camera: visual odometry feeds the fusion EKF; it needs estimator: ekf")
+        return self
+
+    @model_validator(mode="after")
+    def _sensor_lanes_exist(self) -> Scenario:
+        units = self.redundancy.sensor_lanes
+        for i, f in enumerate(self.faults):
+            if f.type.split("_")[0] in ("gps", "baro", "mag") and f.lane >= units:
+                raise ValueError(f"faults[{i}] ({f.type}): lane {f.lane} does not exist; allowed: 0.."
+                                 f"{units - 1} (redundancy.sensor_lanes is {units})")
+        if self.redundancy.lane_navigation == "own" and self.redundancy.autopilot_lanes != 3:
+            raise ValueError("redundancy.lane_navigation 'own' needs autopilot_lanes: 3")
+        if self.redundancy.lane_navigation == "own" and self.camera is not None:
+            raise ValueError("redundancy.lane_navigation 'own': the lanes' own filters fuse no VO; "
+                             "remove camera or use lane_navigation: shared")
         return self
 
 

@@ -21,7 +21,7 @@ from enum import StrEnum
 import numpy as np
 
 from merlin.core.types import ZERO3, Vec3
-from merlin.measurements import GpsSample, ImuSample, MagSample
+from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
 from sims.sensors import SensorFrame, normal_rows
 
 FOREVER_S = math.inf
@@ -37,6 +37,7 @@ class GpsLoss:
     start_s: float
     end_s: float = FOREVER_S
     mode: GpsLossMode = GpsLossMode.NO_SAMPLES
+    lane: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,6 +47,7 @@ class GpsJump:
     start_s: float
     offset_ned_m: Vec3
     end_s: float = FOREVER_S
+    lane: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -56,6 +58,17 @@ class GpsSpoofDrift:
     start_s: float
     rate_mps: float
     direction_ned: Vec3 = (1.0, 0.0, 0.0)
+    end_s: float = FOREVER_S
+    lane: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class GpsStuck:
+    """Receiver ``lane`` repeats its last healthy fix (position and velocity) with fresh time stamps: a
+    frozen navigation solution, as a receiver whose firmware hangs behind a live serial link sends."""
+
+    start_s: float
+    lane: int = 0
     end_s: float = FOREVER_S
 
 
@@ -109,16 +122,61 @@ class MagStuck:
 
 
 @dataclass(frozen=True, slots=True)
+class MagBias:
+    """Magnetometer ``lane`` reads ``field_gauss`` (body FRD) more from ``start_s`` (a step: a hard-iron
+    disturbance, a current switched on next to the sensor); with ``ramp`` the offset instead grows at
+    ``field_gauss`` per second from zero (drift)."""
+
+    start_s: float
+    field_gauss: Vec3
+    lane: int = 0
+    end_s: float = FOREVER_S
+    ramp: bool = False
+
+
+@dataclass(frozen=True, slots=True)
 class BaroDrift:
     """The barometric altitude drifts at ``rate_mps`` (positive: reads high) from ``start_s``."""
 
     start_s: float
     rate_mps: float
     end_s: float = FOREVER_S
+    lane: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class BaroBias:
+    """Barometer ``lane``'s altitude steps by ``offset_m`` (positive: reads high) from ``start_s``."""
+
+    start_s: float
+    offset_m: float
+    lane: int = 0
+    end_s: float = FOREVER_S
+
+
+@dataclass(frozen=True, slots=True)
+class BaroStuck:
+    """Barometer ``lane`` repeats its last healthy altitude with fresh time stamps."""
+
+    start_s: float
+    lane: int = 0
+    end_s: float = FOREVER_S
+
+
+@dataclass(frozen=True, slots=True)
+class SensorDropout:
+    """Unit ``lane`` of ``sensor`` ("mag" or "baro") delivers no samples (a dead unit, a cut bus); a GPS
+    receiver's dropout is :class:`GpsLoss`."""
+
+    start_s: float
+    sensor: str
+    lane: int = 0
+    end_s: float = FOREVER_S
 
 
 SensorFault = (
-    GpsLoss | GpsJump | GpsSpoofDrift | ImuStuck | ImuBiasStep | ImuDrift | ImuNoise | MagStuck | BaroDrift
+    GpsLoss | GpsJump | GpsSpoofDrift | GpsStuck | ImuStuck | ImuBiasStep | ImuDrift | ImuNoise | MagStuck
+    | MagBias | BaroDrift | BaroBias | BaroStuck | SensorDropout
 )
 
 
@@ -134,11 +192,15 @@ def _add(a: Vec3, b: Vec3, k: float = 1.0) -> Vec3:
 class SensorFaultInjector:
     """Applies a fault list to each tick's :class:`SensorFrame`: ``apply(frame) -> frame``.
 
-    State (explicit, per instance): the last healthy IMU and magnetometer samples, so a stuck fault
-    freezes the value seen just before it started, and one random stream for the noise faults.
+    State (explicit, per instance): the last healthy sample of every IMU, magnetometer, barometer and GPS
+    unit, so a stuck fault freezes the value seen just before it started, and one random stream for the
+    noise faults. A frame with one magnetometer, barometer and GPS (empty ``*_lanes``) has only lane 0 of
+    each; with ``aux_lanes`` units a fault acts on its ``lane``'s unit, and ``gps``/``baro``/``mag`` stay
+    lane 0's sample.
     """
 
-    __slots__ = ("_faults", "_held_imu", "_held_mag", "_last_imu", "_last_mag", "_normals", "_t_first")
+    __slots__ = ("_faults", "_held", "_held_imu", "_held_mag", "_last", "_last_imu", "_last_mag", "_normals",
+                 "_t_first")
 
     def __init__(self, faults: Sequence[SensorFault], rng: np.random.Generator) -> None:
         for f in faults:
@@ -151,6 +213,22 @@ class SensorFaultInjector:
         self._last_mag: MagSample | None = None
         self._held_imu: dict[int, ImuSample] = {}
         self._held_mag: MagSample | None = None
+        # the last healthy and the held (frozen) GPS / baro sample per (sensor, lane)
+        self._last: dict[tuple[str, int], GpsSample | BaroSample] = {}
+        self._held: dict[tuple[str, int], GpsSample | BaroSample] = {}
+
+    def _remember(self, frame: SensorFrame, frozen: set[tuple[str, int]]) -> None:
+        if frame.gps_lanes:
+            for name, samples in (("gps", frame.gps_lanes), ("baro", frame.baro_lanes)):
+                for i, smp in enumerate(samples):
+                    if smp is not None and (name, i) not in frozen:
+                        self._last[(name, i)] = smp
+                        self._held.pop((name, i), None)
+        else:
+            for name, smp in (("gps", frame.gps), ("baro", frame.baro)):
+                if smp is not None and (name, 0) not in frozen:
+                    self._last[(name, 0)] = smp
+                    self._held.pop((name, 0), None)
 
     def apply(self, frame: SensorFrame) -> SensorFrame:
         t = frame.t_s
@@ -159,11 +237,18 @@ class SensorFaultInjector:
                 self._last_imu[s.lane] = s
             if frame.mag is not None:
                 self._last_mag = frame.mag
+            if self._faults:
+                self._remember(frame, set())
             return frame
         act = active_faults(self._faults, t)
         imu = list(frame.imu)
-        gps, baro, mag = frame.gps, frame.baro, frame.mag
+        multi = bool(frame.gps_lanes)
+        gpss: list[GpsSample | None] = list(frame.gps_lanes) if multi else [frame.gps]
+        baros: list[BaroSample | None] = list(frame.baro_lanes) if multi else [frame.baro]
+        mags: list[MagSample | None] = list(frame.mag_lanes) if multi else [frame.mag]
+        n_aux = len(gpss)
         stuck_lanes: set[int] = set()
+        frozen: set[tuple[str, int]] = set()
         mag_stuck = False
         for f in act:
             if isinstance(f, ImuStuck):
@@ -208,32 +293,80 @@ class SensorFaultInjector:
                             _add(s.accel_frd_mps2, (n[3], n[4], n[5]), f.accel_sigma_mps2),
                             s.lane,
                         )
+            elif f.lane >= n_aux:
+                continue  # a unit this airframe does not carry (the scenario loader refuses it)
             elif isinstance(f, GpsLoss):
+                gps = gpss[f.lane]
                 if gps is not None:
-                    gps = None if f.mode is GpsLossMode.NO_SAMPLES else _no_fix(gps)
+                    gpss[f.lane] = None if f.mode is GpsLossMode.NO_SAMPLES else _no_fix(gps)
             elif isinstance(f, GpsJump):
+                gps = gpss[f.lane]
                 if gps is not None:
-                    gps = replace(gps, pos_ned_m=_add(gps.pos_ned_m, f.offset_ned_m))
+                    gpss[f.lane] = replace(gps, pos_ned_m=_add(gps.pos_ned_m, f.offset_ned_m))
             elif isinstance(f, GpsSpoofDrift):
+                gps = gpss[f.lane]
                 if gps is not None:
                     d = f.direction_ned
                     nrm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) or 1.0
                     u = (d[0] / nrm, d[1] / nrm, d[2] / nrm)
                     # the offset at the sample's time of validity, so position and velocity agree
                     k = max(0.0, gps.t_s - f.start_s) * f.rate_mps
-                    gps = replace(
+                    gpss[f.lane] = replace(
                         gps,
                         pos_ned_m=_add(gps.pos_ned_m, u, k),
                         vel_ned_mps=_add(gps.vel_ned_mps, u, f.rate_mps),
                     )
+            elif isinstance(f, GpsStuck):
+                gps = gpss[f.lane]
+                key = ("gps", f.lane)
+                frozen.add(key)
+                if gps is not None:
+                    held_g = self._held.get(key) or self._last.get(key) or gps
+                    self._held[key] = held_g
+                    assert isinstance(held_g, GpsSample)
+                    gpss[f.lane] = replace(held_g, t_s=gps.t_s)
             elif isinstance(f, MagStuck):
-                if mag is not None and mag.lane == f.lane:
-                    mag_stuck = True
-                    held_m = self._held_mag or self._last_mag or mag
-                    self._held_mag = held_m
-                    mag = MagSample(t, held_m.field_frd_gauss, mag.lane)
-            elif isinstance(f, BaroDrift) and baro is not None:
-                baro = replace(baro, alt_m=baro.alt_m + f.rate_mps * (t - f.start_s))
+                mag = mags[f.lane]
+                if mag is not None:
+                    if not multi:
+                        mag_stuck = True
+                        held_m = self._held_mag or self._last_mag or mag
+                        self._held_mag = held_m
+                        mags[0] = MagSample(t, held_m.field_frd_gauss, mag.lane)
+                    else:
+                        key = ("mag", f.lane)
+                        frozen.add(key)
+                        held_x = self._held.get(key) or self._last.get(key) or mag
+                        self._held[key] = held_x
+                        assert isinstance(held_x, MagSample)
+                        mags[f.lane] = MagSample(t, held_x.field_frd_gauss, mag.lane)
+            elif isinstance(f, MagBias):
+                mag = mags[f.lane]
+                if mag is not None:
+                    k = (t - f.start_s) if f.ramp else 1.0
+                    mags[f.lane] = MagSample(mag.t_s, _add(mag.field_frd_gauss, f.field_gauss, k), mag.lane)
+            elif isinstance(f, BaroDrift):
+                baro = baros[f.lane]
+                if baro is not None:
+                    baros[f.lane] = replace(baro, alt_m=baro.alt_m + f.rate_mps * (t - f.start_s))
+            elif isinstance(f, BaroBias):
+                baro = baros[f.lane]
+                if baro is not None:
+                    baros[f.lane] = replace(baro, alt_m=baro.alt_m + f.offset_m)
+            elif isinstance(f, BaroStuck):
+                baro = baros[f.lane]
+                key = ("baro", f.lane)
+                frozen.add(key)
+                if baro is not None:
+                    held_b = self._held.get(key) or self._last.get(key) or baro
+                    self._held[key] = held_b
+                    assert isinstance(held_b, BaroSample)
+                    baros[f.lane] = replace(held_b, t_s=baro.t_s)
+            elif isinstance(f, SensorDropout):
+                if f.sensor == "mag":
+                    mags[f.lane] = None
+                elif f.sensor == "baro":
+                    baros[f.lane] = None
         # remember healthy values; forget a held value once its stuck fault is over
         for s in frame.imu:
             if s.lane not in stuck_lanes:
@@ -242,9 +375,17 @@ class SensorFaultInjector:
         if frame.mag is not None and not mag_stuck:
             self._last_mag = frame.mag
             self._held_mag = None
+        if multi:
+            for i, m in enumerate(frame.mag_lanes):
+                if m is not None and ("mag", i) not in frozen:
+                    self._last[("mag", i)] = m
+                    self._held.pop(("mag", i), None)
+        self._remember(frame, frozen)
         if not act:
             return frame
-        return SensorFrame(t, tuple(imu), gps, baro, mag)
+        if multi:
+            return SensorFrame(t, tuple(imu), gpss[0], baros[0], mags[0], tuple(gpss), tuple(baros), tuple(mags))
+        return SensorFrame(t, tuple(imu), gpss[0], baros[0], mags[0])
 
 
 def _no_fix(s: GpsSample) -> GpsSample:

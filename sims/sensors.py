@@ -161,6 +161,11 @@ class MagParams:
 class SensorParams:
     imu: ImuParams = field(default_factory=ImuParams)
     imu_lanes: int = 3
+    # magnetometer, barometer and GPS units: 1 (the default airframe: one of each) or one per IMU lane
+    # (a triplex sensor suite, lane i = IMU i with its own magnetometer, barometer and receiver, as each
+    # of seed 000's three autopilots carries its own sensors and seed 003 §2 gives each IMU board a
+    # magnetometer)
+    aux_lanes: int = 1
     gps: GpsParams = field(default_factory=GpsParams)
     baro: BaroParams = field(default_factory=BaroParams)
     mag: MagParams = field(default_factory=MagParams)
@@ -317,10 +322,11 @@ class Gps:
     time-of-week stamp is; it reaches the vehicle ``latency_s`` after that.
     """
 
-    __slots__ = ("_buf", "_e", "_n", "_next_s", "p")
+    __slots__ = ("_buf", "_e", "_lane", "_n", "_next_s", "p")
 
-    def __init__(self, params: GpsParams, rng: np.random.Generator, t0_s: float = 0.0) -> None:
+    def __init__(self, params: GpsParams, rng: np.random.Generator, t0_s: float = 0.0, lane: int = 0) -> None:
         self.p = params
+        self._lane = lane
         self._n = normal_rows(rng, 9)
         first = rng.standard_normal(3)
         # the slow wander starts in its stationary distribution
@@ -360,6 +366,7 @@ class Gps:
                 satellites=p.satellites,
                 eph_m=math.hypot(p.pos_h_markov_sigma_m, wh),
                 epv_m=math.hypot(p.pos_v_markov_sigma_m, wv),
+                lane=self._lane,
             )
             self._buf.append((t_s + p.latency_s, sample))
         out = None
@@ -370,14 +377,16 @@ class Gps:
 
 
 class Baro:
-    __slots__ = ("_drift", "_ground", "_n", "_next_s", "p")
+    __slots__ = ("_drift", "_ground", "_lane", "_n", "_next_s", "p")
 
-    def __init__(self, params: BaroParams, rng: np.random.Generator, ground_down_m: float = 0.0) -> None:
+    def __init__(self, params: BaroParams, rng: np.random.Generator, ground_down_m: float = 0.0,
+                 lane: int = 0) -> None:
         self.p = params
         self._n = normal_rows(rng, 2)
         self._drift = 0.0
         self._ground = ground_down_m
         self._next_s = 0.0
+        self._lane = lane
 
     def step(self, t_s: float, pos: Vec3) -> BaroSample | None:
         if t_s < self._next_s - _EPS_S:
@@ -387,17 +396,18 @@ class Baro:
         self._next_s = max(self._next_s + period, t_s + 0.5 * period)
         n = self._n()
         self._drift += p.drift_rw_m_per_rts * math.sqrt(period) * n[1]
-        return BaroSample(t_s, self._ground - pos[2] + self._drift + p.noise_sigma_m * n[0])
+        return BaroSample(t_s, self._ground - pos[2] + self._drift + p.noise_sigma_m * n[0], self._lane)
 
 
 class Mag:
-    __slots__ = ("_field", "_n", "_next_s", "p")
+    __slots__ = ("_field", "_lane", "_n", "_next_s", "p")
 
-    def __init__(self, params: MagParams, rng: np.random.Generator, field_ned_gauss: Vec3) -> None:
+    def __init__(self, params: MagParams, rng: np.random.Generator, field_ned_gauss: Vec3, lane: int = 0) -> None:
         self.p = params
         self._n = normal_rows(rng, 3)
         self._field = field_ned_gauss
         self._next_s = 0.0
+        self._lane = lane
 
     def step(self, t_s: float, q: tuple[float, float, float, float]) -> MagSample | None:
         if t_s < self._next_s - _EPS_S:
@@ -426,6 +436,7 @@ class Mag:
                 + (1.0 - 2.0 * (qx * qx + qy * qy)) * z
                 + s * n[2],
             ),
+            self._lane,
         )
 
 
@@ -441,16 +452,25 @@ class SensorFrame(NamedTuple):
     gps: GpsSample | None = None
     baro: BaroSample | None = None
     mag: MagSample | None = None
+    # with ``SensorParams.aux_lanes > 1``: every unit's sample of this tick, lane by lane (None: no sample
+    # from that unit this tick); ``gps``/``baro``/``mag`` above are then lane 0's. Empty with one unit.
+    gps_lanes: tuple[GpsSample | None, ...] = ()
+    baro_lanes: tuple[BaroSample | None, ...] = ()
+    mag_lanes: tuple[MagSample | None, ...] = ()
 
 
 class SensorSuite:
     """Every simulated sensor of the vehicle; ``step(truth)`` once per simulation tick.
 
     ``rng`` is split with ``Generator.spawn`` into one independent stream per lane / sensor, in a fixed
-    order (IMU lanes 0..n-1, GPS, baro, mag), so adding draws in one sensor never shifts another's.
+    order (IMU lanes 0..n-1, GPS, baro, mag), so adding draws in one sensor never shifts another's. With
+    ``aux_lanes`` > 1 the further magnetometer, barometer and GPS units (lanes 1..) draw from streams
+    spawned after those (GPS, baro, mag of lane 1, then lane 2, ...): lane 0 and the IMUs keep exactly the
+    samples they have with one unit of each.
     """
 
-    __slots__ = ("_imu_due_s", "_imu_period_s", "baro", "gps", "imu_lanes", "mag", "params")
+    __slots__ = ("_aux", "_imu_due_s", "_imu_period_s", "baro", "baros", "gps", "gpss", "imu_lanes", "mag",
+                 "mags", "params")
 
     def __init__(
         self,
@@ -468,6 +488,18 @@ class SensorSuite:
         self.baro = Baro(params.baro, streams[params.imu_lanes + 1], ground_down_m)
         fld = params.mag.field_ned_gauss or dipole_field_ned_gauss(home_lat_deg, home_lon_deg)
         self.mag = Mag(params.mag, streams[params.imu_lanes + 2], fld)
+        if not 1 <= params.aux_lanes <= 8:
+            raise ValueError(f"SensorParams.aux_lanes = {params.aux_lanes!r}: must be an integer 1..8")
+        self._aux = params.aux_lanes > 1
+        self.gpss: tuple[Gps, ...] = (self.gps,)
+        self.baros: tuple[Baro, ...] = (self.baro,)
+        self.mags: tuple[Mag, ...] = (self.mag,)
+        if self._aux:
+            more = rng.spawn(3 * (params.aux_lanes - 1))
+            lanes = range(1, params.aux_lanes)
+            self.gpss += tuple(Gps(params.gps, more[3 * (i - 1)], lane=i) for i in lanes)
+            self.baros += tuple(Baro(params.baro, more[3 * (i - 1) + 1], ground_down_m, lane=i) for i in lanes)
+            self.mags += tuple(Mag(params.mag, more[3 * (i - 1) + 2], fld, lane=i) for i in lanes)
         self._imu_period_s = 1.0 / params.imu.rate_hz
         self._imu_due_s = 0.0
 
@@ -481,6 +513,12 @@ class SensorSuite:
             # a list comprehension, not a generator expression: faster at this size
             imu = tuple([lane.sample(t, w, f) for lane in self.imu_lanes])
         pos = truth.pos_ned_m
+        if self._aux:
+            vel, q = truth.vel_ned_mps, truth.quat_wxyz
+            g = tuple([u.step(t, pos, vel) for u in self.gpss])
+            b = tuple([u.step(t, pos) for u in self.baros])
+            m = tuple([u.step(t, q) for u in self.mags])
+            return SensorFrame(t, imu, g[0], b[0], m[0], g, b, m)
         return SensorFrame(
             t,
             imu,
@@ -505,15 +543,15 @@ def sensor_params_from_mapping(data: Any, source: str = "<sensor params>") -> Se
     problems: list[str] = []
     built: dict[str, Any] = {}
     for key, value in data.items():
-        if key == "imu_lanes":
+        if key in ("imu_lanes", "aux_lanes"):
             if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 8:
-                problems.append(f"imu_lanes: value {value!r}; allowed: an integer 1..8")
+                problems.append(f"{key}: value {value!r}; allowed: an integer 1..8")
             else:
                 built[key] = value
             continue
         cls = _SECTIONS.get(key)
         if cls is None:
-            problems.append(f"{key}: unknown key; value {value!r}; allowed: imu, imu_lanes, gps, baro, mag")
+            problems.append(f"{key}: unknown key; value {value!r}; allowed: imu, imu_lanes, aux_lanes, gps, baro, mag")
             continue
         if not isinstance(value, dict):
             problems.append(f"{key}: value {value!r}; allowed: a mapping of {cls.__name__} fields")

@@ -350,6 +350,7 @@ MONITORS: tuple[str, ...] = (
     "nav_lost",
     "battery_low",
     "battery_critical",
+    "nav_redundancy",
 )
 
 A = ActionName
@@ -374,6 +375,12 @@ def _default_rules() -> dict[str, Rule]:
         "battery_low": Rule(experimental=A.RTL, operator=A.WARN, trusted=A.RTL),
         "battery_critical": Rule(
             experimental=A.LAND, operator=A.LAND, trusted=A.LAND, clear=ClearName.NEVER
+        ),
+        # hardware redundancy down to simplex (redundancy.warn_at): a warning, no change of authority by
+        # default (the last lane still flies; it only can no longer be cross-checked). Applies only when
+        # redundancy.enabled (docs/redundancy.md)
+        "nav_redundancy": Rule(
+            experimental=A.WARN, operator=A.WARN, trusted=A.WARN, clear=ClearName.WHEN_CLEAR
         ),
     }
 
@@ -805,6 +812,69 @@ class HomeConfig(Strict):
     alt_amsl_m: float = Field(30.0, ge=-500.0, le=9000.0)
 
 
+class RedundancyConfig(Strict):
+    """Hardware redundancy under the core (merlin.redundancy, docs/redundancy.md): the limits of the
+    triplex sensor voter, the duplex IMU FDI and the autopilot-lane voter, and what the core does when
+    redundancy is lost. Every null limit keeps the named preset's value."""
+
+    enabled: bool = Field(
+        False,
+        description="the vehicle has redundant lanes and reports its redundancy level to the core; only then"
+        " does the nav_redundancy monitor (arbiter.rules.nav_redundancy) apply. The simulator turns it on for"
+        " a scenario with a redundancy: section",
+    )
+    warn_at: Literal["simplex", "duplex"] = Field(
+        "simplex",
+        description="nav_redundancy trips when any redundant channel (IMU, mag, baro, GPS, autopilot lanes) is"
+        " down to this level: simplex = one lane left (no fault can be detected any more); duplex = already"
+        " when one of three is lost. Its action is arbiter.rules.nav_redundancy (default warn)",
+    )
+    fdi_preset: Literal["merlin", "table2"] = Field(
+        "merlin",
+        description="duplex IMU particle-filter FDI (seed 003). Both use every number of the paper's Table 2"
+        " (4096 particles, nu, tau_a/g/m, Omega); table2 isolates with the residual exactly as printed, merlin"
+        " with each residual component divided by its noise scale and averaged since the alert (the printed"
+        " one flagged the healthy IMU on F4)",
+    )
+    lane_preset: Literal["fast", "thesis", "thesis_sitl"] = Field(
+        "fast",
+        description="autopilot-lane voter (seed 000): thesis = 1 Hz exchange, 1 s persistence, 600 s latch,"
+        " 3 s peer silence, 30 s take-off gate (section 5.3); thesis_sitl the same with a 10 s gate; fast ="
+        " 50 Hz exchange, 0.1 s persistence, 0.05 s peer silence",
+    )
+    lane_persistence_s: float | None = Field(
+        None, gt=0.0, le=60.0, description="a lane's flag fault must persist this long before it is charged"
+    )
+    lane_latch_s: float | None = Field(
+        None, ge=0.0, le=3600.0, description="a charged fault stays counted this long after it was last seen"
+    )
+    lane_peer_timeout_s: float | None = Field(
+        None, gt=0.0, le=60.0, description="a peer silent this long is voted out"
+    )
+    imu_persistence_s: float | None = Field(
+        None, gt=0.0, le=5.0, description="IMU lane miscompare/invalid time before isolation (preset 0.05 s)"
+    )
+    imu_gyro_miscompare_radps: float | None = Field(
+        None, gt=0.0, le=10.0, description="IMU gyro distance from the mid-value that miscompares (preset 0.1)"
+    )
+    imu_accel_miscompare_mps2: float | None = Field(
+        None, gt=0.0, le=50.0, description="IMU accelerometer miscompare threshold (preset 1.5 m/s^2)"
+    )
+    mag_miscompare_gauss: float | None = Field(
+        None, gt=0.0, le=4.0, description="magnetometer miscompare threshold (preset 0.12 G)"
+    )
+    baro_miscompare_m: float | None = Field(
+        None, gt=0.0, le=100.0, description="barometer miscompare threshold (preset 3.5 m)"
+    )
+    gps_pos_miscompare_m: float | None = Field(
+        None, gt=0.0, le=500.0, description="GPS horizontal position miscompare threshold (preset 6 m; vertical 1.5x)"
+    )
+    reintegration_s: float | None = Field(
+        None, gt=0.0, le=600.0,
+        description="an isolated sensor lane clean this long returns to the vote; null: never (isolation latched)",
+    )
+
+
 class MerlinConfig(Strict):
     """The whole configuration of one flight: limits, fence, table, timings."""
 
@@ -822,3 +892,4 @@ class MerlinConfig(Strict):
     nav: NavConfig = NavConfig()
     battery: BatteryConfig = BatteryConfig()
     links: LinksConfig = LinksConfig()
+    redundancy: RedundancyConfig = RedundancyConfig()

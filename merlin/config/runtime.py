@@ -63,6 +63,8 @@ def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig
             clear=r.clear.value,
         )
         for name, r in cfg.arbiter.rules.items()
+        # nav_redundancy exists only on a vehicle that reports its redundancy (redundancy.enabled)
+        if name != "nav_redundancy" or cfg.redundancy.enabled
     )
     fence = build_fence(cfg.geofence, cfg.home, cfg.vehicle, source=source) if cfg.geofence.enabled else None
     return CoreConfig(
@@ -119,6 +121,7 @@ def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig
             max_pos_sigma_h_m=cfg.nav.max_pos_sigma_h_m,
             inertial_time_limit_s=cfg.nav.inertial_time_limit_s,
             inertial_land_margin_s=cfg.nav.inertial_land_margin_s,
+            redundancy_min_lanes=3 if cfg.redundancy.warn_at == "duplex" else 2,
         ),
         battery=BatteryParams(low_frac=cfg.battery.low_frac, critical_frac=cfg.battery.critical_frac),
         termination_enabled=cfg.arbiter.termination_enabled,

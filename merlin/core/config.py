@@ -114,6 +114,9 @@ class NavParams:
     max_pos_sigma_h_m: float = 5.0
     inertial_time_limit_s: float = 30.0
     inertial_land_margin_s: float = 3.0  # added to LAND's own descent time (guidance.land_duration_s)
+    # nav_redundancy trips when a redundant channel has fewer healthy lanes than this: 2 = at simplex
+    # (one lane left, no fault can be detected any more), 3 = already at duplex
+    redundancy_min_lanes: int = 2
 
 
 @dataclass(frozen=True, slots=True)

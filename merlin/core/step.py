@@ -2,7 +2,7 @@
 
 The stages run in one direction, each reading what the previous one produced (``docs/architecture.md``):
 
-    validate inputs -> monitors (envelope, geofence, watchdogs, nav, battery) -> preconditions
+    validate inputs -> monitors (envelope, geofence, watchdogs, nav, battery, redundancy) -> preconditions
         -> arbiter (authority, latched actions, exchange) -> trusted guidance / operator / experimental
         -> command shaping (bumpless) -> decision
 
@@ -46,6 +46,7 @@ from merlin.core.types import (
     NavMode,
     Reason,
     ReasonCode,
+    RedundancyReport,
     Setpoint,
     SetpointKind,
     VehicleState,
@@ -362,6 +363,20 @@ def _inertial_landing_due(cfg: CoreConfig, s: VehicleState, already_due: bool) -
                   f" {land_s:.1f} s, due by the {limit_s:g} s limit")
 
 
+_LEVEL_NAMES: Final = ("NONE", "SIMPLEX", "DUPLEX", "TRIPLEX")
+
+
+def _redundancy_reason(red: RedundancyReport, min_lanes: int) -> Reason:
+    """``nav_redundancy``: a redundant channel is down to fewer healthy lanes than ``min_lanes``. The
+    action is the rule table's (default: warn, no change of authority); the text names the level, the
+    channels and the nav health the redundancy stage hands on."""
+    lanes = red.lanes
+    level = _LEVEL_NAMES[lanes] if 0 <= lanes < len(_LEVEL_NAMES) else str(lanes)
+    return Reason(ReasonCode.REDUNDANCY_DEGRADED, "nav_redundancy", "lanes", float(lanes), float(min_lanes), 0.0,
+                  f"redundancy degraded to {level}: {red.cause or 'a redundant channel'}; nav health"
+                  f" {red.nav_health:.2f}")
+
+
 def _arm_block(cfg: CoreConfig, s: VehicleState, tripped: dict[str, Reason]) -> Reason | None:
     r = tripped.get("state_invalid")
     if r is not None:
@@ -453,6 +468,9 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
         if s.battery_frac < cfg.battery.low_frac:
             tripped["battery_low"] = Reason(ReasonCode.BATTERY_LOW, "battery_low", "battery_frac", s.battery_frac,
                                             cfg.battery.low_frac)
+    red = inputs.redundancy
+    if red is not None and red.lanes < cfg.nav.redundancy_min_lanes:
+        tripped["nav_redundancy"] = _redundancy_reason(red, cfg.nav.redundancy_min_lanes)
     hb_since = watchdog.alive_since(now, exp.heartbeat_t_s, wd.controller_heartbeat_s, st.hb_alive_since_s)
 
     # -- SHADOW: judge what the controller commands, not what the vehicle does

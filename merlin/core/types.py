@@ -141,6 +141,7 @@ class ReasonCode(IntEnum):
     DISARMED = 26
     LANDED = 27
     OUTSIDE_FENCE = 28
+    REDUNDANCY_DEGRADED = 29
 
 
 @dataclass(frozen=True, slots=True)
@@ -253,12 +254,25 @@ class GcsCommand:
 
 
 @dataclass(frozen=True, slots=True)
+class RedundancyReport:
+    """What the redundancy stage under the core (``merlin.redundancy``: the sensor voter, the IMU
+    degradation chain, the autopilot-lane vote) reports each tick: the fewest healthy lanes left in any
+    redundant channel (3 triplex, 2 duplex, 1 simplex, 0 none), the nav health it hands on (1 full .. 0),
+    and which channels are at that level, in words."""
+
+    lanes: int = 3
+    nav_health: float = 1.0
+    cause: str = ""
+
+
+@dataclass(frozen=True, slots=True)
 class Inputs:
     state: VehicleState = field(default_factory=VehicleState)
     experimental: ExperimentalInput = field(default_factory=ExperimentalInput)
     operator: OperatorInput = field(default_factory=OperatorInput)
     gcs_link_t_s: float | None = None  # time of the latest ground-station heartbeat
     gcs_commands: tuple[GcsCommand, ...] = ()
+    redundancy: RedundancyReport | None = None  # None: the vehicle reports no redundancy (nothing to monitor)
 
 
 # ---------------------------------------------------------------------------------------------- outputs

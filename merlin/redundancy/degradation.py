@@ -3,8 +3,11 @@
 Three IMU lanes are voted by mid-value select (:mod:`merlin.redundancy.sensor_voter`). Once one lane is
 isolated, two remain and a majority no longer exists: the two survivors (with their magnetometer
 lanes, each IMU board carrying one, as in seed 003 §2) feed the duplex particle-filter FDI of seed 003,
-whose fault declaration tells the voter which of the two to isolate. One lane is left: simplex, a
-warning, and the nav health handed to the estimator drops.
+whose fault declaration tells the voter which of the two to isolate; while the FDI is in its alert state
+the estimator is fed the lane with the smaller isolation residual rather than the mean (see ``step``).
+One lane is left: simplex, and the nav health drops. The chain itself only reports the level and the
+health: the runner hands them to the trusted core (``merlin.core.types.RedundancyReport``), whose
+``nav_redundancy`` monitor warns (or, as the rule table says, returns or lands) at simplex.
 
 The FDI runs at 100 Hz (seed 003's T_S); the voter runs at the caller's rate. :meth:`ImuDegradationChain.step`
 is called every voter tick and steps the FDI whenever ``fdi_period_s`` has elapsed, with the newest
@@ -13,15 +16,15 @@ samples of the two surviving lanes.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from merlin.redundancy.duplex_fdi import MERLIN, DuplexImuFdi, FdiConfig, FdiOutput
+from merlin.redundancy.duplex_fdi import MERLIN, DuplexImuFdi, FdiConfig, FdiOutput, FdiState
 from merlin.redundancy.events import FaultKind, FaultReport, RedundancyLevel
 from merlin.redundancy.sensor_voter import IMU_SPEC, ChannelSpec, LaneSample, TriplexVoter, VotedOutput
 
-# nav health handed to the estimator per IMU redundancy level: 1 = full, 0 = no IMU (Merlin's choice)
+# nav health reported to the core per IMU redundancy level: 1 = full, 0 = no IMU (Merlin's choice)
 NAV_HEALTH: dict[RedundancyLevel, float] = {
     RedundancyLevel.TRIPLEX: 1.0,
     RedundancyLevel.DUPLEX: 0.8,
@@ -41,7 +44,13 @@ class ChainOutput:
 
 class ImuDegradationChain:
     def __init__(self, rng: np.random.Generator, fdi_config: FdiConfig = MERLIN,
-                 spec: ChannelSpec = IMU_SPEC, fdi_period_s: float = 0.01) -> None:
+                 spec: ChannelSpec = IMU_SPEC, fdi_period_s: float = 0.01, alert_feed: str = "lowest_residual") -> None:
+        """``alert_feed``: what the estimator gets while the duplex FDI is in its alert state:
+        ``lowest_residual`` (Merlin's default, see :meth:`step`) or ``mean`` (seed 003 §2's voted mean, as
+        before; kept for the comparison in benchmarks/bench_redundancy_loop.py)."""
+        if alert_feed not in ("lowest_residual", "mean"):
+            raise ValueError(f"alert_feed must be 'lowest_residual' or 'mean', not {alert_feed!r}")
+        self.alert_feed = alert_feed
         self.voter = TriplexVoter(spec)
         self.fdi_config = fdi_config
         self.rng = rng
@@ -49,6 +58,8 @@ class ImuDegradationChain:
         self.fdi_period_s = fdi_period_s
         self._next_fdi_t: float | None = None
         self._verdict: int | None = None
+        # while the duplex FDI is in its alert state: the lane of the pair the estimator is fed from
+        self.alert_lane: int | None = None
 
     def step(self, t_s: float, imu: tuple[LaneSample | None, ...],
              mag: tuple[tuple[float, float, float] | None, ...]) -> ChainOutput:
@@ -76,8 +87,25 @@ class ImuDegradationChain:
                 ev.extend(fdi_out.events)
                 if fdi_out.faulty is not None:
                     self._verdict = pair[fdi_out.faulty]
+                # In the alert state one of the two lanes is faulty and it is not yet known which: the
+                # mean would hand half the fault to the estimator until the verdict (a 0.5 rad/s yaw-gyro
+                # bias took up to 3.3 s to decide, and meanwhile the EKF excluded GPS in 2 of 4 seeds,
+                # docs/redundancy.md). Feed it the lane with the smaller isolation residual instead: the
+                # statistic seed 003 §5 (eq. 42) itself isolates with at the declaration, with the MERLIN
+                # preset whitened and averaged since the alert instant, so the lane fed is the one the
+                # FDI would keep if it decided now. Back in N the mean returns (seed 003 §2).
+                if fdi_out.state is FdiState.ALERT and self.alert_feed == "lowest_residual":
+                    r0, r1 = fdi_out.residual
+                    self.alert_lane = pair[0] if r0 <= r1 else pair[1]
+                else:
+                    self.alert_lane = None
+            if self.alert_lane is not None and self.alert_lane in pair and imu[self.alert_lane] is not None \
+                    and out.valid and set(out.lanes_used) == set(pair):
+                lane = self.alert_lane
+                out = replace(out, values=imu[lane].values, lanes_used=(lane,))  # type: ignore[union-attr]
         elif out.level is RedundancyLevel.SIMPLEX and self.fdi is not None:
             self.fdi = None
+            self.alert_lane = None
             ev.append(FaultReport(t_s, FaultKind.DEGRADED, "imu", -1, 1.0, 2.0,
                                   detail="simplex: one IMU left, no fault can be detected any more; nav health "
                                          f"lowered to {NAV_HEALTH[RedundancyLevel.SIMPLEX]}"))

@@ -6,14 +6,18 @@ channel, runs the IMU through the degradation chain (triplex -> duplex PF FDI ->
 voted samples in the same types the estimator reads (``lane = -1`` marks a voted sample), the redundancy
 level per channel, the nav health to hand on, and this tick's fault reports.
 
-A channel the airframe carries only once (the simulator's quadrotor has three IMUs but one
+A channel the airframe carries only once (the simulator's default quadrotor has three IMUs but one
 magnetometer, one barometer and one GPS receiver) is given as a one-element tuple: it is passed through
 unvoted, reported as SIMPLEX, and does not lower the nav health (a single unit by design is not a
-degradation). A single magnetometer is then the one every IMU lane's duplex FDI filter reads.
+degradation). A single magnetometer is then the one every IMU lane's duplex FDI filter reads. With three
+units of each (a scenario's ``redundancy.sensor_lanes: 3``) every channel is voted, IMU lane i's duplex
+filter reads magnetometer i (seed 003 §2: each IMU board carries its own), and the voted magnetometer,
+barometer and GPS samples are what the estimator fuses.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,9 +27,8 @@ from merlin.redundancy.degradation import NAV_HEALTH, ChainOutput, ImuDegradatio
 from merlin.redundancy.duplex_fdi import MERLIN, FdiConfig
 from merlin.redundancy.events import FaultReport, RedundancyLevel
 from merlin.redundancy.sensor_voter import (
-    BARO_SPEC,
-    GPS_SPEC,
-    MAG_SPEC,
+    CHANNEL_SPECS,
+    ChannelSpec,
     TriplexVoter,
     VotedOutput,
     baro_lane,
@@ -54,11 +57,15 @@ def _v3(vals: tuple[float, ...], i: int) -> tuple[float, float, float]:
 
 
 class SensorSuiteVoter:
-    def __init__(self, rng: np.random.Generator, fdi_config: FdiConfig = MERLIN) -> None:
-        self.imu = ImuDegradationChain(rng, fdi_config)
-        self.mag = TriplexVoter(MAG_SPEC)
-        self.baro = TriplexVoter(BARO_SPEC)
-        self.gps = TriplexVoter(GPS_SPEC)
+    def __init__(self, rng: np.random.Generator, fdi_config: FdiConfig = MERLIN,
+                 specs: Mapping[str, ChannelSpec] | None = None) -> None:
+        """``specs``: channel limits by name (``imu``, ``mag``, ``baro``, ``gps``); a missing one keeps its
+        preset (:data:`merlin.redundancy.sensor_voter.CHANNEL_SPECS`)."""
+        sp = dict(CHANNEL_SPECS) if specs is None else {**CHANNEL_SPECS, **specs}
+        self.imu = ImuDegradationChain(rng, fdi_config, spec=sp["imu"])
+        self.mag = TriplexVoter(sp["mag"])
+        self.baro = TriplexVoter(sp["baro"])
+        self.gps = TriplexVoter(sp["gps"])
         self._last_gps: dict[int, GpsSample] = {}
 
     def step(self, t_s: float, imu: tuple[ImuSample | None, ...], mag: tuple[MagSample | None, ...],
@@ -76,9 +83,12 @@ class SensorSuiteVoter:
         imu_v = None
         if chain.imu.values is not None and chain.imu.valid:
             imu_v = ImuSample(t_s, _v3(chain.imu.values, 0), _v3(chain.imu.values, 3), VOTED_LANE)
+        # a voted sample carries the newest time of validity among the lanes it was voted from (a GPS
+        # fix is fused against the estimator's delayed state at that time, not at the voter's tick)
         mag_v = None if not m_out.valid or m_out.values is None else MagSample(
-            t_s, _v3(m_out.values, 0), VOTED_LANE)
-        baro_v = None if not b_out.valid or b_out.values is None else BaroSample(t_s, m_or(b_out), VOTED_LANE)
+            _newest(mag, m_out.lanes_used, t_s), _v3(m_out.values, 0), VOTED_LANE)
+        baro_v = None if not b_out.valid or b_out.values is None else BaroSample(
+            _newest(baro, b_out.lanes_used, t_s), m_or(b_out), VOTED_LANE)
         gps_v = None
         if g_out.valid and g_out.values is not None:
             used = [gps[i] for i in g_out.lanes_used if gps[i] is not None]
@@ -86,7 +96,8 @@ class SensorSuiteVoter:
             sats = min(s.satellites for s in used) if used else 0  # type: ignore[union-attr]
             eph = max(s.eph_m for s in used) if used else 99.0  # type: ignore[union-attr]
             epv = max(s.epv_m for s in used) if used else 99.0  # type: ignore[union-attr]
-            gps_v = GpsSample(t_s, _v3(g_out.values, 0), _v3(g_out.values, 3), fix, sats, eph, epv, VOTED_LANE)
+            gps_v = GpsSample(_newest(gps, g_out.lanes_used, t_s), _v3(g_out.values, 0), _v3(g_out.values, 3),
+                              fix, sats, eph, epv, VOTED_LANE)
         levels = (("imu", chain.level), ("mag", m_out.level), ("baro", b_out.level), ("gps", g_out.level))
         health = min(chain.nav_health, *(NAV_HEALTH[o.level] for o in (m_out, b_out, g_out)))
         return VotedSensors(t_s, imu_v, mag_v, baro_v, gps_v, levels, health,
@@ -105,6 +116,12 @@ class SensorSuiteVoter:
         single = RedundancyLevel.SIMPLEX
         levels = (("imu", chain.level), ("mag", single), ("baro", single), ("gps", single))
         return VotedSensors(t_s, imu_v, mag[0], baro[0], gps[0], levels, chain.nav_health, chain.events)
+
+
+def _newest(samples: tuple[MagSample | BaroSample | GpsSample | None, ...], used: tuple[int, ...],
+            default: float) -> float:
+    ts = [s.t_s for i in used if (s := samples[i]) is not None]
+    return max(ts) if ts else default
 
 
 def m_or(out: VotedOutput) -> float:

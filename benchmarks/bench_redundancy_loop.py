@@ -1,0 +1,104 @@
+"""Benchmark: hardware redundancy in the closed loop — the shipped redundancy scenarios over several seeds.
+
+Run: .venv/bin/python benchmarks/bench_redundancy_loop.py [--seeds 52 1 2 3] [-k NAME] [--rtf-runs 3]
+     [--compare-alert-feed] [--json out.json]
+
+For every redundancy scenario (``examples/scenarios``: the IMU, sensor-lane and autopilot-lane ones) and
+every seed: whether all its expectations were met, the simulated times of its key events after the fault
+(isolations, the duplex FDI's verdict, lane switches, the core's warning), GPS exclusions and revocations.
+Times are simulated time, so the machine's load does not enter them. ``--rtf-runs N`` also flies each
+scenario N times on its own seed and reports the closed loop's real-time factor (simulated s / wall s,
+median and range): the cost of three EKFs per tick with ``lane_navigation: own``.
+``--compare-alert-feed`` flies the yaw-bias duplex scenario with the estimator fed the voted mean during
+the FDI's alert (seed 003 §2, the previous behaviour) beside Merlin's lowest-residual lane.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+from pathlib import Path
+from typing import Any
+
+import sims.runner as runner_mod
+from sims.expectations import evaluate_all
+from sims.runner import run_scenario
+from sims.scenario import load_scenario
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENARIOS = [
+    "imu_stuck_isolated", "imu_second_fault_duplex", "imu_second_fault_yaw", "sensor_lanes_isolated",
+    "autopilot_lane_failure", "autopilot_lane_self_isolation", "autopilot_lane_own_sensors",
+]
+KEY_EVENTS = ("imu_isolated", "imu_alert", "imu_fault_declared", "baro_isolated", "gps_isolated", "mag_isolated",
+              "autopilot_peer_silent", "autopilot_self_isolated", "autopilot_lane_switch", "warning",
+              "nav_excluded", "revoked")
+
+
+def _fly(name: str, seed: int | None, alert_feed: str | None = None) -> dict[str, Any]:
+    path = ROOT / "examples" / "scenarios" / f"{name}.yaml"
+    sc, cfg = load_scenario(path, seed=seed)
+    make = runner_mod.make_loop
+    if alert_feed is not None:
+        def patched(*a: Any, **kw: Any) -> Any:
+            loop = make(*a, **kw)
+            loop.redundancy.voter.suite.imu.alert_feed = alert_feed
+            return loop
+        runner_mod.make_loop = patched  # type: ignore[assignment]
+    try:
+        r = run_scenario(sc, cfg, source=str(path))
+    finally:
+        runner_mod.make_loop = make  # type: ignore[assignment]
+    verdicts = evaluate_all(sc.expectations, r.events, r.log, r.metrics)
+    fault_t = min((f.start_s for f in sc.faults), default=0.0)
+    first: dict[str, str] = {}
+    for e in r.events:
+        if e["type"] in KEY_EVENTS and e["t"] >= fault_t - 0.05:
+            key = e["type"] + (f"[{e['lane']}]" if isinstance(e.get("lane"), int) and e["lane"] >= 0 else "")
+            first.setdefault(key, f"{e['t']:.3f}")
+    return {"scenario": name, "seed": sc.seed, "passed": sum(v.passed for v in verdicts), "of": len(verdicts),
+            "failed": [v.name for v in verdicts if not v.passed], "events": first,
+            "metrics": {k: r.metrics[k] for k in ("revocations", "lane_switches", "max_lane_switch_added_step",
+                                                  "max_lane_switch_motor_step", "max_motor_step_outside_switches",
+                                                  "lane_switch_command_delay_ticks") if k in r.metrics},
+            "realtime_factor": r.metrics["realtime_factor"]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seeds", type=int, nargs="*", default=[])
+    ap.add_argument("-k", action="append", default=[])
+    ap.add_argument("--rtf-runs", type=int, default=0)
+    ap.add_argument("--compare-alert-feed", action="store_true")
+    ap.add_argument("--json")
+    args = ap.parse_args()
+    names = [n for n in SCENARIOS if not args.k or any(k in n for k in args.k)]
+    out: dict[str, Any] = {"runs": [], "rtf": {}, "alert_feed": []}
+    for name in names:
+        for seed in [None, *args.seeds]:
+            row = _fly(name, seed)
+            out["runs"].append(row)
+            print(f"{name:32s} seed {row['seed']:3d}: {row['passed']}/{row['of']} met"
+                  f"{' FAILED ' + str(row['failed']) if row['failed'] else ''}  {row['events']}  {row['metrics']}",
+                  flush=True)
+        if args.rtf_runs:
+            rtfs = []
+            for _ in range(args.rtf_runs):
+                rtfs.append(_fly(name, None)["realtime_factor"])  # wall time of the whole run (run_scenario)
+            out["rtf"][name] = rtfs
+            print(f"{name:32s} real-time factor median {statistics.median(rtfs):.2f} (range {min(rtfs):.2f}-"
+                  f"{max(rtfs):.2f}, {len(rtfs)} runs)", flush=True)
+    if args.compare_alert_feed:
+        for feed in ("mean", "lowest_residual"):
+            for seed in [None, *args.seeds]:
+                row = _fly("imu_second_fault_yaw", seed, feed)
+                out["alert_feed"].append({"feed": feed, **row})
+                print(f"alert feed {feed:15s} seed {row['seed']:3d}: {row['passed']}/{row['of']} met "
+                      f"{row['failed']}  {row['events']}", flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()
