@@ -378,8 +378,11 @@ def modes_timeline(path: Path) -> list[str]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from merlin.core.types import NavMode, VehicleState
-    from merlin.nav.modes import recommended_action
+    from merlin.config.models import MerlinConfig
+    from merlin.core.types import NavMode
+    from merlin.nav.modes import configured_actions
+
+    rules = MerlinConfig().arbiter.rules
 
     traj = waypoint_trajectory([(500.0, 0.0, -30.0), (500.0, 300.0, -30.0)], speed_mps=8.0, imu_rate_hz=200.0)
     samples = synthesize(
@@ -409,7 +412,8 @@ def modes_timeline(path: Path) -> list[str]:
         if e.kind is NavEventKind.MODE or e.source in ("gps", "vo"):
             extra = ""
             if e.kind is NavEventKind.MODE and e.mode_to is not None:
-                extra = f" -> recommended {recommended_action(VehicleState(nav_mode=e.mode_to)).name}"
+                acts = configured_actions(e.mode_to, rules)
+                extra = " -> core: " + (", ".join(f"{m} {a}" for m, a in acts.items()) or "no nav monitor")
             lines.append(f"{e.t_s:7.2f} s  {e.describe()}{extra}")
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(6.4, 4.2), dpi=100, sharex=True)
     a1.step(t_, mode_, where="post")

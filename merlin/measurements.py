@@ -57,6 +57,10 @@ class VoQuality:
     reprojection_error_px: float = 0.0
     texture_score: float = 0.0
     valid: bool = False
+    # The repetitive-scene score: the largest normalised autocorrelation side peak of the frame the motion
+    # was measured from (about 0 for natural textures, 0.5-0.6 for a brick wall, 0.9-0.98 for a tiled
+    # floor; merlin.vision.vo.VisualOdometry._repetition). A periodic ground can alias the motion by a period.
+    repetition: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

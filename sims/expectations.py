@@ -36,6 +36,8 @@ def _matches(e: dict[str, Any], x: Expectation) -> bool:
         return False
     if x.lane is not None and e.get("lane") != x.lane:
         return False
+    if x.source is not None and e.get("source") != x.source:
+        return False
     if e["t"] < x.after_s - 1e-9:
         return False
     if x.duration_s is not None and abs(e.get("reason_detail", {}).get("duration_s", math.nan) - x.duration_s) > 1e-6:
@@ -47,8 +49,8 @@ def _describe(x: Expectation) -> str:
     if x.name:
         return x.name
     parts = [x.type]
-    for k in ("t", "authority", "behavior", "reason", "parameter", "event", "lane", "after_s", "within_s", "m",
-              "mps"):
+    for k in ("t", "authority", "behavior", "reason", "parameter", "event", "lane", "source", "after_s", "within_s",
+              "m", "mps"):
         v = getattr(x, k)
         if v is not None and not (k == "after_s" and v == 0.0):
             parts.append(f"{k}={v}")

@@ -178,6 +178,8 @@ class Expectation(S):
     count: int | None = None
     duration_s: float | None = None  # revoked: the exceedance duration the reason must carry (to 1 µs)
     lane: int | None = Field(None, ge=0, le=2, description="event: only events about this lane")
+    source: str | None = Field(
+        None, description="event: only events from this source (nav events: gps, gps_pos, gps_vel, vo, baro, mag, imu, nav)")
     step: float | None = Field(None, gt=0.0, description="max_lane_switch_step: allowed motor-command step")
     nav_mode: str | None = Field(None, description="nav_mode_at: GPS, VO, INERTIAL or LOST")
     # max_tracking_error: ``parameter`` (height_m, or an envelope parameter such as airspeed_mps) stays within

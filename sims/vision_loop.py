@@ -169,7 +169,7 @@ class VisionLoop:
             "t": t, "valid": float(q.valid), "fused": float(check is not None and check.fused),
             "nis": check.nis if check is not None else math.nan,
             "features": float(q.features), "inlier_ratio": q.inlier_ratio, "texture": q.texture_score,
-            "repetition": float(getattr(q, "repetition", math.nan)),
+            "repetition": q.repetition,
             "err_vn": sample.vel_ned_mps[0] - v[0] if q.valid else math.nan,
             "err_ve": sample.vel_ned_mps[1] - v[1] if q.valid else math.nan,
             "err_vd": sample.vel_ned_mps[2] - v[2] if q.valid else math.nan,

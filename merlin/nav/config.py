@@ -132,7 +132,7 @@ class NavConfig:
     vo_good_features: int = 80
     vo_good_inlier_ratio: float = 0.85
     vo_max_noise_scale: float = 4.0
-    # Repetitive scenes (the pipeline's autocorrelation side peak, VoQualityRepetition.repetition): a
+    # Repetitive scenes (the pipeline's autocorrelation side peak, VoQuality.repetition): a
     # periodic ground can alias the motion by a period, so from vo_good_repetition the covariance is
     # inflated like a poor inlier ratio, and above vo_max_repetition the sample is not used. Natural
     # textures score <= 0.25, the brick photograph 0.5-0.6, a perfectly tiled floor 0.9-0.98 (docs/navigation.md).

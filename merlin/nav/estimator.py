@@ -201,6 +201,7 @@ class NavEstimator:
         self._gps_lost_reported = False
         self._vo_fused_t: float | None = None
         self._vo_lost_reported = True  # VO counts as lost until its first accepted sample
+        self._vo_refused = 0  # frames refused by the quality test since the last usable one
         self._aid_t = init.t_s  # last position/velocity aid (GPS or VO)
         self._mode = NavMode.INERTIAL  # nothing fused yet
         self._events: list[NavEvent] = []
@@ -574,11 +575,31 @@ class NavEstimator:
         self._emit(NavEventKind.EXCLUDED, "gps", stat, limit, parameter, text)
 
     def update_vo(self, vo: VoSample) -> Check | None:
+        """Fuse a VO velocity that passes the pipeline's quality test (:func:`vo_noise_scale`) and its NIS
+        gate. A frame the quality test refuses is not an event of its own (at 15 frames/s over water that
+        would be 15 a second): the first refused frame after a usable one emits ``REJECTED`` naming the
+        failing quality field, its value and its limit, and the first usable frame after refused ones emits
+        ``RECOVERED`` with the number of frames refused (``refused_frames``)."""
         cfg = self.cfg
         scale = vo_noise_scale(vo.quality, cfg)
         if scale is None:
+            problem = vo_quality_problem(vo.quality, cfg)
+            if self._vo_refused == 0 and problem is not None:
+                name, value, limit = problem
+                self._emit(NavEventKind.REJECTED, "vo", value, limit, name, "VO quality refused: cannot see")
+            self._vo_refused += 1
             self.last_vo = Check(vo.t_s, math.nan, False)
             return self.last_vo
+        if self._vo_refused:
+            self._emit(
+                NavEventKind.RECOVERED,
+                "vo",
+                self._vo_refused,
+                0.0,
+                "refused_frames",
+                "VO quality acceptable again",
+            )
+            self._vo_refused = 0
         var = [max(c, 0.0) * scale**2 + cfg.vo_sigma_floor_mps**2 for c in vo.vel_cov_m2ps2]
         # kept for the GPS-VO velocity cross-check whatever the gate below says: the check must not
         # depend on a filter velocity the GPS under test may already have dragged
@@ -852,21 +873,31 @@ def mag_heading_jacobian(field_ned_est: Vec3) -> tuple[float, float, float]:
     return (-m_d * m_n / h2, -m_d * m_e / h2, 1.0)
 
 
+def vo_quality_problem(quality: VoQuality, cfg: NavConfig) -> tuple[str, float, float] | None:
+    """Why the vision pipeline's own quality says a sample cannot be used, as (quality field, value,
+    limit); None when it passes. The first failing test in this order: validity, repetition, features,
+    inlier ratio, reprojection error, texture."""
+    if not quality.valid:
+        return ("valid", 0.0, 1.0)
+    if quality.repetition > cfg.vo_max_repetition:
+        return ("repetition", quality.repetition, cfg.vo_max_repetition)
+    if quality.features < cfg.vo_min_features:
+        return ("features", float(quality.features), float(cfg.vo_min_features))
+    if quality.inlier_ratio < cfg.vo_min_inlier_ratio:
+        return ("inlier_ratio", quality.inlier_ratio, cfg.vo_min_inlier_ratio)
+    if quality.reprojection_error_px > cfg.vo_max_reprojection_px:
+        return ("reprojection_error_px", quality.reprojection_error_px, cfg.vo_max_reprojection_px)
+    if quality.texture_score < cfg.vo_min_texture_score:
+        return ("texture_score", quality.texture_score, cfg.vo_min_texture_score)
+    return None
+
+
 def vo_noise_scale(quality: VoQuality, cfg: NavConfig) -> float | None:
-    """None when the vision pipeline's own quality says it cannot be used; otherwise the factor (>= 1)
-    on its standard deviation, growing linearly from 1 at "good" to ``vo_max_noise_scale`` at the
-    acceptance limit for the feature count, the inlier ratio and the scene's repetition score (whichever
-    is worst; the repetition score is read with ``getattr`` because only the pipeline's
-    ``VoQualityRepetition`` carries it)."""
-    repetition = float(getattr(quality, "repetition", 0.0))
-    if (
-        repetition > cfg.vo_max_repetition
-        or not quality.valid
-        or quality.features < cfg.vo_min_features
-        or quality.inlier_ratio < cfg.vo_min_inlier_ratio
-        or quality.reprojection_error_px > cfg.vo_max_reprojection_px
-        or quality.texture_score < cfg.vo_min_texture_score
-    ):
+    """None when the vision pipeline's own quality says it cannot be used (:func:`vo_quality_problem`);
+    otherwise the factor (>= 1) on its standard deviation, growing linearly from 1 at "good" to
+    ``vo_max_noise_scale`` at the acceptance limit for the feature count, the inlier ratio and the scene's
+    repetition score (whichever is worst)."""
+    if vo_quality_problem(quality, cfg) is not None:
         return None
 
     def badness(value: float, worst: float, good: float) -> float:
@@ -877,7 +908,7 @@ def vo_noise_scale(quality: VoQuality, cfg: NavConfig) -> float | None:
     b = max(
         badness(quality.features, cfg.vo_min_features, cfg.vo_good_features),
         badness(quality.inlier_ratio, cfg.vo_min_inlier_ratio, cfg.vo_good_inlier_ratio),
-        badness(-repetition, -cfg.vo_max_repetition, -cfg.vo_good_repetition),
+        badness(-quality.repetition, -cfg.vo_max_repetition, -cfg.vo_good_repetition),
     )
     return 1.0 + b * (cfg.vo_max_noise_scale - 1.0)
 

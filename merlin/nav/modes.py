@@ -1,19 +1,22 @@
-"""Navigation mode selection and the paper's default behaviour for each mode.
+"""Navigation mode selection, and which of the core's failsafe monitors each mode trips.
 
 Pure functions of the filter's health flags. The mode says which source horizontal position currently
 rests on (paper Table 1: GPS absolute; VO and inertial drift, VO with distance and time, inertial with
-time). The behaviour mapping mirrors the paper's default detection and behaviour set ("Additional system
-failsafes": GPS lost or spoofed -> return home on vision and IMU) and the issue's rule for GPS and VO both
-lost (land or loiter within the inertial time limit). The trusted core's rule table
-(``merlin.config.models.FailsafeConfig``) is the authority that acts; this mapping is what the navigation
-layer recommends, for logs, plots and tests.
+time). What a mode leads to is decided by the trusted core's rule table alone (``arbiter.rules`` in
+``merlin/config/models.py``, whose defaults are the paper's: "Additional system failsafes", GPS lost or
+spoofed -> return home on vision and IMU; the issue's rule for GPS and VO both lost: land within the
+inertial time limit); :func:`configured_actions` reads it for logs and plots.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from typing import TYPE_CHECKING
 
-from merlin.core.types import Action, NavMode, VehicleState
+from merlin.core.types import NavMode
+
+if TYPE_CHECKING:
+    from merlin.config.models import Rule
 
 
 def select_mode(
@@ -35,25 +38,21 @@ def select_mode(
     return NavMode.LOST
 
 
-@dataclass(frozen=True, slots=True)
-class NavBehaviorPolicy:
-    """Recommended action per navigation mode (paper defaults)."""
-
-    on_gps: Action = Action.NONE
-    on_vo: Action = Action.RTL  # GPS lost or spoofed: return home on VO and INS
-    on_inertial: Action = Action.LAND  # GPS and VO both lost: land (or HOLD) inside the inertial limit
-    on_lost: Action = Action.LAND
-
-
-def recommended_action(state: VehicleState, policy: NavBehaviorPolicy = NavBehaviorPolicy()) -> Action:
-    return {
-        NavMode.GPS: policy.on_gps,
-        NavMode.VO: policy.on_vo,
-        NavMode.INERTIAL: policy.on_inertial,
-        NavMode.LOST: policy.on_lost,
-    }[state.nav_mode]
+#: The trusted core's failsafe monitors that each navigation mode trips (``merlin/core/step.py``): GPS not
+#: trusted (VO, INERTIAL) trips ``nav_gps_lost``; INERTIAL also trips ``nav_inertial_timeout`` once LAND is
+#: due to be down by the inertial time limit; LOST trips ``nav_lost``. What each does is the configured
+#: rule table's (``arbiter.rules``), never a second table here.
+MODE_MONITORS: dict[NavMode, tuple[str, ...]] = {
+    NavMode.GPS: (),
+    NavMode.VO: ("nav_gps_lost",),
+    NavMode.INERTIAL: ("nav_gps_lost", "nav_inertial_timeout"),
+    NavMode.LOST: ("nav_lost",),
+}
 
 
-def fence_margin_m(base_margin_m: float, pos_sigma_h_m: float, sigma_k: float) -> float:
-    """The geofence keeps the vehicle this far inside: the configured margin widened by k·σ_h."""
-    return base_margin_m + sigma_k * pos_sigma_h_m
+def configured_actions(
+    mode: NavMode, rules: Mapping[str, Rule], authority: str = "trusted"
+) -> dict[str, str]:
+    """What the core's rule table does, under ``authority`` (experimental, operator or trusted), for each
+    monitor that ``mode`` trips: {monitor: action}. For logs and plots; the core is what acts."""
+    return {m: str(getattr(rules[m], authority).value) for m in MODE_MONITORS[mode]}

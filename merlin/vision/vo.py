@@ -41,17 +41,6 @@ _INVALID_COV = (1.0e6, 1.0e6, 1.0e6)
 
 
 @dataclass(frozen=True, slots=True)
-class VoQualityRepetition(VoQuality):
-    """``VoQuality`` with the repetitive-scene score: the largest normalised autocorrelation side peak of
-    the frame the motion was measured from (0 for natural textures, 0.5-0.6 for the brick photograph,
-    0.9-0.98 for a tiled floor; see :meth:`VisualOdometry._repetition`). The filter down-weights or rejects
-    on it (``merlin.nav.estimator.vo_noise_scale``). A subclass only until ``merlin.measurements.VoQuality``
-    carries the field itself; readers use ``getattr(quality, "repetition", 0.0)``."""
-
-    repetition: float = 0.0
-
-
-@dataclass(frozen=True, slots=True)
 class VoConfig:
     fast_threshold: int = 20  # absolute grey-level difference of a FAST corner
     grid_cols: int = 8
@@ -244,9 +233,7 @@ class VisualOdometry:
             if vel_prior_ned_mps is None or 3.0 * flow_sigma_px > 0.5 * prev.period_px:
                 return _invalid(
                     t_s,
-                    VoQualityRepetition(
-                        features=len(prev.points), texture_score=texture, repetition=prev.repetition
-                    ),
+                    VoQuality(features=len(prev.points), texture_score=texture, repetition=prev.repetition),
                 )
 
         # predicted positions: the ground point under each feature seen from the predicted new pose
@@ -285,7 +272,7 @@ class VisualOdometry:
         reproj = (
             float(np.sqrt(np.mean(np.sum((proj - b[inl].reshape(-1, 2)) ** 2, axis=1)))) if n_in else math.inf
         )
-        quality = VoQualityRepetition(n_in, ratio, reproj, texture, False, prev.repetition)
+        quality = VoQuality(n_in, ratio, reproj, texture, False, prev.repetition)
         if n_in < cfg.min_features or ratio < cfg.min_inlier_ratio or reproj > cfg.max_reprojection_px:
             return _invalid(t_s, quality)
 
@@ -315,7 +302,7 @@ class VisualOdometry:
         var += (cfg.height_rel_sigma * vel) ** 2
         vh2 = vel[0] ** 2 + vel[1] ** 2
         var[:2] += cfg.yaw_sigma_rad**2 * vh2
-        valid_quality = VoQualityRepetition(n_in, ratio, reproj, texture, True, prev.repetition)
+        valid_quality = VoQuality(n_in, ratio, reproj, texture, True, prev.repetition)
         return VoSample(
             t_s,
             (float(vel[0]), float(vel[1]), float(vel[2])),

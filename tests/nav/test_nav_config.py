@@ -78,3 +78,30 @@ def test_inconsistent_vo_limits_are_refused():
 def test_an_unknown_nav_filter_key_is_refused():
     with pytest.raises(ConfigError, match=r"nav\.filter\.gps_readmit: unknown key"):
         load_config_text("nav:\n  filter:\n    gps_readmit: 5\n", source="flight.yaml")
+
+
+def test_mode_behaviour_is_read_from_the_core_rule_table():
+    """merlin.nav.modes keeps no rule table of its own: what a navigation mode leads to is the configured
+    arbiter.rules row of each core monitor the mode trips."""
+    from merlin.config.models import MONITORS
+    from merlin.core.types import NavMode
+    from merlin.nav.modes import MODE_MONITORS, configured_actions
+
+    assert {m for ms in MODE_MONITORS.values() for m in ms} <= set(MONITORS)
+    rules = MerlinConfig().arbiter.rules
+    assert configured_actions(NavMode.GPS, rules) == {}
+    assert configured_actions(NavMode.VO, rules) == {"nav_gps_lost": "rtl"}
+    assert configured_actions(NavMode.INERTIAL, rules) == {
+        "nav_gps_lost": "rtl",
+        "nav_inertial_timeout": "land",
+    }
+    assert configured_actions(NavMode.LOST, rules) == {"nav_lost": "land"}
+    assert configured_actions(NavMode.VO, rules, "operator") == {"nav_gps_lost": "warn"}
+    custom = MerlinConfig.model_validate(
+        {
+            "arbiter": {
+                "rules": {"nav_gps_lost": {"experimental": "hold", "operator": "warn", "trusted": "hold"}}
+            }
+        }
+    ).arbiter.rules
+    assert configured_actions(NavMode.VO, custom) == {"nav_gps_lost": "hold"}

@@ -221,6 +221,29 @@ def test_inconsistent_vo_is_rejected_by_its_gate(traj):
     assert est.pop_events()[-1].kind is NavEventKind.REJECTED
 
 
+def test_vo_quality_refusals_are_reported_once_per_run_not_per_frame():
+    """A run of frames the quality test refuses is one REJECTED event (naming the failing field, its value
+    and its limit) at its first frame, and one RECOVERED event (with the number refused) at the first usable
+    frame after it: 15 frames/s over water must not flood the event log."""
+    est = NavEstimator(NavConfig(), NavInit())
+    good_q = VoQuality(200, 0.95, 0.2, 0.9, valid=True)
+    blind_q = VoQuality(3, 0.9, 0.2, 0.9, valid=True)  # 3 features: cannot see
+    t = 0.0
+    for k in range(40):
+        t = k / 15.0
+        est.predict(ImuSample(t, (0.0, 0.0, 0.0), (0.0, 0.0, -9.80665)))
+        q = blind_q if 10 <= k < 30 else good_q
+        est.update_vo(VoSample(t, (0.0, 0.0, 0.0), (0.01, 0.01, 0.01), q))
+    vo = [e for e in est.pop_events() if e.source == "vo"]
+    refused = [e for e in vo if e.kind is NavEventKind.REJECTED]
+    back = [e for e in vo if e.kind is NavEventKind.RECOVERED and e.parameter == "refused_frames"]
+    assert len(refused) == 1 and refused[0].t_s == pytest.approx(10 / 15.0)
+    assert (refused[0].parameter, refused[0].statistic, refused[0].limit) == ("features", 3.0, 25.0)
+    assert len(back) == 1 and back[0].t_s == pytest.approx(30 / 15.0) and back[0].statistic == 20
+    # the 20 refused frames (1.3 s) outlast the VO timeout: VO was also declared lost, then recovered
+    assert [e.kind for e in vo if e.parameter == "since_fused_s"] == [NavEventKind.LOST]
+
+
 @settings(max_examples=60, deadline=None)
 @given(
     st.integers(0, 300),
