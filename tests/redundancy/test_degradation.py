@@ -53,3 +53,36 @@ def test_nominal_flight_stays_triplex():
         out = chain.step(float(tk), imu, tuple(tuple(mag[k, i]) for i in range(3)))
         assert not out.events
     assert out.level is RedundancyLevel.TRIPLEX and chain.fdi is None
+
+
+def _alert_run(feed: str):
+    """Lane 2 stuck at 1 s, then a +0.5 rad/s step on lane 0's yaw gyro at 3 s: the FDI's alert state."""
+    t, gyro, acc, mag = _three_lanes(5.0)
+    k1 = int(1.0 / DT_S)
+    gyro[k1:, 2], acc[k1:, 2] = gyro[k1 - 1, 2], acc[k1 - 1, 2]
+    gyro[t >= 3.0, 0, 2] += 0.5
+    cfg = replace(MERLIN, pf=replace(ParticleFilterConfig(), n_particles=512))
+    chain = ImuDegradationChain(np.random.default_rng(5), cfg, alert_feed=feed)
+    rows = []
+    for k, tk in enumerate(t):
+        imu = tuple(LaneSample(float(tk), (*gyro[k, i], *acc[k, i])) for i in range(3))
+        out = chain.step(float(tk), imu, tuple(tuple(mag[k, i]) for i in range(3)))
+        fdi = chain.fdi
+        rows.append((float(tk), fdi.state.value if fdi is not None else "off", out.imu.values, out.imu.lanes_used,
+                     imu, chain.alert_lane))
+    return rows
+
+
+def test_during_the_alert_the_estimator_gets_the_lower_residual_lane_not_the_mean():
+    rows = _alert_run("lowest_residual")
+    alert = [r for r in rows if r[1] == "alert" and r[0] >= 3.0]
+    assert alert, "the yaw step raises the duplex FDI's alert"
+    for _t, _s, values, used, imu, lane in alert:
+        if lane is None:
+            continue
+        assert used == (lane,) and values == imu[lane].values  # one lane's sample, bit for bit, no mean
+    # the lane fed is the healthy one once the residual has had a few samples to average
+    late = [r[5] for r in alert if r[0] >= alert[0][0] + 0.1 and r[5] is not None]
+    assert late and all(lane == 1 for lane in late)
+    mean_rows = [r for r in _alert_run("mean") if r[1] == "alert" and r[0] >= 3.0]
+    assert mean_rows and all(r[3] == (0, 1) for r in mean_rows)  # the seed 003 §2 mean, kept for comparison
