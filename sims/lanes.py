@@ -747,6 +747,9 @@ class Redundancy:
             row["imu_lanes_ok"] = float(sum(1 for x in self.voter.isolated if not x))
             row["imu_nav_health"] = self.voter.nav_health
             row["imu_fdi_state"] = self.voter.fdi_state
+            if self.aux_voted:  # three magnetometers, barometers and GPS receivers: their lanes too
+                for ch in ("mag", "baro", "gps"):
+                    row[f"{ch}_lanes_ok"] = float(sum(1 for ln in self.voter.channel_lanes(ch) if not ln.isolated))
         if self.lanes is not None:
             row["ap_lane"] = float(self.lanes.selected)
             row["ap_lanes_live"] = float(sum(1 for o in self.lanes.own if o is not None))

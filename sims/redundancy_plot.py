@@ -17,6 +17,9 @@ from sims.runner import RunResult
 # event types marked on the plot, with their colour
 _MARKED = {
     "imu_isolated": "tab:red",
+    "mag_isolated": "tab:red",
+    "baro_isolated": "tab:red",
+    "gps_isolated": "tab:red",
     "imu_alert": "tab:orange",
     "imu_fault_declared": "tab:red",
     "autopilot_peer_silent": "tab:orange",
@@ -37,10 +40,19 @@ def plot_redundancy(r: RunResult, out: Path) -> Path | None:
     i = 0
     if has_imu:
         a = axes[i]
-        a.step(t, L["imu_lanes_ok"], where="post", color="tab:blue")
+        a.step(t, L["imu_lanes_ok"], where="post", color="tab:blue", label="IMU")
+        # with three magnetometers, barometers and GPS receivers (sensor_lanes: 3), theirs too (offset so
+        # that equal levels stay visible)
+        extra = [(k, c, off) for k, c, off in (("mag_lanes_ok", "tab:orange", -0.06), ("baro_lanes_ok", "tab:green",
+                                                                                      -0.12),
+                                               ("gps_lanes_ok", "tab:brown", -0.18)) if k in L]
+        for k, c, off in extra:
+            a.step(t, L[k] + off, where="post", color=c, label=k.split("_")[0])
+        if extra:
+            a.legend(fontsize=7, loc="lower left", ncol=4)
         a.set_yticks([0, 1, 2, 3], ["0", "1 simplex", "2 duplex", "3 triplex"])
-        a.set_ylim(-0.2, 3.4)
-        a.set_ylabel("IMU lanes voted")
+        a.set_ylim(-0.4, 3.4)
+        a.set_ylabel("sensor lanes voted" if extra else "IMU lanes voted")
         b = axes[i + 1]
         b.step(t, L["imu_fdi_state"], where="post", color="tab:purple", label="duplex FDI state")
         b.step(t, 3.0 * L["imu_nav_health"], where="post", color="tab:green", ls="--", label="3 x nav health")
