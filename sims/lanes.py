@@ -322,12 +322,7 @@ class LaneNavigation:
                 ekf = self.ekfs[i]
                 if imu is not None:
                     ekf.predict(imu)
-                if gps is not None:
-                    ekf.update_gps(gps)
-                if baro is not None:
-                    ekf.update_baro(baro)
-                if mag is not None:
-                    ekf.update_mag(mag)
+                ekf.update_samples(gps, baro, mag)
                 for e in ekf.pop_events():
                     self.events.append({"t": e.t_s, "type": f"nav_{e.kind.value}", "lane": i, "source": e.source,
                                         "parameter": e.parameter, "statistic": e.statistic, "limit": e.limit,

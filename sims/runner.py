@@ -557,12 +557,7 @@ class ClosedLoop:
             # three units of each (redundancy.sensor_lanes: 3): the voted samples, not lane 0's
             v = red.voter
             gps, baro, mag = v.voted_gps, v.voted_baro, v.voted_mag
-        if gps is not None:
-            ekf.update_gps(gps)
-        if baro is not None:
-            ekf.update_baro(baro)
-        if mag is not None:
-            ekf.update_mag(mag)
+        ekf.update_samples(gps, baro, mag)
         if self.vision is not None:  # the camera's VO frame when one is due, and the nav trace
             self.vision.step(t, self.truth, ekf)
         for e in ekf.pop_events():

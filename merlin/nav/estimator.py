@@ -846,6 +846,16 @@ class NavEstimator:
         """Events not yet collected with :meth:`pop_events`."""
         return tuple(self._events)
 
+    def update_samples(self, gps: GpsSample | None, baro: BaroSample | None, mag: MagSample | None) -> None:
+        """Fuse one tick's GPS, barometer and magnetometer samples, in that order; ``None`` is a sensor with
+        nothing new this tick. The order matters for bit-identical runs: every loop fuses through here."""
+        if gps is not None:
+            self.update_gps(gps)
+        if baro is not None:
+            self.update_baro(baro)
+        if mag is not None:
+            self.update_mag(mag)
+
     def pop_events(self) -> tuple[NavEvent, ...]:
         out = tuple(self._events)
         self._events.clear()
