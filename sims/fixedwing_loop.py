@@ -27,7 +27,11 @@ The trusted core runs unchanged. What differs is the actuator stage, because a f
   projected turn flies farther before it meets the widening (:func:`escape_side`, on the core's own measure
   of the two turns, :func:`merlin.core.geofence.turn_clearances`), until the monitor clears and the
   aircraft heads towards home, and only then hands over to the behaviour's guidance. Guidance alone turns
-  the short way towards its goal, which next to a re-entrant corner can be the blocked side.
+  the short way towards its goal, which next to a re-entrant corner can be the blocked side. A horizontal
+  trip while a trusted behaviour already flies (nothing to revoke) starts the same escape turn, once per trip.
+* RTL and LAND route around the fence's keep-out zones and inclusion boundary
+  (:mod:`merlin.autopilot.fixedwing_route`): planned when they start, or when the escape turn ends, from
+  the aircraft's position and course; the loiter over home moves off a keep-out if it must.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ import yaml
 
 from merlin.autopilot import fixedwing_control as fc
 from merlin.autopilot import fixedwing_guidance as fg
+from merlin.autopilot import fixedwing_route as fr
 from merlin.config.loader import ConfigError
 from merlin.config.models import MerlinConfig
 from merlin.config.runtime import build_core_config
@@ -92,6 +97,16 @@ LAUNCH_LINE_M = 5000.0
 UNPROTECTED_PITCH_MAX_DEG = 45.0
 #: Points per loiter circle when comparing the two sides' loiter circles against the fence.
 _TURN_SAMPLES = 24
+#: Fence-monitor kinds a trip under trusted authority answers with an escape turn: the horizontal ones (a
+#: ceiling or floor trip is answered by the behaviour's height, which a turn does not change).
+_HORIZONTAL_TRIPS = ("inclusion", "exclusion", "outside")
+#: A horizontal fence trip under trusted authority starts a new escape turn only once the monitor has been
+#: clear this long with no escape turn flying (a monitor that flickers at the edge of its threshold must not
+#: start a turn, and a re-plan, every few ticks).
+TRIP_REARM_S = 1.0
+#: The RTL loiter counts as reached (note ``fixed_wing_rtl_at_home``) once the route is flown and the
+#: aircraft is within this of the loiter circle's radius.
+RTL_AT_HOME_RADIAL_M = 15.0
 
 #: The Aerosonde's battery: [B2]'s motor is specified for V_max = 44.4 V, a 12-cell LiPo (12 x 3.7 V);
 #: 5 Ah is our assumption (222 Wh: about 25 minutes at the 22 m/s cruise's ~500 W electrical).
@@ -269,6 +284,9 @@ class FixedWingLoop(ClosedLoop):
     #: Fly the escape turn before a trusted behaviour when the fence is tripped (off only to show, in the
     #: tests, what guidance alone does next to the notch).
     escape_turns: bool = True
+    #: Route RTL (and LAND's loiter) around the fence's keep-out zones and inclusion boundary
+    #: (:mod:`merlin.autopilot.fixedwing_route`); off only to show, in the tests, what direct guidance does.
+    rtl_routes: bool = True
     flies_velocity_command = False  # the stage flies course/speed/climb targets (metric not applicable)
     #: Fly an experimental ATTITUDE command through the inner loops' pitch limit and angle-of-attack
     #: protection (:func:`merlin.autopilot.fixedwing_control.control_step`). Off only for the stall
@@ -387,6 +405,11 @@ class FixedWingLoop(ClosedLoop):
         self.escape_side: float = 0.0  # +1 / -1 while an escape turn is flown, else 0
         self._escape_course = 0.0  # course over the ground at the previous tick of the escape turn, rad
         self._escape_turned_rad = 0.0  # how far the escape turn has turned towards its side so far
+        #: a horizontal fence trip under trusted authority starts an escape turn only after the monitor was
+        #: clear for TRIP_REARM_S with no escape turn under way (one turn per trip, never a circle of them)
+        self._trip_armed = True
+        self._trip_clear_since: float | None = None  # the monitor seen clear since (no escape flying)
+        self._rtl_at_home_noted = False
         self.notes: list[dict[str, Any]] = []
         self._launched_now = False
         assert self.fw.trim_result is not None
@@ -521,6 +544,8 @@ class FixedWingLoop(ClosedLoop):
         else:
             if changed:
                 self._enter(t, decision, s)
+            elif self.escape_turns and not self.escape_side and self.core_cfg.fence is not None:
+                self._escape_on_trusted_trip(t, decision, s)
             targets = self._trusted_targets(t, decision, s)
         if changed:
             # Guidance first (above), then the loops from the surfaces last commanded: no bump.
@@ -536,23 +561,14 @@ class FixedWingLoop(ClosedLoop):
         fence = self.core_cfg.fence
         if (self.escape_turns and fence is not None
                 and any(m.name == "geofence" and m.tripped for m in decision.monitors)):
-            right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m,
-                                                   state_wind_ne(s))
-            self.escape_side = escape_side(fence, s)
-            self._escape_course = math.atan2(s.vel_ned_mps[1], s.vel_ned_mps[0])
-            self._escape_turned_rad = 0.0
-            self.notes.append({"t": t, "type": "fixed_wing_escape_turn",
-                               "side": "right" if self.escape_side > 0 else "left",
-                               "right_margin_m": right.margin_m, "left_margin_m": left.margin_m,
-                               "right_free_path_m": right.free_path_m, "left_free_path_m": left.free_path_m})
+            self._start_escape(t, fence, s)
         if b is Behavior.RTL:
-            gs = fg.start_rtl(self.gp, gs, s)
+            gs = self._start_rtl(t, s)
         elif b is Behavior.LAND:
             self.notes.append({"t": t, "type": "fixed_wing_land_as_loiter",
                                "detail": f"LAND flown as a loiter over home descending to {self.land_height_m:g} m:"
                                          " the fixed wing cannot land in this simulator"})
-            gs = fg.start_loiter(gs, fg.LoiterCircle((0.0, 0.0), self.gp.loiter_radius_m, True,
-                                                     self.land_height_m, self.cp.airspeed_cruise_mps))
+            gs = self._start_rtl(t, s, self.land_height_m)
         elif b is Behavior.MISSION and self.mission:
             gs = fg.start_mission(gs, s, self.mission, loop=False)
         elif b is Behavior.TAKEOFF:
@@ -566,6 +582,86 @@ class FixedWingLoop(ClosedLoop):
         else:  # HOLD, TAKEOFF (airborne already), MISSION without waypoints
             gs = fg.start_hold(self.gp, self.cp, gs, s, clockwise=self._hold_clockwise(s))
         self.gstate = gs
+
+    def _start_escape(self, t: float, fence: geofence.Fence, s: VehicleState) -> None:
+        """Fly an escape turn at the bank limit to the side :func:`escape_side` picks."""
+        right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m,
+                                               state_wind_ne(s))
+        self.escape_side = escape_side(fence, s)
+        self._escape_course = math.atan2(s.vel_ned_mps[1], s.vel_ned_mps[0])
+        self._escape_turned_rad = 0.0
+        self._trip_armed = False
+        self._trip_clear_since = None
+        self.notes.append({"t": t, "type": "fixed_wing_escape_turn",
+                           "side": "right" if self.escape_side > 0 else "left",
+                           "right_margin_m": right.margin_m, "left_margin_m": left.margin_m,
+                           "right_free_path_m": right.free_path_m, "left_free_path_m": left.free_path_m})
+
+    def _escape_on_trusted_trip(self, t: float, decision: Decision, s: VehicleState) -> None:
+        """A horizontal fence trip while a trusted behaviour already flies (nothing left to revoke: the core's
+        rule is RTL again) still turns the aircraft away: the escape turn, as at a revocation, once per trip
+        (re-armed when the monitor has been clear for :data:`TRIP_REARM_S`). An RTL or LAND re-plans its route
+        when it ends."""
+        fence = self.core_cfg.fence
+        assert fence is not None
+        trip = next((m for m in decision.monitors if m.name == "geofence" and m.tripped), None)
+        if trip is None:
+            if self._trip_clear_since is None:
+                self._trip_clear_since = t
+            if t - self._trip_clear_since >= TRIP_REARM_S:
+                self._trip_armed = True
+            return
+        self._trip_clear_since = None
+        if not self._trip_armed or trip.reason.parameter not in _HORIZONTAL_TRIPS:
+            return
+        self._start_escape(t, fence, s)
+        self.notes[-1]["under"] = "trusted"
+
+    def _start_rtl(self, t: float, s: VehicleState, height: float | None = None) -> fg.GuidanceState:
+        """RTL (or LAND, at ``height``; None: the RTL height rule): the loiter over home, moved or shrunk off the keep-out zones
+        if it must be, and the route to it around them (:mod:`merlin.autopilot.fixedwing_route`). While an
+        escape turn is flown the route waits for its end (planned from where the turn leaves the aircraft)."""
+        fence = self.core_cfg.fence
+        self._rtl_at_home_noted = False
+        if fence is None or not self.rtl_routes or not fr.has_zones(fence):
+            return fg.start_rtl(self.gp, self.gstate, s, height_m=height)
+        wind = state_wind_ne(s)
+        clearance = fr.route_clearance_m(fence, self.gp.rtl_airspeed_mps, math.hypot(*wind), s.pos_sigma_h_m)
+        bank = fence.params.bank_limit_rad
+        min_radius = fr.MIN_LOITER_RADIUS_TURN_RADII * fr.turn_radius_m(
+            self.gp.rtl_airspeed_mps + math.hypot(*wind), bank, fence.params.gravity_mps2)
+        loiter = fr.home_loiter(fence, (0.0, 0.0), self.gp.loiter_radius_m, clearance, min_radius)
+        if loiter.status != "home":
+            self.notes.append({"t": t, "type": "fixed_wing_rtl_loiter_moved", "status": loiter.status,
+                               "center_ne_m": list(loiter.center_ne_m), "radius_m": loiter.radius_m,
+                               "clearance_m": clearance})
+        if self.escape_side:
+            return fg.start_rtl(self.gp, self.gstate, s, loiter.center_ne_m, (), loiter.radius_m, height)
+        pos = (s.pos_ned_m[0], s.pos_ned_m[1])
+        # the route starts with the turn the aircraft must fly anyway, at the fence's bank limit for the
+        # faster of its groundspeed now and the RTL airspeed plus the wind
+        vn, ve = s.vel_ned_mps[0], s.vel_ned_mps[1]
+        speed = max(math.hypot(vn, ve), self.gp.rtl_airspeed_mps + math.hypot(*wind))
+        turn_r = fr.turn_radius_m(speed, bank, fence.params.gravity_mps2)
+        route = fr.plan_route(fence, pos, loiter.center_ne_m, loiter.radius_m, clearance,
+                              course_rad=math.atan2(ve, vn), turn_radius=turn_r)
+        if route.status == "no_route":
+            self.notes.append({"t": t, "type": "fixed_wing_rtl_no_route", "clearance_m": clearance,
+                               "detail": "no route home keeps the clearance from the keep-out zones: loitering"
+                                         " where the aircraft is"})
+            return fg.start_hold(self.gp, self.cp, self.gstate, s, clockwise=self._hold_clockwise(s))
+        if route.status != "direct":
+            self.notes.append({"t": t, "type": "fixed_wing_rtl_route", "status": route.status,
+                               "legs": len(route.legs_ne_m) - 1, "length_m": route.length_m,
+                               "clearance_m": clearance,
+                               "points_ne_m": [[round(n, 2), round(e, 2)] for n, e in route.legs_ne_m],
+                               "turn": None if route.turn is None else {
+                                   "center_ne_m": list(route.turn.center_ne_m), "radius_m": route.turn.radius_m,
+                                   "side": "right" if route.turn.clockwise else "left"}})
+        turn = None if route.turn is None else (route.turn.center_ne_m, route.turn.radius_m, route.turn.clockwise,
+                                                route.turn.exit_course_rad)
+        return fg.start_rtl(self.gp, self.gstate, s, loiter.center_ne_m, route.legs_ne_m, loiter.radius_m, height,
+                            turn)
 
     def _hold_clockwise(self, s: VehicleState) -> bool:
         """Loiter on the side whose circle keeps the larger fence margin (clockwise when no fence)."""
@@ -588,8 +684,14 @@ class FixedWingLoop(ClosedLoop):
         return worst[0] >= worst[1]
 
     def _trusted_targets(self, t: float, decision: Decision, s: VehicleState) -> fc.FixedWingTargets:
-        self.gstate, targets, _status = fg.guidance_step(self.gp, self.cp, self.gstate, s)
+        self.gstate, targets, status = fg.guidance_step(self.gp, self.cp, self.gstate, s)
         if not self.escape_side:
+            gs = self.gstate
+            if (not self._rtl_at_home_noted and gs.mode is fg.GuidanceMode.RTL and gs.route_index >= len(gs.route)
+                    and abs(status.crosstrack_m) < RTL_AT_HOME_RADIAL_M):
+                self._rtl_at_home_noted = True
+                self.notes.append({"t": t, "type": "fixed_wing_rtl_at_home",
+                                   "center_ne_m": list(gs.loiter.center_ne_m), "radius_m": gs.loiter.radius_m})
             return targets
         fence_tripped = any(m.name == "geofence" and m.tripped for m in decision.monitors)
         vn, ve = s.vel_ned_mps[0], s.vel_ned_mps[1]
@@ -610,6 +712,13 @@ class FixedWingLoop(ClosedLoop):
                     decision.behavior is Behavior.MISSION and not self.mission):
                 # the hold circle is re-centred where the escape ended, turning the same way
                 self.gstate = fg.start_hold(self.gp, self.cp, self.gstate, s, clockwise=self.escape_side > 0.0)
+                self.escape_side = 0.0
+                self.gstate, targets, _status = fg.guidance_step(self.gp, self.cp, self.gstate, s)
+            elif decision.behavior in (Behavior.RTL, Behavior.LAND):
+                # the route home is planned from where the escape turn leaves the aircraft
+                self.escape_side = 0.0
+                # (at the height the behaviour chose when it started)
+                self.gstate = self._start_rtl(t, s, self.gstate.loiter.height_m)
                 self.gstate, targets, _status = fg.guidance_step(self.gp, self.cp, self.gstate, s)
             self.escape_side = 0.0
             return targets

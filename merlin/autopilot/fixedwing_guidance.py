@@ -26,6 +26,8 @@ from merlin.autopilot.fixedwing_control import FixedWingControlParams, FixedWing
 from merlin.core.types import Command, CommandKind, VehicleState
 
 G_MPS2 = 9.80665
+#: A route's first turn ends when the course is within this of its exit course (or just past it).
+TURN_EXIT_TOLERANCE_RAD = math.radians(2.0)
 NE = tuple[float, float]
 
 
@@ -76,6 +78,16 @@ class GuidanceState:
     leg_start_ne_m: NE = (0.0, 0.0)
     laps_completed: int = 0
     loiter: LoiterCircle = LoiterCircle((0.0, 0.0), 120.0, True, 100.0, 22.0)
+    # RTL around keep-out zones (merlin.autopilot.fixedwing_route): the legs' points from the start to the
+    # loiter circle's tangent point, and the index of the point flown to; empty: capture the loiter directly
+    route: tuple[NE, ...] = ()
+    route_index: int = 0
+    # the route's first turn (a Dubins start): fly this circle until the course is turn_exit_course_rad;
+    # radius 0: none
+    turn_center_ne_m: NE = (0.0, 0.0)
+    turn_radius_m: float = 0.0
+    turn_clockwise: bool = True
+    turn_exit_course_rad: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -225,13 +237,38 @@ def start_hold(
 
 
 def start_rtl(
-    p: GuidanceParams, state: GuidanceState, s: VehicleState, home_ne_m: NE = (0.0, 0.0)
+    p: GuidanceParams,
+    state: GuidanceState,
+    s: VehicleState,
+    home_ne_m: NE = (0.0, 0.0),
+    route: tuple[NE, ...] = (),
+    radius_m: float | None = None,
+    height_m: float | None = None,
+    turn: tuple[NE, float, bool, float] | None = None,
 ) -> GuidanceState:
-    """Return to home and loiter over it, clockwise, at the RTL height (or higher, if already higher)."""
-    circle = LoiterCircle(
-        home_ne_m, p.loiter_radius_m, True, max(p.rtl_height_m, s.alt_m), p.rtl_airspeed_mps
+    """Return to home and loiter over it, clockwise, at the RTL height (or higher, if already higher).
+
+    ``route`` (from :func:`merlin.autopilot.fixedwing_route.plan_route`): the legs to fly first, from the
+    current position to the loiter circle's tangent point, each with L1; empty: fly L1 at the circle directly.
+    ``home_ne_m`` and ``radius_m`` are the loiter's centre and radius (the route planner may move or shrink
+    the circle off a keep-out zone); ``height_m`` overrides the loiter height (LAND flown as a loiter).
+    ``turn`` (centre, radius, clockwise, exit course): the route's first turn, flown as a circle until the
+    course over the ground reaches the exit course; then the legs from ``route[0]``."""
+    height = max(p.rtl_height_m, s.alt_m) if height_m is None else height_m
+    radius = p.loiter_radius_m if radius_m is None else radius_m
+    circle = LoiterCircle(home_ne_m, radius, True, height, p.rtl_airspeed_mps)
+    tc, tr, tcw, tx = turn if turn is not None and route else ((0.0, 0.0), 0.0, True, 0.0)
+    return replace(
+        state,
+        mode=GuidanceMode.RTL,
+        loiter=circle,
+        route=route,
+        route_index=1 if len(route) > 1 else 0,
+        turn_center_ne_m=tc,
+        turn_radius_m=tr,
+        turn_clockwise=tcw,
+        turn_exit_course_rad=tx,
     )
-    return replace(state, mode=GuidanceMode.RTL, loiter=circle)
 
 
 def guidance_step(
@@ -262,11 +299,49 @@ def guidance_step(
         status = GuidanceStatus(accel, xtrack, new_state.wp_index, new_state.laps_completed, False)
         return new_state, targets, status
     c = state.loiter
+    if state.mode is GuidanceMode.RTL and 0 < state.route_index < len(state.route):
+        return _route_step(p, cp, state, s)
     accel, radial_err, capturing = l1_circle(p, s, c)
     targets = FixedWingTargets(
         airspeed_mps=c.airspeed_mps, height_m=c.height_m, roll_rad=accel_to_roll(cp, accel)
     )
     return state, targets, GuidanceStatus(accel, radial_err, state.wp_index, state.laps_completed, capturing)
+
+
+def _route_step(
+    p: GuidanceParams, cp: FixedWingControlParams, state: GuidanceState, s: VehicleState
+) -> tuple[GuidanceState, FixedWingTargets, GuidanceStatus]:
+    """RTL's route legs: L1 on the leg to ``route[route_index]``. An intermediate point is accepted at the
+    L1 distance (turn anticipation: the route's bends are small), the last one (the loiter circle's
+    tangent point) only once passed, so the aircraft joins the circle on the checked tangent leg."""
+    if state.turn_radius_m > 0.0:
+        v, _speed = _velocity_ne(p, s)
+        course = math.atan2(v[1], v[0])
+        direction = 1.0 if state.turn_clockwise else -1.0
+        to_go = ((state.turn_exit_course_rad - course) * direction) % math.tau
+        if to_go < TURN_EXIT_TOLERANCE_RAD or to_go > math.tau - 2.0 * TURN_EXIT_TOLERANCE_RAD:
+            return guidance_step(p, cp, replace(state, turn_radius_m=0.0), s)
+        c = state.loiter
+        turn = LoiterCircle(state.turn_center_ne_m, state.turn_radius_m, state.turn_clockwise, 0.0, 0.0)
+        accel, radial_err, _ = l1_circle(p, s, turn)
+        targets = FixedWingTargets(
+            airspeed_mps=c.airspeed_mps, height_m=c.height_m, roll_rad=accel_to_roll(cp, accel)
+        )
+        return state, targets, GuidanceStatus(accel, radial_err, state.wp_index, state.laps_completed, True)
+    i = state.route_index
+    a, b = state.route[i - 1], state.route[i]
+    accel, xtrack, to_go = l1_line(p, s, a, b)
+    last = i == len(state.route) - 1
+    _, speed = _velocity_ne(p, s)
+    dist = math.hypot(b[0] - s.pos_ned_m[0], b[1] - s.pos_ned_m[1])
+    if to_go <= 0.0 or (not last and dist < l1_distance_m(p, speed)):
+        new_state = replace(state, route_index=i + 1)
+        return guidance_step(p, cp, new_state, s)
+    c = state.loiter
+    targets = FixedWingTargets(
+        airspeed_mps=c.airspeed_mps, height_m=c.height_m, roll_rad=accel_to_roll(cp, accel)
+    )
+    return state, targets, GuidanceStatus(accel, xtrack, state.wp_index, state.laps_completed, True)
 
 
 # -------------------------------------------------------------------------- the core's Command adapter

@@ -163,11 +163,23 @@ def test_fence_altitude_approach_levels_off_inside(limit: str, speed_mps: float,
 
 
 def test_guidance_alone_turns_into_the_notch(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Why the escape turn exists: without it the RTL guidance turns the short way home, into the notch."""
+    """Why the escape turn exists: without it the RTL guidance turns the short way home, into the notch.
+    (Guidance alone: the keep-out-aware route, which would also avoid the notch, is off too; see below.)"""
     monkeypatch.setattr(FixedWingLoop, "escape_turns", False)
+    monkeypatch.setattr(FixedWingLoop, "rtl_routes", False)
     sc = notch_case(FENCE_PARAMS, 22.0)
     r = run_scenario(sc, resolve_config(sc, SCENARIOS, "<generated>"), source=sc.name)
     assert r.metrics["max_fence_breach_m"] > 20.0
+
+
+def test_the_rtl_route_alone_keeps_out_of_the_notch(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The same case without the escape turn but with RTL's route (merlin.autopilot.fixedwing_route): the
+    route starts with the turn the aircraft must fly (a Dubins start) and keeps out of the notch."""
+    monkeypatch.setattr(FixedWingLoop, "escape_turns", False)
+    sc = notch_case(FENCE_PARAMS, 22.0)
+    r = run_scenario(sc, resolve_config(sc, SCENARIOS, "<generated>"), source=sc.name)
+    assert any(e["type"] == "fixed_wing_rtl_route" for e in r.events)
+    assert r.metrics["max_fence_breach_m"] == 0.0
 
 
 #: All 40 runs of the sweep fly in the suite (about 90 s of one core; docs/fixed-wing.md, "The fence sweep").
@@ -248,3 +260,75 @@ def test_campaign_run_74_in_wind_escapes_on_the_side_that_stays_inside() -> None
     assert turns and turns[0]["side"] == "left"
     assert turns[0]["right_free_path_m"] > turns[0]["left_free_path_m"]
     assert r.metrics["max_fence_breach_m"] == 0.0 and r.metrics["min_fence_margin_m"] > 10.0
+
+
+# ------------------------------------------------------------------------------------ RTL around keep-outs
+
+MAST_NE_M, MAST_R_M = (-350.0, -350.0), 60.0  # the campaign range's exclusion circle
+
+
+@pytest.mark.parametrize("name", ["fw_rtl_keepout_climb.yaml", "fw_rtl_keepout_descend.yaml"])
+def test_rtl_routes_around_the_keep_out_and_reaches_home(name: str) -> None:
+    """Campaign runs 00739 and 00072: RTL after the revocation flew L1 straight home through the mast's
+    exclusion circle (56.9 m and 6.85 m deep). The route now passes it with room and joins the loiter."""
+    r = _run_file(name)
+    _expectations_pass(r)
+    assert r.metrics["max_fence_breach_m"] == 0.0
+    routes = [e for e in r.events if e["type"] == "fixed_wing_rtl_route"]
+    assert routes and routes[0]["status"] == "routed"
+    rev = next(e for e in r.events if e["type"] == "revoked")
+    k = _row(r.log, rev["t"])
+    n, e = r.log["truth_n"][k:], r.log["truth_e"][k:]
+    to_mast = np.hypot(n - MAST_NE_M[0], e - MAST_NE_M[1]) - MAST_R_M
+    # planned for 120-126 m; the turn from the escape's heading onto the first leg is not planned and cuts into
+    # it (42 m and 78 m measured; docs/fixed-wing.md, "RTL around keep-out zones")
+    assert to_mast.min() > 30.0
+    # on the loiter circle over home at the end (radius 120 m)
+    assert abs(r.metrics["final_distance_from_home_m"] - 120.0) < 10.0
+
+
+def test_a_fence_trip_under_trusted_authority_starts_one_escape_turn_per_trip() -> None:
+    """Nothing is left to revoke under trusted authority (the core's rule is RTL again), but the stage still
+    turns away: a horizontal trip starts the escape turn, once, re-armed after 1 s of a clear monitor; a
+    ceiling trip is left to the behaviour's height."""
+    from merlin.core.types import (
+        Authority,
+        Behavior,
+        Command,
+        CommandKind,
+        Decision,
+        MonitorStatus,
+        Reason,
+        ReasonCode,
+        VehicleState,
+    )
+    from sims.fixedwing_loop import TRIP_REARM_S
+
+    sc, cfg = load_scenario(SCENARIOS / "fw_rtl_keepout_descend.yaml")
+    loop = FixedWingLoop(sc, cfg, "<test>")
+    # 120 m north of the south wall, heading south at 22 m/s
+    s = VehicleState(pos_ned_m=(-580.0, 0.0, -100.0), vel_ned_mps=(-22.0, 0.0, 0.0),
+                     att_rpy_rad=(0.0, 0.0, math.pi), airspeed_mps=22.0)
+
+    def decision(kind: str | None) -> Decision:
+        mon = (MonitorStatus("geofence", False) if kind is None else
+               MonitorStatus("geofence", True, Reason(ReasonCode.GEOFENCE, "geofence", kind, 1.0, 0.0, 0.0, "test")))
+        return Decision(0.0, Authority.TRUSTED, Behavior.RTL, Command(CommandKind.VELOCITY, Authority.TRUSTED),
+                        (mon,), (), True)
+
+    loop._escape_on_trusted_trip(10.0, decision("inclusion"), s)
+    assert loop.escape_side != 0.0
+    note = loop.notes[-1]
+    assert note["type"] == "fixed_wing_escape_turn" and note["under"] == "trusted"
+    loop.escape_side = 0.0  # the turn ended (the monitor still tripped): no second turn for the same trip
+    loop._escape_on_trusted_trip(10.1, decision("inclusion"), s)
+    assert loop.escape_side == 0.0
+    loop._escape_on_trusted_trip(10.2, decision(None), s)  # clear, but not for long enough
+    loop._escape_on_trusted_trip(10.2 + 0.5 * TRIP_REARM_S, decision("exclusion"), s)
+    assert loop.escape_side == 0.0
+    loop._escape_on_trusted_trip(11.0, decision(None), s)
+    loop._escape_on_trusted_trip(11.0 + TRIP_REARM_S, decision(None), s)
+    loop._escape_on_trusted_trip(11.1 + TRIP_REARM_S, decision("ceiling"), s)  # a ceiling trip: no turn
+    assert loop.escape_side == 0.0
+    loop._escape_on_trusted_trip(11.2 + TRIP_REARM_S, decision("exclusion"), s)  # a new horizontal trip
+    assert loop.escape_side != 0.0
