@@ -14,6 +14,14 @@ the steadier estimate of what one free core would do). The cases are interleaved
 sees the same load. Several runs; median and spread.
 
     .venv/bin/python benchmarks/bench_fixedwing.py [--runs 5] [--sim-s 120]
+
+``--route`` times instead the keep-out-aware RTL planner (``merlin.autopilot.fixedwing_route``: the home
+loiter, then the route with a Dubins start) in ``examples/campaigns/fixed_wing.yaml``'s range (1.4 km
+square, a notch, the mast) from a fixed grid of 64 starts (every 150 m, course towards the nearest wall or
+away from home in turn), 22 m/s, 1 m/s of wind: milliseconds per plan, median, 90th percentile and maximum
+over all plans of all runs, and each run's median (the spread between runs).
+
+    .venv/bin/python benchmarks/bench_fixedwing.py --route [--runs 5]
 """
 
 from __future__ import annotations
@@ -63,13 +71,83 @@ def run_jsbsim_only(sim_s: float) -> tuple[float, float]:
     return sim_s / (time.perf_counter() - t0), sim_s / (time.process_time() - c0)
 
 
+def route_plans_ms() -> list[tuple[str, float]]:
+    """Plan from every start of the grid once: (status, milliseconds) of each plan."""
+    import math
+
+    import shapely
+
+    from merlin.autopilot import fixedwing_route as fr
+    from merlin.core.geofence import CircleNE, Fence, FenceParams, PolygonNE
+
+    rng = PolygonNE(
+        (
+            (-700.0, -700.0),
+            (-700.0, 700.0),
+            (700.0, 700.0),
+            (700.0, 150.0),
+            (400.0, 150.0),
+            (400.0, -150.0),
+            (700.0, -150.0),
+            (700.0, -700.0),
+        )
+    )
+    params = FenceParams(vehicle="fixed_wing", bank_limit_rad=math.radians(30.0), reaction_time_s=1.0)
+    fence = Fence(
+        params, inclusion_polygons=(rng,), exclusion_circles=(CircleNE((-350.0, -350.0), 60.0),), grid_cells=0
+    )
+    starts = [
+        (n, e)
+        for n in range(-600, 601, 150)
+        for e in range(-600, 601, 150)
+        if fence.allowed_area.contains(shapely.Point(n, e))
+    ][:64]
+    out: list[tuple[str, float]] = []
+    for k, (n, e) in enumerate(starts):
+        course = math.atan2(e, n) if k % 2 else math.atan2(-e, -n) + math.pi  # away from home / towards it
+        t0 = time.perf_counter()
+        c = fr.route_clearance_m(fence, 22.0, 1.0, 0.5)
+        r_turn = fr.turn_radius_m(23.0, params.bank_limit_rad)
+        loiter = fr.home_loiter(fence, (0.0, 0.0), 120.0, c, 1.2 * r_turn)
+        route = fr.plan_route(
+            fence,
+            (float(n), float(e)),
+            loiter.center_ne_m,
+            loiter.radius_m,
+            c,
+            course_rad=course,
+            turn_radius=r_turn,
+        )
+        out.append((route.status if route.status == "direct" else "routed", 1e3 * (time.perf_counter() - t0)))
+    return out
+
+
+def main_route(runs: int) -> int:
+    per_run = [route_plans_ms() for _ in range(runs)]
+    print(f"runs={runs}, {len(per_run[0])} plans per run; ms per plan (home loiter + route)")
+    for kind in ("direct", "routed"):
+        allv = sorted(ms for r in per_run for st, ms in r if st == kind)
+        if not allv:
+            continue
+        p90 = allv[min(len(allv) - 1, int(0.9 * len(allv)))]
+        meds = [statistics.median([ms for st, ms in r if st == kind]) for r in per_run]
+        print(
+            f"{kind:7} n={len(allv) // runs:3d}  median {statistics.median(allv):6.2f}  p90 {p90:6.2f}"
+            f"  max {allv[-1]:6.2f}  run medians {min(meds):.2f}-{max(meds):.2f}"
+        )
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--sim-s", type=float, default=120.0)
+    ap.add_argument("--route", action="store_true", help="time the RTL route planner instead")
     args = ap.parse_args()
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})  # one core
+    if args.route:
+        return main_route(args.runs)
     cases = {
         "ap100": lambda: run_closed_loop(args.sim_s, 100.0),
         "ap400": lambda: run_closed_loop(args.sim_s, 400.0),

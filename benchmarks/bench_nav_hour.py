@@ -69,11 +69,11 @@ def open_flight(seed: int, minutes: float, with_vo: bool) -> dict[str, float]:
     }
 
 
-def closed_flight(seed: int, minutes: float, texture: str) -> dict[str, float]:
+def closed_flight(seed: int, minutes: float, texture: str, gps_noise_scale: float = 1.0) -> dict[str, float]:
     from sims.runner import run_scenario
     from sims.vision_loop import nominal_mission
 
-    sc = nominal_mission(seed, minutes, texture)
+    sc = nominal_mission(seed, minutes, texture, gps_noise_scale)
     from sims.scenario import resolve_config
 
     cfg = resolve_config(sc, Path("."), "<bench_nav_hour>")
@@ -113,6 +113,8 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, default=10.0, help="closed: minutes per flight")
     ap.add_argument("--flight", type=int, default=None, help="open: run only this flight index (parallel runs)")
     ap.add_argument("--no-vo", action="store_true", help="open with --flight: without the synthetic VO")
+    ap.add_argument("--gps-noise-scale", type=float, default=1.0,
+                    help="closed: a healthy receiver this many times as noisy as its datasheet (eph follows)")
     args = ap.parse_args()
     limit = NavConfig().gps_cusum_threshold
     print(f"date {time.strftime('%Y-%m-%d %H:%M', time.gmtime())} UTC; CUSUM limit {limit}", flush=True)
@@ -143,8 +145,8 @@ def main() -> None:
         tot = {}
         for k in range(args.flights):
             i = args.first - 1 + k
-            res = closed_flight(i + 1, args.minutes, textures[i % 3])
-            print(f"| closed | {textures[i % 3]} | seed {i + 1} | {res['flown_s'] / 60:.1f} min airborne | "
+            res = closed_flight(i + 1, args.minutes, textures[i % 3], args.gps_noise_scale)
+            print(f"| closed | {textures[i % 3]} | GPS noise x{args.gps_noise_scale:g} | seed {i + 1} | {res['flown_s'] / 60:.1f} min airborne | "
                   f"{res['exclusions']} excl | {res['rejections']} GPS rej | {res['vo_rejections']} VO rej | "
                   f"CUSUM {res['cusum']:.2f} | window {res['window_cusum']:.2f} | GPS-VO {res['vo_cusum']:.2f} | "
                   f"VO valid {res['vo_valid']:.3f} | VO error rms {res['vo_err_rms']:.3f} m/s | largest height error "

@@ -30,6 +30,8 @@ ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = [
     "gps_spoof_0p5mps", "gps_spoof_1mps", "gps_spoof_2mps", "gps_jump_20m", "gps_jump_100m",
     "gps_loss_vo", "gps_gcs_loss_ekf", "gps_loss_water_land",
+    # the campaign's findings: spoofs over the low-contrast brick, a healthy receiver at 2x its datasheet noise
+    "gps_spoof_brick_0p75mps", "gps_spoof_brick_1mps", "gps_noisy_receiver",
 ]
 FIGURES = {"gps_spoof_1mps": "nav_loop_spoof_1mps.png", "gps_loss_vo": "nav_loop_gps_loss_vo.png",
            "gps_loss_water_land": "nav_loop_water.png"}

@@ -52,18 +52,21 @@ def nav_filter_config(cfg: MerlinConfig) -> NavConfig:
     return nav_config_from_model(cfg.nav.filter, cfg.nav.inertial_time_limit_s, math.atan2(east, north))
 
 
-def nominal_mission(seed: int, minutes: float, texture: str) -> Scenario:
+def nominal_mission(seed: int, minutes: float, texture: str, gps_noise_scale: float = 1.0) -> Scenario:
     """The nominal closed-loop flight of the false-exclusion benchmark (``benchmarks/bench_nav_hour.py
     --part closed``): a random polygon mission at the 6 m/s cruise speed, legs of ~40 m at 10-25 m, the
-    camera over ``texture`` at 15 frames/s, no fault. The waypoints depend on ``seed`` only (the first
-    ones do not change with ``minutes``)."""
+    camera over ``texture`` at 15 frames/s, no fault; a healthy receiver ``gps_noise_scale`` times as noisy
+    as its datasheet (the scenario's ``sensors.gps_noise_scale``). The waypoints depend on ``seed`` only
+    (the first ones do not change with ``minutes``)."""
     rng = np.random.default_rng(7000 + seed)
     duration = minutes * 60.0
     wps: list[list[float]] = []
     while len(wps) < duration * 6.0 / 40.0 + 2:
         n, e = rng.uniform(-60.0, 60.0, 2)
         wps.append([float(n), float(e), -float(rng.uniform(10.0, 25.0))])
+    extra: dict[str, Any] = {} if gps_noise_scale == 1.0 else {"sensors": {"gps_noise_scale": gps_noise_scale}}
     return Scenario.model_validate({
+        **extra,
         "name": f"nominal_nav_{seed}",
         "duration_s": duration,
         "seed": seed,

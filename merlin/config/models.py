@@ -521,9 +521,18 @@ class NavFilterConfig(Strict):
     )
     gps_bias_sigma_h_m: float = Field(
         1.2, gt=0.0, le=50.0,
-        description="stationary σ of the receiver's slowly wandering horizontal error (Gauss-Markov state), m",
+        description="stationary σ of the receiver's slowly wandering horizontal error (Gauss-Markov state):"
+        " the floor, and the prior before the first fix, m",
     )
     gps_bias_sigma_v_m: float = Field(2.0, gt=0.0, le=50.0, description="same, vertical, m")
+    gps_bias_eph_ratio: float = Field(
+        1.2, gt=0.0, le=10.0,
+        description="the wander's stationary σ follows the receiver: at least this multiple of the eph it"
+        " reports with each fix",
+    )
+    gps_bias_epv_ratio: float = Field(
+        1.0, gt=0.0, le=10.0, description="same, vertical, as a multiple of the reported epv"
+    )
     gps_bias_tau_s: float = Field(
         60.0, gt=0.0, le=3600.0, description="correlation time of the receiver's wandering error, s"
     )
@@ -556,7 +565,11 @@ class NavFilterConfig(Strict):
         3.0, gt=0.0, le=60.0, description="window of the GPS-versus-mechanisation displacement test, s"
     )
     gps_window_sigma_m: float = Field(
-        0.6, gt=0.0, le=20.0, description="receiver short-term stability over the window, 1σ per axis, m"
+        0.6, gt=0.0, le=20.0, description="receiver short-term stability over the window, 1σ per axis: the floor, m"
+    )
+    gps_window_eph_ratio: float = Field(
+        0.55, gt=0.0, le=10.0,
+        description="the window σ follows the receiver: at least this multiple of the eph it reports",
     )
     gps_vo_check: bool = Field(True, description="cross-check GPS velocity against VO velocity (third CUSUM)")
     gps_vo_match_s: float = Field(

@@ -160,6 +160,7 @@ class NavEstimator:
             + [init.yaw_sigma_rad**2]
             + [config.init_gyro_bias_sigma_radps**2] * 3
             + [config.init_accel_bias_sigma_mps2**2] * 3
+            # the receiver's wander, at the floor until its fixes report their accuracy (_follow_receiver)
             + [config.gps_bias_sigma_h_m**2] * 2
             + [config.gps_bias_sigma_v_m**2]
             + [config.init_baro_bias_sigma_m**2]
@@ -173,7 +174,8 @@ class NavEstimator:
             + [config.gyro_noise_radps_rthz**2] * 3
             + [config.gyro_bias_rw_radps2_rthz**2] * 3
             + [config.accel_bias_rw_mps3_rthz**2] * 3
-            # Gauss-Markov driving noise 2σ²/τ keeps the bias at its stationary σ (Groves 2013, sec. 3.4.3)
+            # Gauss-Markov driving noise 2σ²/τ keeps the bias at its stationary σ (Groves 2013, sec. 3.4.3);
+            # σ follows the receiver's reported accuracy (_follow_receiver), the floor before its first fix
             + [2.0 * config.gps_bias_sigma_h_m**2 / config.gps_bias_tau_s] * 2
             + [2.0 * config.gps_bias_sigma_v_m**2 / config.gps_bias_tau_s]
             # barometer offset: a random walk (thermal and weather drift; Groves 2013, sec. 6.2.1)
@@ -189,6 +191,11 @@ class NavEstimator:
         self._gps_cusum = 0.0
         self._gps_wcusum = 0.0
         self._gps_vcusum = 0.0
+        # the stationary variances (horizontal, vertical) the wander state is modelled with, following the
+        # receiver's eph/epv (_follow_receiver), and the time of the fix they were last updated at
+        self._gps_bias_var_h = config.gps_bias_sigma_h_m**2
+        self._gps_bias_var_v = config.gps_bias_sigma_v_m**2
+        self._gps_acc_t: float | None = None
         # (t, v_n, v_e, var_n, var_e) of recent quality-accepted VO samples, for the GPS-VO velocity check
         self._vo_recent: deque[tuple[float, float, float, float, float]] = deque(maxlen=32)
         # (t, GPS north, GPS east, dead-reckoned north, east) of recent admitted epochs
@@ -382,6 +389,7 @@ class NavEstimator:
             self.gps_status = GpsStatus.OK if recent or first else GpsStatus.EXCLUDED
             self._gps_agree_since = None
         self._gps_seen_usable_t = t
+        self._follow_receiver(gps)
         # the white part of the receiver's error; the slowly wandering part is the bias state
         sig_h = max(gps.eph_m * cfg.gps_white_fraction, cfg.gps_pos_sigma_floor_m)
         sig_v = max(gps.epv_m * cfg.gps_white_fraction, cfg.gps_pos_sigma_floor_m)
@@ -441,7 +449,7 @@ class NavEstimator:
             # displacement of the last `lag` seconds must not count as a disagreement in a turn)
             dr_n = float(self._dr[0] - self._v[0] * lag + 0.5 * a_n[0] * lag * lag)
             dr_e = float(self._dr[1] - self._v[1] * lag + 0.5 * a_n[1] * lag * lag)
-            s_win, sig_win = self._window_statistic(t, gps.pos_ned_m, dr_n, dr_e)
+            s_win, sig_win = self._window_statistic(t, gps.pos_ned_m, dr_n, dr_e, gps.eph_m)
             if not math.isnan(s_win):
                 s_w = min(s_win, cfg.gps_cusum_clip)
                 self._gps_wcusum = max(0.0, self._gps_wcusum + s_w - cfg.gps_cusum_allowance)
@@ -530,9 +538,41 @@ class NavEstimator:
         self._update_mode()
         return check
 
-    def _window_statistic(self, t: float, pos_ned_m: Vec3, dr_n: float, dr_e: float) -> tuple[float, float]:
+    def _follow_receiver(self, gps: GpsSample) -> None:
+        """Model the receiver's slowly wandering error with the accuracy it reports now: stationary
+        σ_h = max(gps_bias_sigma_h_m, gps_bias_eph_ratio · eph), σ_v likewise with epv, driving noise
+        2σ²/τ (Groves 2013, sec. 3.4.3). When the receiver reports a larger error than the one modelled, the
+        difference is added to the wander state's variance at once (an independent error component the
+        receiver says has appeared; before the first fix the floors are the prior). When it reports a
+        smaller one the modelled variance relaxes towards it with the process's own time constant
+        (σ² ← σ² e^(−2Δt/τ) + σ_new² (1 − e^(−2Δt/τ))), so a jittering eph does not ratchet the variance up."""
+        cfg = self.cfg
+        if self._pend_n:  # the interval before this fix is propagated with the model it had
+            self._predict_covariance()
+        var_h = max(cfg.gps_bias_sigma_h_m, cfg.gps_bias_eph_ratio * gps.eph_m) ** 2
+        var_v = max(cfg.gps_bias_sigma_v_m, cfg.gps_bias_epv_ratio * gps.epv_m) ** 2
+        if self._gps_acc_t is not None:
+            relax = math.exp(-2.0 * max(0.0, gps.t_s - self._gps_acc_t) / cfg.gps_bias_tau_s)
+            self._gps_bias_var_h = self._gps_bias_var_h * relax + var_h * (1.0 - relax)
+            self._gps_bias_var_v = self._gps_bias_var_v * relax + var_v * (1.0 - relax)
+        self._gps_acc_t = gps.t_s
+        P = self.kf.P
+        if var_h > self._gps_bias_var_h:
+            P[15, 15] += var_h - self._gps_bias_var_h
+            P[16, 16] += var_h - self._gps_bias_var_h
+            self._gps_bias_var_h = var_h
+        if var_v > self._gps_bias_var_v:
+            P[17, 17] += var_v - self._gps_bias_var_v
+            self._gps_bias_var_v = var_v
+        self._q_density[15] = self._q_density[16] = 2.0 * self._gps_bias_var_h / cfg.gps_bias_tau_s
+        self._q_density[17] = 2.0 * self._gps_bias_var_v / cfg.gps_bias_tau_s
+
+    def _window_statistic(
+        self, t: float, pos_ned_m: Vec3, dr_n: float, dr_e: float, eph_m: float
+    ) -> tuple[float, float]:
         """d = (GPS displacement) - (mechanisation displacement) over the last gps_window_s, horizontal;
-        returns dᵀ C⁻¹ d / 2 with C = (σ_w² + P_vv W²) I, or nan until the window has filled."""
+        returns dᵀ C⁻¹ d / 2 with C = (σ_w² + P_vv W²) I, σ_w = max(gps_window_sigma_m,
+        gps_window_eph_ratio · eph) (the receiver's reported accuracy), or nan until the window has filled."""
         cfg = self.cfg
         win = self._gps_window
         win.append((t, pos_ned_m[0], pos_ned_m[1], dr_n, dr_e))
@@ -545,7 +585,8 @@ class NavEstimator:
         d_n = (pos_ned_m[0] - n0) - (dr_n - dn0)
         d_e = (pos_ned_m[1] - e0) - (dr_e - de0)
         P = self.kf.P
-        var = cfg.gps_window_sigma_m**2 + max(P[3, 3], P[4, 4]) * w * w
+        sigma_w = max(cfg.gps_window_sigma_m, cfg.gps_window_eph_ratio * eph_m)
+        var = sigma_w * sigma_w + max(P[3, 3], P[4, 4]) * w * w
         return float((d_n * d_n + d_e * d_e) / var / 2.0), math.sqrt(var)
 
     def _vo_velocity_statistic(self, gps: GpsSample, a_ned: np.ndarray) -> float:

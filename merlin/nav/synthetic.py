@@ -209,8 +209,12 @@ class SensorModel:
     gps_gm_tau_s: float = 60.0
     gps_white_sigma_m: float = 0.3
     gps_vel_sigma_mps: float = 0.08
-    gps_eph_m: float = 1.5
-    gps_epv_m: float = 2.5
+    # The accuracy the receiver reports with each fix; None: its own error model's, hypot(wander, white)
+    # per axis, as the simulator's receiver reports (sims/sensors.py). The filter's GPS model follows the
+    # reported figure, so a receiver that over-reports (1.5 m against a true 1.04 m, as this one did)
+    # is trusted less and its spoofs seen later (docs/navigation.md, "GPS noise follows the receiver").
+    gps_eph_m: float | None = None
+    gps_epv_m: float | None = None
     gps_satellites: int = 12
     baro_rate_hz: float = 25.0
     baro_sigma_m: float = 0.3
@@ -265,6 +269,10 @@ def synthesize(
     dtg = 1.0 / model.gps_rate_hz
     phi = math.exp(-dtg / model.gps_gm_tau_s)
     gm = rng.normal(0.0, sig_gm)
+    eph = model.gps_eph_m
+    if eph is None:
+        eph = math.hypot(float(np.hypot(sig_gm[0], sig_gm[1])) / math.sqrt(2.0), model.gps_white_sigma_m)
+    epv = model.gps_epv_m if model.gps_epv_m is not None else math.hypot(sig_gm[2], model.gps_white_sigma_m)
     for tg in _rates(t_end, model.gps_rate_hz)[1:]:
         k = traj.index_at(tg)
         gm = phi * gm + rng.normal(0.0, sig_gm * math.sqrt(1.0 - phi * phi))
@@ -291,8 +299,8 @@ def synthesize(
                     (float(vel[0]), float(vel[1]), float(vel[2])),
                     fix,
                     sats,
-                    model.gps_eph_m,
-                    model.gps_epv_m,
+                    eph,
+                    epv,
                 ),
             )
         )
