@@ -11,6 +11,8 @@ scenario N times on its own seed and reports the closed loop's real-time factor 
 median and range): the cost of three EKFs per tick with ``lane_navigation: own``.
 ``--compare-alert-feed`` flies the yaw-bias duplex scenario with the estimator fed the voted mean during
 the FDI's alert (seed 003 §2, the previous behaviour) beside Merlin's lowest-residual lane.
+``--compare-attribution`` flies the sub-alert gyro-bias scenario with Merlin's sub-alert attribution
+(merlin/redundancy/attribution.py) switched off (seed 003's FDI alone, the previous behaviour) beside it on.
 """
 
 from __future__ import annotations
@@ -30,20 +32,26 @@ ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = [
     "imu_stuck_isolated", "imu_second_fault_duplex", "imu_second_fault_yaw", "sensor_lanes_isolated",
     "autopilot_lane_failure", "autopilot_lane_self_isolation", "autopilot_lane_own_sensors",
+    "redundancy_sub_alert_gyro_bias",
 ]
-KEY_EVENTS = ("imu_isolated", "imu_alert", "imu_fault_declared", "baro_isolated", "gps_isolated", "mag_isolated",
+KEY_EVENTS = ("imu_isolated", "imu_alert", "imu_fault_declared", "imu_attributed", "imu_duplex_unresolved",
+              "baro_isolated", "gps_isolated", "mag_isolated",
               "autopilot_peer_silent", "autopilot_self_isolated", "autopilot_lane_switch", "warning",
               "nav_excluded", "revoked")
 
 
-def _fly(name: str, seed: int | None, alert_feed: str | None = None) -> dict[str, Any]:
+def _fly(name: str, seed: int | None, alert_feed: str | None = None, attribution: bool = True) -> dict[str, Any]:
     path = ROOT / "examples" / "scenarios" / f"{name}.yaml"
     sc, cfg = load_scenario(path, seed=seed)
     make = runner_mod.make_loop
-    if alert_feed is not None:
+    if alert_feed is not None or not attribution:
         def patched(*a: Any, **kw: Any) -> Any:
             loop = make(*a, **kw)
-            loop.redundancy.voter.suite.imu.alert_feed = alert_feed
+            chain = loop.redundancy.voter.suite.imu
+            if alert_feed is not None:
+                chain.alert_feed = alert_feed
+            if not attribution:
+                chain.attribution_config = None  # read when the duplex pair forms
             return loop
         runner_mod.make_loop = patched  # type: ignore[assignment]
     try:
@@ -71,10 +79,11 @@ def main() -> None:
     ap.add_argument("-k", action="append", default=[])
     ap.add_argument("--rtf-runs", type=int, default=0)
     ap.add_argument("--compare-alert-feed", action="store_true")
+    ap.add_argument("--compare-attribution", action="store_true")
     ap.add_argument("--json")
     args = ap.parse_args()
     names = [n for n in SCENARIOS if not args.k or any(k in n for k in args.k)]
-    out: dict[str, Any] = {"runs": [], "rtf": {}, "alert_feed": []}
+    out: dict[str, Any] = {"runs": [], "rtf": {}, "alert_feed": [], "attribution": []}
     for name in names:
         for seed in [None, *args.seeds]:
             row = _fly(name, seed)
@@ -96,6 +105,13 @@ def main() -> None:
                 out["alert_feed"].append({"feed": feed, **row})
                 print(f"alert feed {feed:15s} seed {row['seed']:3d}: {row['passed']}/{row['of']} met "
                       f"{row['failed']}  {row['events']}", flush=True)
+    if args.compare_attribution:
+        for on in (False, True):
+            for seed in [None, *args.seeds]:
+                row = _fly("redundancy_sub_alert_gyro_bias", seed, attribution=on)
+                out["attribution"].append({"attribution": on, **row})
+                print(f"sub-alert attribution {'on ' if on else 'off'} seed {row['seed']:3d}: {row['passed']}/{row['of']}"
+                      f" met {row['failed']}  {row['events']}", flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
 

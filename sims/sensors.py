@@ -125,9 +125,27 @@ class GpsParams:
     vel_v_sigma_mps: float = 0.10
     satellites: int = 14
     fix_type: int = 3
+    # With several receivers on one airframe (SensorParams.aux_lanes > 1): the correlation of any two
+    # receivers' slow errors, i.e. the share of the wander's variance they have in common. Receivers a few centimetres apart see the same satellites through the
+    # same atmosphere: the broadcast clock and ephemeris errors and the ionospheric and tropospheric
+    # delays are common to them, and these dominate the user equivalent range error of a single-frequency
+    # receiver; multipath and receiver noise are each receiver's own and are tens of centimetres (Kaplan
+    # & Hegarty, "Understanding GPS: Principles and Applications", 2nd ed., 2006, §7.2-7.3, the standard
+    # positioning service UERE budget: ionosphere several metres, clock and ephemeris about a metre each,
+    # multipath and receiver noise 0.1-0.2 m; Misra & Enge, "Global Positioning System", 2nd ed., 2006,
+    # §5.1-5.5). The budget puts well over 95 % of the variance in the common terms; Merlin takes 0.9, a
+    # conservative reading: receivers side by side on a small airframe see different multipath off the
+    # frame and may track different satellite subsets. Each receiver's wander then has the same variance
+    # as one receiver alone (common + own); the white noise stays each receiver's own. With one receiver
+    # the split is not made, and receiver 0 keeps its single-receiver samples in any case (GpsCommonError).
+    common_mode_fraction: float = 0.9
 
     def __post_init__(self) -> None:
         _check_params(self, ("rate_hz", "pos_markov_tau_s"))
+        if self.common_mode_fraction > 1.0:
+            raise ValueError(
+                f"GpsParams.common_mode_fraction = {self.common_mode_fraction!r}: must be finite and in [0, 1]"
+            )
 
 
 @dataclass(frozen=True, slots=True)
@@ -315,32 +333,114 @@ class ImuLane:
         return ImuSample(t_s, (g[0], g[1], g[2]), (a[0], a[1], a[2]), self._lane)
 
 
+class GpsCommonError:
+    """The slow position error several receivers on one airframe share (``GpsParams.common_mode_fraction``
+    = f, the correlation of any two receivers' wander).
+
+    Built so that receiver 0 keeps exactly the samples it has alone (the three-unit suite's lane 0 is bit
+    for bit the one-unit suite's, tests/redundancy/test_sensor_lanes.py): receiver 0's wander X0 is its own
+    process, unchanged, and receiver i >= 1 adds to its own process (variance 1 - f) the shared part
+
+        f X0 + sqrt(f - f^2) C,
+
+    C a Gauss-Markov process common to receivers 1..n. Every receiver's wander then has the single-receiver
+    variance (f^2 + (f - f^2) + (1 - f) = 1) and every pair the correlation f (0-i: f; i-j: f^2 + f - f^2).
+    All are first-order Gauss-Markov with the same time constant and epochs, so the sums are too.
+    Receiver 0 publishes X0 each epoch before the others read it (SensorSuite steps the receivers in lane
+    order)."""
+
+    __slots__ = ("_c", "_f", "_k", "_n", "_phi", "_q", "_ref", "_ref_k", "_sh", "_sv")
+
+    def __init__(self, params: GpsParams, rng: np.random.Generator) -> None:
+        f = params.common_mode_fraction
+        self._f = f
+        w = math.sqrt(max(0.0, f - f * f))
+        self._sh = params.pos_h_markov_sigma_m * w
+        self._sv = params.pos_v_markov_sigma_m * w
+        self._phi = math.exp(-(1.0 / params.rate_hz) / params.pos_markov_tau_s)
+        self._q = math.sqrt(1.0 - self._phi * self._phi)
+        self._n = normal_rows(rng, 3)
+        first = rng.standard_normal(3)
+        self._c = [float(first[0]) * self._sh, float(first[1]) * self._sh, float(first[2]) * self._sv]
+        self._k = 0
+        self._ref: Vec3 = (0.0, 0.0, 0.0)
+        self._ref_k = -1
+
+    def publish(self, k: int, x0: Vec3) -> None:
+        """Receiver 0's wander at its epoch ``k`` (0: the stationary start)."""
+        self._ref, self._ref_k = x0, k
+
+    def at(self, k: int) -> Vec3:
+        """The shared part of a receiver i >= 1 at epoch ``k``; receiver 0 must have published epoch k."""
+        if self._ref_k != k:
+            raise RuntimeError(f"GPS receiver 0 is at epoch {self._ref_k}, receiver i >= 1 asks for {k}: "
+                               "step receiver 0 first in every epoch")
+        c = self._c
+        while self._k < k:
+            n = self._n()
+            phi, q = self._phi, self._q
+            c[0] = phi * c[0] + q * self._sh * n[0]
+            c[1] = phi * c[1] + q * self._sh * n[1]
+            c[2] = phi * c[2] + q * self._sv * n[2]
+            self._k += 1
+        f, x = self._f, self._ref
+        return (f * x[0] + c[0], f * x[1] + c[1], f * x[2] + c[2])
+
+
 class Gps:
     """GPS receiver: samples the truth at its rate, delivers each fix ``latency_s`` later.
 
     The sample's ``t_s`` is its time of validity (when the position was true), as a receiver's
     time-of-week stamp is; it reaches the vehicle ``latency_s`` after that.
+
+    ``common``: the error this receiver shares with the others on the airframe (several receivers,
+    :class:`GpsCommonError`). Receiver 0 (``lane == 0``) keeps its whole wander as its own and publishes
+    it; a receiver i >= 1 keeps ``1 - common_mode_fraction`` of the variance as its own and adds the shared
+    part. Without ``common`` (one receiver) the whole wander is its own.
     """
 
-    __slots__ = ("_buf", "_e", "_lane", "_n", "_next_s", "p")
+    __slots__ = ("_buf", "_c", "_common", "_e", "_k", "_lane", "_n", "_next_s", "_sh", "_sv", "p")
 
-    def __init__(self, params: GpsParams, rng: np.random.Generator, t0_s: float = 0.0, lane: int = 0) -> None:
+    def __init__(
+        self,
+        params: GpsParams,
+        rng: np.random.Generator,
+        t0_s: float = 0.0,
+        lane: int = 0,
+        common: GpsCommonError | None = None,
+    ) -> None:
         self.p = params
         self._lane = lane
+        # receiver 0 publishes its wander to the others; only receivers i >= 1 read the shared part
+        self._common = common
+        if common is None or lane == 0:
+            self._sh, self._sv = params.pos_h_markov_sigma_m, params.pos_v_markov_sigma_m
+        else:
+            own = math.sqrt(1.0 - params.common_mode_fraction)
+            self._sh, self._sv = params.pos_h_markov_sigma_m * own, params.pos_v_markov_sigma_m * own
         self._n = normal_rows(rng, 9)
         first = rng.standard_normal(3)
         # the slow wander starts in its stationary distribution
         self._e = [
-            float(first[0]) * params.pos_h_markov_sigma_m,
-            float(first[1]) * params.pos_h_markov_sigma_m,
-            float(first[2]) * params.pos_v_markov_sigma_m,
+            float(first[0]) * self._sh,
+            float(first[1]) * self._sh,
+            float(first[2]) * self._sv,
         ]
+        self._k = 0
+        self._c: Vec3 = (0.0, 0.0, 0.0)
+        if common is not None:
+            if lane == 0:
+                common.publish(0, (self._e[0], self._e[1], self._e[2]))
+            else:
+                self._c = common.at(0)
         self._buf: deque[tuple[float, GpsSample]] = deque()
         self._next_s = t0_s
 
     @property
     def markov_error_ned_m(self) -> Vec3:
-        return (self._e[0], self._e[1], self._e[2])
+        """The slow part of the position error (own + shared) of the newest epoch."""
+        c = self._c
+        return (self._e[0] + c[0], self._e[1] + c[1], self._e[2] + c[2])
 
     def step(self, t_s: float, pos: Vec3, vel: Vec3) -> GpsSample | None:
         p = self.p
@@ -353,14 +453,28 @@ class Gps:
             phi = math.exp(-period / p.pos_markov_tau_s)
             q = math.sqrt(1.0 - phi * phi)
             e = self._e
-            e[0] = phi * e[0] + q * p.pos_h_markov_sigma_m * n[0]
-            e[1] = phi * e[1] + q * p.pos_h_markov_sigma_m * n[1]
-            e[2] = phi * e[2] + q * p.pos_v_markov_sigma_m * n[2]
+            e[0] = phi * e[0] + q * self._sh * n[0]
+            e[1] = phi * e[1] + q * self._sh * n[1]
+            e[2] = phi * e[2] + q * self._sv * n[2]
             wh, wv = p.pos_h_white_sigma_m, p.pos_v_white_sigma_m
             vh, vv = p.vel_h_sigma_mps, p.vel_v_sigma_mps
+            common = self._common
+            if common is None or self._lane == 0:
+                if common is not None:
+                    self._k += 1
+                    common.publish(self._k, (e[0], e[1], e[2]))
+                pos_m = (pos[0] + e[0] + wh * n[3], pos[1] + e[1] + wh * n[4], pos[2] + e[2] + wv * n[5])
+            else:
+                self._k += 1
+                c = self._c = common.at(self._k)
+                pos_m = (
+                    pos[0] + (e[0] + c[0]) + wh * n[3],
+                    pos[1] + (e[1] + c[1]) + wh * n[4],
+                    pos[2] + (e[2] + c[2]) + wv * n[5],
+                )
             sample = GpsSample(
                 t_s=t_s,
-                pos_ned_m=(pos[0] + e[0] + wh * n[3], pos[1] + e[1] + wh * n[4], pos[2] + e[2] + wv * n[5]),
+                pos_ned_m=pos_m,
                 vel_ned_mps=(vel[0] + vh * n[6], vel[1] + vh * n[7], vel[2] + vv * n[8]),
                 fix_type=p.fix_type,
                 satellites=p.satellites,
@@ -465,7 +579,8 @@ class SensorSuite:
     ``rng`` is split with ``Generator.spawn`` into one independent stream per lane / sensor, in a fixed
     order (IMU lanes 0..n-1, GPS, baro, mag), so adding draws in one sensor never shifts another's. With
     ``aux_lanes`` > 1 the further magnetometer, barometer and GPS units (lanes 1..) draw from streams
-    spawned after those (GPS, baro, mag of lane 1, then lane 2, ...): lane 0 and the IMUs keep exactly the
+    spawned after those (GPS, baro, mag of lane 1, then lane 2, ...), and the receivers' shared GPS error
+    (:class:`GpsCommonError`) from one spawned after all of them: lane 0 and the IMUs keep exactly the
     samples they have with one unit of each.
     """
 
@@ -483,21 +598,27 @@ class SensorSuite:
     ) -> None:
         self.params = params
         streams = rng.spawn(params.imu_lanes + 3)
-        self.imu_lanes = tuple(ImuLane(params.imu, streams[i], i) for i in range(params.imu_lanes))
-        self.gps = Gps(params.gps, streams[params.imu_lanes])
-        self.baro = Baro(params.baro, streams[params.imu_lanes + 1], ground_down_m)
-        fld = params.mag.field_ned_gauss or dipole_field_ned_gauss(home_lat_deg, home_lon_deg)
-        self.mag = Mag(params.mag, streams[params.imu_lanes + 2], fld)
         if not 1 <= params.aux_lanes <= 8:
             raise ValueError(f"SensorParams.aux_lanes = {params.aux_lanes!r}: must be an integer 1..8")
         self._aux = params.aux_lanes > 1
+        more: list[np.random.Generator] = []
+        common: GpsCommonError | None = None
+        if self._aux:
+            more = rng.spawn(3 * (params.aux_lanes - 1))
+            # the receivers' shared error (GpsParams.common_mode_fraction) draws from a stream spawned
+            # after every unit's, so no unit's own draws move
+            common = GpsCommonError(params.gps, rng.spawn(1)[0])
+        self.imu_lanes = tuple(ImuLane(params.imu, streams[i], i) for i in range(params.imu_lanes))
+        self.gps = Gps(params.gps, streams[params.imu_lanes], common=common)
+        self.baro = Baro(params.baro, streams[params.imu_lanes + 1], ground_down_m)
+        fld = params.mag.field_ned_gauss or dipole_field_ned_gauss(home_lat_deg, home_lon_deg)
+        self.mag = Mag(params.mag, streams[params.imu_lanes + 2], fld)
         self.gpss: tuple[Gps, ...] = (self.gps,)
         self.baros: tuple[Baro, ...] = (self.baro,)
         self.mags: tuple[Mag, ...] = (self.mag,)
         if self._aux:
-            more = rng.spawn(3 * (params.aux_lanes - 1))
             lanes = range(1, params.aux_lanes)
-            self.gpss += tuple(Gps(params.gps, more[3 * (i - 1)], lane=i) for i in lanes)
+            self.gpss += tuple(Gps(params.gps, more[3 * (i - 1)], lane=i, common=common) for i in lanes)
             self.baros += tuple(Baro(params.baro, more[3 * (i - 1) + 1], ground_down_m, lane=i) for i in lanes)
             self.mags += tuple(Mag(params.mag, more[3 * (i - 1) + 2], fld, lane=i) for i in lanes)
         self._imu_period_s = 1.0 / params.imu.rate_hz

@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from merlin.redundancy.attribution import SUB_ALERT, AttributionConfig, SubAlertAttribution
 from merlin.redundancy.duplex_fdi import MERLIN, DuplexImuFdi, FdiConfig, FdiOutput, FdiState
 from merlin.redundancy.events import FaultKind, FaultReport, RedundancyLevel
 from merlin.redundancy.sensor_voter import IMU_SPEC, ChannelSpec, LaneSample, TriplexVoter, VotedOutput
@@ -44,10 +45,13 @@ class ChainOutput:
 
 class ImuDegradationChain:
     def __init__(self, rng: np.random.Generator, fdi_config: FdiConfig = MERLIN,
-                 spec: ChannelSpec = IMU_SPEC, fdi_period_s: float = 0.01, alert_feed: str = "lowest_residual") -> None:
+                 spec: ChannelSpec = IMU_SPEC, fdi_period_s: float = 0.01, alert_feed: str = "lowest_residual",
+                 attribution: AttributionConfig | None = SUB_ALERT) -> None:
         """``alert_feed``: what the estimator gets while the duplex FDI is in its alert state:
         ``lowest_residual`` (Merlin's default, see :meth:`step`) or ``mean`` (seed 003 §2's voted mean, as
-        before; kept for the comparison in benchmarks/bench_redundancy_loop.py)."""
+        before; kept for the comparison in benchmarks/bench_redundancy_loop.py). ``attribution``: the
+        sub-alert attribution layer (:mod:`merlin.redundancy.attribution`) for a duplex miscompare the
+        FDI's alert threshold never sees; None: seed 003's FDI alone, as before."""
         if alert_feed not in ("lowest_residual", "mean"):
             raise ValueError(f"alert_feed must be 'lowest_residual' or 'mean', not {alert_feed!r}")
         self.alert_feed = alert_feed
@@ -58,14 +62,21 @@ class ImuDegradationChain:
         self.fdi_period_s = fdi_period_s
         self._next_fdi_t: float | None = None
         self._verdict: int | None = None
+        self._verdict_detail = "duplex FDI verdict"  # who gave it: the FDI or the sub-alert attribution
         # while the duplex FDI is in its alert state: the lane of the pair the estimator is fed from
         self.alert_lane: int | None = None
+        self.attribution_config = attribution
+        self.attribution: SubAlertAttribution | None = None
+        # while a sub-alert miscompare episode leans on one lane: the lane the estimator is fed from
+        self.attribution_lane: int | None = None
+        self._unresolved_reported = False
 
     def step(self, t_s: float, imu: tuple[LaneSample | None, ...],
              mag: tuple[tuple[float, float, float] | None, ...]) -> ChainOutput:
         """``imu``: the three IMU lanes (gyro + accel, as :func:`imu_lane` builds them); ``mag``: each
         lane's newest field vector in gauss (needed only once the chain is duplex)."""
-        out, events = self.voter.step(t_s, imu, duplex_fault_lane=self._verdict)
+        out, events = self.voter.step(t_s, imu, duplex_fault_lane=self._verdict,
+                                      duplex_fault_detail=self._verdict_detail)
         ev = list(events)
         fdi_out: FdiOutput | None = None
         lanes = tuple(i for i, ln in enumerate(self.voter.state.lanes) if not ln.isolated)
@@ -75,6 +86,10 @@ class ImuDegradationChain:
                 self.fdi = DuplexImuFdi(self.fdi_config, self.rng, lanes=pair)
                 self._next_fdi_t = t_s
                 self._verdict = None
+                self.attribution_lane = None
+                self._unresolved_reported = False
+                if self.attribution_config is not None:
+                    self.attribution = SubAlertAttribution(self.attribution_config)
                 ev.append(FaultReport(t_s, FaultKind.DEGRADED, "imu", -1, 2.0, 3.0,
                                       detail=f"no majority: duplex PF FDI arbitrates lanes {pair}"))
             samples = [imu[i] for i in pair]
@@ -87,6 +102,7 @@ class ImuDegradationChain:
                 ev.extend(fdi_out.events)
                 if fdi_out.faulty is not None:
                     self._verdict = pair[fdi_out.faulty]
+                    self._verdict_detail = "duplex FDI verdict"
                 # In the alert state one of the two lanes is faulty and it is not yet known which: the
                 # mean would hand half the fault to the estimator until the verdict (a 0.5 rad/s yaw-gyro
                 # bias took up to 3.3 s to decide, and meanwhile the EKF excluded GPS in 2 of 4 seeds,
@@ -99,14 +115,57 @@ class ImuDegradationChain:
                     self.alert_lane = pair[0] if r0 <= r1 else pair[1]
                 else:
                     self.alert_lane = None
-            if self.alert_lane is not None and self.alert_lane in pair and imu[self.alert_lane] is not None \
+                ev.extend(self._attribute(t_s, pair, vals[:, :3], np.array(mags, float), fdi_out,
+                                          out.duplex_miscompare))
+            feed = self.alert_lane if self.alert_lane is not None else self.attribution_lane
+            if feed is not None and feed in pair and imu[feed] is not None \
                     and out.valid and set(out.lanes_used) == set(pair):
-                lane = self.alert_lane
-                out = replace(out, values=imu[lane].values, lanes_used=(lane,))  # type: ignore[union-attr]
+                out = replace(out, values=imu[feed].values, lanes_used=(feed,))  # type: ignore[union-attr]
         elif out.level is RedundancyLevel.SIMPLEX and self.fdi is not None:
             self.fdi = None
             self.alert_lane = None
+            self.attribution = None
+            self.attribution_lane = None
             ev.append(FaultReport(t_s, FaultKind.DEGRADED, "imu", -1, 1.0, 2.0,
                                   detail="simplex: one IMU left, no fault can be detected any more; nav health "
                                          f"lowered to {NAV_HEALTH[RedundancyLevel.SIMPLEX]}"))
-        return ChainOutput(out, out.level, NAV_HEALTH[out.level], fdi_out, tuple(ev))
+        health = NAV_HEALTH[out.level]
+        if out.level is RedundancyLevel.DUPLEX and self.attribution is not None and self.attribution.active:
+            # the two lanes disagree and neither is known faulty yet: no better than one unchecked IMU
+            health = min(health, NAV_HEALTH[RedundancyLevel.SIMPLEX])
+        return ChainOutput(out, out.level, health, fdi_out, tuple(ev))
+
+    def _attribute(self, t_s: float, pair: tuple[int, int], gyro: np.ndarray, mag: np.ndarray,
+                   fdi_out: FdiOutput, miscompare: bool) -> list[FaultReport]:
+        """Merlin's sub-alert attribution (:mod:`merlin.redundancy.attribution`), stepped with the FDI while
+        the FDI is in its normal state: seed 003's alert (tau_g, Table 2) and declaration take precedence
+        and are unchanged; this only decides a miscompare they never see."""
+        att = self.attribution
+        if att is None or self._verdict is not None:
+            self.attribution_lane = None
+            return []
+        if fdi_out.state is not FdiState.NORMAL:
+            att.hold(t_s)
+            self.attribution_lane = None
+            return []
+        a = att.step(t_s, gyro, mag, fdi_out.bias_radps, miscompare)
+        self.attribution_lane = None if a.feed is None else pair[a.feed]
+        ev: list[FaultReport] = []
+        cfg = att.cfg
+        if a.faulty is not None:
+            self._verdict = pair[a.faulty]
+            self._verdict_detail = "sub-alert attribution"
+            f, b = a.field_shares, a.bias_shares
+            ev.append(FaultReport(t_s, FaultKind.ATTRIBUTED, "imu", pair[a.faulty],
+                                  max(f[a.faulty], b[a.faulty]), cfg.min_share,
+                                  detail=f"sub-alert duplex miscompare between lanes {pair[0]} and {pair[1]}: "
+                                         f"field-tracker shares {f[0]:.2f}, {f[1]:.2f}; "
+                                         f"bias-estimate shares {b[0]:.2f}, {b[1]:.2f}"))
+        elif a.active and a.counter_s >= cfg.persistence_s and not self._unresolved_reported:
+            self._unresolved_reported = True
+            ev.append(FaultReport(t_s, FaultKind.DUPLEX_UNRESOLVED, "imu", -1, a.counter_s, cfg.persistence_s,
+                                  detail=f"lanes {pair[0]} and {pair[1]} disagree, neither attributed yet; "
+                                         f"nav health lowered to {NAV_HEALTH[RedundancyLevel.SIMPLEX]}"))
+        if not a.active:
+            self._unresolved_reported = False
+        return ev

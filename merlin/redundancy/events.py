@@ -33,6 +33,10 @@ class FaultKind(Enum):
     ALERT_CLEARED = "alert_cleared"  # E_Z2
     FAULT_DECLARED = "fault_declared"  # E3 + isolation by residual argmax
     RECOVERED = "recovered"  # E_Z2 and E4
+    # Merlin's sub-alert attribution (merlin.redundancy.attribution): a duplex miscompare below the FDI's
+    # alert threshold, attributed to one IMU by the particle filters' bias estimates
+    ATTRIBUTED = "attributed"
+    DUPLEX_UNRESOLVED = "duplex_unresolved"  # the miscompare persisted and no IMU could be attributed yet
     # autopilot-lane voter (seed 000 §4.3)
     FLAG_FAULT = "flag_fault"  # a health flag of one lane disagreed with the peers beyond persistence
     PEER_SILENT = "peer_silent"

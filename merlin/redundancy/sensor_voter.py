@@ -16,7 +16,9 @@ Tick, in order (one direction of flow, nothing reaches back):
 1. validate each lane's newest sample: timeout, non-finite, range, stuck (bit-identical values), GPS fix;
 2. the candidates are the lanes neither isolated nor currently invalid;
 3. mid-value select per component over the candidates (three: median; two: mean, as seed 003 §2 does
-   for its duplex; one: that lane);
+   for its duplex; one: that lane); while one of three lanes miscompares and the other two agree, the
+   output of a channel with ``pair_mean_in_persistence`` (GPS, barometer, magnetometer) is that pair's
+   mean, so neither the persistence interval nor the isolation steps it (:func:`_agreeing_pair`);
 4. with three candidates, a lane whose distance to the mid-value exceeds its threshold on any component
    miscompares; with two there is no majority, so a disagreement is only reported (DUPLEX_MISCOMPARE)
    and the caller's duplex arbiter (the particle-filter FDI of seed 003) decides through
@@ -55,6 +57,11 @@ class ChannelSpec:
     decay: float = 1.0  # the integrator falls at decay x dt while clean (large: reset on clear)
     reintegration_s: float | None = None  # clean time after which an isolated lane returns; None: never
     min_fix_type: int = 0  # GPS only: a fix type below this makes the lane invalid
+    # while one of three lanes miscompares and the other two agree: output the pair's mean instead of the
+    # median (see _agreeing_pair); on for the channels whose healthy lanes differ by slowly wandering
+    # errors over a long persistence window (GPS, barometer, magnetometer), off for the IMU, whose 0.05 s
+    # window and 0.01 rad/s lane spread make the median's hand-over immaterial
+    pair_mean_in_persistence: bool = False
 
     def __post_init__(self) -> None:
         n = len(self.components)
@@ -197,6 +204,7 @@ def vote_step(
     t_s: float,
     samples: tuple[LaneSample | None, ...],
     duplex_fault_lane: int | None = None,
+    duplex_fault_detail: str = "duplex FDI verdict",
 ) -> tuple[VoterState, VotedOutput, tuple[FaultReport, ...]]:
     """One voter tick. ``samples[i]`` is lane i's newest sample (None if it never produced one).
 
@@ -208,7 +216,7 @@ def vote_step(
     fast = _clean_triplex_tick(spec, state, t_s, samples)
     if fast is not None:
         return fast
-    return _vote_step_general(spec, state, t_s, samples, duplex_fault_lane)
+    return _vote_step_general(spec, state, t_s, samples, duplex_fault_lane, duplex_fault_detail)
 
 
 _NO_EVENTS: tuple[FaultReport, ...] = ()
@@ -256,6 +264,7 @@ def _vote_step_general(
     t_s: float,
     samples: tuple[LaneSample | None, ...],
     duplex_fault_lane: int | None = None,
+    duplex_fault_detail: str = "duplex FDI verdict",
 ) -> tuple[VoterState, VotedOutput, tuple[FaultReport, ...]]:
     events: list[FaultReport] = []
     dt = 0.0 if state.t_s is None else max(0.0, t_s - state.t_s)
@@ -322,7 +331,7 @@ def _vote_step_general(
         if not ln.isolated:
             lanes[duplex_fault_lane] = replace(ln, isolated=True, isolated_t_s=t_s, clean_s=0.0)
             events.append(FaultReport(t_s, FaultKind.ISOLATED, name, duplex_fault_lane,
-                                      detail="duplex FDI verdict"))
+                                      detail=duplex_fault_detail))
 
     # optional reintegration (issue item 1: "off by default")
     if spec.reintegration_s is not None:
@@ -349,9 +358,36 @@ def _vote_step_general(
         events.append(FaultReport(t_s, FaultKind.DEGRADED, name, -1, float(level), float(state.level),
                                   detail=f"{state.level.name} -> {level.name}"))
     used = tuple(i for i in cand if not lanes_t[i].isolated)
+    if len(used) == 3 and spec.pair_mean_in_persistence:
+        used = _agreeing_pair(spec, lanes_t, used)
     values = _mid_value([lanes_t[i].last_values for i in used]) if used else state.output  # type: ignore[misc]
     out = VotedOutput(t_s, values, bool(used), level, used, duplex_mis)
     return VoterState(lanes_t, t_s, level, values), out, tuple(events)
+
+
+def _agreeing_pair(spec: ChannelSpec, lanes: tuple[LaneState, ...], used: tuple[int, ...]) -> tuple[int, ...]:
+    """The lanes the output is voted from while three candidates remain.
+
+    Normally all three (the median). While exactly one of them miscompares (its persistence integrator
+    running towards isolation) and the other two agree with each other (every component within the
+    threshold), the output is the mean of that agreeing pair instead: the median would then be, per
+    component, whichever healthy lane lies nearer the diverging one, and it hands over between the two as
+    their independent errors wander -- a step in the voted value the estimator downstream may take for a
+    fault of its own (a GPS jump on one of three receivers: the EKF's window CUSUM excluded GPS 0.1 s
+    before the voter isolated the faulty receiver, campaign runs 00349/00800/00866 of 2026-11-24). The mean
+    of the pair is also exactly what the output becomes once the lane is isolated (two candidates: their
+    mean), so the isolation itself is bumpless. Merlin's choice; the seed thesis's mid-value select
+    (seed 000 §2.2.3) says nothing about the persistence interval.
+    """
+    mis = [i for i in used if lanes[i].miscompare]
+    if len(mis) != 1:
+        return used
+    pair = tuple(i for i in used if i != mis[0])
+    a, b = lanes[pair[0]].last_values, lanes[pair[1]].last_values
+    if a is None or b is None:
+        return used
+    comp, dist = _worst_excess(spec, a, b)
+    return pair if dist <= spec.miscompare[comp] else used
 
 
 class TriplexVoter:
@@ -362,9 +398,11 @@ class TriplexVoter:
         self.state = VoterState()
 
     def step(
-        self, t_s: float, samples: tuple[LaneSample | None, ...], duplex_fault_lane: int | None = None
+        self, t_s: float, samples: tuple[LaneSample | None, ...], duplex_fault_lane: int | None = None,
+        duplex_fault_detail: str = "duplex FDI verdict",
     ) -> tuple[VotedOutput, tuple[FaultReport, ...]]:
-        self.state, out, events = vote_step(self.spec, self.state, t_s, samples, duplex_fault_lane)
+        self.state, out, events = vote_step(self.spec, self.state, t_s, samples, duplex_fault_lane,
+                                            duplex_fault_detail)
         return out, events
 
 
@@ -398,6 +436,7 @@ MAG_SPEC = ChannelSpec(
     timeout_s=0.1,
     stuck_samples=10,
     persistence_s=0.2,
+    pair_mean_in_persistence=True,
 )
 
 BARO_SPEC = ChannelSpec(
@@ -409,6 +448,7 @@ BARO_SPEC = ChannelSpec(
     timeout_s=0.2,
     stuck_samples=25,
     persistence_s=0.5,
+    pair_mean_in_persistence=True,
 )
 
 GPS_SPEC = ChannelSpec(
@@ -421,6 +461,7 @@ GPS_SPEC = ChannelSpec(
     stuck_samples=5,
     persistence_s=1.0,
     min_fix_type=3,
+    pair_mean_in_persistence=True,
 )
 
 CHANNEL_SPECS: dict[str, ChannelSpec] = {s.name: s for s in (IMU_SPEC, MAG_SPEC, BARO_SPEC, GPS_SPEC)}
