@@ -568,7 +568,7 @@ class NavFilterConfig(Strict):
         0.6, gt=0.0, le=20.0, description="receiver short-term stability over the window, 1σ per axis: the floor, m"
     )
     gps_window_eph_ratio: float = Field(
-        0.55, gt=0.0, le=10.0,
+        0.575, gt=0.0, le=10.0,
         description="the window σ follows the receiver: at least this multiple of the eph it reports",
     )
     gps_vo_check: bool = Field(True, description="cross-check GPS velocity against VO velocity (third CUSUM)")
