@@ -110,6 +110,19 @@ def _clear(shares: tuple[float, float], cfg: AttributionConfig) -> int | None:
     return None
 
 
+def names(a: Attribution, cfg: AttributionConfig) -> int | None:
+    """The IMU of the pair (0 / 1) the field trackers clearly name, the bias estimates not naming the
+    other; None when they do not. Used to cross-check seed 003's isolation at its declaration: in the
+    1,000-run campaign of 2026-11-24 (run 00999, examples/scenarios/redundancy_duplex_marginal_declaration
+    .yaml) the FDI declared with ||Omega dq||_inf = 1.003 while its isolation residual still named the
+    healthy IMU, which was isolated and the biased one kept."""
+    by_field = _clear(a.field_shares, cfg)
+    if by_field is None:
+        return None
+    by_bias = _clear(a.bias_shares, cfg)
+    return by_field if by_bias in (None, by_field) else None
+
+
 class SubAlertAttribution:
     """The attribution state of one duplex pair (index 0 / 1 of the pair, as the FDI's)."""
 
@@ -152,11 +165,20 @@ class SubAlertAttribution:
         return r
 
     def step(
-        self, t_s: float, gyro: np.ndarray, mag: np.ndarray, bias_radps: np.ndarray, miscompare: bool
+        self,
+        t_s: float,
+        gyro: np.ndarray,
+        mag: np.ndarray,
+        bias_radps: np.ndarray,
+        miscompare: bool,
+        decide: bool = True,
     ) -> Attribution:
         """``gyro``: the pair's newest gyro samples (2, 3), rad/s; ``mag``: each lane's newest field (2, 3),
         gauss; ``bias_radps``: the two particle filters' bias estimates (2, 3) after this step;
-        ``miscompare``: the voter's duplex miscompare flag this tick."""
+        ``miscompare``: the voter's duplex miscompare flag this tick. ``decide=False`` (seed 003's FDI is
+        in its alert state and decides): the evidence is gathered (trackers, shares) but the episode's
+        integrator stands still, the episode does not end and no verdict is given; the shares serve the
+        cross-check of the FDI's own isolation at its declaration (:func:`names`)."""
         cfg = self.cfg
         dt = 0.0 if self._t is None else max(0.0, t_s - self._t)
         self._t = t_s
@@ -180,8 +202,9 @@ class SubAlertAttribution:
             self._field_den = 0.0
             self.counter_s = 0.0
             self.verdict = None
-        self.counter_s = self.counter_s + dt if miscompare else max(0.0, self.counter_s - cfg.decay * dt)
-        if self.counter_s <= 0.0 and not miscompare:
+        if decide:
+            self.counter_s = self.counter_s + dt if miscompare else max(0.0, self.counter_s - cfg.decay * dt)
+        if decide and self.counter_s <= 0.0 and not miscompare:
             self._b0 = None  # the episode is over: the pair agrees again
             return _IDLE
         base = self._gyro_base if self._gyro_base is not None else np.zeros(3)
@@ -209,7 +232,7 @@ class SubAlertAttribution:
             if abs(sh[0] - sh[1]) >= max(cfg.feed_margin, margin):
                 margin = abs(sh[0] - sh[1])
                 feed = 0 if sh[0] < sh[1] else 1
-        if self.verdict is None and self.counter_s >= cfg.persistence_s - 1e-9:
+        if decide and self.verdict is None and self.counter_s >= cfg.persistence_s - 1e-9:
             by_field, by_bias = _clear(field_shares, cfg), _clear(bias_shares, cfg)
             if by_field is not None and by_bias in (None, by_field):
                 self.verdict = by_field

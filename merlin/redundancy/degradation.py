@@ -20,7 +20,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from merlin.redundancy.attribution import SUB_ALERT, AttributionConfig, SubAlertAttribution
+from merlin.redundancy.attribution import (
+    SUB_ALERT,
+    Attribution,
+    AttributionConfig,
+    SubAlertAttribution,
+    names,
+)
 from merlin.redundancy.duplex_fdi import MERLIN, DuplexImuFdi, FdiConfig, FdiOutput, FdiState
 from merlin.redundancy.events import FaultKind, FaultReport, RedundancyLevel
 from merlin.redundancy.sensor_voter import IMU_SPEC, ChannelSpec, LaneSample, TriplexVoter, VotedOutput
@@ -69,6 +75,7 @@ class ImuDegradationChain:
         self.attribution: SubAlertAttribution | None = None
         # while a sub-alert miscompare episode leans on one lane: the lane the estimator is fed from
         self.attribution_lane: int | None = None
+        self._alert_evidence: Attribution | None = None  # the trackers' view during seed 003's alert
         self._unresolved_reported = False
 
     def step(self, t_s: float, imu: tuple[LaneSample | None, ...],
@@ -87,6 +94,7 @@ class ImuDegradationChain:
                 self._next_fdi_t = t_s
                 self._verdict = None
                 self.attribution_lane = None
+                self._alert_evidence = None
                 self._unresolved_reported = False
                 if self.attribution_config is not None:
                     self.attribution = SubAlertAttribution(self.attribution_config)
@@ -103,6 +111,7 @@ class ImuDegradationChain:
                 if fdi_out.faulty is not None:
                     self._verdict = pair[fdi_out.faulty]
                     self._verdict_detail = "duplex FDI verdict"
+                    ev.extend(self._cross_check(t_s, pair, fdi_out.faulty))
                 # In the alert state one of the two lanes is faulty and it is not yet known which: the
                 # mean would hand half the fault to the estimator until the verdict (a 0.5 rad/s yaw-gyro
                 # bias took up to 3.3 s to decide, and meanwhile the EKF excluded GPS in 2 of 4 seeds,
@@ -126,6 +135,7 @@ class ImuDegradationChain:
             self.alert_lane = None
             self.attribution = None
             self.attribution_lane = None
+            self._alert_evidence = None
             ev.append(FaultReport(t_s, FaultKind.DEGRADED, "imu", -1, 1.0, 2.0,
                                   detail="simplex: one IMU left, no fault can be detected any more; nav health "
                                          f"lowered to {NAV_HEALTH[RedundancyLevel.SIMPLEX]}"))
@@ -134,6 +144,30 @@ class ImuDegradationChain:
             # the two lanes disagree and neither is known faulty yet: no better than one unchecked IMU
             health = min(health, NAV_HEALTH[RedundancyLevel.SIMPLEX])
         return ChainOutput(out, out.level, health, fdi_out, tuple(ev))
+
+    def _cross_check(self, t_s: float, pair: tuple[int, int], fdi_faulty: int) -> list[FaultReport]:
+        """Seed 003 isolates, at the declaration, the IMU with the larger isolation residual (§5, eq. 42).
+        With a marginal declaration that residual can still name the healthy IMU (campaign run 00999,
+        2026-11-24: ||Omega dq||_inf = 1.003, the healthy lane isolated and the biased one kept, authority
+        revoked 1.4 s later). Merlin's cross-check: when the field trackers gathered since the alert
+        clearly name the other IMU (:func:`merlin.redundancy.attribution.names`: a share of at least
+        ``min_share`` against at most ``max_other_share``, the particle filters' bias estimates not
+        disagreeing), that IMU is isolated instead and an event says so. The declaration itself (E3) is
+        the seed's, unchanged; without clear field evidence the seed's choice stands."""
+        a = self._alert_evidence
+        att = self.attribution
+        if a is None or att is None:
+            return []
+        named = names(a, att.cfg)
+        if named is None or named == fdi_faulty:
+            return []
+        self._verdict = pair[named]
+        self._verdict_detail = "duplex FDI declaration, isolation by field-tracker evidence"
+        f, b = a.field_shares, a.bias_shares
+        return [FaultReport(t_s, FaultKind.ATTRIBUTED, "imu", pair[named], f[named], att.cfg.min_share,
+                            detail=f"the FDI's isolation residual named lane {pair[fdi_faulty]}; field-tracker "
+                                   f"shares {f[0]:.2f}, {f[1]:.2f} and bias-estimate shares {b[0]:.2f}, "
+                                   f"{b[1]:.2f} name lane {pair[named]}: lane {pair[named]} isolated")]
 
     def _attribute(self, t_s: float, pair: tuple[int, int], gyro: np.ndarray, mag: np.ndarray,
                    fdi_out: FdiOutput, miscompare: bool) -> list[FaultReport]:
@@ -145,9 +179,12 @@ class ImuDegradationChain:
             self.attribution_lane = None
             return []
         if fdi_out.state is not FdiState.NORMAL:
-            att.hold(t_s)
+            # seed 003's alert decides; the trackers keep gathering evidence (no verdict, the episode's
+            # integrator stands still) for the cross-check of the FDI's isolation at its declaration
+            self._alert_evidence = att.step(t_s, gyro, mag, fdi_out.bias_radps, miscompare, decide=False)
             self.attribution_lane = None
             return []
+        self._alert_evidence = None
         a = att.step(t_s, gyro, mag, fdi_out.bias_radps, miscompare)
         self.attribution_lane = None if a.feed is None else pair[a.feed]
         ev: list[FaultReport] = []

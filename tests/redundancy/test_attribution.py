@@ -218,3 +218,45 @@ def test_the_faulty_imu_is_never_the_one_kept(size, sign, axis, lane):
     iso = [e for e in events if e.kind is FaultKind.ISOLATED and e.lane == lane]
     assert iso, f"{sign * size:+.3f} rad/s on axis {axis} of lane {lane} is isolated"
     assert all(o.imu.lanes_used == (healthy,) for t, o in rows if t > iso[0].t_s)
+
+
+def _evidence(field: tuple[float, float], bias: tuple[float, float]):
+    from merlin.redundancy.attribution import Attribution
+
+    return Attribution(True, 0.5, field, bias, None, None)
+
+
+@pytest.mark.parametrize(
+    ("field", "bias", "fdi_faulty", "expect"),
+    [
+        ((1.04, -0.03), (0.17, 0.04), 1, 0),  # campaign run 00999: the field names lane 0, the FDI lane 1
+        ((-0.02, 0.95), (0.0, 0.0), 0, 1),  # the mirror case
+        ((1.0, 0.0), (0.0, 0.9), 1, None),  # the bias estimates name the FDI's lane: the seed's choice stands
+        ((0.6, 0.4), (0.0, 0.0), 1, None),  # the field evidence is not clear: the seed's choice stands
+        ((0.0, 0.0), (0.0, 0.0), 1, None),  # no field signal (a bias along the field): the seed's choice stands
+        ((1.0, 0.0), (0.0, 0.0), 0, None),  # they agree: nothing to overrule
+    ],
+)
+def test_the_fdis_isolation_is_cross_checked_against_the_field_trackers(field, bias, fdi_faulty, expect):
+    chain = ImuDegradationChain(np.random.default_rng(1), MERLIN)
+    chain.attribution = SubAlertAttribution(SUB_ALERT)
+    pair = (0, 2)
+    chain._verdict = pair[fdi_faulty]
+    chain._alert_evidence = _evidence(field, bias)
+    events = chain._cross_check(3.0, pair, fdi_faulty)
+    if expect is None:
+        assert events == []
+        assert chain._verdict == pair[fdi_faulty]
+    else:
+        assert chain._verdict == pair[expect]
+        assert [e.kind for e in events] == [FaultKind.ATTRIBUTED]
+        assert events[0].lane == pair[expect]
+        assert f"named lane {pair[fdi_faulty]}" in events[0].detail
+
+
+def test_without_alert_evidence_the_fdis_isolation_stands():
+    chain = ImuDegradationChain(np.random.default_rng(1), MERLIN)
+    chain.attribution = SubAlertAttribution(SUB_ALERT)
+    chain._verdict = 2
+    assert chain._cross_check(3.0, (0, 2), 1) == []
+    assert chain._verdict == 2
