@@ -71,12 +71,19 @@ class AttributionConfig:
     baseline_tau_s: float = 2.0  # time constant of the pair's pre-onset offsets (gyro, field residual)
     field_tau_s: float = 0.25  # time constant of each lane's field tracker (the fast evidence)
     min_field_signal_gauss: float = 0.004  # the field evidence counts once |tau D x m| reaches this (RMS)
+    # seed 003's declaration can come on the alert's own step (a bias far above tau_g: ||Omega dq|| > 1 at
+    # once), when its isolation residual is one sample: the isolation waits up to this long for the field
+    # trackers to name a lane, then the FDI's choice stands (campaign run 00012 of redundancy_sensors.yaml,
+    # 2026-11-24: 0.63 rad/s, declared 2.5 ms after onset, the healthy lane named)
+    confirm_s: float = 0.25
 
     def __post_init__(self) -> None:
         if min(self.persistence_s, self.baseline_tau_s, self.field_tau_s) <= 0.0 or self.decay < 0.0:
             raise ValueError(
                 "AttributionConfig: persistence_s, baseline_tau_s and field_tau_s must be > 0, decay >= 0"
             )
+        if self.confirm_s < 0.0:
+            raise ValueError(f"AttributionConfig: confirm_s must be >= 0, not {self.confirm_s}")
         if not 0.0 <= self.max_other_share < self.min_share:
             raise ValueError(
                 f"AttributionConfig: need 0 <= max_other_share ({self.max_other_share}) < min_share "

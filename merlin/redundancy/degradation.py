@@ -76,6 +76,7 @@ class ImuDegradationChain:
         # while a sub-alert miscompare episode leans on one lane: the lane the estimator is fed from
         self.attribution_lane: int | None = None
         self._alert_evidence: Attribution | None = None  # the trackers' view during seed 003's alert
+        self._declared_t: float | None = None  # seed 003 declared; its isolation waits for the cross-check
         self._unresolved_reported = False
 
     def step(self, t_s: float, imu: tuple[LaneSample | None, ...],
@@ -95,6 +96,7 @@ class ImuDegradationChain:
                 self._verdict = None
                 self.attribution_lane = None
                 self._alert_evidence = None
+                self._declared_t = None
                 self._unresolved_reported = False
                 if self.attribution_config is not None:
                     self.attribution = SubAlertAttribution(self.attribution_config)
@@ -108,9 +110,9 @@ class ImuDegradationChain:
                 fdi_out = self.fdi.step(t_s, vals[:, :3], vals[:, 3:], np.array(mags, float))
                 self._next_fdi_t = (self._next_fdi_t or t_s) + self.fdi_period_s
                 ev.extend(fdi_out.events)
-                if fdi_out.faulty is not None:
-                    self._verdict = pair[fdi_out.faulty]
-                    self._verdict_detail = "duplex FDI verdict"
+                if fdi_out.faulty is not None and self._verdict is None:
+                    if self._declared_t is None:
+                        self._declared_t = t_s
                     ev.extend(self._cross_check(t_s, pair, fdi_out.faulty))
                 # In the alert state one of the two lanes is faulty and it is not yet known which: the
                 # mean would hand half the fault to the estimator until the verdict (a 0.5 rad/s yaw-gyro
@@ -122,6 +124,12 @@ class ImuDegradationChain:
                 if fdi_out.state is FdiState.ALERT and self.alert_feed == "lowest_residual":
                     r0, r1 = fdi_out.residual
                     self.alert_lane = pair[0] if r0 <= r1 else pair[1]
+                elif fdi_out.faulty is not None and self._verdict is None:
+                    # declared, isolation waiting for the cross-check: feed the lane the field trackers
+                    # favour, else the one the FDI would keep
+                    a = self._alert_evidence
+                    lean = a.feed if a is not None and a.feed is not None else 1 - fdi_out.faulty
+                    self.alert_lane = pair[lean]
                 else:
                     self.alert_lane = None
                 ev.extend(self._attribute(t_s, pair, vals[:, :3], np.array(mags, float), fdi_out,
@@ -153,14 +161,22 @@ class ImuDegradationChain:
         clearly name the other IMU (:func:`merlin.redundancy.attribution.names`: a share of at least
         ``min_share`` against at most ``max_other_share``, the particle filters' bias estimates not
         disagreeing), that IMU is isolated instead and an event says so. The declaration itself (E3) is
-        the seed's, unchanged; without clear field evidence the seed's choice stands."""
+        the seed's, unchanged. A declaration can come before the trackers have seen anything (on the
+        alert's own step when the bias is far above tau_g): the isolation then waits up to
+        ``AttributionConfig.confirm_s`` for them, the estimator fed the lane they favour (else the one the
+        FDI keeps); without clear field evidence by then the seed's choice stands."""
         a = self._alert_evidence
         att = self.attribution
-        if a is None or att is None:
-            return []
-        named = names(a, att.cfg)
+        named = None if a is None or att is None else names(a, att.cfg)
         if named is None or named == fdi_faulty:
+            waited = 0.0 if self._declared_t is None else t_s - self._declared_t
+            if named is None and att is not None and waited < att.cfg.confirm_s - 1e-9:
+                return []  # no clear field evidence yet: wait (AttributionConfig.confirm_s)
+            self._verdict = pair[fdi_faulty]
+            self._verdict_detail = "duplex FDI verdict"
+            self._declared_t = None
             return []
+        self._declared_t = None
         self._verdict = pair[named]
         self._verdict_detail = "duplex FDI declaration, isolation by field-tracker evidence"
         f, b = a.field_shares, a.bias_shares

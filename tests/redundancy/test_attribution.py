@@ -241,22 +241,47 @@ def test_the_fdis_isolation_is_cross_checked_against_the_field_trackers(field, b
     chain = ImuDegradationChain(np.random.default_rng(1), MERLIN)
     chain.attribution = SubAlertAttribution(SUB_ALERT)
     pair = (0, 2)
-    chain._verdict = pair[fdi_faulty]
+    chain._declared_t = 3.0 - SUB_ALERT.confirm_s  # declared long enough ago: no more waiting
     chain._alert_evidence = _evidence(field, bias)
     events = chain._cross_check(3.0, pair, fdi_faulty)
     if expect is None:
         assert events == []
         assert chain._verdict == pair[fdi_faulty]
+        assert chain._verdict_detail == "duplex FDI verdict"
     else:
         assert chain._verdict == pair[expect]
         assert [e.kind for e in events] == [FaultKind.ATTRIBUTED]
         assert events[0].lane == pair[expect]
         assert f"named lane {pair[fdi_faulty]}" in events[0].detail
+    assert chain._declared_t is None
 
 
-def test_without_alert_evidence_the_fdis_isolation_stands():
+def test_a_declaration_without_field_evidence_waits_for_it_then_the_fdis_choice_stands():
     chain = ImuDegradationChain(np.random.default_rng(1), MERLIN)
     chain.attribution = SubAlertAttribution(SUB_ALERT)
-    chain._verdict = 2
+    chain._declared_t = 3.0
+    assert chain._cross_check(3.0, (0, 2), 1) == []  # nothing gathered yet: wait
+    assert chain._verdict is None
+    chain._alert_evidence = _evidence((0.6, 0.4), (0.0, 0.0))  # not clear yet
+    assert chain._cross_check(3.0 + 0.5 * SUB_ALERT.confirm_s, (0, 2), 1) == []
+    assert chain._verdict is None
+    chain._alert_evidence = _evidence((0.9, 0.05), (0.0, 0.0))  # clear, naming the other lane: overruled
+    events = chain._cross_check(3.0 + 0.6 * SUB_ALERT.confirm_s, (0, 2), 1)
+    assert chain._verdict == 0 and [e.lane for e in events] == [0]
+    chain = ImuDegradationChain(np.random.default_rng(1), MERLIN)
+    chain.attribution = SubAlertAttribution(SUB_ALERT)
+    chain._declared_t = 3.0
+    assert chain._cross_check(3.0 + SUB_ALERT.confirm_s, (0, 2), 1) == []  # waited long enough: the FDI's
+    assert chain._verdict == 2
+
+
+def test_without_the_attribution_layer_the_fdis_isolation_is_immediate():
+    chain = ImuDegradationChain(np.random.default_rng(1), MERLIN, attribution=None)
+    chain._declared_t = 3.0
     assert chain._cross_check(3.0, (0, 2), 1) == []
     assert chain._verdict == 2
+
+
+def test_confirm_window_is_checked():
+    with pytest.raises(ValueError, match="confirm_s"):
+        AttributionConfig(confirm_s=-0.1)
