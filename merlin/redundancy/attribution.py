@@ -179,6 +179,7 @@ class SubAlertAttribution:
         bias_radps: np.ndarray,
         miscompare: bool,
         decide: bool = True,
+        count: bool | None = None,
     ) -> Attribution:
         """``gyro``: the pair's newest gyro samples (2, 3), rad/s; ``mag``: each lane's newest field (2, 3),
         gauss; ``bias_radps``: the two particle filters' bias estimates (2, 3) after this step;
@@ -209,7 +210,7 @@ class SubAlertAttribution:
             self._field_den = 0.0
             self.counter_s = 0.0
             self.verdict = None
-        if decide:
+        if decide if count is None else count:
             self.counter_s = self.counter_s + dt if miscompare else max(0.0, self.counter_s - cfg.decay * dt)
         if decide and self.counter_s <= 0.0 and not miscompare:
             self._b0 = None  # the episode is over: the pair agrees again

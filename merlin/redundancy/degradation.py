@@ -197,7 +197,13 @@ class ImuDegradationChain:
         if fdi_out.state is not FdiState.NORMAL:
             # seed 003's alert decides; the trackers keep gathering evidence (no verdict, the episode's
             # integrator stands still) for the cross-check of the FDI's isolation at its declaration
-            self._alert_evidence = att.step(t_s, gyro, mag, fdi_out.bias_radps, miscompare, decide=False)
+            # In the alert state (not yet declared) the miscompare time still counts, so that an alert
+            # that flickers on and off without a declaration (a bias just above tau_g: 0.31 rad/s pitch
+            # on the synthetic flight, no declaration in 4 s) leads to a verdict in the next normal step
+            # once persistence_s is reached; a continuous alert leaves the decision to the FDI.
+            alerting = fdi_out.state is FdiState.ALERT
+            self._alert_evidence = att.step(t_s, gyro, mag, fdi_out.bias_radps, miscompare, decide=False,
+                                            count=alerting)
             self.attribution_lane = None
             return []
         self._alert_evidence = None
