@@ -152,11 +152,6 @@ class SubAlertAttribution:
     def active(self) -> bool:
         return self._b0 is not None
 
-    def hold(self, t_s: float) -> None:
-        """A step the layer sits out (seed 003's FDI is in its alert or fault state and decides): the clock
-        moves on, the episode's integrator does not."""
-        self._t = t_s
-
     def _track(self, dt: float, gyro: np.ndarray, mag: np.ndarray) -> np.ndarray:
         """Advance each lane's field tracker with that lane's gyro; return the residuals before the update.
 

@@ -187,20 +187,20 @@ class ImuDegradationChain:
 
     def _attribute(self, t_s: float, pair: tuple[int, int], gyro: np.ndarray, mag: np.ndarray,
                    fdi_out: FdiOutput, miscompare: bool) -> list[FaultReport]:
-        """Merlin's sub-alert attribution (:mod:`merlin.redundancy.attribution`), stepped with the FDI while
-        the FDI is in its normal state: seed 003's alert (tau_g, Table 2) and declaration take precedence
-        and are unchanged; this only decides a miscompare they never see."""
+        """Merlin's sub-alert attribution (:mod:`merlin.redundancy.attribution`), stepped with every FDI
+        step; it gives its verdict only while the FDI is in its normal state: seed 003's alert (tau_g,
+        Table 2) and declaration take precedence and are unchanged."""
         att = self.attribution
         if att is None or self._verdict is not None:
             self.attribution_lane = None
             return []
         if fdi_out.state is not FdiState.NORMAL:
-            # seed 003's alert decides; the trackers keep gathering evidence (no verdict, the episode's
-            # integrator stands still) for the cross-check of the FDI's isolation at its declaration
-            # In the alert state (not yet declared) the miscompare time still counts, so that an alert
-            # that flickers on and off without a declaration (a bias just above tau_g: 0.31 rad/s pitch
-            # on the synthetic flight, no declaration in 4 s) leads to a verdict in the next normal step
-            # once persistence_s is reached; a continuous alert leaves the decision to the FDI.
+            # Seed 003's alert or declaration: the FDI decides, the layer gives no verdict here. Its
+            # trackers keep gathering evidence for the cross-check of the FDI's isolation (_cross_check).
+            # While alerting (not yet declared) the miscompare time still counts towards persistence_s, so
+            # that an alert flickering on and off without a declaration (a bias just above tau_g: 0.31
+            # rad/s pitch on the synthetic flight, none in 4 s) gets a verdict in the next normal step; a
+            # continuous alert leaves the decision to the FDI. After the declaration the integrator stands.
             alerting = fdi_out.state is FdiState.ALERT
             self._alert_evidence = att.step(t_s, gyro, mag, fdi_out.bias_radps, miscompare, decide=False,
                                             count=alerting)

@@ -200,6 +200,17 @@ def test_the_seed_presets_thresholds_are_untouched():
     assert IMU_SPEC.miscompare[:3] == (0.1, 0.1, 0.1)
 
 
+def _faulty_isolated_healthy_kept(axis: int, size: float, lane: int):
+    """Fly the chain with ``size`` rad/s on gyro ``axis`` of ``lane``; assert the healthy IMU of the pair is
+    never isolated and the faulty one is. Returns the rows and the faulty lane's isolation events."""
+    rows = _chain_run(axis, size, lane, duration_s=7.0)
+    events = [e for _, o in rows for e in o.events]
+    assert not [e for e in events if e.kind is FaultKind.ISOLATED and e.lane == 1 - lane]
+    iso = [e for e in events if e.kind is FaultKind.ISOLATED and e.lane == lane]
+    assert iso, f"{size:+.3f} rad/s on axis {axis} of lane {lane} is isolated"
+    return rows, iso
+
+
 @settings(max_examples=30, deadline=None, derandomize=True)
 @given(
     size=st.floats(0.1, 0.3),
@@ -211,13 +222,8 @@ def test_the_faulty_imu_is_never_the_one_kept(size, sign, axis, lane):
     """Safety invariant over the band between the duplex miscompare (0.1 rad/s) and above tau_g
     (0.2853 rad/s): whichever path decides (this layer or seed 003's FDI), the healthy IMU is never
     isolated, and once one is isolated the estimator is fed the healthy one alone."""
-    rows = _chain_run(axis, sign * size, lane, duration_s=7.0)
-    events = [e for _, o in rows for e in o.events]
-    healthy = 1 - lane
-    assert not [e for e in events if e.kind is FaultKind.ISOLATED and e.lane == healthy]
-    iso = [e for e in events if e.kind is FaultKind.ISOLATED and e.lane == lane]
-    assert iso, f"{sign * size:+.3f} rad/s on axis {axis} of lane {lane} is isolated"
-    assert all(o.imu.lanes_used == (healthy,) for t, o in rows if t > iso[0].t_s)
+    rows, iso = _faulty_isolated_healthy_kept(axis, sign * size, lane)
+    assert all(o.imu.lanes_used == (1 - lane,) for t, o in rows if t > iso[0].t_s)
 
 
 def _evidence(field: tuple[float, float], bias: tuple[float, float]):
@@ -301,13 +307,9 @@ def test_above_the_alert_the_faulty_imu_is_never_the_one_kept(size, sign, axis, 
     own choice was already right; the closed-loop runs where it was not are the scenarios
     redundancy_duplex_marginal_declaration and redundancy_duplex_instant_declaration.) Just above tau_g
     (0.31 rad/s on the pitch gyro) the FDI's alert flickers for seconds without a declaration: the alert's
-    time counts towards the layer's persistence, which then decides (this test failed there before)."""
-    rows = _chain_run(axis, sign * size, lane, duration_s=7.0)
-    events = [e for _, o in rows for e in o.events]
-    healthy = 1 - lane
-    assert not [e for e in events if e.kind is FaultKind.ISOLATED and e.lane == healthy]
-    iso = [e for e in events if e.kind is FaultKind.ISOLATED and e.lane == lane]
-    assert iso, f"{sign * size:+.3f} rad/s on axis {axis} of lane {lane} is isolated"
+    time counts towards the layer's persistence, which then decides (the test after this one pins that
+    case; it failed before)."""
+    _faulty_isolated_healthy_kept(axis, sign * size, lane)
 
 
 def test_a_flickering_alert_without_a_declaration_is_decided_by_the_layer():
