@@ -29,15 +29,23 @@ magnetometer; with one magnetometer on the airframe both lanes read it):
   x = [q; b]); with s^(i) = b^(i)(k) - b^(i)(k0), p^(1) = s^(1) . D / |D|^2, p^(2) = -s^(2) . D / |D|^2.
   1-3 s for 0.1-0.3 rad/s on the synthetic seed-003 flight (yaw slowest), but it sees every axis.
 
+Each evidence counts by its measured noise (the fields of :class:`AttributionConfig` say how): the field
+shares by their standard error from each tracker's residual noise, the bias shares by the common-mode
+wander of the two filters' estimates, both measured while the pair agreed. Bias estimates that wander
+together (both filters share the airframe's model errors) can name neither lane: campaign run 00072 of
+redundancy_sensors.yaml, where they named the healthy one (examples/scenarios/redundancy_duplex_bias_near
+_field.yaml).
+
 The decision (every FDI step, 100 Hz, only while the FDI is in its normal state: its alert and
 declaration take precedence and are unchanged):
 
 * an episode starts when the voter reports a duplex miscompare; a persistence integrator rises by dt while
   the miscompare is reported and falls by ``decay`` x dt while it is not (a bias near the threshold makes
   the flag flicker with the noise: it must still accumulate), and the episode ends when it is back at 0;
-* at once, whenever one evidence's shares differ by ``feed_margin``, the estimator is fed the IMU with the
-  smaller share instead of the mean that carries half the fault (the mean, seed 003 §2's voted output,
-  while they do not);
+* at once, whenever one evidence's shares differ by ``feed_margin`` (the field's within
+  ``max_feed_share_sigma``, the bias estimates' within ``max_bias_share_sigma``), the estimator is fed the
+  IMU with the smaller share instead of the mean that carries half the fault (the mean, seed 003 §2's
+  voted output, while they do not);
 * the verdict: once the integrator has reached ``persistence_s`` (the miscompare persisted that long
   without an alert), the IMU one evidence gives a share of at least ``min_share`` while the other's is at
   most ``max_other_share``, the other evidence not naming the other IMU, is attributed the fault; the
@@ -70,7 +78,34 @@ class AttributionConfig:
     min_disagreement_radps: float = 0.05  # |D| below this: no attribution (nothing to divide by)
     baseline_tau_s: float = 2.0  # time constant of the pair's pre-onset offsets (gyro, field residual)
     field_tau_s: float = 0.25  # time constant of each lane's field tracker (the fast evidence)
-    min_field_signal_gauss: float = 0.004  # the field evidence counts once |tau D x m| reaches this (RMS)
+    # The field evidence counts once the standard error of its shares, from each tracker's residual noise
+    # measured while the pair agreed, is at most max_field_share_sigma, and |tau D x m| (RMS) is at least
+    # min_field_signal_gauss. The floor bounds what noise statistics cannot: a healthy lane's own turn-on
+    # bias b_h leaves tau (b_h x m) in its residual, which the pre-onset baseline removes only while the
+    # attitude holds (0.25 s x 0.005 rad/s x 0.44 G = 0.0006 G; at the floor, a share of at most 0.27).
+    # Until 2026-11-25 a fixed floor of 0.004 G alone: in campaign run 00072 of redundancy_sensors.yaml
+    # (examples/scenarios/redundancy_duplex_bias_near_field.yaml) a -0.2 rad/s bias 11 degrees off the
+    # field gave 0.0039 G, the trackers were ignored though their shares (0.9 / 0.1, standard error 0.08
+    # after 1 s) were right, and the bias estimates alone isolated the healthy lane.
+    min_field_signal_gauss: float = 0.002
+    max_field_share_sigma: float = 0.1
+    # the lane fed meanwhile may follow the field shares at a looser standard error: feeding is undone by
+    # the next step, and a wrong feed needs the shares' difference 3.5 sigma off (1 -> -0.25)
+    max_feed_share_sigma: float = 0.25
+    field_noise_prior_gauss: float = 0.01  # residual noise assumed before any has been measured ...
+    field_noise_prior_s: float = 0.1  # ... worth this much measured time (then the baseline_tau_s average)
+    # The bias evidence names a lane (a verdict alone, the lane fed) only while the common-mode wander of
+    # the two filters' bias estimates, measured while the pair agreed, is small against the disagreement:
+    # both filters see the same airframe and share its model errors, so the mean of their estimates
+    # wanders (+-0.05-0.09 rad/s in the manoeuvring multirotor of run 00072, seconds long), and a wander
+    # c along D moves both shares by c.D/|D|^2, which a fault cannot be told from. The shares' standard
+    # error sqrt(2 D^T C D)/|D|^2 (C: the wander's covariance; the change over an episode has at most
+    # twice its variance) must be at most max_bias_share_sigma: a wrong verdict then needs a 3-sigma
+    # wander (the healthy share from 0 to 0.5 while the faulty one falls from 1 to 0.25). Unreliable bias
+    # evidence can still veto a verdict of the field trackers it contradicts.
+    max_bias_share_sigma: float = 0.25
+    bias_wander_tau_s: float = 5.0  # time constant of the wander's mean and covariance
+    bias_wander_prior_radps: float = 0.05  # wander assumed (1 sigma per axis) before any has been measured
     # seed 003's declaration can come on the alert's own step (a bias far above tau_g: ||Omega dq|| > 1 at
     # once), when its isolation residual is one sample: the isolation waits up to this long for the field
     # trackers to name a lane, then the FDI's choice stands (campaign run 00012 of redundancy_sensors.yaml,
@@ -81,6 +116,14 @@ class AttributionConfig:
         if min(self.persistence_s, self.baseline_tau_s, self.field_tau_s) <= 0.0 or self.decay < 0.0:
             raise ValueError(
                 "AttributionConfig: persistence_s, baseline_tau_s and field_tau_s must be > 0, decay >= 0"
+            )
+        if min(self.max_field_share_sigma, self.max_feed_share_sigma, self.max_bias_share_sigma, self.bias_wander_tau_s,
+               self.field_noise_prior_gauss, self.bias_wander_prior_radps, self.field_noise_prior_s) <= 0.0 \
+                or self.min_field_signal_gauss < 0.0:
+            raise ValueError(
+                "AttributionConfig: max_field_share_sigma, max_feed_share_sigma, max_bias_share_sigma, "
+                "bias_wander_tau_s, field_noise_prior_gauss, field_noise_prior_s and bias_wander_prior_radps "
+                "must be > 0, min_field_signal_gauss >= 0"
             )
         if self.confirm_s < 0.0:
             raise ValueError(f"AttributionConfig: confirm_s must be >= 0, not {self.confirm_s}")
@@ -100,10 +143,14 @@ class Attribution:
 
     active: bool  # a miscompare episode is running
     counter_s: float
-    field_shares: tuple[float, float]  # from the field trackers (0, 0 while their signal is too small)
+    field_shares: tuple[float, float]  # from the field trackers (0, 0 until field_sigma <= max_feed_share_sigma)
     bias_shares: tuple[float, float]  # from the particle filters' bias estimates
     feed: int | None  # 0 / 1: feed the estimator this IMU of the pair; None: the mean
     faulty: int | None  # 0 / 1: the verdict (given once per episode); None: none yet
+    field_sigma: float = math.inf  # standard error of the field shares (inf: not computed)
+    bias_sigma: float = math.inf  # standard error of the bias shares from the filters' common-mode wander
+    bias_reliable: bool = False  # bias_sigma within max_bias_share_sigma: the bias shares may name a lane
+    evidence: str = ""  # with a verdict: "field" (the trackers, the bias estimates agreeing or silent) or "bias"
 
 
 _IDLE = Attribution(False, 0.0, (0.0, 0.0), (0.0, 0.0), None, None)
@@ -117,13 +164,18 @@ def _clear(shares: tuple[float, float], cfg: AttributionConfig) -> int | None:
     return None
 
 
+def _field_names(a: Attribution, cfg: AttributionConfig) -> int | None:
+    """The IMU the field trackers name, once their shares' standard error is within max_field_share_sigma."""
+    return _clear(a.field_shares, cfg) if a.field_sigma <= cfg.max_field_share_sigma else None
+
+
 def names(a: Attribution, cfg: AttributionConfig) -> int | None:
     """The IMU of the pair (0 / 1) the field trackers clearly name, the bias estimates not naming the
     other; None when they do not. Used to cross-check seed 003's isolation at its declaration: in the
     1,000-run campaign of 2026-11-24 (run 00999, examples/scenarios/redundancy_duplex_marginal_declaration
     .yaml) the FDI declared with ||Omega dq||_inf = 1.003 while its isolation residual still named the
     healthy IMU, which was isolated and the biased one kept."""
-    by_field = _clear(a.field_shares, cfg)
+    by_field = _field_names(a, cfg)
     if by_field is None:
         return None
     by_bias = _clear(a.bias_shares, cfg)
@@ -139,6 +191,16 @@ class SubAlertAttribution:
         self._gyro_base: np.ndarray | None = None  # pre-onset mean of gyro[0] - gyro[1]
         self._m_hat: np.ndarray | None = None  # each lane's field tracker (2, 3), body frame, gauss
         self._r_base = np.zeros((2, 3))  # pre-onset mean of each tracker's residual
+        # pre-onset noise of each tracker's residual about that mean: variance per component and lag-1
+        # covariance (the residual is a high-passed field noise, nearly white; the lag-1 term inflates the
+        # shares' standard error if it is not)
+        self._r_var = np.full(2, config.field_noise_prior_gauss**2)
+        self._r_c1 = np.zeros(2)
+        self._rc_prev: np.ndarray | None = None
+        self._noise_s = 0.0  # time over which the residual noise has been measured
+        # pre-onset common-mode wander of the two filters' bias estimates: mean and covariance (rad/s)
+        self._mb_mean: np.ndarray | None = None
+        self._mb_cov = np.eye(3) * config.bias_wander_prior_radps**2
         self.counter_s = 0.0
         self._t0 = 0.0
         self._b0: np.ndarray | None = None  # both filters' bias estimates at the episode's onset
@@ -147,6 +209,7 @@ class SubAlertAttribution:
         self._field_num = np.zeros(2)
         self._field_den = 0.0
         self.verdict: int | None = None
+        self.evidence = ""
 
     @property
     def active(self) -> bool:
@@ -195,7 +258,23 @@ class SubAlertAttribution:
                     self._gyro_base = d.copy()
                 else:
                     self._gyro_base += k * (d - self._gyro_base)
-                self._r_base += k * (r - self._r_base)
+                rc0 = r - self._r_base
+                self._r_base += k * rc0
+                # the prior counts as field_noise_prior_s of data: a running mean until baseline_tau_s
+                self._noise_s += dt
+                kv = max(k, min(1.0, dt / (cfg.field_noise_prior_s + self._noise_s)))
+                self._r_var += kv * ((rc0**2).mean(axis=1) - self._r_var)
+                if self._rc_prev is not None:
+                    self._r_c1 += kv * ((rc0 * self._rc_prev).mean(axis=1) - self._r_c1)
+                self._rc_prev = rc0
+                mb = bias_radps.mean(axis=0)
+                if self._mb_mean is None:
+                    self._mb_mean = mb.copy()
+                else:
+                    kb = min(1.0, dt / cfg.bias_wander_tau_s)
+                    dev = mb - self._mb_mean
+                    self._mb_mean += kb * dev
+                    self._mb_cov += kb * (np.outer(dev, dev) - self._mb_cov)
                 return _IDLE
             self._b0 = bias_radps.copy()
             self._t0 = t_s
@@ -205,6 +284,7 @@ class SubAlertAttribution:
             self._field_den = 0.0
             self.counter_s = 0.0
             self.verdict = None
+            self.evidence = ""
         if decide if count is None else count:
             self.counter_s = self.counter_s + dt if miscompare else max(0.0, self.counter_s - cfg.decay * dt)
         if decide and self.counter_s <= 0.0 and not miscompare:
@@ -217,9 +297,11 @@ class SubAlertAttribution:
         dd = float(dmean @ dmean)
         bias_shares = (0.0, 0.0)
         field_shares = (0.0, 0.0)
+        field_sigma = bias_sigma = math.inf
         if dd >= cfg.min_disagreement_radps**2:
             shift = bias_radps - self._b0
             bias_shares = (float(shift[0] @ dmean) / dd, -float(shift[1] @ dmean) / dd)
+            bias_sigma = math.sqrt(2.0 * float(dmean @ self._mb_cov @ dmean)) / dd
             # what the field residual of the faulty lane should be, ramping up with the tracker's lag
             tau = cfg.field_tau_s
             ramp = 1.0 - math.exp(-(t_s - self._t0) / tau)
@@ -227,20 +309,31 @@ class SubAlertAttribution:
             rc = r - self._r_base
             self._field_num += (float(rc[0] @ e), -float(rc[1] @ e))
             self._field_den += float(e @ e)
-            if self._field_den >= self._n * cfg.min_field_signal_gauss**2:
-                field_shares = (self._field_num[0] / self._field_den, self._field_num[1] / self._field_den)
+            if self._field_den > 0.0:
+                # standard error of each lane's share under no signal: var(sum rc.e) = var_r sum |e|^2,
+                # inflated by (1 + rho) / (1 - rho) for a lag-1 correlation rho of the residual
+                rho = np.clip(self._r_c1 / np.maximum(self._r_var, 1e-30), 0.0, 0.9)
+                var = self._r_var * (1.0 + rho) / (1.0 - rho)
+                field_sigma = float(np.sqrt(var.max() / self._field_den))
+                if field_sigma <= cfg.max_feed_share_sigma \
+                        and self._field_den >= self._n * cfg.min_field_signal_gauss**2:
+                    field_shares = (self._field_num[0] / self._field_den, self._field_num[1] / self._field_den)
+        bias_ok = bias_sigma <= cfg.max_bias_share_sigma
         feed: int | None = None
         margin = 0.0
-        for sh in (field_shares, bias_shares):
+        for sh in (field_shares, bias_shares if bias_ok else (0.0, 0.0)):
             if abs(sh[0] - sh[1]) >= max(cfg.feed_margin, margin):
                 margin = abs(sh[0] - sh[1])
                 feed = 0 if sh[0] < sh[1] else 1
         if decide and self.verdict is None and self.counter_s >= cfg.persistence_s - 1e-9:
-            by_field, by_bias = _clear(field_shares, cfg), _clear(bias_shares, cfg)
+            # unreliable bias evidence cannot name a lane, but it still vetoes a field verdict it contradicts
+            by_field = _clear(field_shares, cfg) if field_sigma <= cfg.max_field_share_sigma else None
+            by_bias = _clear(bias_shares, cfg)
             if by_field is not None and by_bias in (None, by_field):
-                self.verdict = by_field
-            elif by_bias is not None and by_field is None:
-                self.verdict = by_bias
+                self.verdict, self.evidence = by_field, "field"
+            elif by_bias is not None and by_field is None and bias_ok:
+                self.verdict, self.evidence = by_bias, "bias"
         if self.verdict is not None:
             feed = 1 - self.verdict
-        return Attribution(True, self.counter_s, field_shares, bias_shares, feed, self.verdict)
+        return Attribution(True, self.counter_s, field_shares, bias_shares, feed, self.verdict,
+                           field_sigma, bias_sigma, bias_ok, self.evidence)

@@ -31,6 +31,8 @@ from merlin.redundancy.duplex_fdi import MERLIN, DuplexImuFdi, FdiConfig, FdiOut
 from merlin.redundancy.events import FaultKind, FaultReport, RedundancyLevel
 from merlin.redundancy.sensor_voter import IMU_SPEC, ChannelSpec, LaneSample, TriplexVoter, VotedOutput
 
+_EVIDENCE = {"field": "field trackers", "bias": "particle filters' bias estimates"}
+
 # nav health reported to the core per IMU redundancy level: 1 = full, 0 = no IMU (Merlin's choice)
 NAV_HEALTH: dict[RedundancyLevel, float] = {
     RedundancyLevel.TRIPLEX: 1.0,
@@ -176,14 +178,16 @@ class ImuDegradationChain:
             self._verdict_detail = "duplex FDI verdict"
             self._declared_t = None
             return []
+        assert a is not None and att is not None  # named is not None only with both
         self._declared_t = None
         self._verdict = pair[named]
         self._verdict_detail = "duplex FDI declaration, isolation by field-tracker evidence"
         f, b = a.field_shares, a.bias_shares
         return [FaultReport(t_s, FaultKind.ATTRIBUTED, "imu", pair[named], f[named], att.cfg.min_share,
                             detail=f"the FDI's isolation residual named lane {pair[fdi_faulty]}; field-tracker "
-                                   f"shares {f[0]:.2f}, {f[1]:.2f} and bias-estimate shares {b[0]:.2f}, "
-                                   f"{b[1]:.2f} name lane {pair[named]}: lane {pair[named]} isolated")]
+                                   f"shares {f[0]:.2f}, {f[1]:.2f} (standard error {a.field_sigma:.2f}) and "
+                                   f"bias-estimate shares {b[0]:.2f}, {b[1]:.2f} name lane {pair[named]}: "
+                                   f"lane {pair[named]} isolated")]
 
     def _attribute(self, t_s: float, pair: tuple[int, int], gyro: np.ndarray, mag: np.ndarray,
                    fdi_out: FdiOutput, miscompare: bool) -> list[FaultReport]:
@@ -217,9 +221,11 @@ class ImuDegradationChain:
             f, b = a.field_shares, a.bias_shares
             ev.append(FaultReport(t_s, FaultKind.ATTRIBUTED, "imu", pair[a.faulty],
                                   max(f[a.faulty], b[a.faulty]), cfg.min_share,
-                                  detail=f"sub-alert duplex miscompare between lanes {pair[0]} and {pair[1]}: "
-                                         f"field-tracker shares {f[0]:.2f}, {f[1]:.2f}; "
-                                         f"bias-estimate shares {b[0]:.2f}, {b[1]:.2f}"))
+                                  detail=f"sub-alert duplex miscompare between lanes {pair[0]} and {pair[1]}, "
+                                         f"decided by the {_EVIDENCE[a.evidence]}: "
+                                         f"field-tracker shares {f[0]:.2f}, {f[1]:.2f} (standard error "
+                                         f"{a.field_sigma:.2f}); bias-estimate shares {b[0]:.2f}, {b[1]:.2f} "
+                                         f"(standard error {a.bias_sigma:.2f})"))
         elif a.active and a.counter_s >= cfg.persistence_s and not self._unresolved_reported:
             self._unresolved_reported = True
             ev.append(FaultReport(t_s, FaultKind.DUPLEX_UNRESOLVED, "imu", -1, a.counter_s, cfg.persistence_s,

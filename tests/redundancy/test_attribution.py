@@ -85,28 +85,64 @@ def test_no_miscompare_no_episode():
     assert all(not a.active and a.faulty is None and a.feed is None for _, a in steps)
 
 
-def test_a_bias_along_the_field_is_left_to_the_particle_filters_bias_estimates():
-    """A bias parallel to the field does not turn the field in the body frame: the trackers cannot see it,
-    and the filters' bias estimates decide (here lane 1's filter has taken the bias, lane 0's has not)."""
+def _along_the_field(wander_radps: float, lean_healthy: float = 0.0, quiet_s: float = 10.0):
+    """A 0.2 rad/s bias on lane 1 parallel to the field, after ``quiet_s`` of agreement (the pair's noise
+    and the filters' common-mode wander measured meanwhile: a sinusoid of ``wander_radps`` on every axis
+    of both filters' estimates, period 4 s, as the multirotor of campaign run 00072 showed). After the
+    onset lane 1's filter takes the bias over 1 s; ``lean_healthy`` x the bias is subtracted from both
+    filters' estimates as well (a common-mode wander along the bias, which pushes the healthy lane's
+    share up). Yields (t, Attribution) from the onset on."""
     along = 0.2 * FIELD_NED / np.linalg.norm(FIELD_NED)
     # the vehicle yaws, so the body-frame field direction turns; hold it still for this case instead
     att = SubAlertAttribution()
     rng = np.random.default_rng(1)
     m = FIELD_NED.copy()
-    verdict = None
-    for k in range(200):
+    for k in range(int((quiet_s + 2.0) / 0.01)):
         t = k * 0.01
         gyro = rng.normal(0.0, 0.01, (2, 3))
-        gyro[1] += along
+        onset = t >= quiet_s
+        if onset:
+            gyro[1] += along
         mag = np.stack([m, m]) + rng.normal(0.0, 0.003, (2, 3))
-        shift = min(1.0, t / 1.0)
-        b = np.stack([np.zeros(3), shift * along])
-        a = att.step(t, gyro, mag, b, True)
+        common = wander_radps * math.sin(2.0 * math.pi * t / 4.0) * np.ones(3)
+        shift = min(1.0, max(0.0, t - quiet_s) / 1.0)
+        b = np.stack([common, common + shift * along]) - lean_healthy * shift * along
+        a = att.step(t, gyro, mag, b, onset)
+        if onset:
+            yield t - quiet_s, a
+
+
+def test_a_bias_along_the_field_is_left_to_the_particle_filters_bias_estimates():
+    """A bias parallel to the field does not turn the field in the body frame: the trackers cannot see it,
+    and the filters' bias estimates decide (here lane 1's filter has taken the bias, lane 0's has not),
+    their common-mode wander having been measured small while the pair agreed."""
+    verdict = None
+    for t, a in _along_the_field(wander_radps=0.005):
         assert a.field_shares == (0.0, 0.0) or max(a.field_shares) < SUB_ALERT.min_share
         if a.faulty is not None:
             verdict = (t, a.faulty)
             break
     assert verdict is not None and verdict[1] == 1
+    assert a.evidence == "bias" and a.bias_reliable
+
+
+@pytest.mark.parametrize("lean", [0.0, 0.8])
+def test_bias_estimates_that_wander_together_cannot_name_a_lane(lean):
+    """Campaign run 00072 of redundancy_sensors.yaml (2026-11-24): both particle filters' bias estimates
+    wandered together by +-0.05-0.09 rad/s in the manoeuvring multirotor, and after the onset of a bias
+    the trackers could not see, the healthy lane's estimate moved along it (share 0.50 against -0.11):
+    the healthy lane was isolated. Measured wander makes the bias shares' standard error exceed
+    max_bias_share_sigma: no verdict from them (lean 0.8: they name the healthy lane, as in 00072), nor a
+    lane fed on their word."""
+    seen = []
+    for _t, a in _along_the_field(wander_radps=0.06, lean_healthy=lean):
+        seen.append(a)
+        assert a.faulty is None
+        assert a.feed is None
+    assert all(a.bias_sigma > SUB_ALERT.max_bias_share_sigma and not a.bias_reliable for a in seen)
+    if lean:  # the bias shares do name the healthy lane: unreliable evidence ignored, not just unclear
+        assert any(a.bias_shares[0] >= SUB_ALERT.min_share and a.bias_shares[1] <= SUB_ALERT.max_other_share
+                   for a in seen)
 
 
 def test_contradicting_evidence_gives_no_verdict():
@@ -226,29 +262,33 @@ def test_the_faulty_imu_is_never_the_one_kept(size, sign, axis, lane):
     assert all(o.imu.lanes_used == (1 - lane,) for t, o in rows if t > iso[0].t_s)
 
 
-def _evidence(field: tuple[float, float], bias: tuple[float, float]):
+def _evidence(field: tuple[float, float], bias: tuple[float, float], field_sigma: float = 0.05):
+    """The trackers' view during the FDI's alert; ``field_sigma``: the standard error of the field shares
+    (0.05: well within AttributionConfig.max_field_share_sigma)."""
     from merlin.redundancy.attribution import Attribution
 
-    return Attribution(True, 0.5, field, bias, None, None)
+    return Attribution(True, 0.5, field, bias, None, None, field_sigma=field_sigma)
 
 
 @pytest.mark.parametrize(
-    ("field", "bias", "fdi_faulty", "expect"),
+    ("field", "bias", "fdi_faulty", "expect", "field_sigma"),
     [
-        ((1.04, -0.03), (0.17, 0.04), 1, 0),  # campaign run 00999: the field names lane 0, the FDI lane 1
-        ((-0.02, 0.95), (0.0, 0.0), 0, 1),  # the mirror case
-        ((1.0, 0.0), (0.0, 0.9), 1, None),  # the bias estimates name the FDI's lane: the seed's choice stands
-        ((0.6, 0.4), (0.0, 0.0), 1, None),  # the field evidence is not clear: the seed's choice stands
-        ((0.0, 0.0), (0.0, 0.0), 1, None),  # no field signal (a bias along the field): the seed's choice stands
-        ((1.0, 0.0), (0.0, 0.0), 0, None),  # they agree: nothing to overrule
+        ((1.04, -0.03), (0.17, 0.04), 1, 0, 0.05),  # run 00999: the field names lane 0, the FDI lane 1
+        ((-0.02, 0.95), (0.0, 0.0), 0, 1, 0.05),  # the mirror case
+        ((1.0, 0.0), (0.0, 0.9), 1, None, 0.05),  # the bias estimates name the FDI's lane: the seed's stands
+        ((0.6, 0.4), (0.0, 0.0), 1, None, 0.05),  # the field evidence is not clear: the seed's choice stands
+        ((0.0, 0.0), (0.0, 0.0), 1, None, 0.05),  # no field signal (a bias along the field): the seed's stands
+        ((1.0, 0.0), (0.0, 0.0), 0, None, 0.05),  # they agree: nothing to overrule
+        ((1.0, 0.0), (0.0, 0.0), 1, None, 0.2),  # clear shares, but too noisy yet: the seed's choice stands
     ],
 )
-def test_the_fdis_isolation_is_cross_checked_against_the_field_trackers(field, bias, fdi_faulty, expect):
+def test_the_fdis_isolation_is_cross_checked_against_the_field_trackers(field, bias, fdi_faulty, expect,
+                                                                       field_sigma):
     chain = ImuDegradationChain(np.random.default_rng(1), MERLIN)
     chain.attribution = SubAlertAttribution(SUB_ALERT)
     pair = (0, 2)
     chain._declared_t = 3.0 - SUB_ALERT.confirm_s  # declared long enough ago: no more waiting
-    chain._alert_evidence = _evidence(field, bias)
+    chain._alert_evidence = _evidence(field, bias, field_sigma)
     events = chain._cross_check(3.0, pair, fdi_faulty)
     if expect is None:
         assert events == []
