@@ -39,8 +39,9 @@ _field.yaml).
 The decision (every FDI step, 100 Hz, only while the FDI is in its normal state: its alert and
 declaration take precedence and are unchanged):
 
-* an episode starts when the voter reports a duplex miscompare; a persistence integrator rises by dt while
-  the miscompare is reported and falls by ``decay`` x dt while it is not (a bias near the threshold makes
+* an episode starts when the voter reports a duplex miscompare, or when the pair's disagreement averaged
+  over ``detect_tau_s`` reaches ``detect_radps`` on an axis (the voter's per-sample test flickers for a bias
+  near its threshold); a persistence integrator rises by dt while the miscompare is reported and falls by ``decay`` x dt while it is not (a bias near the threshold makes
   the flag flicker with the noise: it must still accumulate), and the episode ends when it is back at 0;
 * at once, whenever one evidence's shares differ by ``feed_margin`` (the field's within
   ``max_feed_share_sigma``, the bias estimates' within ``max_bias_share_sigma``), the estimator is fed the
@@ -76,6 +77,14 @@ class AttributionConfig:
     max_other_share: float = 0.25  # ... and the other at most this share (on the same evidence)
     feed_margin: float = 0.25  # shares this far apart: feed the estimator the lower one's IMU
     min_disagreement_radps: float = 0.05  # |D| below this: no attribution (nothing to divide by)
+    # The layer's own detection, beside the voter's flag: the pair's disagreement (its pre-onset offset
+    # removed) averaged over detect_tau_s reaching detect_radps on an axis counts as a miscompare. The
+    # voter tests each sample against 0.1 rad/s per axis, which flickers for a bias near it: campaign run
+    # 00009 of redundancy_sensors.yaml (seed 2, 2026-11-24), (-0.057, 0, 0.098) rad/s, was flagged in about
+    # one FDI step in five, the integrator never reached persistence_s, and the EKF fed half the bias
+    # excluded GPS 4.4 s after the onset. Averaged, the per-sample noise (0.003 rad/s) is 0.0003 rad/s.
+    detect_radps: float = 0.05
+    detect_tau_s: float = 0.25
     baseline_tau_s: float = 2.0  # time constant of the pair's pre-onset offsets (gyro, field residual)
     field_tau_s: float = 0.25  # time constant of each lane's field tracker (the fast evidence)
     # The field evidence counts once the standard error of its shares, from each tracker's residual noise
@@ -113,9 +122,11 @@ class AttributionConfig:
     confirm_s: float = 0.25
 
     def __post_init__(self) -> None:
-        if min(self.persistence_s, self.baseline_tau_s, self.field_tau_s) <= 0.0 or self.decay < 0.0:
+        if min(self.persistence_s, self.baseline_tau_s, self.field_tau_s, self.detect_radps,
+               self.detect_tau_s) <= 0.0 or self.decay < 0.0:
             raise ValueError(
-                "AttributionConfig: persistence_s, baseline_tau_s and field_tau_s must be > 0, decay >= 0"
+                "AttributionConfig: persistence_s, baseline_tau_s, field_tau_s, detect_radps and detect_tau_s "
+                "must be > 0, decay >= 0"
             )
         if min(self.max_field_share_sigma, self.max_feed_share_sigma, self.max_bias_share_sigma, self.bias_wander_tau_s,
                self.field_noise_prior_gauss, self.bias_wander_prior_radps, self.field_noise_prior_s) <= 0.0 \
@@ -189,6 +200,8 @@ class SubAlertAttribution:
         self.cfg = config
         self._t: float | None = None
         self._gyro_base: np.ndarray | None = None  # pre-onset mean of gyro[0] - gyro[1]
+        self._d_lp = np.zeros(3)  # gyro[0] - gyro[1] less that offset, averaged over detect_tau_s
+        self._base_s = 0.0  # time over which that offset has been averaged (the detection waits for it)
         self._m_hat: np.ndarray | None = None  # each lane's field tracker (2, 3), body frame, gauss
         self._r_base = np.zeros((2, 3))  # pre-onset mean of each tracker's residual
         # pre-onset noise of each tracker's residual about that mean: variance per component and lag-1
@@ -241,7 +254,8 @@ class SubAlertAttribution:
     ) -> Attribution:
         """``gyro``: the pair's newest gyro samples (2, 3), rad/s; ``mag``: each lane's newest field (2, 3),
         gauss; ``bias_radps``: the two particle filters' bias estimates (2, 3) after this step;
-        ``miscompare``: the voter's duplex miscompare flag this tick. ``decide=False`` (seed 003's FDI is
+        ``miscompare``: the voter's duplex miscompare flag this tick (the layer adds its own detection,
+        ``detect_radps``). ``decide=False`` (seed 003's FDI is
         in its alert state and decides): the evidence is gathered (trackers, shares) but the episode's
         integrator stands still, the episode does not end and no verdict is given; the shares serve the
         cross-check of the FDI's own isolation at its declaration (:func:`names`)."""
@@ -250,13 +264,22 @@ class SubAlertAttribution:
         self._t = t_s
         d = gyro[0] - gyro[1]
         r = self._track(dt, gyro, mag)
+        if self._gyro_base is not None:
+            self._d_lp += min(1.0, dt / cfg.detect_tau_s) * (d - self._gyro_base - self._d_lp)
+        settled = self._base_s >= cfg.baseline_tau_s
+        lp = float(np.max(np.abs(self._d_lp))) if settled else 0.0
+        miscompare = miscompare or lp >= cfg.detect_radps
         if self._b0 is None:
             if not miscompare:
-                # the pair's own offsets (turn-on biases), followed slowly while the lanes agree
+                # the pair's own offsets (turn-on biases), followed slowly while the lanes agree (and not
+                # while a disagreement is building up towards detect_radps, which it would absorb)
                 k = min(1.0, dt / cfg.baseline_tau_s)
                 if self._gyro_base is None:
                     self._gyro_base = d.copy()
-                else:
+                elif not settled:  # a running mean of the first baseline_tau_s
+                    self._base_s += dt
+                    self._gyro_base += min(1.0, dt / self._base_s) * (d - self._gyro_base)
+                elif lp < 0.5 * cfg.detect_radps:
                     self._gyro_base += k * (d - self._gyro_base)
                 rc0 = r - self._r_base
                 self._r_base += k * rc0

@@ -20,6 +20,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from merlin.redundancy.accel_attribution import (
+    ACCEL_SUB_ALERT,
+    AccelAttribution,
+    AccelAttributionConfig,
+    AccelView,
+    accel_names,
+)
 from merlin.redundancy.attribution import (
     SUB_ALERT,
     Attribution,
@@ -54,12 +61,15 @@ class ChainOutput:
 class ImuDegradationChain:
     def __init__(self, rng: np.random.Generator, fdi_config: FdiConfig = MERLIN,
                  spec: ChannelSpec = IMU_SPEC, fdi_period_s: float = 0.01, alert_feed: str = "lowest_residual",
-                 attribution: AttributionConfig | None = SUB_ALERT) -> None:
+                 attribution: AttributionConfig | None = SUB_ALERT,
+                 accel_attribution: AccelAttributionConfig | None = ACCEL_SUB_ALERT) -> None:
         """``alert_feed``: what the estimator gets while the duplex FDI is in its alert state:
         ``lowest_residual`` (Merlin's default, see :meth:`step`) or ``mean`` (seed 003 §2's voted mean, as
         before; kept for the comparison in benchmarks/bench_redundancy_loop.py). ``attribution``: the
         sub-alert attribution layer (:mod:`merlin.redundancy.attribution`) for a duplex miscompare the
-        FDI's alert threshold never sees; None: seed 003's FDI alone, as before."""
+        FDI's alert threshold never sees; None: seed 003's FDI alone, as before. ``accel_attribution``: the
+        same for an accelerometer miscompare, on GPS-velocity evidence
+        (:mod:`merlin.redundancy.accel_attribution`; it needs the ``gps`` argument of :meth:`step`)."""
         if alert_feed not in ("lowest_residual", "mean"):
             raise ValueError(f"alert_feed must be 'lowest_residual' or 'mean', not {alert_feed!r}")
         self.alert_feed = alert_feed
@@ -77,14 +87,20 @@ class ImuDegradationChain:
         self.attribution: SubAlertAttribution | None = None
         # while a sub-alert miscompare episode leans on one lane: the lane the estimator is fed from
         self.attribution_lane: int | None = None
+        self.accel_attribution_lane: int | None = None  # the same, for an accelerometer miscompare
         self._alert_evidence: Attribution | None = None  # the trackers' view during seed 003's alert
+        self.accel_attribution_config = accel_attribution
+        self.accel_attribution: AccelAttribution | None = None
+        self._accel_alert_evidence: AccelView | None = None
         self._declared_t: float | None = None  # seed 003 declared; its isolation waits for the cross-check
         self._unresolved_reported = False
 
     def step(self, t_s: float, imu: tuple[LaneSample | None, ...],
-             mag: tuple[tuple[float, float, float] | None, ...]) -> ChainOutput:
+             mag: tuple[tuple[float, float, float] | None, ...],
+             gps: tuple[float, tuple[float, float, float]] | None = None) -> ChainOutput:
         """``imu``: the three IMU lanes (gyro + accel, as :func:`imu_lane` builds them); ``mag``: each
-        lane's newest field vector in gauss (needed only once the chain is duplex)."""
+        lane's newest field vector in gauss (needed only once the chain is duplex); ``gps``: the newest GPS
+        fix as (time of validity, velocity NED m/s), for the accelerometer attribution (None: none)."""
         out, events = self.voter.step(t_s, imu, duplex_fault_lane=self._verdict,
                                       duplex_fault_detail=self._verdict_detail)
         ev = list(events)
@@ -97,11 +113,15 @@ class ImuDegradationChain:
                 self._next_fdi_t = t_s
                 self._verdict = None
                 self.attribution_lane = None
+                self.accel_attribution_lane = None
                 self._alert_evidence = None
+                self._accel_alert_evidence = None
                 self._declared_t = None
                 self._unresolved_reported = False
                 if self.attribution_config is not None:
                     self.attribution = SubAlertAttribution(self.attribution_config)
+                if self.accel_attribution_config is not None:
+                    self.accel_attribution = AccelAttribution(self.accel_attribution_config)
                 ev.append(FaultReport(t_s, FaultKind.DEGRADED, "imu", -1, 2.0, 3.0,
                                       detail=f"no majority: duplex PF FDI arbitrates lanes {pair}"))
             samples = [imu[i] for i in pair]
@@ -136,7 +156,8 @@ class ImuDegradationChain:
                     self.alert_lane = None
                 ev.extend(self._attribute(t_s, pair, vals[:, :3], np.array(mags, float), fdi_out,
                                           out.duplex_miscompare))
-            feed = self.alert_lane if self.alert_lane is not None else self.attribution_lane
+                ev.extend(self._attribute_accel(t_s, pair, vals, fdi_out, gps))
+            feed = self.alert_lane if self.alert_lane is not None else self._sub_alert_feed()
             if feed is not None and feed in pair and imu[feed] is not None \
                     and out.valid and set(out.lanes_used) == set(pair):
                 out = replace(out, values=imu[feed].values, lanes_used=(feed,))  # type: ignore[union-attr]
@@ -146,11 +167,16 @@ class ImuDegradationChain:
             self.attribution = None
             self.attribution_lane = None
             self._alert_evidence = None
+            self.accel_attribution = None
+            self.accel_attribution_lane = None
+            self._accel_alert_evidence = None
             ev.append(FaultReport(t_s, FaultKind.DEGRADED, "imu", -1, 1.0, 2.0,
                                   detail="simplex: one IMU left, no fault can be detected any more; nav health "
                                          f"lowered to {NAV_HEALTH[RedundancyLevel.SIMPLEX]}"))
         health = NAV_HEALTH[out.level]
-        if out.level is RedundancyLevel.DUPLEX and self.attribution is not None and self.attribution.active:
+        if out.level is RedundancyLevel.DUPLEX and (
+                (self.attribution is not None and self.attribution.active)
+                or (self.accel_attribution is not None and self.accel_attribution.active)):
             # the two lanes disagree and neither is known faulty yet: no better than one unchecked IMU
             health = min(health, NAV_HEALTH[RedundancyLevel.SIMPLEX])
         return ChainOutput(out, out.level, health, fdi_out, tuple(ev))
@@ -170,6 +196,21 @@ class ImuDegradationChain:
         a = self._alert_evidence
         att = self.attribution
         named = None if a is None or att is None else names(a, att.cfg)
+        av, acc = self._accel_alert_evidence, self.accel_attribution
+        if named is None and av is not None and acc is not None:
+            # the GPS-referenced accelerometer evidence (an accelerometer fault turns no field)
+            by_accel = accel_names(av, acc.cfg)
+            if by_accel is not None and by_accel != fdi_faulty:
+                self._declared_t = None
+                self._verdict = pair[by_accel]
+                self._verdict_detail = "duplex FDI declaration, isolation by accelerometer-GPS evidence"
+                return [FaultReport(t_s, FaultKind.ATTRIBUTED, "imu", pair[by_accel], av.shares[by_accel],
+                                    acc.cfg.min_share,
+                                    detail=f"the FDI's isolation residual named lane {pair[fdi_faulty]}; "
+                                           f"accelerometer-GPS shares {av.shares[0]:.2f}, {av.shares[1]:.2f} "
+                                           f"(standard error {av.sigma:.2f}) name lane {pair[by_accel]}: "
+                                           f"lane {pair[by_accel]} isolated")]
+            named = by_accel
         if named is None or named == fdi_faulty:
             waited = 0.0 if self._declared_t is None else t_s - self._declared_t
             if named is None and att is not None and waited < att.cfg.confirm_s - 1e-9:
@@ -188,6 +229,47 @@ class ImuDegradationChain:
                                    f"shares {f[0]:.2f}, {f[1]:.2f} (standard error {a.field_sigma:.2f}) and "
                                    f"bias-estimate shares {b[0]:.2f}, {b[1]:.2f} name lane {pair[named]}: "
                                    f"lane {pair[named]} isolated")]
+
+    def _sub_alert_feed(self) -> int | None:
+        """The lane the sub-alert layers lean on: the gyro's and the accelerometer's; the mean (None) when
+        they lean on different lanes."""
+        g, a = self.attribution_lane, self.accel_attribution_lane
+        if g is None or a is None:
+            return g if a is None else a
+        return g if g == a else None
+
+    def _attribute_accel(self, t_s: float, pair: tuple[int, int], vals: np.ndarray, fdi_out: FdiOutput,
+                         gps: tuple[float, tuple[float, float, float]] | None) -> list[FaultReport]:
+        """Merlin's sub-alert accelerometer attribution (:mod:`merlin.redundancy.accel_attribution`), on
+        the same terms as :meth:`_attribute`: a verdict only while the FDI is normal, its alert time
+        counting towards the persistence, its declaration cross-checked (:meth:`_cross_check`)."""
+        acc = self.accel_attribution
+        if acc is None or self._verdict is not None:
+            self.accel_attribution_lane = None
+            return []
+        spec = self.voter.spec
+        thresholds = np.asarray(spec.miscompare[3:6], float)
+        mis = bool(np.any(np.abs(vals[0, 3:6] - vals[1, 3:6]) > thresholds))
+        gyro, accel = vals[:, :3], vals[:, 3:6]
+        if fdi_out.state is not FdiState.NORMAL:
+            alerting = fdi_out.state is FdiState.ALERT
+            self._accel_alert_evidence = acc.step(t_s, gyro, accel, fdi_out.q, gps, mis, decide=False,
+                                                  count=alerting)
+            self.accel_attribution_lane = None
+            return []
+        self._accel_alert_evidence = None
+        v = acc.step(t_s, gyro, accel, fdi_out.q, gps, mis)
+        self.accel_attribution_lane = None if v.feed is None else pair[v.feed]
+        if v.faulty is None:
+            return []
+        self._verdict = pair[v.faulty]
+        self._verdict_detail = "sub-alert accelerometer attribution"
+        return [FaultReport(t_s, FaultKind.ATTRIBUTED, "imu", pair[v.faulty], v.shares[v.faulty],
+                            acc.cfg.min_share,
+                            detail=f"sub-alert duplex accelerometer miscompare between lanes {pair[0]} and "
+                                   f"{pair[1]} (|D| {v.disagreement_mps2:.2f} m/s^2), decided against the GPS "
+                                   f"velocity: shares {v.shares[0]:.2f}, {v.shares[1]:.2f} (standard error "
+                                   f"{v.sigma:.2f})")]
 
     def _attribute(self, t_s: float, pair: tuple[int, int], gyro: np.ndarray, mag: np.ndarray,
                    fdi_out: FdiOutput, miscompare: bool) -> list[FaultReport]:

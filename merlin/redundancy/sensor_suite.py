@@ -73,12 +73,22 @@ class SensorSuiteVoter:
         mag_vecs = tuple(None if m is None else m.field_frd_gauss for m in mag)
         if len(mag_vecs) == 1:
             mag_vecs = mag_vecs * len(imu)
-        chain = self.imu.step(t_s, tuple(None if s is None else imu_lane(s) for s in imu), mag_vecs)
+        imu_lanes = tuple(None if s is None else imu_lane(s) for s in imu)
         if len(mag) == 1 or len(baro) == 1 or len(gps) == 1:
+            g0 = gps[0] if len(gps) == 1 else None
+            ref = None if g0 is None or g0.fix_type < 3 else (g0.t_s, g0.vel_ned_mps)
+            chain = self.imu.step(t_s, imu_lanes, mag_vecs, ref)
             return self._with_single_channels(t_s, chain, mag, baro, gps)
         m_out, m_ev = self.mag.step(t_s, tuple(None if s is None else mag_lane(s) for s in mag))
         b_out, b_ev = self.baro.step(t_s, tuple(None if s is None else baro_lane(s) for s in baro))
         g_out, g_ev = self.gps.step(t_s, tuple(None if s is None else gps_lane(s) for s in gps))
+        # the accelerometer attribution's reference: the voted GPS velocity at its time of validity
+        g_ref = None
+        if g_out.valid and g_out.values is not None:
+            fixes = [s for i in g_out.lanes_used if (s := gps[i]) is not None]
+            if fixes and min(s.fix_type for s in fixes) >= 3:
+                g_ref = (_newest(gps, g_out.lanes_used, t_s), _v3(g_out.values, 3))
+        chain = self.imu.step(t_s, imu_lanes, mag_vecs, g_ref)
 
         imu_v = None
         if chain.imu.values is not None and chain.imu.valid:

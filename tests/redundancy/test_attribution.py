@@ -363,3 +363,33 @@ def test_a_flickering_alert_without_a_declaration_is_decided_by_the_layer():
     iso = [e for e in events if e.kind is FaultKind.ISOLATED and e.lane in (0, 1)]
     assert [(e.lane, e.detail) for e in iso] == [(1, "sub-alert attribution")]
     assert iso[0].t_s - 3.0 < 2.0
+
+
+def test_a_bias_under_the_voters_threshold_is_detected_by_the_layer_itself():
+    """Campaign run 00009 of redundancy_sensors.yaml (seed 2): a bias at the voter's per-axis threshold was
+    flagged only now and then, and the persistence never filled. The layer's own test on the averaged
+    disagreement (detect_radps) starts the episode even when the voter never flags, and the field trackers
+    name the lane; a disagreement under detect_radps starts nothing."""
+    rng = np.random.default_rng(3)
+    for size, expect in ((0.09, True), (0.03, False)):
+        att = SubAlertAttribution()
+        verdict = None
+        for k in range(500):
+            t = k * 0.01
+            r_bn = _rot_z(0.3 * t)
+            m = r_bn.T @ FIELD_NED
+            gyro = np.stack([np.array([0.0, 0.0, 0.3])] * 2) + rng.normal(0.0, 0.003, (2, 3))
+            if t >= 2.0:
+                gyro[1] += (size, 0.0, 0.0)
+            mag = np.stack([m, m]) + rng.normal(0.0, 0.003, (2, 3))
+            a = att.step(t, gyro, mag, np.zeros((2, 3)), False)  # the voter never flags
+            if a.faulty is not None:
+                verdict = (t, a.faulty)
+                break
+            if not expect:
+                assert not a.active
+        if expect:
+            assert verdict is not None and verdict[1] == 1
+            assert 2.0 + SUB_ALERT.persistence_s <= verdict[0] <= 2.0 + SUB_ALERT.persistence_s + 0.5
+        else:
+            assert verdict is None
