@@ -92,6 +92,9 @@ class ImuDegradationChain:
         self.accel_attribution_config = accel_attribution
         self.accel_attribution: AccelAttribution | None = None
         self._accel_alert_evidence: AccelView | None = None
+        # the newest GPS fix handed in: the caller may pass it only on the tick it arrives, which need not be
+        # a tick the FDI steps on
+        self._gps_ref: tuple[float, tuple[float, float, float]] | None = None
         self._declared_t: float | None = None  # seed 003 declared; its isolation waits for the cross-check
         self._unresolved_reported = False
 
@@ -101,6 +104,8 @@ class ImuDegradationChain:
         """``imu``: the three IMU lanes (gyro + accel, as :func:`imu_lane` builds them); ``mag``: each
         lane's newest field vector in gauss (needed only once the chain is duplex); ``gps``: the newest GPS
         fix as (time of validity, velocity NED m/s), for the accelerometer attribution (None: none)."""
+        if gps is not None:
+            self._gps_ref = gps
         out, events = self.voter.step(t_s, imu, duplex_fault_lane=self._verdict,
                                       duplex_fault_detail=self._verdict_detail)
         ev = list(events)
@@ -156,7 +161,7 @@ class ImuDegradationChain:
                     self.alert_lane = None
                 ev.extend(self._attribute(t_s, pair, vals[:, :3], np.array(mags, float), fdi_out,
                                           out.duplex_miscompare))
-                ev.extend(self._attribute_accel(t_s, pair, vals, fdi_out, gps))
+                ev.extend(self._attribute_accel(t_s, pair, vals, fdi_out, self._gps_ref))
             feed = self.alert_lane if self.alert_lane is not None else self._sub_alert_feed()
             if feed is not None and feed in pair and imu[feed] is not None \
                     and out.valid and set(out.lanes_used) == set(pair):
