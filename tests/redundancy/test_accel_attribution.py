@@ -143,3 +143,43 @@ def test_config_is_checked():
         AccelAttributionConfig(min_share=0.3, max_other_share=0.4)
     with pytest.raises(ValueError, match="must be finite"):
         AccelAttributionConfig(prior_v_mps2=float("nan"))
+
+
+def test_the_chain_keeps_the_fix_for_the_fdi_steps():
+    """The runner hands a GPS fix only on the tick it arrives (400 Hz), while the FDI and both attribution
+    layers step at 100 Hz: the chain keeps the newest fix, so a fix arriving between FDI steps is not lost
+    (campaign run 00002 of redundancy_accel.yaml: no fix ever reached the layer, authority revoked).
+    Hovering, lane 2 frozen, then 1.8 m/s^2 on lane 0's z axis: lane 0 attributed and isolated."""
+    from merlin.redundancy.degradation import ImuDegradationChain
+    from merlin.redundancy.duplex_fdi import MERLIN
+    from merlin.redundancy.events import FaultKind
+    from merlin.redundancy.sensor_voter import LaneSample
+
+    rng = np.random.default_rng(4)
+    chain = ImuDegradationChain(np.random.default_rng(1), MERLIN)
+    field = (0.25, 0.0, 0.43)
+    events = []
+    dt = 0.0025
+    for k in range(int(8.0 / dt)):
+        t = k * dt
+        lanes = []
+        for i in range(3):
+            g = rng.normal(0.0, 0.003, 3)
+            f = np.array([0.0, 0.0, -9.80665]) + rng.normal(0.0, 0.03, 3)
+            if i == 2 and t >= 1.0:
+                g, f = np.zeros(3), np.array([0.0, 0.0, -9.8])  # frozen: isolated as stuck
+            if i == 0 and t >= 5.0:
+                f = f + np.array([0.0, 0.0, 1.8])
+            lanes.append(LaneSample(t, (*g, *f)))
+        mag = tuple(tuple(np.array(field) + rng.normal(0.0, 0.003, 3)) for _ in range(3))
+        # a 10 Hz fix, 0.11 s late, arriving one 400 Hz tick after an FDI step
+        gps = None
+        if k % 40 == 1 and t >= 0.11:
+            gps = (t - 0.11, tuple(rng.normal(0.0, [0.05, 0.05, 0.1])))
+        out = chain.step(t, tuple(lanes), mag, gps)
+        events.extend(out.events)
+    attributed = [e for e in events if e.kind is FaultKind.ATTRIBUTED]
+    assert [e.lane for e in attributed] == [0]
+    assert "GPS velocity" in attributed[0].detail
+    assert 5.0 + ACCEL_SUB_ALERT.persistence_s - 0.05 <= attributed[0].t_s <= 5.0 + ACCEL_SUB_ALERT.persistence_s + 0.5
+    assert [e.lane for e in events if e.kind is FaultKind.ISOLATED] == [2, 0]
