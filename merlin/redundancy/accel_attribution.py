@@ -67,16 +67,26 @@ class AccelAttributionConfig:
     prior_windows: float = 3.0
     average_windows: float = 20.0  # then a running average over this many windows
     gps_timeout_s: float = 0.5  # no GPS fix for this long: the evidence is stale, no verdict
+    # The layer's own detection, beside the voter's 1.5 m/s^2 per-axis flag (as the gyro layer's): the
+    # pair's disagreement, its offset while agreeing removed, averaged over detect_tau_s, reaching
+    # detect_mps2 on an axis. Campaign runs 00036 and 00047 of redundancy_accel.yaml (seed 1): (-0.48,
+    # -0.11, 1.45) and (-0.88, 0.39, -1.38) m/s^2, under the voter's flag, the EKF fed half of it excluded
+    # GPS 3-4 s after the onset. Averaged, the per-sample noise (0.03 m/s^2 simulated, 0.2 on the
+    # synthetic seed-003 flight) is 0.004-0.03 m/s^2.
+    detect_mps2: float = 0.8
+    detect_tau_s: float = 0.25
+    baseline_tau_s: float = 2.0  # the pair's offset: a running mean over this long, then followed this slowly
     history_s: float = 1.0  # how far back the integral is kept to meet a GPS fix's time of validity
 
     def __post_init__(self) -> None:
         vals = (self.persistence_s, self.window_s, self.max_share_sigma, self.max_feed_share_sigma,
                 self.prior_h_mps2, self.prior_v_mps2, self.prior_windows, self.average_windows,
-                self.gps_timeout_s, self.history_s)
+                self.gps_timeout_s, self.history_s, self.detect_mps2, self.detect_tau_s, self.baseline_tau_s)
         if not all(math.isfinite(v) and v > 0.0 for v in vals) or self.decay < 0.0:
             raise ValueError(
                 "AccelAttributionConfig: persistence_s, window_s, max_share_sigma, max_feed_share_sigma, "
-                "prior_h_mps2, prior_v_mps2, prior_windows, average_windows, gps_timeout_s and history_s "
+                "prior_h_mps2, prior_v_mps2, prior_windows, average_windows, gps_timeout_s, history_s, "
+                "detect_mps2, detect_tau_s and baseline_tau_s "
                 f"must be finite and > 0, decay >= 0; got {vals}, decay {self.decay}"
             )
         if not 0.0 <= self.max_other_share < self.min_share:
@@ -139,7 +149,7 @@ class AccelAttribution:
         self._s = np.zeros((2, 3))  # cumulative integral of R f per lane since the first step (m/s)
         self._hist: deque[tuple[float, np.ndarray]] = deque()
         self._anchor: tuple[float, np.ndarray, np.ndarray] | None = None  # (t_valid, S there, v there)
-        self._last_fix: tuple[float, np.ndarray, np.ndarray] | None = None  # the newest fix while agreeing
+        self._last_fix: tuple[float, np.ndarray, np.ndarray] | None = None  # the newest fix (a new episode anchors there)
         self._gps_t: float | None = None  # time of validity of the newest fix used
         self._gps_seen_at = -math.inf  # step time the newest fix arrived
         self._cov = np.diag([config.prior_h_mps2**2, config.prior_h_mps2**2, config.prior_v_mps2**2])
@@ -150,6 +160,9 @@ class AccelAttribution:
         self._sigma = math.inf
         self._dnorm = 0.0
         self.verdict: int | None = None
+        self._base: np.ndarray | None = None  # the pair's accelerometer offset while agreeing
+        self._base_s = 0.0
+        self._d_lp = np.zeros(3)
 
     @property
     def active(self) -> bool:
@@ -170,6 +183,18 @@ class AccelAttribution:
                 return out
             prev = item
         return h[-1][1].copy()
+
+    def _align(self, rv: np.ndarray, q_voted: np.ndarray) -> None:
+        """Align the propagated attitude at a window's end. Its tilt error phi (NED) is constant within the
+        window to the gyros' drift, and shows in the pair's mean residual as phi x g: phi = (-r_E, r_N,
+        0) / |g|. The heading, which the GPS does not show without horizontal acceleration, is pulled
+        half-way to the particle filters' (magnetometer-referenced) heading."""
+        phi = np.array([-rv[1], rv[0], 0.0]) / G_NED[2]
+        r = _rotation(phi) @ self._r
+        pf = dcm_body_to_ned(np.asarray(q_voted, float))
+        dpsi = math.atan2(pf[1, 0], pf[0, 0]) - math.atan2(r[1, 0], r[0, 0])
+        dpsi = (dpsi + math.pi) % (2.0 * math.pi) - math.pi
+        self._r = _rotation(np.array([0.0, 0.0, 0.5 * dpsi])) @ r
 
     def _window(self, t_b: float, s_b: np.ndarray, v_b: np.ndarray) -> tuple[np.ndarray, np.ndarray, float] | None:
         """(r (2, 3), D (3,), T) over the anchor's window up to the fix (t_b, v_b); None without an anchor."""
@@ -210,6 +235,22 @@ class AccelAttribution:
         while self._hist and self._hist[0][0] < t_s - cfg.history_s:
             self._hist.popleft()
 
+        # the layer's own detection (detect_mps2)
+        d_acc = accel[0] - accel[1]
+        settled = self._base_s >= cfg.baseline_tau_s
+        if self._base is not None:
+            self._d_lp += min(1.0, dt / cfg.detect_tau_s) * (d_acc - self._base - self._d_lp)
+        lp = float(np.max(np.abs(self._d_lp))) if settled else 0.0
+        miscompare = miscompare or lp >= cfg.detect_mps2
+        if not self._episode and not miscompare:
+            if self._base is None:
+                self._base = d_acc.copy()
+            elif not settled:
+                self._base_s += dt
+                self._base += min(1.0, dt / self._base_s) * (d_acc - self._base)
+            elif lp < 0.5 * cfg.detect_mps2:
+                self._base += min(1.0, dt / cfg.baseline_tau_s) * (d_acc - self._base)
+
         fix = None
         if gps is not None and gps[0] != self._gps_t:
             s_fix = self._s_at(gps[0])
@@ -217,6 +258,7 @@ class AccelAttribution:
             self._gps_seen_at = t_s
             if s_fix is not None:
                 fix = (gps[0], s_fix, np.asarray(gps[1], float))
+                self._last_fix = fix
 
         if not self._episode:
             if miscompare:
@@ -230,32 +272,37 @@ class AccelAttribution:
                 self._shares, self._sigma, self._dnorm = (0.0, 0.0), math.inf, 0.0
             else:
                 if fix is not None:
-                    self._last_fix = fix
                     w = self._window(*fix)
                     if w is None or w[2] >= cfg.window_s:
-                        if w is not None:  # one more measurement of what both lanes share
+                        if w is not None:
+                            # one more measurement of what both lanes share: the error of an attitude
+                            # aligned at the last window's end and propagated with the gyros since, as
+                            # it will be through an episode
                             rv = 0.5 * (w[0][0] + w[0][1])
                             self._windows += 1
                             k = max(1.0 / cfg.average_windows, 1.0 / (cfg.prior_windows + self._windows))
                             self._cov += k * (np.outer(rv, rv) - self._cov)
-                        self._anchor = fix  # the next window starts at this fix, on a fresh attitude
-                        self._r = dcm_body_to_ned(np.asarray(q_voted, float))
+                            self._align(rv, q_voted)
+                        self._anchor = fix  # the next window starts at this fix
                 return _IDLE
         if decide if count is None else count:
             self.counter_s = self.counter_s + dt if miscompare else max(0.0, self.counter_s - cfg.decay * dt)
         if decide and self.counter_s <= 0.0 and not miscompare:
             self._episode = False  # the pair agrees again; a window restarts at the next fix
-            self._anchor = self._last_fix = None
+            self._anchor = None  # the next window starts at the next fix; a new onset, at the newest one
             return _IDLE
         if fix is not None:
             w = self._window(*fix)
             if w is not None:
                 r, d, span = w
-                dd = float(d @ d)
-                self._dnorm = math.sqrt(dd)
+                self._dnorm = float(np.linalg.norm(d))
                 if self._dnorm >= cfg.min_disagreement_mps2:
-                    self._shares = (float(r[0] @ d) / dd, -float(r[1] @ d) / dd)
-                    self._sigma = math.sqrt(float(d @ self._cov @ d) * min(1.0, cfg.window_s / span)) / dd
+                    # generalised least squares: the components the common error leaves alone (the
+                    # vertical, with a poor attitude) weigh most; var(share) = 1 / (D^T C^-1 D)
+                    wd = np.linalg.solve(self._cov, d)
+                    dwd = float(d @ wd)
+                    self._shares = (float(r[0] @ wd) / dwd, -float(r[1] @ wd) / dwd)
+                    self._sigma = math.sqrt(min(1.0, cfg.window_s / span) / dwd)
                     if span < cfg.window_s:
                         self._sigma = max(self._sigma, cfg.max_share_sigma * (1.0 + 1e-9))  # too short a window
                 else:
