@@ -37,10 +37,10 @@ def _rot(axis: int, a: float) -> np.ndarray:
 
 def _fly(bias_body: np.ndarray, lane: int, onset_s: float = 8.0, duration_s: float = 14.0,
          tilt_error_deg: float = 1.0, gps: bool = True, seed: int = 0,
-         cfg: AccelAttributionConfig = ACCEL_SUB_ALERT):
+         cfg: AccelAttributionConfig = ACCEL_SUB_ALERT, gps_noise=(0.05, 0.05, 0.1)):
     """A multirotor yawing at 0.2 rad/s and swaying (+-2 m/s^2 north, +-1 m/s^2 east, +-0.5 m/s^2 down);
     from ``onset_s`` accelerometer ``lane`` reads ``bias_body`` more. GPS velocity fixes at 10 Hz, 0.11 s
-    late, 0.05 / 0.1 m/s noise. The 'voted attitude' handed in is the truth tilted by a slow error of
+    late, 0.05 / 0.1 m/s noise (``gps_noise``). The 'voted attitude' handed in is the truth tilted by a slow error of
     ``tilt_error_deg`` (period 7 s, roll and pitch out of phase), as the particle filters' is. Yields
     (t, view) from the onset on."""
     rng = np.random.default_rng(seed)
@@ -67,7 +67,7 @@ def _fly(bias_body: np.ndarray, lane: int, onset_s: float = 8.0, duration_s: flo
         e = math.radians(tilt_error_deg)
         r_est = r_true @ _rot(0, e * math.sin(2 * math.pi * t / 7.0)) @ _rot(1, e * math.cos(2 * math.pi * t / 7.0))
         if gps and t >= next_fix - 1e-9:
-            fixes.append((t, v_ned + rng.normal(0.0, [0.05, 0.05, 0.1])))
+            fixes.append((t, v_ned + rng.normal(0.0, gps_noise)))
             next_fix += GPS_PERIOD
         arrived = [f for f in fixes if f[0] + GPS_LATENCY <= t + 1e-9]
         fix = (arrived[-1][0], tuple(arrived[-1][1])) if arrived else None
@@ -90,16 +90,21 @@ def test_a_vertical_accelerometer_bias_is_attributed_at_the_persistence(lane, bi
     assert all(v.feed == 1 - lane for _, v in views if v.feed is not None)
 
 
-def test_a_horizontal_bias_waits_for_a_good_enough_attitude():
-    """Horizontally a tilt error reads as an acceleration: with 1 degree of error the evidence is good,
-    with 8 degrees (the particle filters' roll in a manoeuvring multirotor) the standard error stays above
-    the verdict's limit and the layer gives no verdict (and certainly not the healthy lane)."""
-    good = [v for _, v in _fly(np.array([1.8, 0.0, 0.0]), 0, tilt_error_deg=1.0)]
-    assert any(v.faulty == 0 for v in good)
-    poor = [v for _, v in _fly(np.array([1.8, 0.0, 0.0]), 0, tilt_error_deg=8.0)]
-    assert all(v.faulty in (None, 0) for v in poor)
-    assert all(v.feed in (None, 1) for v in poor)
-    assert max(v.sigma for v in poor if math.isfinite(v.sigma)) > ACCEL_SUB_ALERT.max_share_sigma
+def test_a_horizontal_bias_is_attributed_once_the_evidence_is_good_enough():
+    """Horizontally a tilt error reads as an acceleration. The particle filters' slow tilt error (8 degrees
+    here, their roll in a manoeuvring multirotor) is aligned out against the GPS while the lanes agree, so
+    the bias is attributed, later than a vertical one (the window must grow); with the GPS velocity ten
+    times noisier (0.5 m/s) the standard error never comes down to the verdict's limit: no verdict, and
+    the healthy lane is never the one named or dropped from the feed."""
+    for tilt in (1.0, 8.0):
+        views = list(_fly(np.array([1.8, 0.0, 0.0]), 0, tilt_error_deg=tilt))
+        verdicts = [(t, v.faulty) for t, v in views if v.faulty is not None]
+        assert verdicts and verdicts[0][1] == 0
+        assert verdicts[0][0] > ACCEL_SUB_ALERT.persistence_s + 1.0
+    noisy = [v for _, v in _fly(np.array([1.8, 0.0, 0.0]), 0, gps_noise=(0.5, 0.5, 1.0))]
+    assert all(v.faulty is None for v in noisy)
+    assert all(v.feed in (None, 1) for v in noisy)
+    assert min(v.sigma for v in noisy) > ACCEL_SUB_ALERT.max_share_sigma
 
 
 def test_without_gps_no_verdict():
@@ -183,3 +188,14 @@ def test_the_chain_keeps_the_fix_for_the_fdi_steps():
     assert "GPS velocity" in attributed[0].detail
     assert 5.0 + ACCEL_SUB_ALERT.persistence_s - 0.05 <= attributed[0].t_s <= 5.0 + ACCEL_SUB_ALERT.persistence_s + 0.5
     assert [e.lane for e in events if e.kind is FaultKind.ISOLATED] == [2, 0]
+
+
+def test_a_bias_under_the_voters_threshold_is_detected_by_the_layer_itself():
+    """Campaign runs 00036 and 00047 of redundancy_accel.yaml: biases just under the voter's 1.5 m/s^2
+    per-axis flag were fed to the EKF as the mean and revoked authority. The layer's own test on the
+    averaged disagreement (detect_mps2) starts the episode; a disagreement under it starts nothing."""
+    views = list(_fly(np.array([0.0, 0.0, 1.2]), 1))  # _fly's voter flag needs 1.5: it never rises here
+    verdicts = [(t, v.faulty) for t, v in views if v.faulty is not None]
+    assert verdicts and verdicts[0][1] == 1
+    quiet = list(_fly(np.array([0.0, 0.0, 0.4]), 1))
+    assert all(not v.active for _, v in quiet)
