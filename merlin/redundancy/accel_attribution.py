@@ -17,16 +17,22 @@ change of velocity less gravity:
 
 so r^(i) = [integral R f^(i) dt - (v_b - v_a)] / T + g is lane i's accelerometer error in NED, averaged over
 the window: R-bar b^(i) for the faulty lane, ~0 for the healthy one. R is the attitude propagated with the
-pair's mean gyro from the particle filters' voted attitude, reset at each window start while the lanes
-agree and never during a miscompare (a biased accelerometer tilts its own filter's attitude, and the mean).
-With D = (integral R (f^(1) - f^(2)) dt) / T the disagreement, the shares are p^(1) = r^(1).D/|D|^2 and
-p^(2) = -r^(2).D/|D|^2 (they sum to 1: the GPS cancels out of the difference). What both lanes share —
-the attitude's error (a tilt delta puts |g| delta into the horizontal), the GPS velocity noise (0.05 m/s
-horizontal, 0.1 m/s vertical per fix), its latency — moves both shares by c.D/|D|^2; its covariance C is
-measured, while the pair agrees, on the voted residual (r^(1) + r^(2)) / 2 over windows of ``window_s``,
-and the shares count by their standard error sqrt(D^T C D) / |D|^2 (scaled by sqrt(window_s / T) for a
-longer window). A vertical bias is seen at once (a tilt error leaves the vertical alone); a horizontal one
-only as far as the attitude is good (4 degrees of roll error in a manoeuvring multirotor: 0.7 m/s^2).
+pair's mean gyro. While the lanes agree it is aligned at the end of each window of ``window_s``: its tilt
+error phi, constant within a window to the gyros' drift, shows in the pair's mean residual as phi x g and
+is removed, and its heading is pulled half-way to the particle filters' (magnetometer-referenced) one;
+during a miscompare it is left alone (a biased accelerometer tilts its own filter's attitude, and the
+mean). With D = (integral R (f^(1) - f^(2)) dt) / T the disagreement and C the covariance of what both
+lanes share — the attitude's remaining error (a tilt delta puts |g| delta into the horizontal), the GPS
+velocity noise (0.05 m/s horizontal, 0.1 m/s vertical per fix), its latency — measured on the pair's mean
+residual of each window while they agree, the shares are generalised least squares:
+
+    p^(1) = r^(1)T C^-1 D / (D^T C^-1 D),      p^(2) = -r^(2)T C^-1 D / (D^T C^-1 D)
+
+They sum to 1 (the GPS cancels out of the difference); the shared error moves both, with a standard error
+1 / sqrt(D^T C^-1 D) (scaled by sqrt(window_s / T) for a longer window), by which they count. A vertical
+bias is seen at once (a tilt error leaves the vertical alone); a horizontal one as the window grows.
+Beside the voter's flag the layer detects a disagreement on its own (``detect_mps2``), as the gyro
+layer does.
 
 The decision has the gyro layer's shape (1 s of miscompare persistence while the FDI is normal, then the
 lane with a share >= 0.5 while the other's is <= 0.25, the lane fed meanwhile), and the FDI's alert and
