@@ -129,9 +129,10 @@ def _clear(shares: tuple[float, float], cfg: AccelAttributionConfig) -> int | No
 
 
 def accel_names(v: AccelView, cfg: AccelAttributionConfig) -> int | None:
-    """The IMU of the pair the GPS-referenced accelerometer evidence clearly names (standard error within
-    max_share_sigma), else None: the cross-check of the FDI's isolation at a declaration."""
-    return _clear(v.shares, cfg) if v.sigma <= cfg.max_share_sigma else None
+    """The IMU of the pair the GPS-referenced accelerometer evidence clearly names, else None: the
+    cross-check of the FDI's isolation at a declaration, which only has to tell the two lanes apart (the
+    standard error within max_feed_share_sigma, as the gyro layer's cross-check)."""
+    return _clear(v.shares, cfg) if v.sigma <= cfg.max_feed_share_sigma else None
 
 
 def _rotation(w_dt: np.ndarray) -> np.ndarray:

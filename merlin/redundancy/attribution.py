@@ -101,6 +101,13 @@ class AttributionConfig:
     # the lane fed meanwhile may follow the field shares at a looser standard error: feeding is undone by
     # the next step, and a wrong feed needs the shares' difference 3.5 sigma off (1 -> -0.25)
     max_feed_share_sigma: float = 0.25
+    # The cross-check of seed 003's isolation at its declaration (:func:`names`) only has to tell the two
+    # lanes apart, the FDI having declared one of them faulty: it takes the field shares at this standard
+    # error. Campaign run 00514 of the 1,000-run mix of 2026-11-24 (evening; examples/scenarios/
+    # redundancy_duplex_declaration_cross_check.yaml): shares 0.02 / 0.98 at the declaration, standard
+    # error 0.16, the verdict's 0.1 not reached within confirm_s, so the FDI's choice, the healthy lane,
+    # stood and authority was revoked.
+    max_confirm_share_sigma: float = 0.25
     field_noise_prior_gauss: float = 0.01  # residual noise assumed before any has been measured ...
     field_noise_prior_s: float = 0.1  # ... worth this much measured time (then the baseline_tau_s average)
     # The bias evidence names a lane (a verdict alone, the lane fed) only while the common-mode wander of
@@ -128,11 +135,13 @@ class AttributionConfig:
                 "AttributionConfig: persistence_s, baseline_tau_s, field_tau_s, detect_radps and detect_tau_s "
                 "must be > 0, decay >= 0"
             )
-        if min(self.max_field_share_sigma, self.max_feed_share_sigma, self.max_bias_share_sigma, self.bias_wander_tau_s,
+        if min(self.max_field_share_sigma, self.max_feed_share_sigma, self.max_confirm_share_sigma,
+               self.max_bias_share_sigma, self.bias_wander_tau_s,
                self.field_noise_prior_gauss, self.bias_wander_prior_radps, self.field_noise_prior_s) <= 0.0 \
                 or self.min_field_signal_gauss < 0.0:
             raise ValueError(
-                "AttributionConfig: max_field_share_sigma, max_feed_share_sigma, max_bias_share_sigma, "
+                "AttributionConfig: max_field_share_sigma, max_feed_share_sigma, max_confirm_share_sigma, "
+                "max_bias_share_sigma, "
                 "bias_wander_tau_s, field_noise_prior_gauss, field_noise_prior_s and bias_wander_prior_radps "
                 "must be > 0, min_field_signal_gauss >= 0"
             )
@@ -176,8 +185,9 @@ def _clear(shares: tuple[float, float], cfg: AttributionConfig) -> int | None:
 
 
 def _field_names(a: Attribution, cfg: AttributionConfig) -> int | None:
-    """The IMU the field trackers name, once their shares' standard error is within max_field_share_sigma."""
-    return _clear(a.field_shares, cfg) if a.field_sigma <= cfg.max_field_share_sigma else None
+    """The IMU the field trackers name, once their shares' standard error is within max_confirm_share_sigma
+    (the cross-check's standard; the layer's own verdict asks for max_field_share_sigma)."""
+    return _clear(a.field_shares, cfg) if a.field_sigma <= cfg.max_confirm_share_sigma else None
 
 
 def names(a: Attribution, cfg: AttributionConfig) -> int | None:
