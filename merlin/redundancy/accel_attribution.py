@@ -82,17 +82,21 @@ class AccelAttributionConfig:
     detect_mps2: float = 0.8
     detect_tau_s: float = 0.25
     baseline_tau_s: float = 2.0  # the pair's offset: a running mean over this long, then followed this slowly
+    # A continuous FDI alert this long without a declaration is left to this layer (seed 003's E3 cannot
+    # fire on a vertical bias; its declarations of gyro faults came within 1.03 s in the closed loop)
+    alert_patience_s: float = 2.0
     history_s: float = 1.0  # how far back the integral is kept to meet a GPS fix's time of validity
 
     def __post_init__(self) -> None:
         vals = (self.persistence_s, self.window_s, self.max_share_sigma, self.max_feed_share_sigma,
                 self.prior_h_mps2, self.prior_v_mps2, self.prior_windows, self.average_windows,
-                self.gps_timeout_s, self.history_s, self.detect_mps2, self.detect_tau_s, self.baseline_tau_s)
+                self.gps_timeout_s, self.history_s, self.detect_mps2, self.detect_tau_s, self.baseline_tau_s,
+                self.alert_patience_s)
         if not all(math.isfinite(v) and v > 0.0 for v in vals) or self.decay < 0.0:
             raise ValueError(
                 "AccelAttributionConfig: persistence_s, window_s, max_share_sigma, max_feed_share_sigma, "
                 "prior_h_mps2, prior_v_mps2, prior_windows, average_windows, gps_timeout_s, history_s, "
-                "detect_mps2, detect_tau_s and baseline_tau_s "
+                "detect_mps2, detect_tau_s, baseline_tau_s and alert_patience_s "
                 f"must be finite and > 0, decay >= 0; got {vals}, decay {self.decay}"
             )
         if not 0.0 <= self.max_other_share < self.min_share:

@@ -95,6 +95,7 @@ class ImuDegradationChain:
         # the newest GPS fix handed in: the caller may pass it only on the tick it arrives, which need not be
         # a tick the FDI steps on
         self._gps_ref: tuple[float, tuple[float, float, float]] | None = None
+        self._alert_t0: float | None = None  # when the FDI's current, continuous alert began
         self._declared_t: float | None = None  # seed 003 declared; its isolation waits for the cross-check
         self._unresolved_reported = False
 
@@ -148,7 +149,19 @@ class ImuDegradationChain:
                 # statistic seed 003 §5 (eq. 42) itself isolates with at the declaration, with the MERLIN
                 # preset whitened and averaged since the alert instant, so the lane fed is the one the
                 # FDI would keep if it decided now. Back in N the mean returns (seed 003 §2).
-                if fdi_out.state is FdiState.ALERT and self.alert_feed == "lowest_residual":
+                if fdi_out.state is FdiState.ALERT:
+                    if self._alert_t0 is None:
+                        self._alert_t0 = t_s
+                else:
+                    self._alert_t0 = None
+                av = self._accel_alert_evidence
+                if fdi_out.state is FdiState.ALERT and self.alert_feed == "lowest_residual" \
+                        and av is not None and av.feed is not None:
+                    # an accelerometer alert the GPS-referenced evidence already tells apart (seed 003's
+                    # residual mixes accelerometer and magnetometer terms of a filter that tilts to
+                    # explain a horizontal bias, and sees a vertical one in both filters' gravity norm)
+                    self.alert_lane = pair[av.feed]
+                elif fdi_out.state is FdiState.ALERT and self.alert_feed == "lowest_residual":
                     r0, r1 = fdi_out.residual
                     self.alert_lane = pair[0] if r0 <= r1 else pair[1]
                 elif fdi_out.faulty is not None and self._verdict is None:
@@ -256,22 +269,29 @@ class ImuDegradationChain:
         thresholds = np.asarray(spec.miscompare[3:6], float)
         mis = bool(np.any(np.abs(vals[0, 3:6] - vals[1, 3:6]) > thresholds))
         gyro, accel = vals[:, :3], vals[:, 3:6]
-        if fdi_out.state is not FdiState.NORMAL:
-            alerting = fdi_out.state is FdiState.ALERT
+        alerting = fdi_out.state is FdiState.ALERT
+        # Seed 003's E3 (||Omega dq|| > 1) cannot fire on a vertical accelerometer bias, which tilts
+        # neither filter: the alert then lasts for ever without a declaration (campaign run 00584 of the
+        # evening's 1,000-run mix: 2.61 m/s^2 along z, over tau_a, alert from the onset, no declaration,
+        # revoked 3.6 s later). After alert_patience_s of continuous alert the layer decides.
+        patient = alerting and self._alert_t0 is not None and t_s - self._alert_t0 >= acc.cfg.alert_patience_s
+        if fdi_out.state is not FdiState.NORMAL and not patient:
             self._accel_alert_evidence = acc.step(t_s, gyro, accel, fdi_out.q, gps, mis, decide=False,
                                                   count=alerting)
             self.accel_attribution_lane = None
             return []
-        self._accel_alert_evidence = None
         v = acc.step(t_s, gyro, accel, fdi_out.q, gps, mis)
+        self._accel_alert_evidence = v if alerting else None
         self.accel_attribution_lane = None if v.feed is None else pair[v.feed]
         if v.faulty is None:
             return []
         self._verdict = pair[v.faulty]
-        self._verdict_detail = "sub-alert accelerometer attribution"
+        self._verdict_detail = "accelerometer attribution after a long FDI alert" if alerting \
+            else "sub-alert accelerometer attribution"
         return [FaultReport(t_s, FaultKind.ATTRIBUTED, "imu", pair[v.faulty], v.shares[v.faulty],
                             acc.cfg.min_share,
-                            detail=f"sub-alert duplex accelerometer miscompare between lanes {pair[0]} and "
+                            detail=f"{'long-alert' if alerting else 'sub-alert'} duplex accelerometer miscompare "
+                                   f"between lanes {pair[0]} and "
                                    f"{pair[1]} (|D| {v.disagreement_mps2:.2f} m/s^2), decided against the GPS "
                                    f"velocity: shares {v.shares[0]:.2f}, {v.shares[1]:.2f} (standard error "
                                    f"{v.sigma:.2f})")]
