@@ -157,9 +157,9 @@ class ImuDegradationChain:
                 av = self._accel_alert_evidence
                 if fdi_out.state is FdiState.ALERT and self.alert_feed == "lowest_residual" \
                         and av is not None and av.feed is not None:
-                    # an accelerometer alert the GPS-referenced evidence already tells apart (seed 003's
-                    # residual mixes accelerometer and magnetometer terms of a filter that tilts to
-                    # explain a horizontal bias, and sees a vertical one in both filters' gravity norm)
+                    # an accelerometer disagreement the GPS-referenced evidence already tells apart: feed
+                    # the lane it favours (seed 003's residual is each filter's accelerometer and
+                    # magnetometer misfit, and a filter tilts to explain a horizontal bias away)
                     self.alert_lane = pair[av.feed]
                 elif fdi_out.state is FdiState.ALERT and self.alert_feed == "lowest_residual":
                     r0, r1 = fdi_out.residual
@@ -210,7 +210,9 @@ class ImuDegradationChain:
         the seed's, unchanged. A declaration can come before the trackers have seen anything (on the
         alert's own step when the bias is far above tau_g): the isolation then waits up to
         ``AttributionConfig.confirm_s`` for them, the estimator fed the lane they favour (else the one the
-        FDI keeps); without clear field evidence by then the seed's choice stands."""
+        FDI keeps); without clear field evidence by then the seed's choice stands. When the field trackers
+        name no lane, the GPS-referenced accelerometer evidence (:func:`accel_names`) is asked the same
+        way (an accelerometer fault turns no field)."""
         a = self._alert_evidence
         att = self.attribution
         named = None if a is None or att is None else names(a, att.cfg)
@@ -258,9 +260,10 @@ class ImuDegradationChain:
 
     def _attribute_accel(self, t_s: float, pair: tuple[int, int], vals: np.ndarray, fdi_out: FdiOutput,
                          gps: tuple[float, tuple[float, float, float]] | None) -> list[FaultReport]:
-        """Merlin's sub-alert accelerometer attribution (:mod:`merlin.redundancy.accel_attribution`), on
-        the same terms as :meth:`_attribute`: a verdict only while the FDI is normal, its alert time
-        counting towards the persistence, its declaration cross-checked (:meth:`_cross_check`)."""
+        """Merlin's accelerometer attribution (:mod:`merlin.redundancy.accel_attribution`), on the terms of
+        :meth:`_attribute` (a verdict while the FDI is normal, its alert time counting towards the
+        persistence, its declaration cross-checked by :meth:`_cross_check`), and one more: after
+        ``alert_patience_s`` of continuous alert without a declaration, the layer decides."""
         acc = self.accel_attribution
         if acc is None or self._verdict is not None:
             self.accel_attribution_lane = None
