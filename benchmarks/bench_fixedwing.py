@@ -76,25 +76,20 @@ def route_plans_ms() -> list[tuple[str, float]]:
     import math
 
     import shapely
+    import yaml
 
     from merlin.autopilot import fixedwing_route as fr
     from merlin.core.geofence import CircleNE, Fence, FenceParams, PolygonNE
 
-    rng = PolygonNE(
-        (
-            (-700.0, -700.0),
-            (-700.0, 700.0),
-            (700.0, 700.0),
-            (700.0, 150.0),
-            (400.0, 150.0),
-            (400.0, -150.0),
-            (700.0, -150.0),
-            (700.0, -700.0),
-        )
-    )
+    # examples/campaigns/fixed_wing.yaml's range and mast, read from it
+    geo = yaml.safe_load((Path(__file__).resolve().parents[1] / "examples" / "campaigns" / "fixed_wing.yaml")
+                         .read_text(encoding="utf-8"))["config"]["geofence"]
+    rng = PolygonNE(tuple((float(n), float(e)) for n, e in geo["inclusion_polygons"][0]["vertices_ne_m"]))
+    mast = geo["exclusion_circles"][0]
     params = FenceParams(vehicle="fixed_wing", bank_limit_rad=math.radians(30.0), reaction_time_s=1.0)
     fence = Fence(
-        params, inclusion_polygons=(rng,), exclusion_circles=(CircleNE((-350.0, -350.0), 60.0),), grid_cells=0
+        params, inclusion_polygons=(rng,), exclusion_circles=(CircleNE(tuple(mast["center_ne_m"]), mast["radius_m"]),),
+        grid_cells=0,
     )
     starts = [
         (n, e)

@@ -5,10 +5,12 @@ moves off a keep-out, a start inside the buffer flies out of it first, and no ro
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 import shapely
+import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -18,20 +20,12 @@ from merlin.autopilot import fixedwing_route as fr
 from merlin.core.geofence import CircleNE, Fence, FenceParams, PolygonNE
 from merlin.core.types import VehicleState
 
-#: examples/campaigns/fixed_wing.yaml's range: 1.4 km square, a notch in its north side, the mast
-RANGE = PolygonNE(
-    (
-        (-700.0, -700.0),
-        (-700.0, 700.0),
-        (700.0, 700.0),
-        (700.0, 150.0),
-        (400.0, 150.0),
-        (400.0, -150.0),
-        (700.0, -150.0),
-        (700.0, -700.0),
-    )
-)
-MAST = CircleNE((-350.0, -350.0), 60.0)
+#: examples/campaigns/fixed_wing.yaml's range, read from it: 1.4 km square, a notch in its north side, the mast
+_GEOFENCE = yaml.safe_load(
+    (Path(__file__).resolve().parents[2] / "examples" / "campaigns" / "fixed_wing.yaml").read_text(encoding="utf-8")
+)["config"]["geofence"]
+RANGE = PolygonNE(tuple((float(n), float(e)) for n, e in _GEOFENCE["inclusion_polygons"][0]["vertices_ne_m"]))
+MAST = CircleNE(tuple(_GEOFENCE["exclusion_circles"][0]["center_ne_m"]), float(_GEOFENCE["exclusion_circles"][0]["radius_m"]))
 PARAMS = FenceParams(
     vehicle="fixed_wing",
     bank_limit_rad=math.radians(30.0),
