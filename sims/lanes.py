@@ -149,6 +149,7 @@ class ImuVoterStage:
         self.voted_gps: GpsSample | None = None
         self._t: float | None = None
         self.voted: ImuSample | None = None
+        self.imu_source_step: tuple[float, ...] | None = None  # the IMU source fed changed this tick
         self.level = RedundancyLevel.TRIPLEX
         self.levels: dict[str, RedundancyLevel] = {}
         self.nav_health = 1.0
@@ -187,6 +188,7 @@ class ImuVoterStage:
         for r in out.events:
             self.events.append(_event(r))
         self.voted = out.imu
+        self.imu_source_step = out.imu_source_step
         self.levels = dict(out.levels)
         self.level = self.levels["imu"]
         self.nav_health = out.nav_health

@@ -543,6 +543,9 @@ class ClosedLoop:
             imu_v = red.voter.vote(t, fr)
             if fr.imu and imu_v is not None:
                 ekf.predict(imu_v)
+                step = red.voter.imu_source_step
+                if step is not None:  # a lane switch: the new source's biases are not the old one's
+                    ekf.widen_imu_bias(step[3:6], step[0:3])
         elif fr.imu:
             lanes = fr.imu
             if len(lanes) == 3:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import Enum
 
@@ -841,6 +842,21 @@ class NavEstimator:
     @property
     def pos_sigma_v_m(self) -> float:
         return math.sqrt(max(0.0, self.kf.P[2, 2]))
+
+    def widen_imu_bias(self, accel_step_mps2: Sequence[float], gyro_step_radps: Sequence[float]) -> None:
+        """The IMU source feeding the filter changed (a redundancy lane switch: the pair's mean to one lane,
+        one lane to the other), and its readings jumped by these steps. Part of the old source's error sits
+        in the bias estimates, how much is not known, so the bias variances are widened by each axis's step
+        squared: the filter re-learns the biases from the aiding instead of finding the aiding inconsistent
+        (a correct isolation of a 1.47 m/s^2 accelerometer bias was followed by a GPS exclusion 1.8 s later:
+        campaign run 00055 of redundancy_accel.yaml, seed 3). PX4 and ArduPilot avoid the step by running
+        one filter per IMU."""
+        if self._pend_n:
+            self._predict_covariance()
+        P = self.kf.P
+        for i in range(3):
+            P[BA_.start + i, BA_.start + i] += float(accel_step_mps2[i]) ** 2
+            P[BG_.start + i, BG_.start + i] += float(gyro_step_radps[i]) ** 2
 
     @property
     def gyro_bias_radps(self) -> Vec3:

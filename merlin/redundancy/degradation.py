@@ -56,6 +56,9 @@ class ChainOutput:
     nav_health: float
     fdi: FdiOutput | None  # the duplex FDI's output when it stepped this tick
     events: tuple[FaultReport, ...]
+    # the IMU source fed changed this tick (a lane switch at duplex or simplex): new source's values less
+    # the old source's, both now (gyro x3, accel x3); None otherwise
+    source_step: tuple[float, ...] | None = None
 
 
 class ImuDegradationChain:
@@ -96,6 +99,7 @@ class ImuDegradationChain:
         # a tick the FDI steps on
         self._gps_ref: tuple[float, tuple[float, float, float]] | None = None
         self._alert_t0: float | None = None  # when the FDI's current, continuous alert began
+        self._fed: tuple[int, ...] | None = None  # the lanes the output came from last tick
         self._declared_t: float | None = None  # seed 003 declared; its isolation waits for the cross-check
         self._unresolved_reported = False
 
@@ -191,13 +195,29 @@ class ImuDegradationChain:
             ev.append(FaultReport(t_s, FaultKind.DEGRADED, "imu", -1, 1.0, 2.0,
                                   detail="simplex: one IMU left, no fault can be detected any more; nav health "
                                          f"lowered to {NAV_HEALTH[RedundancyLevel.SIMPLEX]}"))
+        step = self._source_step(imu, out)
         health = NAV_HEALTH[out.level]
         if out.level is RedundancyLevel.DUPLEX and (
                 (self.attribution is not None and self.attribution.active)
                 or (self.accel_attribution is not None and self.accel_attribution.active)):
             # the two lanes disagree and neither is known faulty yet: no better than one unchecked IMU
             health = min(health, NAV_HEALTH[RedundancyLevel.SIMPLEX])
-        return ChainOutput(out, out.level, health, fdi_out, tuple(ev))
+        return ChainOutput(out, out.level, health, fdi_out, tuple(ev), step)
+
+    def _source_step(self, imu: tuple[LaneSample | None, ...], out: VotedOutput) -> tuple[float, ...] | None:
+        """Once the voter is down to two lanes, the output switches between the pair's mean and one lane
+        (the lane fed during an alert or an attribution, the survivor after an isolation). Each lane's
+        biases are its own, so a switch is a step in what the estimator integrates; it is returned so that
+        the estimator can widen its bias uncertainty by it (sims/runner.py)."""
+        used = tuple(out.lanes_used) if out.valid else None
+        prev, self._fed = self._fed, used
+        if used is None or prev is None or set(prev) == set(used) or out.level is RedundancyLevel.TRIPLEX:
+            return None
+        if len(prev) > 2 or any(imu[i] is None for i in prev) or any(imu[i] is None for i in used):
+            return None
+        old = np.mean([imu[i].values for i in prev], axis=0)  # type: ignore[union-attr]
+        new = np.mean([imu[i].values for i in used], axis=0)  # type: ignore[union-attr]
+        return tuple(float(x) for x in new - old)
 
     def _cross_check(self, t_s: float, pair: tuple[int, int], fdi_faulty: int) -> list[FaultReport]:
         """Seed 003 isolates, at the declaration, the IMU with the larger isolation residual (§5, eq. 42).

@@ -50,6 +50,7 @@ class VotedSensors:
     levels: tuple[tuple[str, RedundancyLevel], ...]
     nav_health: float  # the worst of the IMU chain's and the other channels' health, 0..1
     events: tuple[FaultReport, ...]
+    imu_source_step: tuple[float, ...] | None = None  # ChainOutput.source_step: the IMU source fed changed
 
 
 def _v3(vals: tuple[float, ...], i: int) -> tuple[float, float, float]:
@@ -111,7 +112,7 @@ class SensorSuiteVoter:
         levels = (("imu", chain.level), ("mag", m_out.level), ("baro", b_out.level), ("gps", g_out.level))
         health = min(chain.nav_health, *(NAV_HEALTH[o.level] for o in (m_out, b_out, g_out)))
         return VotedSensors(t_s, imu_v, mag_v, baro_v, gps_v, levels, health,
-                            (*chain.events, *m_ev, *b_ev, *g_ev))
+                            (*chain.events, *m_ev, *b_ev, *g_ev), chain.source_step)
 
 
     def _with_single_channels(self, t_s: float, chain: ChainOutput, mag: tuple[MagSample | None, ...],
@@ -125,7 +126,8 @@ class SensorSuiteVoter:
             imu_v = ImuSample(t_s, _v3(chain.imu.values, 0), _v3(chain.imu.values, 3), VOTED_LANE)
         single = RedundancyLevel.SIMPLEX
         levels = (("imu", chain.level), ("mag", single), ("baro", single), ("gps", single))
-        return VotedSensors(t_s, imu_v, mag[0], baro[0], gps[0], levels, chain.nav_health, chain.events)
+        return VotedSensors(t_s, imu_v, mag[0], baro[0], gps[0], levels, chain.nav_health, chain.events,
+                            chain.source_step)
 
 
 def _newest(samples: tuple[MagSample | BaroSample | GpsSample | None, ...], used: tuple[int, ...],
