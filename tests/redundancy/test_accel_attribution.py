@@ -199,3 +199,37 @@ def test_a_bias_under_the_voters_threshold_is_detected_by_the_layer_itself():
     assert verdicts and verdicts[0][1] == 1
     quiet = list(_fly(np.array([0.0, 0.0, 0.4]), 1))
     assert all(not v.active for _, v in quiet)
+
+
+def test_the_chain_reports_a_switch_of_the_imu_source():
+    """Once duplex, the output switches between the pair's mean and one lane; the chain reports the step
+    (new source less old, gyro then accelerometer) so the estimator can widen its bias uncertainty
+    (sims/runner.py). Here the isolation of lane 0 after its 1.8 m/s^2 z bias: a step of about -0.9 m/s^2
+    on z from the mean to lane 1 (earlier, the lane fed may already have moved to lane 1)."""
+    from merlin.redundancy.degradation import ImuDegradationChain
+    from merlin.redundancy.duplex_fdi import MERLIN
+    from merlin.redundancy.sensor_voter import LaneSample
+
+    rng = np.random.default_rng(4)
+    chain = ImuDegradationChain(np.random.default_rng(1), MERLIN)
+    steps = []
+    dt = 0.0025
+    for k in range(int(7.0 / dt)):
+        t = k * dt
+        lanes = []
+        for i in range(3):
+            g = rng.normal(0.0, 0.003, 3)
+            f = np.array([0.0, 0.0, -9.80665]) + rng.normal(0.0, 0.03, 3)
+            if i == 2 and t >= 1.0:
+                g, f = np.zeros(3), np.array([0.0, 0.0, -9.8])
+            if i == 0 and t >= 5.0:
+                f = f + np.array([0.0, 0.0, 1.8])
+            lanes.append(LaneSample(t, (*g, *f)))
+        mag = tuple(tuple(np.array((0.25, 0.0, 0.43)) + rng.normal(0.0, 0.003, 3)) for _ in range(3))
+        gps = (t - 0.11, tuple(rng.normal(0.0, [0.05, 0.05, 0.1]))) if k % 40 == 0 and t >= 0.11 else None
+        out = chain.step(t, tuple(lanes), mag, gps)
+        if out.source_step is not None:
+            steps.append((t, out.source_step))
+    assert all(t >= 5.0 for t, _ in steps), "no switch of source before the fault (triplex median to pair mean is not one)"
+    total_z = sum(s[5] for _, s in steps)
+    assert steps and abs(total_z - (-0.9)) < 0.2
