@@ -48,6 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from merlin.redundancy.attribution import PairDisagreement, clear_lane
 from merlin.redundancy.particle_filter import dcm_body_to_ned
 
 G_NED = np.array([0.0, 0.0, 9.80665])
@@ -126,10 +127,7 @@ _IDLE = AccelView(False, 0.0, (0.0, 0.0), math.inf, 0.0, None, None)
 
 
 def _clear(shares: tuple[float, float], cfg: AccelAttributionConfig) -> int | None:
-    hi = 0 if shares[0] >= shares[1] else 1
-    if shares[hi] >= cfg.min_share and shares[1 - hi] <= cfg.max_other_share:
-        return hi
-    return None
+    return clear_lane(shares, cfg.min_share, cfg.max_other_share)
 
 
 def accel_names(v: AccelView, cfg: AccelAttributionConfig) -> int | None:
@@ -171,9 +169,8 @@ class AccelAttribution:
         self._sigma = math.inf
         self._dnorm = 0.0
         self.verdict: int | None = None
-        self._base: np.ndarray | None = None  # the pair's accelerometer offset while agreeing
-        self._base_s = 0.0
-        self._d_lp = np.zeros(3)
+        # accel[0] - accel[1]: its offset while agreeing and the layer's own detection
+        self._pair = PairDisagreement(config.detect_mps2, config.detect_tau_s, config.baseline_tau_s)
 
     @property
     def active(self) -> bool:
@@ -248,19 +245,10 @@ class AccelAttribution:
 
         # the layer's own detection (detect_mps2)
         d_acc = accel[0] - accel[1]
-        settled = self._base_s >= cfg.baseline_tau_s
-        if self._base is not None:
-            self._d_lp += min(1.0, dt / cfg.detect_tau_s) * (d_acc - self._base - self._d_lp)
-        lp = float(np.max(np.abs(self._d_lp))) if settled else 0.0
+        lp = self._pair.level(dt, d_acc)
         miscompare = miscompare or lp >= cfg.detect_mps2
         if not self._episode and not miscompare:
-            if self._base is None:
-                self._base = d_acc.copy()
-            elif not settled:
-                self._base_s += dt
-                self._base += min(1.0, dt / self._base_s) * (d_acc - self._base)
-            elif lp < 0.5 * cfg.detect_mps2:
-                self._base += min(1.0, dt / cfg.baseline_tau_s) * (d_acc - self._base)
+            self._pair.follow(dt, d_acc, lp)
 
         fix = None
         if gps is not None and gps[0] != self._gps_t:

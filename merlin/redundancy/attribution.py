@@ -176,12 +176,49 @@ class Attribution:
 _IDLE = Attribution(False, 0.0, (0.0, 0.0), (0.0, 0.0), None, None)
 
 
-def _clear(shares: tuple[float, float], cfg: AttributionConfig) -> int | None:
-    """The IMU one evidence names: its share at least min_share, the other's at most max_other_share."""
+def clear_lane(shares: tuple[float, float], min_share: float, max_other_share: float) -> int | None:
+    """The IMU one evidence names: its share at least min_share, the other's at most max_other_share (both
+    attribution layers, gyro and accelerometer)."""
     hi = 0 if shares[0] >= shares[1] else 1
-    if shares[hi] >= cfg.min_share and shares[1 - hi] <= cfg.max_other_share:
+    if shares[hi] >= min_share and shares[1 - hi] <= max_other_share:
         return hi
     return None
+
+
+def _clear(shares: tuple[float, float], cfg: AttributionConfig) -> int | None:
+    return clear_lane(shares, cfg.min_share, cfg.max_other_share)
+
+
+class PairDisagreement:
+    """A pair's disagreement d = x[0] - x[1] less its offset while the lanes agree (their own biases),
+    averaged over ``detect_tau_s``: each attribution layer's own detection, beside the voter's per-sample
+    flag. The offset is a running mean over its first ``baseline_tau_s`` (the detection waits for it), then
+    followed with that time constant while the pair agrees, and not while a disagreement builds up towards
+    the detection threshold (which it would absorb)."""
+
+    def __init__(self, detect: float, detect_tau_s: float, baseline_tau_s: float) -> None:
+        self.detect = detect
+        self.detect_tau_s = detect_tau_s
+        self.baseline_tau_s = baseline_tau_s
+        self.base: np.ndarray | None = None  # the pair's offset while agreeing
+        self._base_s = 0.0  # time over which the offset has been averaged
+        self._lp = np.zeros(3)
+
+    def level(self, dt: float, d: np.ndarray) -> float:
+        """Advance the average with this step's ``d``; its largest axis, 0 until the offset is settled."""
+        if self.base is not None:
+            self._lp += min(1.0, dt / self.detect_tau_s) * (d - self.base - self._lp)
+        return float(np.max(np.abs(self._lp))) if self._base_s >= self.baseline_tau_s else 0.0
+
+    def follow(self, dt: float, d: np.ndarray, level: float) -> None:
+        """The pair agrees this step (no episode, no miscompare): follow its offset."""
+        if self.base is None:
+            self.base = d.copy()
+        elif self._base_s < self.baseline_tau_s:
+            self._base_s += dt
+            self.base += min(1.0, dt / self._base_s) * (d - self.base)
+        elif level < 0.5 * self.detect:
+            self.base += min(1.0, dt / self.baseline_tau_s) * (d - self.base)
 
 
 def _field_names(a: Attribution, cfg: AttributionConfig) -> int | None:
@@ -209,9 +246,8 @@ class SubAlertAttribution:
     def __init__(self, config: AttributionConfig = SUB_ALERT) -> None:
         self.cfg = config
         self._t: float | None = None
-        self._gyro_base: np.ndarray | None = None  # pre-onset mean of gyro[0] - gyro[1]
-        self._d_lp = np.zeros(3)  # gyro[0] - gyro[1] less that offset, averaged over detect_tau_s
-        self._base_s = 0.0  # time over which that offset has been averaged (the detection waits for it)
+        # gyro[0] - gyro[1]: its pre-onset offset and the layer's own detection
+        self._pair = PairDisagreement(config.detect_radps, config.detect_tau_s, config.baseline_tau_s)
         self._m_hat: np.ndarray | None = None  # each lane's field tracker (2, 3), body frame, gauss
         self._r_base = np.zeros((2, 3))  # pre-onset mean of each tracker's residual
         # pre-onset noise of each tracker's residual about that mean: variance per component and lag-1
@@ -274,23 +310,13 @@ class SubAlertAttribution:
         self._t = t_s
         d = gyro[0] - gyro[1]
         r = self._track(dt, gyro, mag)
-        if self._gyro_base is not None:
-            self._d_lp += min(1.0, dt / cfg.detect_tau_s) * (d - self._gyro_base - self._d_lp)
-        settled = self._base_s >= cfg.baseline_tau_s
-        lp = float(np.max(np.abs(self._d_lp))) if settled else 0.0
+        lp = self._pair.level(dt, d)
         miscompare = miscompare or lp >= cfg.detect_radps
         if self._b0 is None:
             if not miscompare:
-                # the pair's own offsets (turn-on biases), followed slowly while the lanes agree (and not
-                # while a disagreement is building up towards detect_radps, which it would absorb)
+                # the pair's own offsets (turn-on biases), followed slowly while the lanes agree
                 k = min(1.0, dt / cfg.baseline_tau_s)
-                if self._gyro_base is None:
-                    self._gyro_base = d.copy()
-                elif not settled:  # a running mean of the first baseline_tau_s
-                    self._base_s += dt
-                    self._gyro_base += min(1.0, dt / self._base_s) * (d - self._gyro_base)
-                elif lp < 0.5 * cfg.detect_radps:
-                    self._gyro_base += k * (d - self._gyro_base)
+                self._pair.follow(dt, d, lp)
                 rc0 = r - self._r_base
                 self._r_base += k * rc0
                 # the prior counts as field_noise_prior_s of data: a running mean until baseline_tau_s
@@ -323,7 +349,7 @@ class SubAlertAttribution:
         if decide and self.counter_s <= 0.0 and not miscompare:
             self._b0 = None  # the episode is over: the pair agrees again
             return _IDLE
-        base = self._gyro_base if self._gyro_base is not None else np.zeros(3)
+        base = self._pair.base if self._pair.base is not None else np.zeros(3)
         self._d_sum += d - base
         self._n += 1
         dmean = self._d_sum / self._n

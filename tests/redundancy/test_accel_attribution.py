@@ -150,22 +150,19 @@ def test_config_is_checked():
         AccelAttributionConfig(prior_v_mps2=float("nan"))
 
 
-def test_the_chain_keeps_the_fix_for_the_fdi_steps():
-    """The runner hands a GPS fix only on the tick it arrives (400 Hz), while the FDI and both attribution
-    layers step at 100 Hz: the chain keeps the newest fix, so a fix arriving between FDI steps is not lost
-    (campaign run 00002 of redundancy_accel.yaml: no fix ever reached the layer, authority revoked).
-    Hovering, lane 2 frozen, then 1.8 m/s^2 on lane 0's z axis: lane 0 attributed and isolated."""
+def _hover_chain(duration_s: float, gps_tick: int):
+    """A hovering vehicle through the whole chain at 400 Hz: lane 2 frozen from 1 s (isolated as stuck),
+    lane 0's accelerometer reading 1.8 m/s^2 more on z from 5 s; a 10 Hz GPS fix, 0.11 s late, handed in on
+    the ticks k % 40 == ``gps_tick`` (0: on an FDI step, 1: one tick after). Yields (t, chain output)."""
     from merlin.redundancy.degradation import ImuDegradationChain
     from merlin.redundancy.duplex_fdi import MERLIN
-    from merlin.redundancy.events import FaultKind
     from merlin.redundancy.sensor_voter import LaneSample
 
     rng = np.random.default_rng(4)
     chain = ImuDegradationChain(np.random.default_rng(1), MERLIN)
-    field = (0.25, 0.0, 0.43)
-    events = []
+    field = np.array((0.25, 0.0, 0.43))
     dt = 0.0025
-    for k in range(int(8.0 / dt)):
+    for k in range(int(duration_s / dt)):
         t = k * dt
         lanes = []
         for i in range(3):
@@ -176,13 +173,19 @@ def test_the_chain_keeps_the_fix_for_the_fdi_steps():
             if i == 0 and t >= 5.0:
                 f = f + np.array([0.0, 0.0, 1.8])
             lanes.append(LaneSample(t, (*g, *f)))
-        mag = tuple(tuple(np.array(field) + rng.normal(0.0, 0.003, 3)) for _ in range(3))
-        # a 10 Hz fix, 0.11 s late, arriving one 400 Hz tick after an FDI step
-        gps = None
-        if k % 40 == 1 and t >= 0.11:
-            gps = (t - 0.11, tuple(rng.normal(0.0, [0.05, 0.05, 0.1])))
-        out = chain.step(t, tuple(lanes), mag, gps)
-        events.extend(out.events)
+        mag = tuple(tuple(field + rng.normal(0.0, 0.003, 3)) for _ in range(3))
+        gps = (t - 0.11, tuple(rng.normal(0.0, [0.05, 0.05, 0.1]))) if k % 40 == gps_tick and t >= 0.11 else None
+        yield t, chain.step(t, tuple(lanes), mag, gps)
+
+
+def test_the_chain_keeps_the_fix_for_the_fdi_steps():
+    """The runner hands a GPS fix only on the tick it arrives (400 Hz), while the FDI and both attribution
+    layers step at 100 Hz: the chain keeps the newest fix, so a fix arriving between FDI steps is not lost
+    (campaign run 00002 of redundancy_accel.yaml: no fix ever reached the layer, authority revoked).
+    Hovering, lane 2 frozen, then 1.8 m/s^2 on lane 0's z axis: lane 0 attributed and isolated."""
+    from merlin.redundancy.events import FaultKind
+
+    events = [e for _, out in _hover_chain(8.0, gps_tick=1) for e in out.events]
     attributed = [e for e in events if e.kind is FaultKind.ATTRIBUTED]
     assert [e.lane for e in attributed] == [0]
     assert "GPS velocity" in attributed[0].detail
@@ -206,30 +209,7 @@ def test_the_chain_reports_a_switch_of_the_imu_source():
     (new source less old, gyro then accelerometer) so the estimator can widen its bias uncertainty
     (sims/runner.py). Here the isolation of lane 0 after its 1.8 m/s^2 z bias: a step of about -0.9 m/s^2
     on z from the mean to lane 1 (earlier, the lane fed may already have moved to lane 1)."""
-    from merlin.redundancy.degradation import ImuDegradationChain
-    from merlin.redundancy.duplex_fdi import MERLIN
-    from merlin.redundancy.sensor_voter import LaneSample
-
-    rng = np.random.default_rng(4)
-    chain = ImuDegradationChain(np.random.default_rng(1), MERLIN)
-    steps = []
-    dt = 0.0025
-    for k in range(int(7.0 / dt)):
-        t = k * dt
-        lanes = []
-        for i in range(3):
-            g = rng.normal(0.0, 0.003, 3)
-            f = np.array([0.0, 0.0, -9.80665]) + rng.normal(0.0, 0.03, 3)
-            if i == 2 and t >= 1.0:
-                g, f = np.zeros(3), np.array([0.0, 0.0, -9.8])
-            if i == 0 and t >= 5.0:
-                f = f + np.array([0.0, 0.0, 1.8])
-            lanes.append(LaneSample(t, (*g, *f)))
-        mag = tuple(tuple(np.array((0.25, 0.0, 0.43)) + rng.normal(0.0, 0.003, 3)) for _ in range(3))
-        gps = (t - 0.11, tuple(rng.normal(0.0, [0.05, 0.05, 0.1]))) if k % 40 == 0 and t >= 0.11 else None
-        out = chain.step(t, tuple(lanes), mag, gps)
-        if out.source_step is not None:
-            steps.append((t, out.source_step))
+    steps = [(t, out.source_step) for t, out in _hover_chain(7.0, gps_tick=0) if out.source_step is not None]
     assert all(t >= 5.0 for t, _ in steps), "no switch of source before the fault (triplex median to pair mean is not one)"
     total_z = sum(s[5] for _, s in steps)
     assert steps and abs(total_z - (-0.9)) < 0.2
