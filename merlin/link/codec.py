@@ -107,8 +107,9 @@ def _decode_pos_mask(type_mask: int) -> tuple[SetpointKind, bool, i.YawMode] | R
     """Decode a POSITION_TARGET_TYPEMASK into Merlin's setpoint kind (bit set = field ignored)."""
     pos_ign = type_mask & PT_POS
     vel_ign = type_mask & PT_VEL
-    if type_mask & PT_FORCE:
-        return Rejected(RejectReason.UNSUPPORTED, f"type_mask=0x{type_mask:04x}: force setpoints unsupported")
+    # The force flag qualifies the acceleration fields (they are forces when set). With every acceleration
+    # field ignored it qualifies nothing, and PX4 reads the mask the same way: 0x0FF8, the position-only mask
+    # many scripts send, is a position setpoint there and here. Acceleration itself is refused below.
     if (type_mask & PT_ACC) != PT_ACC:
         return Rejected(
             RejectReason.UNSUPPORTED,

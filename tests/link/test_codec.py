@@ -258,7 +258,7 @@ def test_type_mask_decoding(M: Any, mask: int, kind: SetpointKind, vel_used: boo
         IGN_ACC | 1,  # partial position (x ignored, y/z used)
         IGN_ACC | 8 | 1 | 2 | 4 | 16,  # partial velocity, no position
         IGN_ACC | 1 | 2 | 4 | 8 | 16 | 32,  # nothing used
-        IGN_ACC | 512 | 1 | 2 | 4,  # force flag
+        512 | 1 | 2 | 4,  # force flag with the acceleration (force) fields used
     ],
 )
 def test_unsupported_type_masks_are_rejected_and_counted(M: Any, mask: int) -> None:
@@ -270,6 +270,18 @@ def test_unsupported_type_masks_are_rejected_and_counted(M: Any, mask: int) -> N
     assert link.recent_rejections()[-1].msg_name == "SET_POSITION_TARGET_LOCAL_NED"
 
 
+def test_position_only_mask_0x0ff8_with_the_force_flag_is_a_position_setpoint(M: Any) -> None:
+    # 0x0FF8: velocity, acceleration, yaw and yaw rate ignored, and the force flag set. The flag qualifies
+    # the (ignored) acceleration fields, so PX4 flies it as a position setpoint; so does Merlin.
+    link = make_link()
+    got = link.receive(Peer().frame(M.MAVLink_set_position_target_local_ned_message(
+        0, 1, 1, 1, 0x0FF8, 1, 2, -3, 0, 0, 0, 0, 0, 0, 0, 0)), 0.0, NOW_UNIX_S)
+    assert len(got) == 1 and isinstance(got[0].msg, i.SetpointIn)
+    sp = got[0].msg.to_setpoint((0.0, 0.0, 0.0), 1.0)
+    assert sp.kind is SetpointKind.POSITION and sp.pos_ned_m == pytest.approx((1.0, 2.0, -3.0))
+    assert link.stats().rejections(RejectReason.UNSUPPORTED.value) == 0
+
+
 @given(st.integers(min_value=0, max_value=0xFFFF))
 def test_any_type_mask_decodes_consistently_or_is_refused(mask: int) -> None:
     from merlin.link.codec import Rejected, _decode_pos_mask
@@ -279,7 +291,7 @@ def test_any_type_mask_decodes_consistently_or_is_refused(mask: int) -> None:
         assert dec.reason is RejectReason.UNSUPPORTED
         return
     kind, vel_used, yaw_mode = dec
-    assert mask & IGN_ACC == IGN_ACC and not mask & 512
+    assert mask & IGN_ACC == IGN_ACC  # the force flag (512) qualifies ignored fields: it does not matter
     assert (kind is SetpointKind.POSITION) == (mask & 7 == 0)
     assert vel_used == (mask & 56 == 0)
     assert kind is SetpointKind.POSITION or vel_used
