@@ -83,6 +83,26 @@ def write_log(r: RunResult, out: Path) -> Path:
     return p
 
 
+def write_ulog(r: RunResult, out: Path) -> Path:
+    """``flight.ulg``: the run as PX4's topics and Merlin's own (merlin.ulog.flight), for Flight Review,
+    PlotJuggler and pyulog; ``merlin replay`` reads it back (docs/field-tools.md)."""
+    from merlin.link.params import envelope_params
+    from merlin.ulog.flight import FlightMeta, config_json, write_flight_ulog
+
+    out.mkdir(parents=True, exist_ok=True)
+    cfg, sc = r.config, r.scenario
+    meta = FlightMeta(
+        home_lat_deg=cfg.home.lat_deg, home_lon_deg=cfg.home.lon_deg, home_alt_amsl_m=cfg.home.alt_amsl_m,
+        fixed_wing=sc.vehicle in FIXED_WING_VEHICLES,
+        info={"merlin_scenario": sc.name, "merlin_seed": int(sc.seed), "merlin_config_sha256": r.config_sha256,
+              "merlin_estimator": sc.estimator, "merlin_decisions_digest": r.decisions_digest},
+        parameters=envelope_params(cfg.envelope.resolve(cfg.envelope.active_stage)),
+        config_json=config_json(cfg))
+    p = out / "flight.ulg"
+    write_flight_ulog(p, {**r.log, **r.aux}, r.events, meta)
+    return p
+
+
 def _fence_patches(ax: Any, r: RunResult) -> None:
     cfg = build_core_config(r.config)
     fence = cfg.fence
@@ -201,7 +221,7 @@ def plot_envelope(r: RunResult, out: Path) -> Path:
 
 def write_all(r: RunResult, verdicts: list[Verdict], out: Path, plots: bool = True) -> dict[str, Path]:
     out.mkdir(parents=True, exist_ok=True)
-    files = {"summary": write_summary(r, verdicts, out), "log": write_log(r, out)}
+    files = {"summary": write_summary(r, verdicts, out), "log": write_log(r, out), "ulog": write_ulog(r, out)}
     if plots:
         files["ground_track"] = plot_ground_track(r, out)
         files["authority"] = plot_authority(r, out)

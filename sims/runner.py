@@ -243,6 +243,10 @@ class RunResult:
     fence_triggers: list[tuple[float, float, float]] = field(default_factory=list)  # (t, north, east)
     controller_log: list[str] = field(default_factory=list)
     nav: dict[str, Any] = field(default_factory=dict)  # the EKF's test trace (sims/vision_loop.NavTrace)
+    # what the core read and was asked beside the log, at the log's rows (_AUX_COLUMNS and the monitors'
+    # details): the ULog's source (merlin.ulog.flight), kept out of the log so that decisions_digest, a
+    # hash of the log's columns, does not move with it
+    aux: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 class _Log:
@@ -303,6 +307,26 @@ _LOG_COLUMNS = (
     "battery_frac", "wind_n", "wind_e",
     "fence_margin",
 )
+
+
+#: The auxiliary columns (RunResult.aux) every log row has: the state the core read that the log lacks
+#: (attitude, rates, specific force, vertical sigma, time on inertial navigation), the experimental
+#: setpoint in full (NaN: none yet) and the command's yaw; run_scenario gives them in this order.
+_AUX_COLUMNS = (
+    "est_roll", "est_pitch", "est_yaw", "est_p", "est_q", "est_r", "est_ax", "est_ay", "est_az",
+    "sigma_v", "nav_inertial_s",
+    "sp_kind", "sp_n", "sp_e", "sp_d", "sp_ve", "sp_vd", "sp_yaw", "sp_pitch", "sp_thrust",
+    "cmd_yaw",
+)
+_NO_SETPOINT = (math.nan,) * 9
+
+
+def _aligned(rows: list[dict[str, float]]) -> dict[str, np.ndarray]:
+    """One column per key of ``rows``, a value for every row (NaN where the row lacks the key)."""
+    keys: dict[str, None] = {}
+    for r in rows:
+        keys.update(dict.fromkeys(r))
+    return {k: np.array([r.get(k, math.nan) for r in rows], dtype=float) for k in keys}
 
 
 def _fill_margins(arrays: dict[str, np.ndarray], fence: geofence.Fence | None,
@@ -661,6 +685,8 @@ def run_scenario(
     rc_connected = sc.rc_connected or bool(op_steps)
     env_cols = tuple((lim.index, lim.display_scale) for lim in core_cfg.envelope)
     log = _Log(_LOG_COLUMNS + tuple(f"env_{lim.name}" for lim in core_cfg.envelope))
+    aux = _Log(_AUX_COLUMNS)
+    aux_details: list[dict[str, float]] = []  # the monitors' details, per log row (keys vary by row)
     mon_keys: dict[str, str] = {}  # monitor name -> its log column
     log_every = max(1, round(1.0 / (sc.log_rate_hz * dt)))
     events: list[dict[str, Any]] = []
@@ -690,7 +716,9 @@ def run_scenario(
     digest = hashlib.sha256()
     fault_state: dict[int, bool] = {}
     decision: Decision | None = None
-    margin_rows: list[tuple[int, float, float, float, bool]] = []  # (log row, n, e, d, airborne)
+    margin_rows: list[tuple[int, float, float, float, bool]] = []  # (log row, n, e, d, floor applies)
+    floor_m = core_cfg.fence.params.altitude_floor_m if core_cfg.fence is not None else None
+    floor_reached = False
     # hardware redundancy: the level the redundancy stage reports to the core each tick (None: no report)
     red_report = loop.redundancy.report if getattr(loop, "reports_redundancy", False) else None
     for k in range(n_ticks):
@@ -776,7 +804,11 @@ def run_scenario(
             # held for the rows between; measured for all of them at once after the run (nothing in the
             # loop reads it), then written into the log's margin column (_fill_margins)
             if len(log) % 5 == 0:
-                margin_rows.append((len(log), *truth.pos_ned_m, not truth.landed))
+                # the floor counts once the vehicle has been above it since it left the ground (as in the
+                # core: a take-off through the floor is not a breach of it)
+                floor_reached = not truth.landed and (floor_reached or floor_m is None
+                                                      or -truth.pos_ned_m[2] > floor_m)
+                margin_rows.append((len(log), *truth.pos_ned_m, floor_reached))
             ev = envelope_values(state)
             motors, w = loop.actuators, loop.wind_ned
             tp, tv, ta = truth.pos_ned_m, truth.vel_ned_mps, truth.rpy_rad
@@ -807,6 +839,17 @@ def run_scenario(
             if loop.extra_log_row is not None:
                 extra.update(loop.extra_log_row())
             log.add(fixed, extra)
+            sa, sr, sf = state.att_rpy_rad, state.rates_frd_radps, state.accel_frd_mps2
+            details: dict[str, float] = {}
+            for ms in decision.monitors:
+                for key, value in ms.detail:
+                    details[f"detail_{ms.name}_{key}"] = value
+            aux.add((sa[0], sa[1], sa[2], sr[0], sr[1], sr[2], sf[0], sf[1], sf[2],
+                     state.pos_sigma_v_m, state.nav_inertial_s,
+                     *((float(sp.kind), *sp.pos_ned_m, sp.vel_ned_mps[1], sp.vel_ned_mps[2], sp.yaw_rad,
+                        sp.att_rpy_rad[1], sp.thrust) if sp is not None else _NO_SETPOINT),
+                     cmd.yaw_rad), {})
+            aux_details.append(details)
         if progress is not None and k % 4000 == 0:
             progress(t / sc.duration_s)
     events.extend(getattr(loop, "nav_events", ()))
@@ -844,4 +887,5 @@ def run_scenario(
         fence_triggers=fence_triggers,
         controller_log=list(ctrl.log) if ctrl is not None else [],
         nav=loop.vision.trace.to_dict(loop.ekf) if loop.vision is not None else {},
+        aux={**aux.arrays(), **_aligned(aux_details)},
     )

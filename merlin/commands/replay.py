@@ -3,8 +3,16 @@
 Reads a PX4 ULog (``.ulg``) or a MAVLink telemetry log (``.tlog``), replays it through the trusted core as
 if an experimental controller had flown it (``merlin.replay.core_replay``), and reports every grant and
 revocation with its time and reason; with ``--out``, ``replay.json`` and plots of the envelope parameters
-against their limits and the authority timeline. The log's local origin is taken as home.
-Exit codes: 0 replayed (revocations are findings, not errors), 2 invalid input.
+against their limits and the authority timeline.
+
+Frames (``--frame``): ``home`` (default) places the log's positions in Merlin's frame about the
+configuration's home, from the log's reference point (a ULog's ``vehicle_local_position.ref_lat/ref_lon``)
+and PX4's spherical projection, so the fence is judged where the vehicle really was; ``log`` takes the log's
+local x/y as they are. The frame used is printed and written to ``replay.json``.
+
+A Merlin ULog (``flight.ulg`` of ``merlin sim`` or ``merlin serve``) carries the configuration it was flown
+with: ``--config`` may then be left out. Exit codes: 0 replayed (revocations are findings, not errors), 2
+invalid input.
 """
 
 from __future__ import annotations
@@ -19,16 +27,17 @@ from typing import Any
 def register(sub: Any) -> None:
     p = sub.add_parser("replay", help="replay a real flight log (ULog / tlog) through the trusted core")
     p.add_argument("log", help="PX4 ULog (.ulg) or MAVLink telemetry log (.tlog)")
-    p.add_argument("--config", required=True, help="configuration YAML the core judges the flight by")
+    p.add_argument("--config", default=None,
+                   help="configuration YAML the core judges the flight by (default: the one a Merlin ULog carries)")
     p.add_argument("--out", default=None, help="directory for replay.json and plots")
     p.add_argument("--rate-hz", type=float, default=50.0, help="resampling rate (zero-order hold)")
+    p.add_argument("--frame", choices=("home", "log"), default="home",
+                   help="home: the log's positions re-projected into Merlin's frame about the configuration's "
+                        "home from the log's reference point (PX4's projection); log: the log's x/y as they are")
     p.set_defaults(func=run)
 
 
 def plot(r: Any, out: Path, title: str) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
 
@@ -68,14 +77,24 @@ def plot(r: Any, out: Path, title: str) -> list[Path]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from merlin.config.loader import config_sha256, load_config
-    from merlin.replay.core_replay import replay
+    from merlin.config.loader import ConfigError, config_sha256, load_config
+    from merlin.replay.core_replay import home_frame, replay
     from merlin.replay.flightlog import read_log
 
-    cfg = load_config(args.config)
     log = read_log(args.log)
+    if args.config is not None:
+        cfg, cfg_source = load_config(args.config), args.config
+    elif log.config_json is not None:
+        from merlin.config.models import MerlinConfig
+
+        cfg, cfg_source = MerlinConfig.model_validate_json(log.config_json), "the configuration the log carries"
+    else:
+        raise ConfigError(args.log, ["--config is required: the log carries no Merlin configuration "
+                                     "(only a Merlin ULog does)"])
+    log, frame = home_frame(log, cfg, args.frame)
     r = replay(log, cfg, args.rate_hz)
-    print(f"{args.log} ({log.kind}, {log.t_end_s:.1f} s) judged by {args.config} (SHA-256 {config_sha256(cfg)[:16]})")
+    print(f"{args.log} ({log.kind}, {log.t_end_s:.1f} s) judged by {cfg_source} (SHA-256 {config_sha256(cfg)[:16]})")
+    print(f"  frame: {frame.text}")
     for n in log.notes:
         print(f"  note: {n}")
     air = f"{r.first_airborne_s:.2f} s" if r.first_airborne_s is not None else "never"
@@ -90,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
         (out / "replay.json").write_text(json.dumps({
             "log": args.log, "kind": log.kind, "config_sha256": config_sha256(cfg), "rate_hz": r.rate_hz,
+            "frame": frame.frame, "frame_text": frame.text, "frame_max_shift_m": frame.max_shift_m,
             "first_airborne_s": r.first_airborne_s, "notes": list(log.notes), "events": r.events,
             "revocations": r.revocations}, indent=2, default=str) + "\n")
         plot(r, out, Path(args.log).name)

@@ -11,7 +11,7 @@ that follows is what the core would have done to a controller flying exactly thi
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -66,9 +66,14 @@ def states(log: FlightLog, t: np.ndarray) -> list[VehicleState]:
     else:  # no land detector in the log: on the ground while within 0.5 m of the start height
         landed = pos[:, 2] > pos[0, 2] - 0.5
     fix = hold(log.gps_fix, t, (3.0,))[:, 0]
+    # Merlin's own navigation mode where the log has it (a Merlin ULog), else GPS while the fix is 3D
+    modes = hold(log.nav_mode, t, (0.0,))[:, 0] if log.nav_mode is not None else None
     out = []
     for k in range(len(t)):
-        nav = NavMode.GPS if fix[k] >= 3 else NavMode.INERTIAL
+        if modes is not None:
+            nav = NavMode(int(modes[k])) if math.isfinite(modes[k]) else NavMode.GPS
+        else:
+            nav = NavMode.GPS if fix[k] >= 3 else NavMode.INERTIAL
         out.append(VehicleState(
             pos_ned_m=(float(pos[k, 0]), float(pos[k, 1]), float(pos[k, 2])),
             vel_ned_mps=(float(vel[k, 0]), float(vel[k, 1]), float(vel[k, 2])),
@@ -77,6 +82,58 @@ def states(log: FlightLog, t: np.ndarray) -> list[VehicleState]:
             accel_frd_mps2=(float(acc[k, 0]), float(acc[k, 1]), float(acc[k, 2])),
             pos_sigma_h_m=float(sig[k]), nav_mode=nav, armed=bool(armed[k]), landed=bool(landed[k])))
     return out
+
+
+#: ``replay``'s frames: where the log's positions are placed against the configuration's home and fence
+FRAMES = ("home", "log")
+
+
+@dataclass(frozen=True, slots=True)
+class FrameChoice:
+    frame: str  # "home" or "log"
+    text: str  # which frame was used, and how, in words (printed and written to replay.json)
+    max_shift_m: float = 0.0  # the largest horizontal difference between the log's x/y and the positions used
+
+
+def home_frame(log: FlightLog, cfg: MerlinConfig, frame: str = "home") -> tuple[FlightLog, FrameChoice]:
+    """``log`` with its positions in Merlin's frame about the configuration's home (``frame="home"``), from
+    the log's reference point (``ref_lat``/``ref_lon``/``ref_alt``) and the projection the log's x/y were
+    made with: PX4's spherical ``map_projection`` (``merlin.replay.px4_frame``), or Merlin's own for a Merlin
+    ULog. ``frame="log"`` takes the log's x/y as they are. Velocities keep the log's axes: between two
+    local frames a few kilometres apart they turn by less than a tenth of a degree."""
+    from merlin.geodesy import LocalFrame
+    from merlin.replay.px4_frame import Px4MapProjection
+
+    if frame not in FRAMES:
+        raise ValueError(f"frame {frame!r}; allowed: {FRAMES}")
+    if frame == "log":
+        return log, FrameChoice("log", "the log's own local x/y taken as Merlin's frame about home (--frame log)")
+    if log.ref_lat_deg is None or log.ref_lon_deg is None:
+        return log, FrameChoice("log", "the log has no reference point: its local x/y taken as Merlin's frame "
+                                       "about home")
+    h = cfg.home
+    ref_alt = log.ref_alt_m if log.ref_alt_m is not None and math.isfinite(log.ref_alt_m) else h.alt_amsl_m
+    same_origin = (abs(log.ref_lat_deg - h.lat_deg) < 1e-9 and abs(log.ref_lon_deg - h.lon_deg) < 1e-9
+                   and abs(ref_alt - h.alt_amsl_m) < 1e-6)
+    if log.local_frame == "merlin" and same_origin:
+        return log, FrameChoice("home", "Merlin's frame about home, as the log holds it (a Merlin ULog flown "
+                                        "from this home)")
+    ts, xyz = log.pos_ned_m
+    if log.local_frame == "merlin":
+        lat, lon = LocalFrame(log.ref_lat_deg, log.ref_lon_deg).latlon_from_ne(xyz[:, 0], xyz[:, 1])
+        how = "Merlin's projection"
+    else:
+        lat, lon = Px4MapProjection(log.ref_lat_deg, log.ref_lon_deg).reproject(xyz[:, 0], xyz[:, 1])
+        how = "PX4's spherical map_projection"
+    n, e = LocalFrame(h.lat_deg, h.lon_deg, h.alt_amsl_m).ne_from_latlon(lat, lon)
+    d = xyz[:, 2] + (h.alt_amsl_m - ref_alt)
+    pos = np.stack([n, e, d], axis=1)
+    finite = np.isfinite(pos[:, :2]).all(axis=1) & np.isfinite(xyz[:, :2]).all(axis=1)
+    shift = float(np.max(np.hypot(*(pos[finite, :2] - xyz[finite, :2]).T))) if finite.any() else 0.0
+    text = (f"Merlin's frame about home ({h.lat_deg:.7f}, {h.lon_deg:.7f}): the log's x/y unprojected with {how} "
+            f"about its reference ({log.ref_lat_deg:.7f}, {log.ref_lon_deg:.7f}, {ref_alt:.1f} m); "
+            f"largest horizontal difference from the log's own x/y {shift:.2f} m")
+    return replace(log, pos_ned_m=(ts, pos)), FrameChoice("home", text, shift)
 
 
 def replay(log: FlightLog, cfg: MerlinConfig, rate_hz: float = 50.0) -> ReplayResult:

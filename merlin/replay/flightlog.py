@@ -32,6 +32,13 @@ class FlightLog:
     landed: Stream | None = None
     gps_fix: Stream | None = None
     notes: tuple[str, ...] = field(default_factory=tuple)
+    nav_mode: Stream | None = None  # Merlin's own NavMode codes (a Merlin ULog's merlin_nav), else None
+    # the local frame's reference point (vehicle_local_position.ref_lat/ref_lon/ref_alt), None if unknown
+    ref_lat_deg: float | None = None
+    ref_lon_deg: float | None = None
+    ref_alt_m: float | None = None
+    local_frame: str = "px4"  # "px4": PX4's spherical map_projection; "merlin": merlin.geodesy.LocalFrame
+    config_json: str | None = None  # the configuration a Merlin ULog was flown with (merlin_config)
 
     @property
     def t_end_s(self) -> float:
@@ -64,6 +71,12 @@ def read_ulog(path: str | Path) -> FlightLog:
         return (d["timestamp"].astype(float) - t0) / 1e6, np.stack([d[f].astype(float) for f in fields], axis=1)
 
     lp = get("vehicle_local_position", ["x", "y", "z"])
+    ref = get("vehicle_local_position", ["ref_lat", "ref_lon", "ref_alt"])
+    ref_lat = ref_lon = ref_alt = None
+    if ref is not None:  # the reference PX4's estimator held longest (it is set once GPS is first usable)
+        valid = np.isfinite(ref[1]).all(axis=1) & ((ref[1][:, 0] != 0.0) | (ref[1][:, 1] != 0.0))
+        if valid.any():
+            ref_lat, ref_lon, ref_alt = (float(x) for x in ref[1][valid][-1])
     lv = get("vehicle_local_position", ["vx", "vy", "vz"])
     q = get("vehicle_attitude", ["q[0]", "q[1]", "q[2]", "q[3]"])
     missing = [n for n, s in (("vehicle_local_position", lp), ("vehicle_attitude", q)) if s is None]
@@ -80,8 +93,13 @@ def read_ulog(path: str | Path) -> FlightLog:
     armed = (st[0], (st[1] == 2).astype(float)) if st is not None else None  # ARMING_STATE_ARMED = 2
     landed = get("vehicle_land_detected", ["landed"])
     fix = get("vehicle_gps_position", ["fix_type"]) or get("sensor_gps", ["fix_type"])
+    nav = get("merlin_nav", ["nav_mode"])
+    merlin_frame = str(u.msg_info_dict.get("merlin_local_frame", "")).startswith("merlin")
+    config = u.msg_info_multiple_dict.get("merlin_config")
+    config_text = "".join(config[0]) if config else None
     return FlightLog(str(path), "ulog", lp, lv, (q[0], quat_to_rpy(q[1])), rates, accel, eph, armed, landed,
-                     fix, tuple(notes))
+                     fix, tuple(notes), nav, ref_lat, ref_lon, ref_alt, "merlin" if merlin_frame else "px4",
+                     config_text)
 
 
 def read_tlog(path: str | Path) -> FlightLog:

@@ -1,0 +1,308 @@
+"""A Merlin flight as a ULog: the run's log columns turned into PX4's topics and Merlin's own
+(:mod:`merlin.ulog.topics`), the events as logged messages, the envelope as parameters, and the
+configuration as information.
+
+The source is a table of columns named as ``merlin sim``'s log (``sims/runner.py``: ``t``, ``est_*``,
+``authority``, ``env_<parameter>``, ``mon_<monitor>``, ``detail_<monitor>_<key>``...). ``merlin sim``
+writes a whole run at once (:func:`write_flight_ulog`); ``merlin serve`` appends as it flies
+(:class:`FlightULog`, fed rows by :func:`flight_row`). The local positions are Merlin's frame: the
+azimuthal equidistant projection on the WGS84 ellipsoid about ``ref_lat``/``ref_lon`` (``merlin.geodesy``),
+which the information ``merlin_local_frame`` states; PX4's own ``map_projection`` is the same projection on
+a sphere (``merlin.replay.px4_frame``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from merlin.core.types import Authority, Behavior, SetpointKind
+from merlin.geodesy import LocalFrame
+from merlin.ulog.format import Format, ULogWriter
+from merlin.ulog.topics import (
+    ARMING_STATE_ARMED,
+    ARMING_STATE_DISARMED,
+    ENUM_LABELS,
+    MERLIN_AUTHORITY,
+    MERLIN_COMMAND,
+    MERLIN_EXPERIMENTAL_SETPOINT,
+    MERLIN_NAV,
+    MERLIN_SIM_TRUTH,
+    NAVIGATION_STATE,
+    PX4_FORMATS,
+    field_name,
+    float_topic,
+    unit_of,
+)
+
+LOCAL_FRAME_NOTE = ("merlin: azimuthal equidistant on the WGS84 ellipsoid about ref_lat/ref_lon "
+                    "(not PX4's spherical map_projection)")
+
+#: The columns turned into named topics; whatever else a log has goes into ``merlin_redundancy``.
+_CONSUMED = frozenset({
+    "t", "truth_n", "truth_e", "truth_d", "truth_vn", "truth_ve", "truth_vd", "truth_roll", "truth_pitch",
+    "truth_yaw", "est_n", "est_e", "est_d", "est_vn", "est_ve", "est_vd", "est_roll", "est_pitch", "est_yaw",
+    "est_p", "est_q", "est_r", "est_ax", "est_ay", "est_az", "sigma_h", "sigma_v", "nav_mode", "nav_inertial_s",
+    "authority", "behavior", "armed", "landed", "cmd_kind", "cmd_vn", "cmd_ve", "cmd_vd", "cmd_roll",
+    "cmd_pitch", "cmd_yaw", "cmd_thrust", "cmd_blend", "sp_kind", "sp_n", "sp_e", "sp_d", "sp_vn", "sp_ve",
+    "sp_vd", "sp_roll", "sp_pitch", "sp_yaw", "sp_thrust", "m0", "m1", "m2", "m3", "battery_frac", "wind_n",
+    "wind_e", "fence_margin",
+})
+
+_EVENT_LEVEL = {"revoked": "warning", "denied": "warning", "monitor_tripped": "warning",
+                "shadow_violation": "warning", "fault_start": "notice", "fault_end": "notice",
+                "controller_fault": "error", "terminated": "critical"}
+
+
+@dataclass
+class FlightMeta:
+    """What a flight's ULog says about itself besides the columns."""
+
+    home_lat_deg: float
+    home_lon_deg: float
+    home_alt_amsl_m: float
+    fixed_wing: bool = False
+    ver_hw: str = "MERLIN_SITL"
+    info: dict[str, str | int | float] = field(default_factory=dict)
+    parameters: Sequence[tuple[str, float]] = ()
+    config_json: str = ""  # the effective configuration (``MerlinConfig.model_dump_json``)
+
+
+def quaternion(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """[w, x, y, z] of ZYX Euler angles (body FRD to NED, as PX4's ``vehicle_attitude.q``), shape [n, 4]."""
+    cr, sr = np.cos(roll / 2), np.sin(roll / 2)
+    cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
+    cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
+    return np.stack([cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
+                     cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy], axis=1)
+
+
+def nav_state(authority: np.ndarray, behavior: np.ndarray) -> np.ndarray:
+    """PX4's ``vehicle_status.nav_state`` for Merlin's authority and behaviour, as the HEARTBEAT shows them
+    (``merlin.link.px4_modes``): EXPERIMENTAL is OFFBOARD, OPERATOR is POSCTL, otherwise the behaviour's
+    AUTO mode (idle on the ground shows as AUTO_LOITER, PX4 having no 'ready' navigation state)."""
+    by_behavior = {Behavior.IDLE: "AUTO_LOITER", Behavior.TAKEOFF: "AUTO_TAKEOFF", Behavior.HOLD: "AUTO_LOITER",
+                   Behavior.MISSION: "AUTO_MISSION", Behavior.RTL: "AUTO_RTL", Behavior.LAND: "AUTO_LAND",
+                   Behavior.TERMINATE: "TERMINATION"}
+    out = np.zeros(len(authority), dtype=np.uint8)
+    for b, name in by_behavior.items():
+        out[behavior == int(b)] = NAVIGATION_STATE[name]
+    out[authority == int(Authority.EXPERIMENTAL)] = NAVIGATION_STATE["OFFBOARD"]
+    out[authority == int(Authority.OPERATOR)] = NAVIGATION_STATE["POSCTL"]
+    return out
+
+
+def event_text(e: Mapping[str, Any]) -> str:
+    """One event as a logged message: its type, then its reason and details."""
+    parts = [str(e.get("type", "event")).upper()]
+    if e.get("reason"):
+        parts.append(str(e["reason"]))
+    detail = e.get("reason_detail")
+    if isinstance(detail, Mapping) and detail.get("text"):
+        parts.append(str(detail["text"]))
+    for k, v in e.items():
+        if k in ("t", "type", "reason", "reason_detail", "traceback") or isinstance(v, (dict, list)):
+            continue
+        parts.append(f"{k}={v}")
+    return " ".join(parts)
+
+
+class FlightULog:
+    """A flight's ULog, written as it goes: the definitions at the first :meth:`append` (the topics follow
+    the columns it brings), then every append's samples and events in time order."""
+
+    def __init__(self, path: str | Path, meta: FlightMeta) -> None:
+        self.meta = meta
+        self.frame = LocalFrame(meta.home_lat_deg, meta.home_lon_deg, meta.home_alt_amsl_m)
+        self.writer = ULogWriter(path)
+        self._ids: dict[str, int] = {}
+        self._extra: dict[str, Format] = {}
+        self._columns: tuple[str, ...] = ()
+
+    @property
+    def bytes_written(self) -> int:
+        return self.writer.bytes_written
+
+    def _define(self, cols: Mapping[str, np.ndarray]) -> None:
+        w, m = self.writer, self.meta
+        self._columns = tuple(cols)
+        w.info("sys_name", "Merlin")
+        w.info("ver_hw", m.ver_hw)
+        from merlin import __version__
+
+        w.info("ver_sw", __version__)
+        w.info("merlin_local_frame", LOCAL_FRAME_NOTE)
+        for k, v in m.info.items():
+            w.info(k, v)
+        for key, text in ENUM_LABELS.items():
+            w.info(f"labels:{key}", text)
+        formats = [*PX4_FORMATS, MERLIN_AUTHORITY, MERLIN_COMMAND, MERLIN_NAV, MERLIN_EXPERIMENTAL_SETPOINT]
+        if "truth_n" in cols:
+            formats.append(MERLIN_SIM_TRUTH)
+        env = [c for c in cols if c.startswith("env_")]
+        timers = {c for c in cols if c.startswith("detail_") and any(c.endswith("_" + e[4:]) for e in env)}
+        self._extra["merlin_envelope"] = float_topic("merlin_envelope", [
+            *[(field_name(c[4:]), unit_of(c[4:])) for c in env],
+            *[(field_name(c[len("detail_"):]) + "_outside_s", "s") for c in sorted(timers)]])
+        mons = [c for c in cols if c.startswith("mon_")]
+        self._extra["merlin_monitors"] = float_topic("merlin_monitors", [(field_name(c[4:]), "") for c in mons],
+                                                     kind="bool")
+        details = [c for c in cols if c.startswith("detail_") and c not in timers]
+        self._extra["merlin_monitor_detail"] = float_topic(
+            "merlin_monitor_detail", [(field_name(c[len("detail_"):]), unit_of(c)) for c in details])
+        self._extra["merlin_fence"] = float_topic("merlin_fence", [("margin_m", "m")])
+        rest = [c for c in cols if c not in _CONSUMED and not c.startswith(("env_", "mon_", "detail_"))]
+        self._extra["merlin_redundancy"] = float_topic("merlin_redundancy", [(field_name(c), unit_of(c)) for c in rest])
+        self._sources = {"merlin_envelope": [*env, *sorted(timers)], "merlin_monitors": mons,
+                         "merlin_monitor_detail": details, "merlin_fence": ["fence_margin"],
+                         "merlin_redundancy": rest}
+        formats += [f for f in self._extra.values() if len(f.fields) > 1]
+        for f in formats:
+            w.add_format(f)
+        if m.config_json:
+            w.info_multiple("merlin_config", m.config_json)
+        for name, value in m.parameters:
+            w.parameter(name, value)
+        for f in formats:
+            self._ids[f.name] = w.subscribe(f.name)
+
+    def append(self, cols: Mapping[str, np.ndarray], events: Sequence[Mapping[str, Any]] = ()) -> None:
+        """Write ``cols`` (each column an array as long as ``t``; a shorter one, which cannot be placed in
+        time, is left out) and ``events`` (dicts with ``t``)."""
+        n = len(cols["t"])
+        cols = {k: v for k, v in cols.items() if len(v) == n}
+        if not self._ids:
+            self._define(cols)
+        elif tuple(cols) != self._columns:
+            missing = set(self._columns) - set(cols)
+            cols = {**{k: np.full(len(cols["t"]), math.nan) for k in missing}, **cols}
+        batches = self._batches(cols)
+        self.writer.write_interleaved(batches)
+        for e in sorted(events, key=lambda e: float(e["t"])):
+            level = _EVENT_LEVEL.get(str(e.get("type")), "info")
+            self.writer.log(level, int(round(float(e["t"]) * 1e6)), event_text(e))
+
+    def _batches(self, c: Mapping[str, np.ndarray]) -> list[np.ndarray]:
+        n = len(c["t"])
+        if not n:
+            return []
+        w, ids, m = self.writer, self._ids, self.meta
+        nan = np.full(n, math.nan)
+
+        def col(name: str) -> np.ndarray:
+            v = c.get(name)
+            return nan if v is None else np.asarray(v, dtype=float)
+
+        def vec(*names: str) -> np.ndarray:
+            return np.stack([col(x) for x in names], axis=1)
+
+        t_us = np.round(col("t") * 1e6).astype(np.uint64)
+        period_us = int(np.median(np.diff(t_us))) if n > 1 else 0
+        nav_mode = col("nav_mode")
+        lat, lon = self.frame.latlon_from_ne(col("est_n"), col("est_e"))
+        out = []
+
+        def rec(topic: str, values: dict[str, Any], rows: np.ndarray | None = None) -> None:
+            if rows is None:
+                out.append(w.records(ids[topic], {"timestamp": t_us, **values}, n))
+                return
+            k = int(rows.sum())
+            if k:
+                sel = {key: (v[rows] if isinstance(v, np.ndarray) and v.shape[:1] == (n,) else v)
+                       for key, v in values.items()}
+                out.append(w.records(ids[topic], {"timestamp": t_us[rows], **sel}, k))
+
+        valid = nav_mode != 3  # NavMode.LOST: no horizontal position
+        rec("vehicle_local_position", {
+            "timestamp_sample": t_us, "xy_valid": valid, "z_valid": True, "v_xy_valid": valid, "v_z_valid": True,
+            "x": col("est_n"), "y": col("est_e"), "z": col("est_d"), "vx": col("est_vn"), "vy": col("est_ve"),
+            "vz": col("est_vd"), "heading": col("est_yaw"), "xy_global": True, "z_global": True,
+            "ref_timestamp": 0, "ref_lat": m.home_lat_deg, "ref_lon": m.home_lon_deg, "ref_alt": m.home_alt_amsl_m,
+            "eph": col("sigma_h"), "epv": col("sigma_v")})
+        rec("vehicle_global_position", {"timestamp_sample": t_us, "lat": lat, "lon": lon,
+                                        "alt": m.home_alt_amsl_m - col("est_d"), "eph": col("sigma_h"),
+                                        "epv": col("sigma_v")})
+        rec("vehicle_attitude", {"timestamp_sample": t_us,
+                                 "q": quaternion(col("est_roll"), col("est_pitch"), col("est_yaw"))})
+        rates = vec("est_p", "est_q", "est_r")
+        rec("vehicle_angular_velocity", {"timestamp_sample": t_us, "xyz": rates})
+        rec("sensor_combined", {"gyro_rad": rates, "gyro_integral_dt": period_us,
+                                "accelerometer_timestamp_relative": 0,
+                                "accelerometer_m_s2": vec("est_ax", "est_ay", "est_az"),
+                                "accelerometer_integral_dt": period_us})
+        armed = col("armed") > 0.5
+        auth, beh = col("authority").astype(int), col("behavior").astype(int)
+        rec("vehicle_status", {"arming_state": np.where(armed, ARMING_STATE_ARMED, ARMING_STATE_DISARMED),
+                               "nav_state": nav_state(auth, beh), "vehicle_type": 2 if m.fixed_wing else 1})
+        landed = col("landed") > 0.5
+        rec("vehicle_land_detected", {"landed": landed, "maybe_landed": landed, "ground_contact": landed})
+        rec("battery_status", {"connected": True, "remaining": col("battery_frac")})
+        motors = vec("m0", "m1", "m2", "m3")
+        control = np.full((n, 12), math.nan)
+        control[:, :4] = motors
+        output = np.zeros((n, 16))
+        output[:, :4] = motors
+        rec("actuator_motors", {"timestamp_sample": t_us, "control": control})
+        rec("actuator_outputs", {"noutputs": 4, "output": output})
+        kind = col("sp_kind")
+        has_sp = np.isfinite(kind)
+        pos_sp = kind == int(SetpointKind.POSITION)
+        traj = has_sp & (kind != int(SetpointKind.ATTITUDE))
+        position = vec("sp_n", "sp_e", "sp_d")
+        position[~pos_sp] = math.nan
+        rec("trajectory_setpoint", {"position": position, "velocity": vec("sp_vn", "sp_ve", "sp_vd"),
+                                    "yaw": col("sp_yaw")}, traj)
+        att = kind == int(SetpointKind.ATTITUDE)
+        thrust_body = np.zeros((n, 3))
+        thrust_body[:, 2] = -col("sp_thrust")
+        rec("vehicle_attitude_setpoint", {"q_d": quaternion(col("sp_roll"), col("sp_pitch"), col("sp_yaw")),
+                                          "thrust_body": thrust_body, "yaw_sp_move_rate": 0.0}, att)
+        rec("merlin_experimental_setpoint", {"kind": np.nan_to_num(kind).astype(np.uint8),
+                                             "thrust": col("sp_thrust")}, has_sp)
+        rec("merlin_authority", {"authority": auth, "behavior": beh, "armed": armed, "landed": landed})
+        rec("merlin_command", {"kind": col("cmd_kind").astype(int), "velocity": vec("cmd_vn", "cmd_ve", "cmd_vd"),
+                               "roll": col("cmd_roll"), "pitch": col("cmd_pitch"), "yaw": col("cmd_yaw"),
+                               "thrust": col("cmd_thrust"), "blend": col("cmd_blend")})
+        rec("merlin_nav", {"nav_mode": np.nan_to_num(nav_mode).astype(int), "sigma_h_m": col("sigma_h"),
+                           "sigma_v_m": col("sigma_v"), "inertial_s": col("nav_inertial_s")})
+        if "merlin_sim_truth" in ids:
+            rec("merlin_sim_truth", {"position": vec("truth_n", "truth_e", "truth_d"),
+                                     "velocity": vec("truth_vn", "truth_ve", "truth_vd"), "roll": col("truth_roll"),
+                                     "pitch": col("truth_pitch"), "yaw": col("truth_yaw"),
+                                     "wind_north": col("wind_n"), "wind_east": col("wind_e")})
+        for topic, sources in self._sources.items():
+            if topic not in ids:
+                continue
+            fmt = self._extra[topic]
+            values = {}
+            for f, src in zip(fmt.fields[1:], sources, strict=True):
+                v = col(src)
+                values[f.name] = (v > 0.5) if f.type == "bool" else v
+            rec(topic, values)
+        return out
+
+    def close(self) -> None:
+        self.writer.close()
+
+
+def write_flight_ulog(path: str | Path, cols: Mapping[str, np.ndarray], events: Sequence[Mapping[str, Any]],
+                      meta: FlightMeta) -> int:
+    """A whole flight's ULog at ``path``; returns its size in bytes."""
+    f = FlightULog(path, meta)
+    try:
+        f.append(cols, events)
+    finally:
+        f.close()
+    return f.bytes_written
+
+
+def config_json(cfg: Any) -> str:
+    """The configuration as the ULog's ``merlin_config`` information: its JSON, which ``merlin replay``
+    reads back when no ``--config`` is given."""
+    return json.dumps(cfg.model_dump(mode="json"), sort_keys=False)
