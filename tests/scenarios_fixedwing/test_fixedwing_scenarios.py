@@ -291,6 +291,7 @@ def test_a_fence_trip_under_trusted_authority_starts_one_escape_turn_per_trip() 
     """Nothing is left to revoke under trusted authority (the core's rule is RTL again), but the stage still
     turns away: a horizontal trip starts the escape turn, once, re-armed after 1 s of a clear monitor; a
     ceiling trip is left to the behaviour's height."""
+    from merlin.autopilot.fixedwing_behaviours import TRIP_REARM_S
     from merlin.core.types import (
         Authority,
         Behavior,
@@ -302,7 +303,6 @@ def test_a_fence_trip_under_trusted_authority_starts_one_escape_turn_per_trip() 
         ReasonCode,
         VehicleState,
     )
-    from sims.fixedwing_loop import TRIP_REARM_S
 
     sc, cfg = load_scenario(SCENARIOS / "fw_rtl_keepout_descend.yaml")
     loop = FixedWingLoop(sc, cfg, "<test>")
@@ -316,19 +316,20 @@ def test_a_fence_trip_under_trusted_authority_starts_one_escape_turn_per_trip() 
         return Decision(0.0, Authority.TRUSTED, Behavior.RTL, Command(CommandKind.VELOCITY, Authority.TRUSTED),
                         (mon,), (), True)
 
-    loop._escape_on_trusted_trip(10.0, decision("inclusion"), s)
-    assert loop.escape_side != 0.0
-    note = loop.notes[-1]
+    stage = loop.stage
+    stage.escape_on_trusted_trip(10.0, decision("inclusion"), s)
+    assert stage.escape_side != 0.0
+    note = stage.notes[-1]
     assert note["type"] == "fixed_wing_escape_turn" and note["under"] == "trusted"
-    loop.escape_side = 0.0  # the turn ended (the monitor still tripped): no second turn for the same trip
-    loop._escape_on_trusted_trip(10.1, decision("inclusion"), s)
-    assert loop.escape_side == 0.0
-    loop._escape_on_trusted_trip(10.2, decision(None), s)  # clear, but not for long enough
-    loop._escape_on_trusted_trip(10.2 + 0.5 * TRIP_REARM_S, decision("exclusion"), s)
-    assert loop.escape_side == 0.0
-    loop._escape_on_trusted_trip(11.0, decision(None), s)
-    loop._escape_on_trusted_trip(11.0 + TRIP_REARM_S, decision(None), s)
-    loop._escape_on_trusted_trip(11.1 + TRIP_REARM_S, decision("ceiling"), s)  # a ceiling trip: no turn
-    assert loop.escape_side == 0.0
-    loop._escape_on_trusted_trip(11.2 + TRIP_REARM_S, decision("exclusion"), s)  # a new horizontal trip
-    assert loop.escape_side != 0.0
+    stage.escape_side = 0.0  # the turn ended (the monitor still tripped): no second turn for the same trip
+    stage.escape_on_trusted_trip(10.1, decision("inclusion"), s)
+    assert stage.escape_side == 0.0
+    stage.escape_on_trusted_trip(10.2, decision(None), s)  # clear, but not for long enough
+    stage.escape_on_trusted_trip(10.2 + 0.5 * TRIP_REARM_S, decision("exclusion"), s)
+    assert stage.escape_side == 0.0
+    stage.escape_on_trusted_trip(11.0, decision(None), s)
+    stage.escape_on_trusted_trip(11.0 + TRIP_REARM_S, decision(None), s)
+    stage.escape_on_trusted_trip(11.1 + TRIP_REARM_S, decision("ceiling"), s)  # a ceiling trip: no turn
+    assert stage.escape_side == 0.0
+    stage.escape_on_trusted_trip(11.2 + TRIP_REARM_S, decision("exclusion"), s)  # a new horizontal trip
+    assert stage.escape_side != 0.0

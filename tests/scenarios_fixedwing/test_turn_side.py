@@ -8,9 +8,9 @@ import math
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from merlin.autopilot.fixedwing_behaviours import escape_side, turn_clearances_m
 from merlin.core import geofence
 from merlin.core.types import VehicleState
-from sims.fixedwing_loop import escape_side, turn_clearances_m
 from tests.scenarios_fixedwing.test_fixedwing_scenarios import FENCE
 
 

@@ -1,0 +1,381 @@
+"""The fixed wing's actuator stage: the trusted core's decision and the vehicle state in, surfaces out.
+
+What a driver of a real fixed wing (or the simulator, :mod:`sims.fixedwing_loop`) calls once per tick after
+the core decided. The core runs unchanged for both vehicles; what differs is this stage, because a fixed
+wing cannot stop:
+
+* EXPERIMENTAL or OPERATOR authority (and IDLE/TERMINATE commands): the core's shaped
+  :class:`~merlin.core.types.Command` becomes fixed-wing targets through
+  :func:`merlin.autopilot.fixedwing_guidance.targets_from_command` (a velocity is a course, a speed and a
+  climb rate; an attitude passes through the inner loops' protections).
+* TRUSTED or SHADOW authority: the core's *behaviour* is flown by the fixed-wing guidance -- HOLD loiters
+  on a circle the aircraft is already on, RTL loiters over home at max(RTL height, current height),
+  MISSION flies the trusted mission once and loiters at its last point, LAND (a fixed wing without gear
+  or runway cannot) loiters down to a safe height over home, TAKEOFF climbs out along the launch heading.
+* Every change of authority, command kind or behaviour re-initialises the inner loops bumplessly: guidance
+  first (its targets at the switch), then :func:`merlin.autopilot.fixedwing_control.reset_from_state` from
+  the surfaces last commanded, so the first surface command equals the last one.
+* Fence recovery: a fixed wing turning back from a boundary must turn the way that is clear. The fence
+  projection trips when *neither* turn is clear any more, so when a trusted behaviour starts while the
+  geofence monitor is tripped, the stage first flies an escape turn at the bank limit to the side whose
+  projected turn keeps farther off the fence (:func:`escape_side`, on the core's own measure of the two
+  turns, :func:`merlin.core.geofence.turn_clearances`), until the monitor clears and the aircraft heads
+  towards home, and only then hands over to the behaviour's guidance. Guidance alone turns the short way
+  towards its goal, which next to a re-entrant corner can be the blocked side. A horizontal trip while a
+  trusted behaviour already flies (nothing to revoke) starts the same escape turn, once per trip.
+* RTL and LAND route around the fence's keep-out zones and inclusion boundary
+  (:mod:`merlin.autopilot.fixedwing_route`): planned when they start, or when the escape turn ends, from
+  the aircraft's position and course; the loiter over home moves off a keep-out if it must.
+
+What the stage did that the core's decision does not say (an escape turn and its side, a route, a LAND
+flown as a loiter) is appended to :attr:`FixedWingBehaviours.notes` as event-like dicts.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from merlin.autopilot import fixedwing_control as fc
+from merlin.autopilot import fixedwing_guidance as fg
+from merlin.autopilot import fixedwing_route as fr
+from merlin.core import geofence
+from merlin.core.types import Authority, Behavior, CommandKind, Decision, VehicleState
+
+#: LAND for a fixed wing: loiter over home down to this height above home (or the fence floor plus the
+#: fence margin, if higher). Low enough to be a landing approach, high enough to stay clear of the terrain
+#: with the loiter's height error (under 3 m in the tests) and the envelope's 30 m altitude floor.
+LAND_LOITER_HEIGHT_M = 50.0
+#: After a launch, TAKEOFF climbs along the launch heading (a line this long, at the takeoff height) until
+#: the core's takeoff completes (height reached), which makes it HOLD: a loiter where the aircraft is.
+LAUNCH_LINE_M = 5000.0
+#: Points per loiter circle when comparing the two sides' loiter circles against the fence.
+_TURN_SAMPLES = 24
+#: Fence-monitor kinds a trip under trusted authority answers with an escape turn: the horizontal ones (a
+#: ceiling or floor trip is answered by the behaviour's height, which a turn does not change).
+_HORIZONTAL_TRIPS = ("inclusion", "exclusion", "outside")
+#: A horizontal fence trip under trusted authority starts a new escape turn only once the monitor has been
+#: clear this long with no escape turn flying (a monitor that flickers at the edge of its threshold must not
+#: start a turn, and a re-plan, every few ticks).
+TRIP_REARM_S = 1.0
+#: The RTL loiter counts as reached (note ``fixed_wing_rtl_at_home``) once the route is flown and the
+#: aircraft is within this of the loiter circle's radius.
+RTL_AT_HOME_RADIAL_M = 15.0
+
+
+def land_height_m(fence: geofence.Fence | None) -> float:
+    """The height LAND's loiter over home descends to: :data:`LAND_LOITER_HEIGHT_M`, or the fence floor plus
+    its margin if that is higher."""
+    floor = fence.params.altitude_floor_m if fence is not None else None
+    margin = fence.params.margin_m if fence is not None else 0.0
+    return max(LAND_LOITER_HEIGHT_M, (floor + margin) if floor is not None else 0.0)
+
+
+def state_wind_ne(s: VehicleState) -> tuple[float, float]:
+    """The wind the core's fence projection uses for this state (the wind triangle, as the core computes it)."""
+    return geofence.wind_triangle_ne(s.vel_ned_mps, s.airspeed_mps, s.att_rpy_rad[2])
+
+
+def turn_clearances_m(fence: geofence.Fence, s: VehicleState) -> tuple[float, float]:
+    """The margins of the fence projection's right and left turns, (right_m, left_m): the shortest distance
+    from each projected path (reaction leg, then the half turn at the bank limit) to a hazard, minus the
+    widening, exactly as the core's check measures it (:func:`merlin.core.geofence.turn_clearances`)."""
+    right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, state_wind_ne(s))
+    return right.margin_m, left.margin_m
+
+
+def escape_side(fence: geofence.Fence, s: VehicleState, home_ne: tuple[float, float] = (0.0, 0.0)) -> float:
+    """+1 (right) or -1 (left): the turn to fly after a fence trip. At a trip neither projected turn is clear
+    (both margins <= 0). The side is the one whose closest approach to a hazard is the larger (the larger
+    margin: how far it stays from the fence is what the turn is for); when both are within 1 m of each
+    other (both cross a hazard: both margins are minus the widening), the one that flies farther before it
+    comes within the widening; when both are as good, the short way towards home. Path length first would
+    choose a turn deeper into the widening for a few metres more path
+    (``tests/scenarios_fixedwing/test_turn_side.py`` pins that geometry).
+    The turns are the core's, drifting with the wind-triangle wind (:func:`state_wind_ne`)."""
+    right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, state_wind_ne(s))
+
+    def close(a: float, b: float) -> bool:
+        return a == b or abs(a - b) < 1.0
+
+    if not close(right.margin_m, left.margin_m):
+        return 1.0 if right.margin_m > left.margin_m else -1.0
+    if not close(right.free_path_m, left.free_path_m):
+        return 1.0 if right.free_path_m > left.free_path_m else -1.0
+    return _side_towards(s, home_ne)
+
+
+def _side_towards(s: VehicleState, target_ne: tuple[float, float]) -> float:
+    """+1 when the short turn towards ``target_ne`` is to the right, -1 to the left."""
+    vn, ve = s.vel_ned_mps[0], s.vel_ned_mps[1]
+    tn, te = target_ne[0] - s.pos_ned_m[0], target_ne[1] - s.pos_ned_m[1]
+    return 1.0 if vn * te - ve * tn >= 0.0 else -1.0
+
+
+def source_key(decision: Decision) -> tuple[Any, ...]:
+    """Who the stage follows: the core's command (with its authority and kind), or a trusted behaviour."""
+    cmd = decision.command
+    auth = decision.authority
+    if cmd.kind in (CommandKind.IDLE, CommandKind.TERMINATE) or auth in (Authority.EXPERIMENTAL,
+                                                                         Authority.OPERATOR):
+        return ("command", auth, cmd.kind)
+    return ("trusted", decision.behavior)
+
+
+class FixedWingBehaviours:
+    """The fixed wing's actuator stage (module docstring): :meth:`step` once per tick of the core.
+
+    ``fence`` is the core's fence (None: no fence); ``cp`` and ``gp`` the inner loops' and guidance's
+    parameters; ``mission`` the trusted mission; ``surfaces`` the surfaces commanded before the stage takes
+    over and ``s0`` the state then (the loops start from them bumplessly). The guidance and inner loops run
+    every ``autopilot_every`` ticks (``autopilot_dt_s`` apart), and in the tick the source changes.
+    ``cp_experimental`` (default ``cp``) flies the experimental controller's commands: the stall
+    counterfactual of the tests bypasses the protections with it; Merlin's own behaviours always fly ``cp``.
+    ``escape_turns`` and ``rtl_routes`` off only show, in the tests, what guidance alone does.
+    """
+
+    def __init__(self, fence: geofence.Fence | None, cp: fc.FixedWingControlParams, gp: fg.GuidanceParams,
+                 mission: tuple[fg.Waypoint, ...], surfaces: fc.SurfaceCommand, s0: VehicleState,
+                 autopilot_every: int, autopilot_dt_s: float, *,
+                 cp_experimental: fc.FixedWingControlParams | None = None, escape_turns: bool = True,
+                 rtl_routes: bool = True, notes: list[dict[str, Any]] | None = None) -> None:
+        self.fence = fence
+        self.cp = cp
+        self.cp_experimental = cp if cp_experimental is None else cp_experimental
+        self.gp = gp
+        self.mission = mission
+        self.escape_turns = escape_turns
+        self.rtl_routes = rtl_routes
+        self.land_height_m = land_height_m(fence)
+        self.autopilot_every = autopilot_every
+        self.autopilot_dt_s = autopilot_dt_s
+        self._since_autopilot = autopilot_every  # run on the first tick
+        self.gstate = fg.GuidanceState()
+        self.mode_key: tuple[Any, ...] | None = None
+        self.escape_side: float = 0.0  # +1 / -1 while an escape turn is flown, else 0
+        self._escape_course = 0.0  # course over the ground at the previous tick of the escape turn, rad
+        self._escape_turned_rad = 0.0  # how far the escape turn has turned towards its side so far
+        #: a horizontal fence trip under trusted authority starts an escape turn only after the monitor was
+        #: clear for TRIP_REARM_S with no escape turn under way (one turn per trip, never a circle of them)
+        self._trip_armed = True
+        self._trip_clear_since: float | None = None  # the monitor seen clear since (no escape flying)
+        self._rtl_at_home_noted = False
+        self.notes: list[dict[str, Any]] = [] if notes is None else notes
+        self.surfaces = surfaces
+        self.cstate = fc.reset_from_state(cp, s0, surfaces)
+
+    def restart(self, surfaces: fc.SurfaceCommand) -> None:
+        """The vehicle was put into a new state from outside (a launch): the next tick re-initialises the
+        loops from ``surfaces`` whatever the decision."""
+        self.surfaces = surfaces
+        self.mode_key = None
+
+    def step(self, t: float, decision: Decision, s: VehicleState, takeoff_height_m: float) -> fc.SurfaceCommand:
+        """The surfaces for this tick (held between the autopilot's ticks). ``takeoff_height_m``: the height
+        the core's TAKEOFF climbs to (its arbiter's), flown only while the behaviour is TAKEOFF."""
+        if source_key(decision) != self.mode_key or self._since_autopilot >= self.autopilot_every:
+            cp = self.cp_experimental if decision.authority is Authority.EXPERIMENTAL else self.cp
+            targets = self._targets(t, decision, s, cp, takeoff_height_m)
+            self.cstate, out = fc.control_step(cp, self.cstate, s, targets, self.autopilot_dt_s)
+            self.surfaces = out.surfaces
+            self._since_autopilot = 0
+        self._since_autopilot += 1
+        return self.surfaces
+
+    def _targets(self, t: float, decision: Decision, s: VehicleState, cp: fc.FixedWingControlParams,
+                 takeoff_height_m: float) -> fc.FixedWingTargets:
+        """What the inner loops fly this tick (with ``cp``); re-initialises them bumplessly on a change of
+        source."""
+        cmd = decision.command
+        key = source_key(decision)
+        from_command = key[0] == "command"
+        changed = key != self.mode_key
+        if from_command:
+            self.escape_side = 0.0
+            targets = fg.targets_from_command(self.gp, cp, cmd, s)
+        else:
+            if changed:
+                self._enter(t, decision, s, takeoff_height_m)
+            elif self.escape_turns and not self.escape_side and self.fence is not None:
+                self.escape_on_trusted_trip(t, decision, s)
+            targets = self._trusted_targets(t, decision, s)
+        if changed:
+            # Guidance first (above), then the loops from the surfaces last commanded: no bump.
+            self.cstate = fc.reset_from_state(self.cp, s, self.surfaces, targets)
+            self.mode_key = key
+        return targets
+
+    def _enter(self, t: float, decision: Decision, s: VehicleState, takeoff_height_m: float) -> None:
+        """Start the guidance mode for the core's behaviour, and an escape turn if the fence is tripped."""
+        b = decision.behavior
+        gs = self.gstate
+        self.escape_side = 0.0
+        fence = self.fence
+        if (self.escape_turns and fence is not None
+                and any(m.name == "geofence" and m.tripped for m in decision.monitors)):
+            self._start_escape(t, fence, s)
+        if b is Behavior.RTL:
+            gs = self._start_rtl(t, s)
+        elif b is Behavior.LAND:
+            self.notes.append({"t": t, "type": "fixed_wing_land_as_loiter",
+                               "detail": f"LAND flown as a loiter over home descending to {self.land_height_m:g} m:"
+                                         " the fixed wing cannot land in this simulator"})
+            gs = self._start_rtl(t, s, self.land_height_m)
+        elif b is Behavior.MISSION and self.mission:
+            gs = fg.start_mission(gs, s, self.mission, loop=False)
+        elif b is Behavior.TAKEOFF:
+            # launched from the catapult (the core accepts TAKEOFF only on the ground): climb out along the
+            # launch heading to the core's takeoff height; the core then makes it HOLD
+            h = takeoff_height_m
+            c, sn = math.cos(s.att_rpy_rad[2]), math.sin(s.att_rpy_rad[2])
+            n, e = s.pos_ned_m[0], s.pos_ned_m[1]
+            gs = fg.start_mission(gs, s, (fg.Waypoint(n + LAUNCH_LINE_M * c, e + LAUNCH_LINE_M * sn, h,
+                                                      self.cp.airspeed_cruise_mps),), loop=False)
+        else:  # HOLD, TAKEOFF (airborne already), MISSION without waypoints
+            gs = fg.start_hold(self.gp, self.cp, gs, s, clockwise=self._hold_clockwise(s))
+        self.gstate = gs
+
+    def _start_escape(self, t: float, fence: geofence.Fence, s: VehicleState) -> None:
+        """Fly an escape turn at the bank limit to the side :func:`escape_side` picks."""
+        right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m,
+                                               state_wind_ne(s))
+        self.escape_side = escape_side(fence, s)
+        self._escape_course = math.atan2(s.vel_ned_mps[1], s.vel_ned_mps[0])
+        self._escape_turned_rad = 0.0
+        self._trip_armed = False
+        self._trip_clear_since = None
+        self.notes.append({"t": t, "type": "fixed_wing_escape_turn",
+                           "side": "right" if self.escape_side > 0 else "left",
+                           "right_margin_m": right.margin_m, "left_margin_m": left.margin_m,
+                           "right_free_path_m": right.free_path_m, "left_free_path_m": left.free_path_m})
+
+    def escape_on_trusted_trip(self, t: float, decision: Decision, s: VehicleState) -> None:
+        """A horizontal fence trip while a trusted behaviour already flies (nothing left to revoke: the core's
+        rule is RTL again) still turns the aircraft away: the escape turn, as at a revocation, once per trip
+        (re-armed when the monitor has been clear for :data:`TRIP_REARM_S`). An RTL or LAND re-plans its route
+        when it ends."""
+        fence = self.fence
+        assert fence is not None
+        trip = next((m for m in decision.monitors if m.name == "geofence" and m.tripped), None)
+        if trip is None:
+            if self._trip_clear_since is None:
+                self._trip_clear_since = t
+            if t - self._trip_clear_since >= TRIP_REARM_S:
+                self._trip_armed = True
+            return
+        self._trip_clear_since = None
+        if not self._trip_armed or trip.reason.parameter not in _HORIZONTAL_TRIPS:
+            return
+        self._start_escape(t, fence, s)
+        self.notes[-1]["under"] = "trusted"
+
+    def _start_rtl(self, t: float, s: VehicleState, height: float | None = None) -> fg.GuidanceState:
+        """RTL (or LAND, at ``height``; None: the RTL height rule): the loiter over home, moved or shrunk off the keep-out zones
+        if it must be, and the route to it around them (:mod:`merlin.autopilot.fixedwing_route`). While an
+        escape turn is flown the route waits for its end (planned from where the turn leaves the aircraft)."""
+        fence = self.fence
+        self._rtl_at_home_noted = False
+        if fence is None or not self.rtl_routes or not fr.has_zones(fence):
+            return fg.start_rtl(self.gp, self.gstate, s, height_m=height)
+        wind = state_wind_ne(s)
+        clearance = fr.route_clearance_m(fence, self.gp.rtl_airspeed_mps, math.hypot(*wind), s.pos_sigma_h_m)
+        bank = fence.params.bank_limit_rad
+        min_radius = fr.MIN_LOITER_RADIUS_TURN_RADII * fr.turn_radius_m(
+            self.gp.rtl_airspeed_mps + math.hypot(*wind), bank, fence.params.gravity_mps2)
+        loiter = fr.home_loiter(fence, (0.0, 0.0), self.gp.loiter_radius_m, clearance, min_radius)
+        if loiter.status != "home":
+            self.notes.append({"t": t, "type": "fixed_wing_rtl_loiter_moved", "status": loiter.status,
+                               "center_ne_m": list(loiter.center_ne_m), "radius_m": loiter.radius_m,
+                               "clearance_m": clearance})
+        if self.escape_side:
+            return fg.start_rtl(self.gp, self.gstate, s, loiter.center_ne_m, (), loiter.radius_m, height)
+        pos = (s.pos_ned_m[0], s.pos_ned_m[1])
+        # the route starts with the turn the aircraft must fly anyway, at the fence's bank limit for the
+        # faster of its groundspeed now and the RTL airspeed plus the wind
+        vn, ve = s.vel_ned_mps[0], s.vel_ned_mps[1]
+        speed = max(math.hypot(vn, ve), self.gp.rtl_airspeed_mps + math.hypot(*wind))
+        turn_r = fr.turn_radius_m(speed, bank, fence.params.gravity_mps2)
+        route = fr.plan_route(fence, pos, loiter.center_ne_m, loiter.radius_m, clearance,
+                              course_rad=math.atan2(ve, vn), turn_radius=turn_r)
+        if route.status == "no_route":
+            self.notes.append({"t": t, "type": "fixed_wing_rtl_no_route", "clearance_m": clearance,
+                               "detail": "no route home keeps the clearance from the keep-out zones: loitering"
+                                         " where the aircraft is"})
+            return fg.start_hold(self.gp, self.cp, self.gstate, s, clockwise=self._hold_clockwise(s))
+        if route.status != "direct":
+            self.notes.append({"t": t, "type": "fixed_wing_rtl_route", "status": route.status,
+                               "legs": len(route.legs_ne_m) - 1, "length_m": route.length_m,
+                               "clearance_m": clearance,
+                               "points_ne_m": [[round(n, 2), round(e, 2)] for n, e in route.legs_ne_m],
+                               "turn": None if route.turn is None else {
+                                   "center_ne_m": list(route.turn.center_ne_m), "radius_m": route.turn.radius_m,
+                                   "side": "right" if route.turn.clockwise else "left"}})
+        turn = None if route.turn is None else (route.turn.center_ne_m, route.turn.radius_m, route.turn.clockwise,
+                                                route.turn.exit_course_rad)
+        return fg.start_rtl(self.gp, self.gstate, s, loiter.center_ne_m, route.legs_ne_m, loiter.radius_m, height,
+                            turn)
+
+    def _hold_clockwise(self, s: VehicleState) -> bool:
+        """Loiter on the side whose circle keeps the larger fence margin (clockwise when no fence)."""
+        fence = self.fence
+        if fence is None or self.escape_side:
+            return self.escape_side >= 0.0
+        vn, ve = s.vel_ned_mps[0], s.vel_ned_mps[1]
+        speed = math.hypot(vn, ve)
+        if speed < 1.0:
+            return True
+        r = self.gp.loiter_radius_m
+        worst: list[float] = []
+        for side in (1.0, -1.0):
+            cn = s.pos_ned_m[0] + side * (-ve / speed) * r
+            ce = s.pos_ned_m[1] + side * (vn / speed) * r
+            circle = [(cn + r * math.cos(a), ce + r * math.sin(a), 0.0)
+                      for a in np.linspace(0.0, math.tau, _TURN_SAMPLES, endpoint=False)]
+            # the circle's margins in one call (equal to signed_margin_m point by point); Python's min as before
+            worst.append(float(min(geofence.signed_margins_m(fence, np.array(circle),
+                                                             np.zeros(len(circle), bool)).tolist())))
+        return worst[0] >= worst[1]
+
+    def _trusted_targets(self, t: float, decision: Decision, s: VehicleState) -> fc.FixedWingTargets:
+        self.gstate, targets, status = fg.guidance_step(self.gp, self.cp, self.gstate, s)
+        if not self.escape_side:
+            gs = self.gstate
+            if (not self._rtl_at_home_noted and gs.mode is fg.GuidanceMode.RTL and gs.route_index >= len(gs.route)
+                    and abs(status.crosstrack_m) < RTL_AT_HOME_RADIAL_M):
+                self._rtl_at_home_noted = True
+                self.notes.append({"t": t, "type": "fixed_wing_rtl_at_home",
+                                   "center_ne_m": list(gs.loiter.center_ne_m), "radius_m": gs.loiter.radius_m})
+            return targets
+        fence_tripped = any(m.name == "geofence" and m.tripped for m in decision.monitors)
+        vn, ve = s.vel_ned_mps[0], s.vel_ned_mps[1]
+        homeward = vn * -s.pos_ned_m[0] + ve * -s.pos_ned_m[1] > 0.0
+        # The projection that chose the side covered a half turn, no more: turning on past it while the
+        # monitor stays tripped (another wall ahead, a corner) closes the circle back into the wall it
+        # escaped. So the escape ends at the half turn too.
+        course = math.atan2(ve, vn)
+        step = (course - self._escape_course + math.pi) % math.tau - math.pi
+        self._escape_course = course
+        self._escape_turned_rad += step * self.escape_side
+        half_turn_done = self._escape_turned_rad >= math.pi
+        if (not fence_tripped and homeward) or half_turn_done:
+            self.notes.append({"t": t, "type": "fixed_wing_escape_turn_end",
+                               "turned_deg": math.degrees(self._escape_turned_rad),
+                               "fence_tripped": fence_tripped})
+            if decision.behavior in (Behavior.HOLD, Behavior.TAKEOFF) or (
+                    decision.behavior is Behavior.MISSION and not self.mission):
+                # the hold circle is re-centred where the escape ended, turning the same way
+                self.gstate = fg.start_hold(self.gp, self.cp, self.gstate, s, clockwise=self.escape_side > 0.0)
+                self.escape_side = 0.0
+                self.gstate, targets, _status = fg.guidance_step(self.gp, self.cp, self.gstate, s)
+            elif decision.behavior in (Behavior.RTL, Behavior.LAND):
+                # the route home is planned from where the escape turn leaves the aircraft
+                self.escape_side = 0.0
+                # (at the height the behaviour chose when it started)
+                self.gstate = self._start_rtl(t, s, self.gstate.loiter.height_m)
+                self.gstate, targets, _status = fg.guidance_step(self.gp, self.cp, self.gstate, s)
+            self.escape_side = 0.0
+            return targets
+        return replace(targets, roll_rad=self.escape_side * fc.bank_limit_rad(self.cp))
