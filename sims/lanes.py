@@ -100,8 +100,8 @@ PF_SIGMA_MAG_GAUSS = 0.01
 # closed loop the specific force also carries the vehicle's own linear acceleration, which the filters'
 # measurement model (gravity only) does not contain, and a fault makes the vehicle manoeuvre. At 0.02 g
 # that mismatch dominated the residual and the healthy lane was blamed in 1 of 4 seeds of
-# imu_second_fault_duplex.yaml (seed 2, 2026-11-24); at 0.1 g the bias and magnetometer parts decide and
-# the faulty lane was the one isolated in 8 of 8 runs (roll and yaw bias, seeds 52/1/2/3).
+# imu_second_fault_duplex.yaml; at 0.1 g the bias and magnetometer parts decide and the faulty lane was
+# the one isolated in 8 of 8 runs (roll and yaw bias, 4 seeds; docs/redundancy.md).
 PF_RESIDUAL_ACCEL_G = 0.1
 
 

@@ -92,9 +92,9 @@ class NavConfig:
     # (Gauss-Markov tau 60 s plus 15 % white) and 0.50 eph for merlin.nav.synthetic's (30 % white): 0.575
     # covers both, and at either receiver's datasheet accuracy it stays at the floor (0.58 m, 0.60 m). At
     # twice the noise 0.55 (1.11 m) let the marginal seed-5 gravel flight exclude GPS; 0.575 (1.16 m) did
-    # not (docs/benchmarks/nav.md). An absolute 0.6 m alone let a healthy receiver at twice the datasheet noise (0.75 m over
-    # 3 s) be excluded (campaign runs 00373, 00450, 00670, 00681, 00945 of sensor_faults.yaml, at 6-15 s
-    # before any fault). The window statistic d^T C^-1 d / 2 (mean 1) feeds a second CUSUM with the same
+    # not (docs/benchmarks/nav.md). An absolute 0.6 m alone lets a healthy receiver at twice the datasheet
+    # noise (0.75 m over 3 s) be excluded before any fault (examples/scenarios/gps_noisy_receiver.yaml,
+    # tests/nav/test_nav_receiver_accuracy.py). The window statistic d^T C^-1 d / 2 (mean 1) feeds a second CUSUM with the same
     # allowance, threshold and clip.
     gps_window_s: float = 3.0
     gps_window_sigma_m: float = 0.6

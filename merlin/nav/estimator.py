@@ -848,9 +848,9 @@ class NavEstimator:
         one lane to the other), and its readings jumped by these steps. Part of the old source's error sits
         in the bias estimates, how much is not known, so the bias variances are widened by each axis's step
         squared: the filter re-learns the biases from the aiding instead of finding the aiding inconsistent
-        (a correct isolation of a 1.47 m/s^2 accelerometer bias was followed by a GPS exclusion 1.8 s later:
-        campaign run 00055 of redundancy_accel.yaml, seed 3). PX4 and ArduPilot avoid the step by running
-        one filter per IMU."""
+        (without it a correct isolation of a 1.47 m/s^2 accelerometer bias was followed by a GPS exclusion
+        1.8 s later; tests/nav/test_nav_estimator.py pins the widening). PX4 and ArduPilot avoid the step by
+        running one filter per IMU."""
         if self._pend_n:
             self._predict_covariance()
         P = self.kf.P

@@ -5,8 +5,8 @@ voter (duplex miscompare: 0.1 rad/s on a gyro axis, :data:`merlin.redundancy.sen
 arbitrated by seed 003's particle-filter FDI, whose alert needs |omega^(1) - omega^(2)| >= tau_g =
 0.2853 rad/s (seed 003 Table 2, §5 step 1). A gyro bias between the two is flagged as a miscompare but
 never reaches the FDI's alert, so the seed's isolation (§5 step 2) never runs: the estimator kept being fed
-the mean of the pair, with half the bias in it, and the EKF drifted until it excluded GPS (11 runs of the
-1,000-run campaign of 2026-11-24, examples/campaigns/redundancy_sensors.yaml). The seed's thresholds stay
+the mean of the pair, with half the bias in it, and the EKF drifted until it excluded GPS (the scenario
+examples/scenarios/redundancy_sub_alert_gyro_bias.yaml pins it). The seed's thresholds stay
 as they are (:data:`merlin.redundancy.duplex_fdi.TABLE2` / ``MERLIN``); this layer only acts in the band
 below them.
 
@@ -32,9 +32,8 @@ magnetometer; with one magnetometer on the airframe both lanes read it):
 Each evidence counts by its measured noise (the fields of :class:`AttributionConfig` say how): the field
 shares by their standard error from each tracker's residual noise, the bias shares by the common-mode
 wander of the two filters' estimates, both measured while the pair agreed. Bias estimates that wander
-together (both filters share the airframe's model errors) can name neither lane: campaign run 00072 of
-redundancy_sensors.yaml, where they named the healthy one (examples/scenarios/redundancy_duplex_bias_near
-_field.yaml).
+together (both filters share the airframe's model errors) can name neither lane: in
+examples/scenarios/redundancy_duplex_bias_near_field.yaml they would name the healthy one.
 
 The decision (every FDI step, 100 Hz, only while the FDI is in its normal state: its alert and
 declaration take precedence and are unchanged):
@@ -79,10 +78,10 @@ class AttributionConfig:
     min_disagreement_radps: float = 0.05  # |D| below this: no attribution (nothing to divide by)
     # The layer's own detection, beside the voter's flag: the pair's disagreement (its pre-onset offset
     # removed) averaged over detect_tau_s reaching detect_radps on an axis counts as a miscompare. The
-    # voter tests each sample against 0.1 rad/s per axis, which flickers for a bias near it: campaign run
-    # 00009 of redundancy_sensors.yaml (seed 2, 2026-11-24), (-0.057, 0, 0.098) rad/s, was flagged in about
-    # one FDI step in five, the integrator never reached persistence_s, and the EKF fed half the bias
-    # excluded GPS 4.4 s after the onset. Averaged, the per-sample noise (0.003 rad/s) is 0.0003 rad/s.
+    # voter tests each sample against 0.1 rad/s per axis, which flickers for a bias near it: a bias of
+    # (-0.057, 0, 0.098) rad/s is flagged in about one FDI step in five, the integrator never reaches
+    # persistence_s, and the EKF fed half the bias excludes GPS (examples/scenarios/
+    # redundancy_duplex_bias_at_threshold.yaml). Averaged, the per-sample noise (0.003 rad/s) is 0.0003 rad/s.
     detect_radps: float = 0.05
     detect_tau_s: float = 0.25
     baseline_tau_s: float = 2.0  # time constant of the pair's pre-onset offsets (gyro, field residual)
@@ -92,10 +91,10 @@ class AttributionConfig:
     # min_field_signal_gauss. The floor bounds what noise statistics cannot: a healthy lane's own turn-on
     # bias b_h leaves tau (b_h x m) in its residual, which the pre-onset baseline removes only while the
     # attitude holds (0.25 s x 0.005 rad/s x 0.44 G = 0.0006 G; at the floor, a share of at most 0.27).
-    # Until 2026-11-25 a fixed floor of 0.004 G alone: in campaign run 00072 of redundancy_sensors.yaml
-    # (examples/scenarios/redundancy_duplex_bias_near_field.yaml) a -0.2 rad/s bias 11 degrees off the
-    # field gave 0.0039 G, the trackers were ignored though their shares (0.9 / 0.1, standard error 0.08
-    # after 1 s) were right, and the bias estimates alone isolated the healthy lane.
+    # A fixed floor alone is not enough: in examples/scenarios/redundancy_duplex_bias_near_field.yaml a
+    # -0.2 rad/s bias 11 degrees off the field gives 0.0039 G, under a 0.004 G floor, though the trackers'
+    # shares (0.9 / 0.1, standard error 0.08 after 1 s) are right; the bias estimates alone would then
+    # isolate the healthy lane.
     min_field_signal_gauss: float = 0.002
     max_field_share_sigma: float = 0.1
     # the lane fed meanwhile may follow the field shares at a looser standard error: feeding is undone by
@@ -103,17 +102,17 @@ class AttributionConfig:
     max_feed_share_sigma: float = 0.25
     # The cross-check of seed 003's isolation at its declaration (:func:`names`) only has to tell the two
     # lanes apart, the FDI having declared one of them faulty: it takes the field shares at this standard
-    # error. Campaign run 00514 of the 1,000-run mix of 2026-11-24 (evening; examples/scenarios/
-    # redundancy_duplex_declaration_cross_check.yaml): shares 0.02 / 0.98 at the declaration, standard
-    # error 0.16, the verdict's 0.1 not reached within confirm_s, so the FDI's choice, the healthy lane,
-    # stood and authority was revoked.
+    # error. In examples/scenarios/redundancy_duplex_declaration_cross_check.yaml the shares are 0.02 / 0.98
+    # at the declaration with standard error 0.16: at the verdict's 0.1, not reached within confirm_s, the
+    # FDI's choice, the healthy lane, would stand and authority would be revoked.
     max_confirm_share_sigma: float = 0.25
     field_noise_prior_gauss: float = 0.01  # residual noise assumed before any has been measured ...
     field_noise_prior_s: float = 0.1  # ... worth this much measured time (then the baseline_tau_s average)
     # The bias evidence names a lane (a verdict alone, the lane fed) only while the common-mode wander of
     # the two filters' bias estimates, measured while the pair agreed, is small against the disagreement:
     # both filters see the same airframe and share its model errors, so the mean of their estimates
-    # wanders (+-0.05-0.09 rad/s in the manoeuvring multirotor of run 00072, seconds long), and a wander
+    # wanders (+-0.05-0.09 rad/s in the manoeuvring multirotor of redundancy_duplex_bias_near_field, seconds
+    # long), and a wander
     # c along D moves both shares by c.D/|D|^2, which a fault cannot be told from. The shares' standard
     # error sqrt(2 D^T C D)/|D|^2 (C: the wander's covariance; the change over an episode has at most
     # twice its variance) must be at most max_bias_share_sigma: a wrong verdict then needs a 3-sigma
@@ -124,8 +123,9 @@ class AttributionConfig:
     bias_wander_prior_radps: float = 0.05  # wander assumed (1 sigma per axis) before any has been measured
     # seed 003's declaration can come on the alert's own step (a bias far above tau_g: ||Omega dq|| > 1 at
     # once), when its isolation residual is one sample: the isolation waits up to this long for the field
-    # trackers to name a lane, then the FDI's choice stands (campaign run 00012 of redundancy_sensors.yaml,
-    # 2026-11-24: 0.63 rad/s, declared 2.5 ms after onset, the healthy lane named)
+    # trackers to name a lane, then the FDI's choice stands (examples/scenarios/
+    # redundancy_duplex_instant_declaration.yaml: 0.63 rad/s, declared 2.5 ms after onset on a one-sample
+    # residual that names the healthy lane)
     confirm_s: float = 0.25
 
     def __post_init__(self) -> None:
@@ -229,10 +229,9 @@ def _field_names(a: Attribution, cfg: AttributionConfig) -> int | None:
 
 def names(a: Attribution, cfg: AttributionConfig) -> int | None:
     """The IMU of the pair (0 / 1) the field trackers clearly name, the bias estimates not naming the
-    other; None when they do not. Used to cross-check seed 003's isolation at its declaration: in the
-    1,000-run campaign of 2026-11-24 (run 00999, examples/scenarios/redundancy_duplex_marginal_declaration
-    .yaml) the FDI declared with ||Omega dq||_inf = 1.003 while its isolation residual still named the
-    healthy IMU, which was isolated and the biased one kept."""
+    other; None when they do not. Used to cross-check seed 003's isolation at its declaration: in
+    examples/scenarios/redundancy_duplex_marginal_declaration.yaml the FDI declares with ||Omega dq||_inf =
+    1.003 while its isolation residual still names the healthy IMU."""
     by_field = _field_names(a, cfg)
     if by_field is None:
         return None

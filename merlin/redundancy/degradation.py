@@ -221,9 +221,10 @@ class ImuDegradationChain:
 
     def _cross_check(self, t_s: float, pair: tuple[int, int], fdi_faulty: int) -> list[FaultReport]:
         """Seed 003 isolates, at the declaration, the IMU with the larger isolation residual (§5, eq. 42).
-        With a marginal declaration that residual can still name the healthy IMU (campaign run 00999,
-        2026-11-24: ||Omega dq||_inf = 1.003, the healthy lane isolated and the biased one kept, authority
-        revoked 1.4 s later). Merlin's cross-check: when the field trackers gathered since the alert
+        With a marginal declaration that residual can still name the healthy IMU
+        (examples/scenarios/redundancy_duplex_marginal_declaration.yaml: ||Omega dq||_inf = 1.003; without
+        the cross-check the healthy lane is isolated, the biased one kept, and authority revoked 1.4 s later).
+        Merlin's cross-check: when the field trackers gathered since the alert
         clearly name the other IMU (:func:`merlin.redundancy.attribution.names`: a share of at least
         ``min_share`` against at most ``max_other_share``, the particle filters' bias estimates not
         disagreeing), that IMU is isolated instead and an event says so. The declaration itself (E3) is
@@ -294,9 +295,9 @@ class ImuDegradationChain:
         gyro, accel = vals[:, :3], vals[:, 3:6]
         alerting = fdi_out.state is FdiState.ALERT
         # Seed 003's E3 (||Omega dq|| > 1) cannot fire on a vertical accelerometer bias, which tilts
-        # neither filter: the alert then lasts for ever without a declaration (campaign run 00584 of the
-        # evening's 1,000-run mix: 2.61 m/s^2 along z, over tau_a, alert from the onset, no declaration,
-        # revoked 3.6 s later). After alert_patience_s of continuous alert the layer decides.
+        # neither filter: the alert then lasts for ever without a declaration (examples/scenarios/
+        # redundancy_accel_bias_long_alert.yaml: 2.61 m/s^2 along z, over tau_a, alert from the onset, no
+        # declaration). After alert_patience_s of continuous alert the layer decides.
         patient = alerting and self._alert_t0 is not None and t_s - self._alert_t0 >= acc.cfg.alert_patience_s
         if fdi_out.state is not FdiState.NORMAL and not patient:
             self._accel_alert_evidence = acc.step(t_s, gyro, accel, fdi_out.q, gps, mis, decide=False,

@@ -374,7 +374,8 @@ def _agreeing_pair(spec: ChannelSpec, lanes: tuple[LaneState, ...], used: tuple[
     component, whichever healthy lane lies nearer the diverging one, and it hands over between the two as
     their independent errors wander -- a step in the voted value the estimator downstream may take for a
     fault of its own (a GPS jump on one of three receivers: the EKF's window CUSUM excluded GPS 0.1 s
-    before the voter isolated the faulty receiver, campaign runs 00349/00800/00866 of 2026-11-24). The mean
+    before the voter isolated the faulty receiver; tests/redundancy/test_voter_persistence_output.py pins
+    the hand-over and the continuous output). The mean
     of the pair is also exactly what the output becomes once the lane is isolated (two candidates: their
     mean), so the isolation itself is bumpless. Merlin's choice; the seed thesis's mid-value select
     (seed 000 §2.2.3) says nothing about the persistence interval.
