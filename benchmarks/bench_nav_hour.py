@@ -1,5 +1,5 @@
 """False GPS exclusions in nominal flight: the issue's "zero false GPS exclusions in one simulated hour of
-nominal flight with realistic GPS noise" (issue 4, "Evidence and targets").
+nominal flight with realistic GPS noise" (docs/navigation.md's target).
 
 Two measurements, each printed as a Markdown table (copied into docs/benchmarks/nav.md):
 

@@ -76,9 +76,9 @@ class AccelAttributionConfig:
     gps_timeout_s: float = 0.5  # no GPS fix for this long: the evidence is stale, no verdict
     # The layer's own detection, beside the voter's 1.5 m/s^2 per-axis flag (as the gyro layer's): the
     # pair's disagreement, its offset while agreeing removed, averaged over detect_tau_s, reaching
-    # detect_mps2 on an axis. Campaign runs 00036 and 00047 of redundancy_accel.yaml (seed 1): (-0.48,
-    # -0.11, 1.45) and (-0.88, 0.39, -1.38) m/s^2, under the voter's flag, the EKF fed half of it excluded
-    # GPS 3-4 s after the onset. Averaged, the per-sample noise (0.03 m/s^2 simulated, 0.2 on the
+    # detect_mps2 on an axis. Biases of (-0.48, -0.11, 1.45) and (-0.88, 0.39, -1.38) m/s^2 stay under
+    # the voter's flag, and the EKF fed half of one excludes GPS 3-4 s after the onset
+    # (tests/redundancy/test_accel_attribution.py pins the layer's own detection). Averaged, the per-sample noise (0.03 m/s^2 simulated, 0.2 on the
     # synthetic seed-003 flight) is 0.004-0.03 m/s^2.
     detect_mps2: float = 0.8
     detect_tau_s: float = 0.25

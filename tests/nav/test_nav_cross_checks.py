@@ -162,8 +162,8 @@ def test_gps_is_readmitted_after_the_fault_ends_once_it_agreed_for_the_configure
     traj, fault, readmit_s
 ):
     """Excluded during the fault; once the receiver reports the truth again it must pass the re-admission
-    gates on every epoch for gps_readmit_s: READMITTED then, not before (issue 4: 'GPS excluded until it
-    agrees again for a configurable time')."""
+    gates on every epoch for gps_readmit_s: READMITTED then, not before (GPS stays excluded until it
+    agrees again for a configurable time)."""
     cfg = dataclasses.replace(SYNTH, gps_readmit_s=readmit_s)
     est, events, _ = run(traj, cfg, [fault])
     excl, readmit = _readmission(events, fault.end_s)

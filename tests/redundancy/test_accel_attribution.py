@@ -181,7 +181,7 @@ def _hover_chain(duration_s: float, gps_tick: int):
 def test_the_chain_keeps_the_fix_for_the_fdi_steps():
     """The runner hands a GPS fix only on the tick it arrives (400 Hz), while the FDI and both attribution
     layers step at 100 Hz: the chain keeps the newest fix, so a fix arriving between FDI steps is not lost
-    (campaign run 00002 of redundancy_accel.yaml: no fix ever reached the layer, authority revoked).
+    (without the latch no fix ever reaches the layer and authority is revoked).
     Hovering, lane 2 frozen, then 1.8 m/s^2 on lane 0's z axis: lane 0 attributed and isolated."""
     from merlin.redundancy.events import FaultKind
 
@@ -194,8 +194,8 @@ def test_the_chain_keeps_the_fix_for_the_fdi_steps():
 
 
 def test_a_bias_under_the_voters_threshold_is_detected_by_the_layer_itself():
-    """Campaign runs 00036 and 00047 of redundancy_accel.yaml: biases just under the voter's 1.5 m/s^2
-    per-axis flag were fed to the EKF as the mean and revoked authority. The layer's own test on the
+    """Biases just under the voter's 1.5 m/s^2 per-axis flag, fed to the EKF as the pair's mean, revoke
+    authority. The layer's own test on the
     averaged disagreement (detect_mps2) starts the episode; a disagreement under it starts nothing."""
     views = list(_fly(np.array([0.0, 0.0, 1.2]), 1))  # _fly's voter flag needs 1.5: it never rises here
     verdicts = [(t, v.faulty) for t, v in views if v.faulty is not None]

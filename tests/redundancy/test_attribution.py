@@ -88,7 +88,8 @@ def test_no_miscompare_no_episode():
 def _along_the_field(wander_radps: float, lean_healthy: float = 0.0, quiet_s: float = 10.0):
     """A 0.2 rad/s bias on lane 1 parallel to the field, after ``quiet_s`` of agreement (the pair's noise
     and the filters' common-mode wander measured meanwhile: a sinusoid of ``wander_radps`` on every axis
-    of both filters' estimates, period 4 s, as the multirotor of campaign run 00072 showed). After the
+    of both filters' estimates, period 4 s, as the manoeuvring multirotor of
+    redundancy_duplex_bias_near_field shows). After the
     onset lane 1's filter takes the bias over 1 s; ``lean_healthy`` x the bias is subtracted from both
     filters' estimates as well (a common-mode wander along the bias, which pushes the healthy lane's
     share up). Yields (t, Attribution) from the onset on."""
@@ -128,11 +129,11 @@ def test_a_bias_along_the_field_is_left_to_the_particle_filters_bias_estimates()
 
 @pytest.mark.parametrize("lean", [0.0, 0.8])
 def test_bias_estimates_that_wander_together_cannot_name_a_lane(lean):
-    """Campaign run 00072 of redundancy_sensors.yaml (2026-11-24): both particle filters' bias estimates
-    wandered together by +-0.05-0.09 rad/s in the manoeuvring multirotor, and after the onset of a bias
-    the trackers could not see, the healthy lane's estimate moved along it (share 0.50 against -0.11):
-    the healthy lane was isolated. Measured wander makes the bias shares' standard error exceed
-    max_bias_share_sigma: no verdict from them (lean 0.8: they name the healthy lane, as in 00072), nor a
+    """The situation of examples/scenarios/redundancy_duplex_bias_near_field.yaml: both particle filters'
+    bias estimates wander together by +-0.05-0.09 rad/s in the manoeuvring multirotor, and after the onset
+    of a bias the trackers cannot see, the healthy lane's estimate moves along it (share 0.50 against
+    -0.11), which would isolate the healthy lane. Measured wander makes the bias shares' standard error exceed
+    max_bias_share_sigma: no verdict from them (lean 0.8: they name the healthy lane, as in that scenario), nor a
     lane fed on their word."""
     seen = []
     for _t, a in _along_the_field(wander_radps=0.06, lean_healthy=lean):
@@ -273,14 +274,14 @@ def _evidence(field: tuple[float, float], bias: tuple[float, float], field_sigma
 @pytest.mark.parametrize(
     ("field", "bias", "fdi_faulty", "expect", "field_sigma"),
     [
-        ((1.04, -0.03), (0.17, 0.04), 1, 0, 0.05),  # run 00999: the field names lane 0, the FDI lane 1
+        ((1.04, -0.03), (0.17, 0.04), 1, 0, 0.05),  # redundancy_duplex_marginal_declaration: the field names lane 0, the FDI lane 1
         ((-0.02, 0.95), (0.0, 0.0), 0, 1, 0.05),  # the mirror case
         ((1.0, 0.0), (0.0, 0.9), 1, None, 0.05),  # the bias estimates name the FDI's lane: the seed's stands
         ((0.6, 0.4), (0.0, 0.0), 1, None, 0.05),  # the field evidence is not clear: the seed's choice stands
         ((0.0, 0.0), (0.0, 0.0), 1, None, 0.05),  # no field signal (a bias along the field): the seed's stands
         ((1.0, 0.0), (0.0, 0.0), 0, None, 0.05),  # they agree: nothing to overrule
         ((1.0, 0.0), (0.0, 0.0), 1, None, 0.3),  # clear shares, but too noisy yet: the seed's choice stands
-        ((0.02, 0.98), (0.0, 0.0), 0, 1, 0.16),  # run 00514: noisier than a verdict needs, enough to tell apart
+        ((0.02, 0.98), (0.0, 0.0), 0, 1, 0.16),  # redundancy_duplex_declaration_cross_check: noisier than a verdict needs, enough to tell apart
     ],
 )
 def test_the_fdis_isolation_is_cross_checked_against_the_field_trackers(field, bias, fdi_faulty, expect,
@@ -367,8 +368,8 @@ def test_a_flickering_alert_without_a_declaration_is_decided_by_the_layer():
 
 
 def test_a_bias_under_the_voters_threshold_is_detected_by_the_layer_itself():
-    """Campaign run 00009 of redundancy_sensors.yaml (seed 2): a bias at the voter's per-axis threshold was
-    flagged only now and then, and the persistence never filled. The layer's own test on the averaged
+    """As in examples/scenarios/redundancy_duplex_bias_at_threshold.yaml: a bias at the voter's per-axis
+    threshold is flagged only now and then, and the persistence never fills. The layer's own test on the averaged
     disagreement (detect_radps) starts the episode even when the voter never flags, and the field trackers
     name the lane; a disagreement under detect_radps starts nothing."""
     rng = np.random.default_rng(3)
