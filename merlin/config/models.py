@@ -51,18 +51,40 @@ ENVELOPE_PARAMETERS: tuple[str, ...] = (
 )
 
 
+class ExceedanceBudget(Strict):
+    """A Merlin extension beyond the paper: the time a parameter may spend outside its bounds in total
+    within any sliding window, however the time is split. The paper's continuous duration alone lets a
+    controller stay outside for just under the duration, dip inside for one tick and go out again
+    (scenario ``adv_roll_dip_cycles``); the budget revokes it once the time outside adds up."""
+
+    outside_s: float = Field(gt=0.0, le=600.0, description="time outside the bounds tolerated within the window, s")
+    window_s: float = Field(gt=0.0, le=3600.0, description="length of the sliding window, s")
+
+    @model_validator(mode="after")
+    def _shorter_than_window(self) -> ExceedanceBudget:
+        if self.outside_s >= self.window_s:
+            raise ValueError(f"outside_s ({self.outside_s}) must be shorter than window_s ({self.window_s}):"
+                             " a budget as long as its window can never be spent before the duration trips")
+        return self
+
+
 class Limit(Strict):
     """One envelope parameter: allowed range and exceedance duration (paper, "Flight envelope protection").
 
     A violation that lasts continuously for ``duration_s`` revokes on the first tick at which the elapsed
     violation reaches ``duration_s``; ``0`` revokes on the tick of the violation; returning inside the
-    bounds resets the timer.
+    bounds resets the timer. An optional ``budget`` also revokes once the time outside, however split,
+    reaches ``budget.outside_s`` within ``budget.window_s`` (a Merlin extension; null: the paper's
+    semantics alone).
     """
 
     min: float = Field(description="lowest allowed value, in the parameter's unit")
     max: float = Field(description="highest allowed value, in the parameter's unit")
     duration_s: float = Field(0.0, ge=0.0, le=600.0, description="exceedance duration tolerated, s")
     enabled: bool = Field(True, description="false: the parameter is not monitored")
+    budget: ExceedanceBudget | None = Field(
+        None, description="cumulative time outside tolerated within a sliding window (Merlin extension);"
+        " null: none, the continuous duration alone (the paper's semantics)")
 
     @field_validator("min", "max")
     @classmethod
@@ -75,6 +97,10 @@ class Limit(Strict):
     def _ordered(self) -> Limit:
         if self.min > self.max:
             raise ValueError(f"min ({self.min}) must not exceed max ({self.max})")
+        if self.budget is not None and self.budget.outside_s < self.duration_s:
+            raise ValueError(f"budget.outside_s ({self.budget.outside_s}) is shorter than duration_s"
+                             f" ({self.duration_s}): the budget would revoke before the duration ever could;"
+                             " give a budget of at least the duration")
         return self
 
 
@@ -104,36 +130,42 @@ def _default_stages() -> dict[str, EnvelopeStage]:
     # A conservative first-flight envelope for a ~1.5 kg quadrotor and a wider one for later flights of
     # an envelope-expansion campaign (paper: "conservative bounds with short durations during initial
     # tests and ... wider bounds with longer durations" once the controller has shown reliable flight).
+    # The exceedance budget (Merlin's extension, ExceedanceBudget) is on for every parameter with a
+    # non-zero duration: a tenth of a 20 s window first (2 s), 3 s once expanded, three times the expanded
+    # stage's 1 s durations, so that only a pattern of repeated excursions spends it. A duration of 0
+    # revokes on the tick of any violation: no budget can add to that.
+    first = ExceedanceBudget(outside_s=2.0, window_s=20.0)
+    wider = ExceedanceBudget(outside_s=3.0, window_s=20.0)
     conservative = EnvelopeStage(
         description="first flights of an unproven controller: tight bounds, short durations",
-        airspeed_mps=Limit(min=0.0, max=20.0, duration_s=0.5, enabled=False),
-        altitude_m=Limit(min=3.0, max=100.0, duration_s=0.5),
-        vel_n_mps=Limit(min=-8.0, max=8.0, duration_s=0.5),
-        vel_e_mps=Limit(min=-8.0, max=8.0, duration_s=0.5),
-        vel_d_mps=Limit(min=-3.0, max=2.0, duration_s=0.5),
+        airspeed_mps=Limit(min=0.0, max=20.0, duration_s=0.5, enabled=False, budget=first),
+        altitude_m=Limit(min=3.0, max=100.0, duration_s=0.5, budget=first),
+        vel_n_mps=Limit(min=-8.0, max=8.0, duration_s=0.5, budget=first),
+        vel_e_mps=Limit(min=-8.0, max=8.0, duration_s=0.5, budget=first),
+        vel_d_mps=Limit(min=-3.0, max=2.0, duration_s=0.5, budget=first),
         roll_deg=Limit(min=-30.0, max=30.0, duration_s=0.0),
         pitch_deg=Limit(min=-30.0, max=30.0, duration_s=0.0),
         yaw_deg=Limit(min=-180.0, max=180.0, duration_s=0.0, enabled=False),
-        roll_rate_degps=Limit(min=-150.0, max=150.0, duration_s=0.2),
-        pitch_rate_degps=Limit(min=-150.0, max=150.0, duration_s=0.2),
-        yaw_rate_degps=Limit(min=-90.0, max=90.0, duration_s=0.5),
-        accel_x_mps2=Limit(min=-15.0, max=15.0, duration_s=0.2),
-        accel_y_mps2=Limit(min=-15.0, max=15.0, duration_s=0.2),
-        accel_z_mps2=Limit(min=-25.0, max=5.0, duration_s=0.2),
-        alpha_deg=Limit(min=-8.0, max=15.0, duration_s=0.2, enabled=False),
+        roll_rate_degps=Limit(min=-150.0, max=150.0, duration_s=0.2, budget=first),
+        pitch_rate_degps=Limit(min=-150.0, max=150.0, duration_s=0.2, budget=first),
+        yaw_rate_degps=Limit(min=-90.0, max=90.0, duration_s=0.5, budget=first),
+        accel_x_mps2=Limit(min=-15.0, max=15.0, duration_s=0.2, budget=first),
+        accel_y_mps2=Limit(min=-15.0, max=15.0, duration_s=0.2, budget=first),
+        accel_z_mps2=Limit(min=-25.0, max=5.0, duration_s=0.2, budget=first),
+        alpha_deg=Limit(min=-8.0, max=15.0, duration_s=0.2, enabled=False, budget=first),
     )
     expanded = EnvelopeStage(
         extends="conservative",
         description="after demonstrated reliable flight: wider bounds, 1 s durations",
-        altitude_m=Limit(min=2.0, max=120.0, duration_s=1.0),
-        vel_n_mps=Limit(min=-14.0, max=14.0, duration_s=1.0),
-        vel_e_mps=Limit(min=-14.0, max=14.0, duration_s=1.0),
-        vel_d_mps=Limit(min=-5.0, max=3.0, duration_s=1.0),
-        roll_deg=Limit(min=-45.0, max=45.0, duration_s=1.0),
-        pitch_deg=Limit(min=-45.0, max=45.0, duration_s=1.0),
-        roll_rate_degps=Limit(min=-250.0, max=250.0, duration_s=0.5),
-        pitch_rate_degps=Limit(min=-250.0, max=250.0, duration_s=0.5),
-        yaw_rate_degps=Limit(min=-150.0, max=150.0, duration_s=1.0),
+        altitude_m=Limit(min=2.0, max=120.0, duration_s=1.0, budget=wider),
+        vel_n_mps=Limit(min=-14.0, max=14.0, duration_s=1.0, budget=wider),
+        vel_e_mps=Limit(min=-14.0, max=14.0, duration_s=1.0, budget=wider),
+        vel_d_mps=Limit(min=-5.0, max=3.0, duration_s=1.0, budget=wider),
+        roll_deg=Limit(min=-45.0, max=45.0, duration_s=1.0, budget=wider),
+        pitch_deg=Limit(min=-45.0, max=45.0, duration_s=1.0, budget=wider),
+        roll_rate_degps=Limit(min=-250.0, max=250.0, duration_s=0.5, budget=wider),
+        pitch_rate_degps=Limit(min=-250.0, max=250.0, duration_s=0.5, budget=wider),
+        yaw_rate_degps=Limit(min=-150.0, max=150.0, duration_s=1.0, budget=wider),
     )
     return {"conservative": conservative, "expanded": expanded}
 

@@ -47,6 +47,8 @@ def envelope_limits(cfg: MerlinConfig, stage: str | None = None) -> tuple[Envelo
                 wraps=name == "yaw_deg",
                 min_display=lim.min,
                 max_display=lim.max,
+                budget_s=lim.budget.outside_s if lim.budget is not None else math.inf,
+                budget_window_s=lim.budget.window_s if lim.budget is not None else 0.0,
             )
         )
     return tuple(out)

@@ -35,6 +35,10 @@ class EnvelopeLimit:
     wraps: bool = False  # an angle that wraps at +-pi (yaw)
     min_display: float = math.nan  # the bounds exactly as configured (no degree round trip in reports)
     max_display: float = math.nan
+    # exceedance budget (a Merlin extension, merlin.core.envelope): at most budget_s outside within any
+    # budget_window_s; inf: no budget (the paper's continuous duration alone)
+    budget_s: float = math.inf
+    budget_window_s: float = 0.0
 
     def shown_limit(self, value_si: float) -> float:
         """The configured bound a value violates, in the configuration's unit."""

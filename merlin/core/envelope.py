@@ -9,6 +9,21 @@ A non-finite value counts as a violation (it is never "inside" a bound).
 
 Elapsed time is compared with a tolerance of :data:`TIME_EPS_S` so that ``t - t0`` computed in binary
 floating point (e.g. 400 ticks of 2.5 ms) reaches a 1 s duration on the tick it should, not one later.
+
+Exceedance budget (a Merlin extension, not in the paper): the continuous duration can be gamed by a
+controller that holds a parameter outside for just under the duration, dips inside for one tick and goes
+out again (roll outside +-30 deg for 0.93 s, inside for a tick, repeated: outside 75 % of the time, never
+revoked; scenario ``adv_roll_dip_cycles``). A limit may therefore also carry a cumulative budget: the time
+outside within a sliding window (``budget_s`` within ``budget_window_s``). The time outside is accrued
+sample and hold, like the continuous timer (the interval from one tick to the next counts as outside when
+the value was outside at its start), so a continuous violation accrues exactly its elapsed time. It is kept
+in a ring of :data:`BUDGET_BUCKETS` buckets of ``budget_window_s / BUDGET_BUCKETS`` each plus the current
+bucket, so the window remembers at least ``budget_window_s`` and at most one bucket more (never forgets
+outside time too early), at O(1) per tick (the ring moves once per bucket, not per tick). The budget trips
+on a tick at which the parameter is outside and the time outside in the window has reached the budget. The
+budget judges whoever is in authority: the ring restarts at each change of authority (the caller says so),
+so time spent outside under Merlin's own flight (on the ground below the altitude minimum, say) is never
+charged to an experimental controller granted afterwards.
 """
 
 from __future__ import annotations
@@ -21,6 +36,9 @@ from merlin.core.types import Reason, ReasonCode, Setpoint, SetpointKind, Vehicl
 
 #: One nanosecond: far below any tick period, far above the rounding error of a sum of tick periods.
 TIME_EPS_S = 1e-9
+
+#: Completed buckets the exceedance budget's ring keeps: the window's resolution is window / this.
+BUDGET_BUCKETS = 20
 
 #: Order of the values returned by :func:`envelope_values` (the paper's Table 2 order).
 PARAMETER_INDEX: dict[str, int] = {
@@ -42,6 +60,7 @@ PARAMETER_INDEX: dict[str, int] = {
 }
 N_PARAMETERS = len(PARAMETER_INDEX)
 NAN = float("nan")
+_INF = math.inf
 
 
 def envelope_values(s: VehicleState) -> tuple[float, ...]:
@@ -94,6 +113,64 @@ def outside(lim: EnvelopeLimit, value: float) -> bool:
     return value < lim.min or value > lim.max
 
 
+class BudgetRing(NamedTuple):
+    """One limit's time outside over its budget window: the current bucket and the completed ones.
+
+    ``bucket``: index of the current bucket (``floor(t / width)``); ``current_s``: time outside accrued in
+    it; ``ring``: the :data:`BUDGET_BUCKETS` completed buckets before it, bucket ``j`` in slot
+    ``j % BUDGET_BUCKETS``; ``ring_s``: their sum.
+    """
+
+    bucket: int = 0
+    current_s: float = 0.0
+    ring: tuple[float, ...] = (0.0,) * BUDGET_BUCKETS
+    ring_s: float = 0.0
+
+    def outside_s(self) -> float:
+        return self.ring_s + self.current_s
+
+
+EMPTY_RING = BudgetRing()
+
+
+def _budget_accrue(ring: BudgetRing, lim: EnvelopeLimit, now: float, dt: float) -> BudgetRing:
+    """The ring moved on to the bucket of ``now``, with ``dt`` s outside added to it (the interval that ends
+    at ``now``). Moving on by k buckets completes the current one and empties the k - 1 after it."""
+    width = lim.budget_window_s / BUDGET_BUCKETS
+    k = math.floor(now / width)
+    if k > ring.bucket:
+        steps = k - ring.bucket
+        if steps > BUDGET_BUCKETS:  # everything in the ring and the current bucket has left the window
+            slots = [0.0] * BUDGET_BUCKETS
+        else:
+            slots = list(ring.ring)
+            for j in range(ring.bucket, k):
+                slots[j % BUDGET_BUCKETS] = ring.current_s if j == ring.bucket else 0.0
+        ring = BudgetRing(k, 0.0, tuple(slots), math.fsum(slots))
+    elif k < ring.bucket:  # time went back (a new run with a reused state): start again
+        ring = BudgetRing(k)
+    if dt > 0.0:
+        ring = ring._replace(current_s=ring.current_s + dt)
+    return ring
+
+
+def budget_reason(lim: EnvelopeLimit, value: float, outside_s: float) -> Reason:
+    """The reason of a budget trip: it names the budget, the window and the time outside in it."""
+    shown = _wrap_pi(value) if lim.wraps and math.isfinite(value) else value
+    scale = lim.display_scale
+    return Reason(
+        code=ReasonCode.ENVELOPE,
+        monitor="envelope",
+        parameter=lim.name,
+        value=shown * scale,
+        limit=lim.shown_limit(shown),
+        duration_s=outside_s,
+        text=f"{lim.name}={shown * scale:.4g} outside [{lim.shown_limit(-math.inf):.4g},"
+        f" {lim.shown_limit(math.inf):.4g}] for {outside_s:.2f} s of the last {lim.budget_window_s:g} s:"
+        f" exceedance budget {lim.budget_s:g} s in {lim.budget_window_s:g} s spent",
+    )
+
+
 class EnvelopeResult(NamedTuple):
     """One tick's verdict. A ``NamedTuple``, not a frozen dataclass: built on every tick, at a third of the
     cost (``merlin.core.types``)."""
@@ -102,6 +179,7 @@ class EnvelopeResult(NamedTuple):
     tripped: bool
     reason: Reason | None  # the tripped parameter held longest (Table 2 order breaks ties)
     violating: tuple[tuple[str, float], ...]  # (parameter, elapsed s) for every parameter outside now
+    budget: tuple[BudgetRing, ...] = ()  # per limit: its exceedance-budget ring (the input's when unchanged)
 
 
 def update(
@@ -110,25 +188,45 @@ def update(
     values: tuple[float, ...],
     now: float,
     skip_nan: bool = False,
+    budget: tuple[BudgetRing, ...] | None = None,
+    dt: float = 0.0,
 ) -> EnvelopeResult:
     """Advance the exceedance timers by one tick and say whether any parameter has now tripped.
 
     ``skip_nan``: treat a NaN value as "not commanded" (for :func:`commanded_values`) instead of a violation.
+    ``budget``: one :class:`BudgetRing` per limit (``EMPTY_RING`` to start, or to restart at a change of
+    authority) to apply the limits' exceedance budgets, with ``dt`` the time since the previous tick; None
+    applies the continuous durations alone (the paper's semantics, and the commanded values in SHADOW).
     """
     new_since: list[float | None] = []
     inside = new_since.append  # bound once: this loop runs for every limit on every tick
     best: Reason | None = None
     best_elapsed = -1.0
     violating: list[tuple[str, float]] = []
+    rings: list[BudgetRing] | None = None  # copied on the first change: most ticks change no ring
+    budget_hit: Reason | None = None
+    i = -1
     for lim, t0 in zip(limits, since, strict=True):
+        i += 1
         value = values[lim.index]
         if lim.min <= value <= lim.max and not lim.wraps:  # the common case; NaN fails the comparison
-            inside(None)
-            continue
-        if skip_nan and value != value:
-            inside(None)
-            continue
-        if not outside(lim, value):
+            if t0 is None:  # inside now and at the previous tick: nothing to accrue either
+                inside(None)
+                continue
+            is_out = False
+        elif skip_nan and value != value:
+            is_out = False
+        else:
+            is_out = outside(lim, value)
+        if budget is not None and lim.budget_s < _INF and (t0 is not None or is_out):
+            ring = _budget_accrue(budget[i], lim, now, dt if t0 is not None else 0.0)
+            if rings is None:
+                rings = list(budget)
+            rings[i] = ring
+            spent = ring.outside_s()
+            if is_out and budget_hit is None and spent + TIME_EPS_S >= lim.budget_s:
+                budget_hit = budget_reason(lim, value, spent)
+        if not is_out:
             inside(None)
             continue
         start = now if t0 is None else t0
@@ -146,7 +244,11 @@ def update(
                 limit=lim.shown_limit(shown),
                 duration_s=elapsed,
             )
-    return EnvelopeResult(tuple(new_since), best is not None, best, tuple(violating))
+    if best is None and budget_hit is not None:  # the paper's continuous duration reports first
+        best = budget_hit
+    out_budget = budget if rings is None else tuple(rings)
+    return EnvelopeResult(tuple(new_since), best is not None, best, tuple(violating),
+                          () if out_budget is None else out_budget)
 
 
 def all_inside(limits: tuple[EnvelopeLimit, ...], values: tuple[float, ...]) -> Reason | None:

@@ -1120,6 +1120,31 @@ def wind_triangle_ne(vel_ned_mps: Sequence[float], airspeed_mps: float, yaw_rad:
     return (vn - va_h * math.cos(yaw_rad), ve - va_h * math.sin(yaw_rad))
 
 
+#: How far above the floor's trip height a climbing vehicle must be before the floor applies: more than the
+#: tick-to-tick noise of an estimated height (a few decimetres), so that the tick after the floor starts to
+#: apply does not trip it (``adv_floor_takeoff`` tripped on noise of 1 mm without it).
+FLOOR_CLEAR_HYSTERESIS_M = 1.0
+
+
+def clear_of_floor(fence: Fence, pos_ned_m: Sequence[float], sigma_v_m: float) -> bool:
+    """True when the vehicle is above the floor by what :func:`check` keeps clear of it (``margin_m +
+    sigma_k * sigma_v`` with a projection, nothing in position-only mode) plus
+    :data:`FLOOR_CLEAR_HYSTERESIS_M`, or when there is no floor.
+
+    The core applies the floor from the first tick this holds after leaving the ground (and until the
+    vehicle is on the ground again): a floor judged from the moment the vehicle is airborne trips during
+    every take-off that starts below it (scenario ``adv_floor_takeoff``). A non-finite input is never clear.
+    """
+    prm = fence.params
+    floor = prm.altitude_floor_m
+    if floor is None or not prm.enabled:
+        return True
+    h = -pos_ned_m[2] - FLOOR_CLEAR_HYSTERESIS_M
+    if prm.mode == "position_only":
+        return h > floor
+    return h - (prm.margin_m + prm.sigma_k * sigma_v_m) > floor
+
+
 def signed_margin_m(fence: Fence, pos_ned_m: Sequence[float], *, airborne: bool = False) -> float:
     """Distance to the nearest fence boundary: positive inside, negative outside (metrics and plots).
 

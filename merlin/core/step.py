@@ -106,6 +106,12 @@ class CoreState(NamedTuple):
     checked_setpoint: Setpoint | None = None
     checked_setpoint_bad: Reason | None = None
     inertial_land_due: bool = False  # nav_inertial_timeout has tripped and navigation is still inertial-only
+    # the envelope's exceedance-budget rings (merlin.core.envelope) and the authority they are charged to
+    env_budget: tuple[envelope.BudgetRing, ...] = ()
+    env_budget_authority: Authority = Authority.TRUSTED
+    # the vehicle has been above the fence floor (with its margin) since it last left the ground: the floor
+    # applies from then on, so the trusted take-off climbs through it (scenario adv_floor_takeoff)
+    floor_reached: bool = False
 
 
 def initial_state(cfg: CoreConfig) -> CoreState:
@@ -113,6 +119,7 @@ def initial_state(cfg: CoreConfig) -> CoreState:
     return CoreState(
         env_since=(None,) * n,
         shadow_env_since=(None,) * n,
+        env_budget=(envelope.EMPTY_RING,) * n,
         clear_statuses=tuple(MonitorStatus(r.monitor, False) for r in cfg.rules),
     )
 
@@ -399,7 +406,8 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     if not isinstance(now, (int, float)) or not math.isfinite(now):
         now = st.t_s if st.t_s is not None else 0.0
     dt = 0.0 if st.t_s is None else max(0.0, now - st.t_s)
-    if len(st.env_since) != len(cfg.envelope) or len(st.clear_statuses) != len(cfg.rules):
+    if (len(st.env_since) != len(cfg.envelope) or len(st.clear_statuses) != len(cfg.rules)
+            or len(st.env_budget) != len(cfg.envelope)):
         st = initial_state(cfg)._replace(arbiter=st.arbiter, t_s=st.t_s)
 
     # -- validate inputs
@@ -422,16 +430,24 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     tripped: dict[str, Reason] = {}
     if state_bad is not None:
         tripped["state_invalid"] = state_bad
-    env = envelope.update(cfg.envelope, st.env_since, envelope.envelope_values(raw), now)
+    # The budget charges the interval since the previous tick to the authority that was in force over it;
+    # a new authority starts from an empty budget (its own time outside only).
+    budget_auth = st.arbiter.authority
+    budget = st.env_budget if budget_auth is st.env_budget_authority else (envelope.EMPTY_RING,) * len(cfg.envelope)
+    env = envelope.update(cfg.envelope, st.env_since, envelope.envelope_values(raw), now, False, budget, dt)
     if env.reason is not None:
         tripped["envelope"] = env.reason
     fence_res = None
     wind_ne = (0.0, 0.0)
+    # The floor applies once the vehicle has climbed clear of it since leaving the ground (a NaN height
+    # compares False: never clear), so the trusted take-off climbs through it instead of tripping it.
+    floor_reached = not s.landed and cfg.fence is not None and (
+        st.floor_reached or geofence.clear_of_floor(cfg.fence, s.pos_ned_m, s.pos_sigma_v_m))
     if cfg.fence is not None:
         if cfg.fence.params.vehicle == "fixed_wing":  # a fixed wing's escape turn drifts with the wind
             wind_ne = geofence.wind_triangle_ne(s.vel_ned_mps, s.airspeed_mps, s.att_rpy_rad[2])
         fence_res = geofence.check(cfg.fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, s.pos_sigma_v_m,
-                                   not s.landed, wind_ne)
+                                   floor_reached, wind_ne)
         if fence_res.tripped:
             tripped["geofence"] = _fence_reason(fence_res)
     wd = cfg.watchdogs
@@ -488,7 +504,7 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
             if cfg.fence is not None and sp.kind is not SetpointKind.ATTITUDE:
                 cmd = setpoint_to_command(sp, s, _SHADOW, cfg.trusted)
                 fr = geofence.check(cfg.fence, s.pos_ned_m, cmd.vel_ned_mps, s.pos_sigma_h_m, s.pos_sigma_v_m,
-                                    not s.landed, wind_ne)
+                                    floor_reached, wind_ne)
                 if fr.tripped:
                     shadow_tripped["geofence"] = _fence_reason(fr, "geofence (commanded)")
     else:
@@ -497,6 +513,11 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     # -- preconditions (only computed when an exchange needs them)
     need_block = bool(exp.requests) or arb.switch is not None
     grant_block = _grant_block(cfg, s, inputs, tripped, hb_since, now, False) if need_block else None
+    if grant_block is None and need_block and not floor_reached and cfg.fence is not None:
+        fl = cfg.fence.params.altitude_floor_m
+        if fl is not None and cfg.fence.params.enabled:  # the floor does not protect a vehicle below it yet
+            grant_block = Reason(ReasonCode.PRECONDITION, "geofence", "altitude_m", s.alt_m, fl, 0.0,
+                                 f"refused: {s.alt_m:.1f} m is not yet clear of the fence floor {fl:g} m")
     shadow_block = _grant_block(cfg, s, inputs, tripped, hb_since, now, True) if need_block else None
     arm_block = _arm_block(cfg, s, tripped) if inputs.gcs_commands else None
 
@@ -613,6 +634,9 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
         sp,  # checked_setpoint
         sp_bad,  # checked_setpoint_bad
         "nav_inertial_timeout" in tripped if state_bad is None else st.inertial_land_due,  # inertial_land_due
+        env.budget,  # env_budget
+        budget_auth,  # env_budget_authority
+        floor_reached,  # floor_reached
     )
     all_events = (*arb_events, *events)
     # positional, as CoreState above; the names are Decision's

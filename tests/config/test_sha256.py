@@ -53,21 +53,21 @@ envelope:
       description: ""
     conservative:   # the built-in stage, written out exactly
       description: "first flights of an unproven controller: tight bounds, short durations"
-      airspeed_mps:     {min: 0.0,    max: 20.0,  duration_s: 0.5, enabled: false}
-      altitude_m:       {min: 3.0,    max: 100.0, duration_s: 0.5}
-      vel_n_mps:        {min: -8.0,   max: 8.0,   duration_s: 0.5}
-      vel_e_mps:        {min: -8.0,   max: 8.0,   duration_s: 0.5}
-      vel_d_mps:        {min: -3.0,   max: 2.0,   duration_s: 0.5}
+      airspeed_mps:     {min: 0.0,    max: 20.0,  duration_s: 0.5, enabled: false, budget: {outside_s: 2.0, window_s: 20.0}}
+      altitude_m:       {min: 3.0,    max: 100.0, duration_s: 0.5, budget: {outside_s: 2.0, window_s: 20.0}}
+      vel_n_mps:        {min: -8.0,   max: 8.0,   duration_s: 0.5, budget: {outside_s: 2.0, window_s: 20.0}}
+      vel_e_mps:        {min: -8.0,   max: 8.0,   duration_s: 0.5, budget: {outside_s: 2.0, window_s: 20.0}}
+      vel_d_mps:        {min: -3.0,   max: 2.0,   duration_s: 0.5, budget: {outside_s: 2.0, window_s: 20.0}}
       roll_deg:         {min: -30.0,  max: 30.0,  duration_s: 0.0}
       pitch_deg:        {min: -30.0,  max: 30.0,  duration_s: 0.0}
       yaw_deg:          {min: -180.0, max: 180.0, duration_s: 0.0, enabled: false}
-      roll_rate_degps:  {min: -150.0, max: 150.0, duration_s: 0.2}
-      pitch_rate_degps: {min: -150.0, max: 150.0, duration_s: 0.2}
-      yaw_rate_degps:   {min: -90.0,  max: 90.0,  duration_s: 0.5}
-      accel_x_mps2:     {min: -15.0,  max: 15.0,  duration_s: 0.2}
-      accel_y_mps2:     {min: -15.0,  max: 15.0,  duration_s: 0.2}
-      accel_z_mps2:     {min: -25.0,  max: 5.0,   duration_s: 0.2}
-      alpha_deg:        {min: -8.0,   max: 15.0,  duration_s: 0.2, enabled: false}
+      roll_rate_degps:  {min: -150.0, max: 150.0, duration_s: 0.2, budget: {outside_s: 2.0, window_s: 20.0}}
+      pitch_rate_degps: {min: -150.0, max: 150.0, duration_s: 0.2, budget: {outside_s: 2.0, window_s: 20.0}}
+      yaw_rate_degps:   {min: -90.0,  max: 90.0,  duration_s: 0.5, budget: {outside_s: 2.0, window_s: 20.0}}
+      accel_x_mps2:     {min: -15.0,  max: 15.0,  duration_s: 0.2, budget: {outside_s: 2.0, window_s: 20.0}}
+      accel_y_mps2:     {min: -15.0,  max: 15.0,  duration_s: 0.2, budget: {outside_s: 2.0, window_s: 20.0}}
+      accel_z_mps2:     {min: -25.0,  max: 5.0,   duration_s: 0.2, budget: {outside_s: 2.0, window_s: 20.0}}
+      alpha_deg:        {min: -8.0,   max: 15.0,  duration_s: 0.2, enabled: false, budget: {outside_s: 2.0, window_s: 20.0}}
   active_stage: trial
 name: sha-test
 """
