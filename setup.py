@@ -1,7 +1,7 @@
 """Build hook: compile the 400 Hz hot path with mypyc, or install pure Python when that is not possible.
 
 Everything else about the package is declared in ``pyproject.toml``; this file only adds the extension
-modules. The compiled modules are the same sources, type-checked and translated to C by mypyc (shipped
+modules and the package data that lives outside the package (``build_py`` below). The compiled modules are the same sources, type-checked and translated to C by mypyc (shipped
 with mypy, https://mypyc.readthedocs.io): same decisions, about twice as fast per tick
 (``docs/benchmarks/compiled.md``).
 
@@ -30,6 +30,7 @@ from pathlib import Path
 
 from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
+from setuptools.command.build_py import build_py
 
 ROOT = Path(__file__).resolve().parent
 
@@ -190,6 +191,28 @@ class BuildExtOrPure(build_ext):
         manifest.write_text(json.dumps(_SOURCE_HASHES, indent=1, sort_keys=True) + "\n", encoding="utf-8")
 
 
+# Shipped in the wheel under merlin/_data/ with the repository's layout, so that `merlin demo`, the example
+# configurations' `$schema` lines (../../docs/config.schema.json) and the scenarios' relative `config:` paths
+# work from an install (merlin/resources.py finds them in either place). The repository keeps one copy.
+PACKAGE_DATA_TREES = (("examples", ("*.yaml", "*.yml", "*.json", "*.md")), ("docs", ("config.schema.json",)))
+
+
+class BuildPyWithData(build_py):
+    """``build_py`` that also copies ``PACKAGE_DATA_TREES`` into ``merlin/_data`` of the build."""
+
+    def run(self) -> None:
+        super().run()
+        if self.editable_mode:  # an editable install reads the repository's own files
+            return
+        target = Path(self.build_lib) / "merlin" / "_data"
+        for tree, patterns in PACKAGE_DATA_TREES:
+            for pattern in patterns:
+                for src in sorted((ROOT / tree).rglob(pattern)):
+                    dst = target / src.relative_to(ROOT)
+                    dst.parent.mkdir(parents=True, exist_ok=True)
+                    shutil.copyfile(src, dst)
+
+
 def _ext_modules() -> list[Extension]:
     if not _BUILD_COMMANDS.intersection(sys.argv[1:]):
         return []
@@ -199,4 +222,4 @@ def _ext_modules() -> list[Extension]:
     return extensions
 
 
-setup(ext_modules=_ext_modules(), cmdclass={"build_ext": BuildExtOrPure})
+setup(ext_modules=_ext_modules(), cmdclass={"build_ext": BuildExtOrPure, "build_py": BuildPyWithData})

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
 import sys
 
@@ -17,7 +18,10 @@ from merlin.config.loader import ConfigError
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from merlin import __version__
+
     parser = argparse.ArgumentParser(prog="merlin", description="Merlin trusted autopilot")
+    parser.add_argument("--version", action="version", version=f"merlin {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for mod in sorted(pkgutil.iter_modules(merlin.commands.__path__), key=lambda m: m.name):
         module = importlib.import_module(f"merlin.commands.{mod.name}")
@@ -28,6 +32,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    # The command writes its plots to files: matplotlib's file-only backend, unless the user chose one
+    # (MPLBACKEND). Only the command chooses; the plotting modules leave an importer's backend alone.
+    # Set in the environment so that the worker processes of `merlin campaign` and `merlin demo` inherit it.
+    os.environ.setdefault("MPLBACKEND", "Agg")
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

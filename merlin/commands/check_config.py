@@ -182,7 +182,9 @@ def _has_zones(cfg: MerlinConfig) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
-    checked = load_and_build(args.file)
+    from merlin.resources import shipped  # a shipped configuration by name: `merlin check-config default`
+
+    checked = load_and_build(shipped(args.file, "configs"))
     cfg = checked.cfg
     if args.stage is not None and args.stage not in cfg.envelope.stages:
         raise ConfigError(
@@ -211,7 +213,7 @@ def register(subparsers: Any) -> None:
             "handover parameters. Exit 0 if valid, 2 if not (the error names the file, line, key and value)."
         ),
     )
-    p.add_argument("file", type=Path, help="the YAML configuration file")
+    p.add_argument("file", type=Path, help="the YAML configuration file, or the name of a shipped one (default)")
     p.add_argument("--stage", metavar="NAME", help="also show the envelope of this stage")
     p.add_argument("--json", action="store_true", help="print the same information as JSON")
     p.set_defaults(func=run)

@@ -30,7 +30,9 @@ DEMO_SET = (
 
 
 def _scenarios_dir() -> Path:
-    return Path(__file__).resolve().parents[2] / "examples" / "scenarios"
+    from merlin.resources import scenarios_dir  # the repository's, or the wheel's copy
+
+    return scenarios_dir()
 
 
 def register(sub: Any) -> None:

@@ -5,10 +5,11 @@ if an experimental controller had flown it (``merlin.replay.core_replay``), and 
 revocation with its time and reason; with ``--out``, ``replay.json`` and plots of the envelope parameters
 against their limits and the authority timeline.
 
-Frames (``--frame``): ``home`` (default) places the log's positions in Merlin's frame about the
-configuration's home, from the log's reference point (a ULog's ``vehicle_local_position.ref_lat/ref_lon``)
-and PX4's spherical projection, so the fence is judged where the vehicle really was; ``log`` takes the log's
-local x/y as they are. The frame used is printed and written to ``replay.json``.
+Frames (``--frame``): ``home`` places the log's positions in Merlin's frame about the configuration's
+home, from the log's reference point (a ULog's ``vehicle_local_position.ref_lat/ref_lon``) and PX4's
+spherical projection, so the fence is judged where the vehicle really was; ``log`` takes the log's local x/y
+as they are; ``auto`` (default) is ``home`` for a log flown within 50 km of home, else ``log``. The frame
+used is printed and written to ``replay.json``.
 
 A Merlin ULog (``flight.ulg`` of ``merlin sim`` or ``merlin serve``) carries the configuration it was flown
 with: ``--config`` may then be left out. Exit codes: 0 replayed (revocations are findings, not errors), 2
@@ -31,9 +32,10 @@ def register(sub: Any) -> None:
                    help="configuration YAML the core judges the flight by (default: the one a Merlin ULog carries)")
     p.add_argument("--out", default=None, help="directory for replay.json and plots")
     p.add_argument("--rate-hz", type=float, default=50.0, help="resampling rate (zero-order hold)")
-    p.add_argument("--frame", choices=("home", "log"), default="home",
+    p.add_argument("--frame", choices=("auto", "home", "log"), default="auto",
                    help="home: the log's positions re-projected into Merlin's frame about the configuration's "
-                        "home from the log's reference point (PX4's projection); log: the log's x/y as they are")
+                        "home from the log's reference point (PX4's projection); log: the log's x/y as they "
+                        "are; auto (default): home for a log flown within 50 km of home, else log")
     p.set_defaults(func=run)
 
 

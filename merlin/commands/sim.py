@@ -13,7 +13,7 @@ from typing import Any
 
 def register(sub: Any) -> None:
     p = sub.add_parser("sim", help="fly a scenario in closed-loop simulation and write its report")
-    p.add_argument("scenario", help="scenario YAML file (see docs/scenarios.md)")
+    p.add_argument("scenario", help="scenario YAML file (see docs/scenarios.md), or the name of a shipped one")
     p.add_argument("--out", required=True, help="output directory (summary.json, log.parquet, plots)")
     p.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots (faster)")
@@ -25,11 +25,13 @@ def run_one(
     scenario: str, out: Path, seed: int | None = None, plots: bool = True, quiet: bool = True
 ) -> dict[str, Any]:
     """Load, fly, evaluate and write one scenario; returns the summary dict. Raises ConfigError on bad input."""
+    from merlin.resources import shipped  # a shipped scenario by name: `merlin sim nominal`
     from sims.expectations import evaluate_all
     from sims.report import summary_dict, write_all
     from sims.runner import run_scenario
     from sims.scenario import load_scenario
 
+    scenario = str(shipped(scenario, "scenarios"))
     sc, cfg = load_scenario(scenario, seed=seed)
     bar = None
     if not quiet and sys.stderr.isatty():

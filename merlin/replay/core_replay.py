@@ -85,7 +85,12 @@ def states(log: FlightLog, t: np.ndarray) -> list[VehicleState]:
 
 
 #: ``replay``'s frames: where the log's positions are placed against the configuration's home and fence
-FRAMES = ("home", "log")
+FRAMES = ("auto", "home", "log")
+
+#: ``frame="auto"``: a log whose reference point is farther than this from the configuration's home was not
+#: flown at the configured range; its local x/y are then taken as the frame about home, as a flight moved
+#: to the range would be (a re-projection would put it thousands of kilometres outside every fence)
+SAME_RANGE_M = 50_000.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -95,11 +100,12 @@ class FrameChoice:
     max_shift_m: float = 0.0  # the largest horizontal difference between the log's x/y and the positions used
 
 
-def home_frame(log: FlightLog, cfg: MerlinConfig, frame: str = "home") -> tuple[FlightLog, FrameChoice]:
+def home_frame(log: FlightLog, cfg: MerlinConfig, frame: str = "auto") -> tuple[FlightLog, FrameChoice]:
     """``log`` with its positions in Merlin's frame about the configuration's home (``frame="home"``), from
     the log's reference point (``ref_lat``/``ref_lon``/``ref_alt``) and the projection the log's x/y were
     made with: PX4's spherical ``map_projection`` (``merlin.replay.px4_frame``), or Merlin's own for a Merlin
-    ULog. ``frame="log"`` takes the log's x/y as they are. Velocities keep the log's axes: between two
+    ULog. ``frame="log"`` takes the log's x/y as they are; ``frame="auto"`` is "home" when the log's reference
+    point is within :data:`SAME_RANGE_M` of home, else "log". Velocities keep the log's axes: between two
     local frames a few kilometres apart they turn by less than a tenth of a degree."""
     from merlin.geodesy import LocalFrame
     from merlin.replay.px4_frame import Px4MapProjection
@@ -112,6 +118,14 @@ def home_frame(log: FlightLog, cfg: MerlinConfig, frame: str = "home") -> tuple[
         return log, FrameChoice("log", "the log has no reference point: its local x/y taken as Merlin's frame "
                                        "about home")
     h = cfg.home
+    if frame == "auto":
+        n0, e0 = LocalFrame(h.lat_deg, h.lon_deg).ne_from_latlon(log.ref_lat_deg, log.ref_lon_deg)
+        away = float(np.hypot(n0, e0))
+        if not away <= SAME_RANGE_M:
+            return log, FrameChoice("log", f"the log's reference point ({log.ref_lat_deg:.5f}, "
+                                           f"{log.ref_lon_deg:.5f}) is {away / 1000:.0f} km from the configuration's "
+                                           "home: not flown at this range, its local x/y taken as Merlin's frame "
+                                           "about home (--frame home re-projects it anyway)")
     ref_alt = log.ref_alt_m if log.ref_alt_m is not None and math.isfinite(log.ref_alt_m) else h.alt_amsl_m
     same_origin = (abs(log.ref_lat_deg - h.lat_deg) < 1e-9 and abs(log.ref_lon_deg - h.lon_deg) < 1e-9
                    and abs(ref_alt - h.alt_amsl_m) < 1e-6)
