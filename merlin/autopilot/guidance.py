@@ -68,10 +68,16 @@ def position_to_velocity(
 
 
 def stopping_point(s: VehicleState, decel_mps2: float) -> Vec3:
-    """Where the vehicle comes to rest if it brakes now at ``decel_mps2`` (horizontal and vertical)."""
+    """Where the vehicle comes to rest if it brakes now at ``decel_mps2`` (horizontal and vertical).
+
+    Horizontally along its velocity, ``v |v| / (2 a)``: the straight braking path the fence projection
+    assumes (:func:`merlin.core.geofence.check`). Braking each axis on its own would aim the stop off that
+    path, and the vehicle would curve past the projected stop towards the boundary it approaches at an angle.
+    """
     p, v = s.pos_ned_m, s.vel_ned_mps
     k = 1.0 / (2.0 * decel_mps2)
-    return (p[0] + v[0] * abs(v[0]) * k, p[1] + v[1] * abs(v[1]) * k, p[2] + v[2] * abs(v[2]) * k)
+    kh = math.hypot(v[0], v[1]) * k
+    return (p[0] + v[0] * kh, p[1] + v[1] * kh, p[2] + v[2] * abs(v[2]) * k)
 
 
 def enter(behavior: Behavior, s: VehicleState, cfg: TrustedParams) -> GuidanceState:

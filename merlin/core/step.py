@@ -546,7 +546,13 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     g_setpoint: Setpoint | None = None
     if flies_trusted and behavior not in (_IDLE, _TERMINATE):
         if g is None or g.behavior is not behavior:
+            prev_g = g
             g = guidance.enter(behavior, s, cfg.trusted)
+            if prev_g is not None:
+                # A change of behaviour during a takeover (HOLD -> RTL) continues the braking the previous
+                # behaviour's acceleration-limited command was doing, from where that command is: restarting
+                # it from the measured velocity would undo braking the fence projection already counted on.
+                g = g._replace(vel_cmd=prev_g.vel_cmd)
             if behavior is _TAKEOFF:
                 g = g._replace(anchor_ned_m=(g.anchor_ned_m[0], g.anchor_ned_m[1], -arb.takeoff_alt_m))
         g, g_setpoint = guidance.step(g, s, cfg.trusted, dt)
@@ -577,6 +583,13 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
         incoming = Command(_CMD_VELOCITY, _TRUSTED, yaw_rad=s.att_rpy_rad[2])
     blend = st.blend
     if incoming.kind in (_CMD_IDLE, _CMD_TERMINATE):
+        blend, command = None, incoming
+    elif flies_trusted and incoming.kind is _CMD_VELOCITY:
+        # Merlin's own command is bumpless by construction: each behaviour starts from the vehicle's
+        # measured velocity and moves at most at the braking deceleration the fence projection assumes
+        # (guidance.step). Blending it with the revoked source's last command would keep flying that
+        # command for the blend window (a 30 m/s step kept ~35 deg of tilt for seconds after a revocation:
+        # adv_velocity_step_30mps_100m), so after a safety revocation Merlin brakes from the first tick.
         blend, command = None, incoming
     else:
         if source != st.last_source or (st.last_command is not None and st.last_command.kind is not incoming.kind):
