@@ -849,6 +849,19 @@ class LinksConfig(Strict):
         " (merlin serve --params-locked does the same); false: the ground station may change the envelope"
         " parameters while the vehicle is disarmed on the ground"
     )
+    offboard_loss_timeout_s: float = Field(
+        1.0, gt=0.0, le=60.0,
+        description="PX4's COM_OF_LOSS_T (default 1 s): a standard OFFBOARD request (MAV_CMD_DO_SET_MODE or"
+        " SET_MODE, what MAVSDK's offboard.start() sends) counts as made with setpoints streaming when the"
+        " controller's latest setpoint arrived within this, as PX4 counts it. Such a request is never denied"
+        " for Merlin's own timing: it is held (COMMAND_ACK IN_PROGRESS) until handover.heartbeat_alive_min_s"
+        " is met. A controller that stops streaming is revoked by watchdogs.setpoint_stale, never later than this",
+    )
+    offboard_request_wait_s: float = Field(
+        3.0, gt=0.0, le=30.0,
+        description="the longest a standard OFFBOARD request is held while the stream establishes; IN_PROGRESS"
+        " is repeated every 0.5 s meanwhile (MAVSDK waits 1.5 s after each one)",
+    )
 
 
 class HomeConfig(Strict):
@@ -938,3 +951,20 @@ class MerlinConfig(Strict):
     battery: BatteryConfig = BatteryConfig()
     links: LinksConfig = LinksConfig()
     redundancy: RedundancyConfig = RedundancyConfig()
+
+    @model_validator(mode="after")
+    def _standard_offboard_timings(self) -> MerlinConfig:
+        """`watchdogs.setpoint_stale.timeout_s` is at most `links.offboard_loss_timeout_s` (a controller that
+        stops streaming is revoked within the offboard loss time plus one tick), and
+        `links.offboard_request_wait_s` is at least `handover.heartbeat_alive_min_s` (a held OFFBOARD request
+        can wait for the heartbeat rule)."""
+        stale = self.watchdogs.setpoint_stale.timeout_s
+        if stale > self.links.offboard_loss_timeout_s:
+            raise ValueError(f"watchdogs.setpoint_stale.timeout_s ({stale:g}) must be at most"
+                             f" links.offboard_loss_timeout_s ({self.links.offboard_loss_timeout_s:g}): a controller"
+                             " that stops streaming is revoked within the offboard loss time")
+        need = self.handover.heartbeat_alive_min_s
+        if self.links.offboard_request_wait_s < need:
+            raise ValueError(f"links.offboard_request_wait_s ({self.links.offboard_request_wait_s:g}) must be at least"
+                             f" handover.heartbeat_alive_min_s ({need:g}): a held request waits for that")
+        return self

@@ -212,6 +212,18 @@ def _command_int(m: Any, mod: ModuleType) -> i.InMessage | Rejected:
     return i.CommandIn(m.command, p, m.target_system, m.target_component, 0, m.frame)
 
 
+MAV_CMD_DO_SET_MODE = 176
+
+
+def _set_mode(m: Any, mod: ModuleType) -> i.InMessage | Rejected:
+    """SET_MODE (MAVROS's ``set_mode`` service sends it) as the MAV_CMD_DO_SET_MODE it stands for, as PX4
+    takes it: ``custom_mode`` unpacked into its main mode (byte 2) and sub-mode (byte 3), and answered with
+    the COMMAND_ACK of DO_SET_MODE (``merlin.link.px4_modes``)."""
+    cm = int(m.custom_mode)
+    p = (float(m.base_mode), float((cm >> 16) & 0xFF), float((cm >> 24) & 0xFF), 0.0, 0.0, 0.0, 0.0)
+    return i.CommandIn(MAV_CMD_DO_SET_MODE, p, m.target_system, 0, 0, None)
+
+
 def _check_yaw(yaw_mode: i.YawMode, yaw: float, rate: float) -> Rejected | None:
     if yaw_mode is i.YawMode.ANGLE:
         return _within("yaw", yaw, -MAX_YAW_ABS_RAD, MAX_YAW_ABS_RAD)
@@ -419,6 +431,7 @@ _DECODERS: dict[str, _Decoder] = {
     "MERLIN_AUTHORITY_ACK": _authority_ack,
     "COMMAND_LONG": _command_long,
     "COMMAND_INT": _command_int,
+    "SET_MODE": _set_mode,
     "SET_POSITION_TARGET_LOCAL_NED": _set_position_target_local_ned,
     "SET_POSITION_TARGET_GLOBAL_INT": _set_position_target_global_int,
     "SET_ATTITUDE_TARGET": _set_attitude_target,
@@ -456,6 +469,7 @@ _CLASS_BY_NAME = {
     "MERLIN_AUTHORITY_ACK": MessageClass.AUTHORITY,
     "COMMAND_LONG": MessageClass.COMMAND,
     "COMMAND_INT": MessageClass.COMMAND,
+    "SET_MODE": MessageClass.COMMAND,
     "SET_POSITION_TARGET_LOCAL_NED": MessageClass.SETPOINT,
     "SET_POSITION_TARGET_GLOBAL_INT": MessageClass.SETPOINT,
     "SET_ATTITUDE_TARGET": MessageClass.SETPOINT,

@@ -13,7 +13,7 @@ grant is its acknowledgement. :class:`OffboardModeBridge` keeps that bookkeeping
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import Enum
 
 from merlin.core.types import (
@@ -47,6 +47,11 @@ MAV_RESULT_TEMPORARILY_REJECTED = 1
 MAV_RESULT_DENIED = 2
 MAV_RESULT_UNSUPPORTED = 3
 MAV_RESULT_FAILED = 4
+MAV_RESULT_IN_PROGRESS = 5
+#: While a standard OFFBOARD request is held, COMMAND_ACK IN_PROGRESS is repeated this often: MAVSDK waits
+#: (retries x timeout) = 1.5 s after each one before it gives up (MavlinkCommandSender), PX4's own long
+#: commands report progress the same way.
+IN_PROGRESS_INTERVAL_S = 0.5
 
 MAVLINK_MSG_ID_AUTOPILOT_VERSION = 148
 MAVLINK_MSG_ID_HOME_POSITION = 242
@@ -172,6 +177,8 @@ class _Pending:
     sender: tuple[int, int]
     command: int
     grant_seq: int = 0  # nonzero once granted: the next setpoint acknowledges it
+    held_since_s: float | None = None  # held by the edge (IN_PROGRESS sent), not yet passed to the core
+    next_progress_s: float = 0.0  # when IN_PROGRESS is due again while held
 
 
 class OffboardModeBridge:
@@ -182,6 +189,11 @@ class OffboardModeBridge:
     every core exchange event to :meth:`on_event` (it returns the COMMAND_ACK to send); pass every valid
     setpoint received on the controller link to :meth:`on_setpoint` (it returns the ACK request to feed to
     the core, once, after a grant).
+
+    A request PX4 would accept (setpoints streaming) but that Merlin's heartbeat rule cannot decide yet is
+    *held* by the owner (:meth:`hold`): answered COMMAND_ACK IN_PROGRESS at once and every
+    IN_PROGRESS_INTERVAL_S (:meth:`progress`), and passed to the core (:meth:`release`) when it can decide,
+    so the sender gets its result within its command timeout instead of a denial for Merlin's own timing.
     """
 
     def __init__(self) -> None:
@@ -191,8 +203,45 @@ class OffboardModeBridge:
     def waiting(self) -> bool:
         return self._pending is not None
 
+    @property
+    def held_since_s(self) -> float | None:
+        """When the request being held was received, None if none is held."""
+        return None if self._pending is None else self._pending.held_since_s
+
     def requested(self, cmd: i.CommandIn, sender: tuple[int, int]) -> None:
         self._pending = _Pending(sender, cmd.command)
+
+    def is_repeat(self, cmd: i.CommandIn, sender: tuple[int, int]) -> bool:
+        """Whether ``cmd`` is a retransmission of the request being held (MAVSDK resends a command it has no
+        answer to after 0.5 s): it is answered IN_PROGRESS again, not made a second request."""
+        p = self._pending
+        return p is not None and p.held_since_s is not None and p.sender == sender and p.command == cmd.command
+
+    def hold(self, t_s: float) -> o.CommandAckOut:
+        """Hold the request just made (see the class doc); returns the first IN_PROGRESS."""
+        p = self._pending
+        assert p is not None, "hold() follows requested()"
+        self._pending = replace(p, held_since_s=t_s, next_progress_s=t_s + IN_PROGRESS_INTERVAL_S)
+        return self._in_progress(p)
+
+    def progress(self, t_s: float) -> o.CommandAckOut | None:
+        """The IN_PROGRESS due at ``t_s`` while a request is held, else None."""
+        p = self._pending
+        if p is None or p.held_since_s is None or t_s < p.next_progress_s:
+            return None
+        self._pending = replace(p, next_progress_s=t_s + IN_PROGRESS_INTERVAL_S)
+        return self._in_progress(p)
+
+    def release(self) -> None:
+        """The held request goes to the core now; its answer comes as for any request."""
+        p = self._pending
+        if p is not None:
+            self._pending = replace(p, held_since_s=None)
+
+    @staticmethod
+    def _in_progress(p: _Pending) -> o.CommandAckOut:
+        # progress 255: unknown (common.xml COMMAND_ACK.progress)
+        return o.CommandAckOut(p.command, MAV_RESULT_IN_PROGRESS, p.sender[0], p.sender[1], progress=255)
 
     def on_event(self, event: Event) -> list[o.OutMessage]:
         p = self._pending

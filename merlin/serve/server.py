@@ -89,7 +89,6 @@ from merlin.serve.streams import CONTROLLER_RATES_HZ, GCS_RATES_HZ, Stream, plan
 
 log = logging.getLogger("merlin.serve")
 
-MAV_TYPE_GCS = 6
 # MAV_SYS_STATUS_SENSOR bits (common.xml): 3D gyro, accel, mag, absolute pressure, GPS, pre-arm check
 SENSOR_GPS = 32
 SENSORS_PRESENT = 1 | 2 | 4 | 8 | SENSOR_GPS | (1 << 28)
@@ -243,6 +242,7 @@ class Server:
         self._last_reason = ReasonCode.NONE
         self._last_revoke_t: float | None = None
         self._controller_sender: tuple[int, int] | None = None
+        self._sp_rx_t: float | None = None  # when the latest valid setpoint arrived (core clock)
         self._stop = False
         self._read_ns = 0  # when the datagram being handled was read from its socket (monotonic ns)
         self._t0_ns = time.monotonic_ns()
@@ -281,10 +281,13 @@ class Server:
         t = rx.t_s
         sender = (rx.system_id, rx.component_id)
         if isinstance(m, i.HeartbeatIn):
-            if ls.role is LinkRole.CONTROLLER and m.mav_type != MAV_TYPE_GCS:
+            # On the controller link every HEARTBEAT is the controller's, whatever type it declares (MAVSDK
+            # declares a ground station by default): PX4 does not look at the type either. The ground-station
+            # link time comes from the GCS link only, where the operator's authority lives (ICD section 6).
+            if ls.role is LinkRole.CONTROLLER:
                 self.hb_t = t
                 self._controller_sender = sender
-            elif ls.role is LinkRole.GCS or m.mav_type == MAV_TYPE_GCS:
+            else:
                 self.gcs_t = t
             return
         if isinstance(m, (i.SetpointIn, i.GlobalSetpointIn, i.AttitudeTargetIn)):
@@ -293,6 +296,7 @@ class Server:
             if self.pending.setpoint is not None:
                 self.pending.coalesced += 1
             self.pending.setpoint = (t, m, self._read_ns)
+            self._sp_rx_t = t
             if self.opts.setpoint_liveness:
                 self.hb_t = t
             ack = self.bridge.on_setpoint(t)
@@ -345,11 +349,19 @@ class Server:
                 self._cmd_waiting[self._cmd_seq] = (ls, m, sender)
                 acked = True
             elif isinstance(intent, AuthorityRequest):
-                self.pending.requests.append(intent)
                 if intent.kind is RequestKind.REQUEST:
+                    acked = True
+                    if self.bridge.is_repeat(m, sender):
+                        self._send(ls, self.bridge.hold(self.bridge.held_since_s or rx.t_s))
+                        continue
                     self.bridge.requested(m, sender)
                     self._exchange_peer = (ls, sender)
-                    acked = True
+                    if self._hold_standard_request(rx.t_s):
+                        self._send(ls, self.bridge.hold(rx.t_s))
+                        self.events.write({"t": rx.t_s, "type": "offboard_request_held", "link": ls.name,
+                                           "detail": self._hold_detail(rx.t_s)})
+                        continue
+                self.pending.requests.append(intent)
             elif isinstance(intent, RequestMessage):
                 if self._can_send(intent.message_id):
                     self._send(ls, command_ack(m, sender, MAV_RESULT_ACCEPTED))
@@ -369,6 +381,51 @@ class Server:
                 acked = True
         if not acked:  # a RELEASE alone (cannot happen with today's mapping) still gets an answer
             self._send(ls, command_ack(m, sender, MAV_RESULT_ACCEPTED))
+
+    # ------------------------------------------------------------------ standard OFFBOARD requests
+
+    def _streaming(self, t: float) -> bool:
+        """Whether the controller's setpoints stream as PX4 counts it: the latest within
+        ``links.offboard_loss_timeout_s`` (PX4's COM_OF_LOSS_T)."""
+        return self._sp_rx_t is not None and t - self._sp_rx_t <= self.cfg.links.offboard_loss_timeout_s
+
+    def _alive_s(self, t: float) -> float:
+        """How long the controller's liveness (heartbeat or setpoint) has been unbroken at ``t``, as the
+        core counts it for ``handover.heartbeat_alive_min_s`` (0 while it is lapsed)."""
+        since = self.loop.core.state.hb_alive_since_s
+        if since is None or self.hb_t is None or t - self.hb_t > self.cfg.watchdogs.controller_heartbeat.timeout_s:
+            return 0.0
+        return max(0.0, t - since)
+
+    def _hold_standard_request(self, t: float) -> bool:
+        """Whether a standard OFFBOARD request is held instead of decided now: PX4 would accept it (setpoints
+        streaming) and only Merlin's heartbeat rule is not met yet. Anything else the core decides at once,
+        with its reason: a controller that never streamed is denied."""
+        need = self.cfg.handover.heartbeat_alive_min_s
+        return self.loop.armed and self._streaming(t) and self._alive_s(t) + 1e-9 < need
+
+    def _hold_detail(self, t: float) -> str:
+        need = self.cfg.handover.heartbeat_alive_min_s
+        return (f"setpoints streaming; controller alive {self._alive_s(t):.2f} s of the {need:.2f} s required:"
+                " held (IN_PROGRESS) until then")
+
+    def _advance_held_request(self, t: float, requests: list[AuthorityRequest]) -> None:
+        """At a tick: pass a held standard request to the core once it can decide (the heartbeat rule met,
+        the stream lost, or ``links.offboard_request_wait_s`` over), else repeat IN_PROGRESS when due."""
+        held = self.bridge.held_since_s
+        if held is None:
+            return
+        need = self.cfg.handover.heartbeat_alive_min_s
+        if (not self._streaming(t) or self._alive_s(t) + 1e-9 >= need
+                or t - held >= self.cfg.links.offboard_request_wait_s):
+            self.bridge.release()
+            requests.append(AuthorityRequest(RequestKind.REQUEST, t_s=t))
+            self.events.write({"t": t, "type": "offboard_request_released", "held_s": round(t - held, 4),
+                               "streaming": self._streaming(t), "alive_s": round(self._alive_s(t), 4)})
+            return
+        ack = self.bridge.progress(t)
+        if ack is not None and self._exchange_peer is not None:
+            self._send(self._exchange_peer[0], ack)
 
     def _set_interval(self, ls: _LinkState, m: i.CommandIn, sender: tuple[int, int],
                       intent: SetMessageInterval) -> None:
@@ -489,6 +546,7 @@ class Server:
         state = self.loop.sense()
         p = self.pending
         self.pending = _Pending()
+        self._advance_held_request(t, p.requests)
         sp_arrival_ns = 0
         if p.setpoint is not None:
             sp_t, m, sp_arrival_ns = p.setpoint
@@ -708,19 +766,26 @@ class Server:
         same sender: only the latest setpoint before a tick matters (icd/ICD.md section 7), and decoding
         costs ~0.1 ms a frame. A superseded datagram is still written to the tlog and counted. Only
         datagrams holding exactly one MAVLink 2 setpoint frame are candidates; anything else is decoded as
-        usual, in order."""
+        usual, in order. A setpoint is superseded only by a later one with nothing else between them: a
+        command sent after a setpoint (OFFBOARD right after the first one, as MAVSDK's examples do) is
+        still handled after a setpoint, as it was sent."""
         keys = [_lone_setpoint_sender(item[0]) for item in backlog]
-        last: dict[tuple[int, int], int] = {}
-        for k, key in enumerate(keys):
-            if key is not None:
-                last[key] = k
-        if len(last) == sum(key is not None for key in keys):
-            return  # nothing superseded
+        superseded: set[int] = set()
+        later: set[tuple[int, int]] = set()  # senders with a later setpoint in this run of setpoints
+        for k in range(len(keys) - 1, -1, -1):
+            key = keys[k]
+            if key is None:
+                later = set()
+            elif key in later:
+                superseded.add(k)
+            else:
+                later.add(key)
+        if not superseded:
+            return
         kept: list[tuple[bytes, Any, int]] = []
         now = time.time()
         for k, item in enumerate(backlog):
-            key = keys[k]
-            if key is not None and last[key] != k:
+            if k in superseded:
                 self.tlog.write(item[0], now)
                 self.stats.coalesced += 1
                 continue

@@ -49,3 +49,32 @@ def test_anything_else_is_decoded_as_usual() -> None:
 def test_never_raises_on_arbitrary_bytes(data: bytes) -> None:
     r = _lone_setpoint_sender(data)
     assert r is None or (len(data) >= 12 and data[0] == 0xFD)
+
+
+class _Sink:
+    """What Server._coalesce touches of the server: the tlog and the statistics."""
+
+    def __init__(self) -> None:
+        self.written: list[bytes] = []
+        self.tlog = self
+        self.stats = self
+        self.coalesced = 0
+
+    def write(self, data: bytes, _t: float) -> None:
+        self.written.append(data)
+
+
+def test_a_setpoint_is_superseded_only_by_a_later_one_with_nothing_between() -> None:
+    from collections import deque
+
+    from merlin.serve.server import Server
+
+    p = _packer()
+    sp1, sp2, sp3 = _setpoint(p), _setpoint(p), _setpoint(p)
+    cmd = bytes(p.command_long_encode(1, 1, 176, 0, 1, 6, 0, 0, 0, 0, 0).pack(p))
+    # setpoint, then OFFBOARD right after it (MAVSDK's examples): the command must still follow a setpoint
+    backlog = deque([(sp1, None, 0), (cmd, None, 0), (sp2, None, 0), (sp3, None, 0)])
+    sink = _Sink()
+    Server._coalesce(sink, backlog)  # type: ignore[arg-type]
+    assert [d for d, _, _ in backlog] == [sp1, cmd, sp3]
+    assert sink.written == [sp2] and sink.coalesced == 1

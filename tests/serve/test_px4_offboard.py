@@ -1,0 +1,135 @@
+"""``merlin serve`` as a PX4 drop-in for offboard control written the way PX4's documentation shows it: plain
+pymavlink (:mod:`tests.serve.px4_offboard_client`), a ground-station HEARTBEAT type as MAVSDK declares by
+default, OFFBOARD asked for right after the first setpoint, and supervision still in force."""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import signal
+from pathlib import Path
+
+import pytest
+
+from tests.serve.conftest import (
+    ServeProc,
+    arm_and_takeoff,
+    gcs_connection,
+    lines_until,
+    start_serve,
+    stop,
+    wait_for,
+)
+
+pytestmark = pytest.mark.integration
+
+MAV_RESULT_ACCEPTED, MAV_RESULT_IN_PROGRESS = 0, 5
+TICK_S = 1.0 / 250.0
+
+
+def _client(sp: ServeProc, *args: str) -> object:
+    return sp.spawn("-m", "tests.serve.px4_offboard_client", "--url", f"udpin:127.0.0.1:{sp.ctl_port}", *args)
+
+
+def _t(line: str) -> float:
+    found = re.search(r"t=([0-9.]+)$", line)
+    assert found, line
+    return float(found.group(1))
+
+
+def _acks(lines: list[str]) -> list[tuple[int, float]]:
+    out = []
+    for x in lines:
+        found = re.search(r"ack command=176 result=(\d+) ", x)
+        if found:
+            out.append((int(found.group(1)), _t(x)))
+    return out
+
+
+def test_offboard_start_right_after_the_first_setpoint_is_held_then_granted(serve: ServeProc) -> None:
+    # MAVSDK's offboard examples: one setpoint, then offboard.start() at once; PX4 accepts. Merlin holds the
+    # request (IN_PROGRESS) until its heartbeat rule is met, then grants: never a denial for its own timing
+    m = gcs_connection(serve.gcs_port)
+    arm_and_takeoff(m)
+    ctl = _client(serve, "--flow", "velocity", "--vn", "0.5", "--fly-s", "20")
+    out = lines_until(ctl, "mode OFFBOARD", timeout_s=60)
+    acks = _acks(out)
+    assert acks and acks[0][0] == MAV_RESULT_IN_PROGRESS, out
+    assert acks[-1][0] == MAV_RESULT_ACCEPTED, out
+    # MAVSDK waits retries x timeout = 1.5 s after each IN_PROGRESS: every answer came within that
+    times = [0.0] + [t for _, t in acks]
+    assert max(b - a for a, b in zip(times, times[1:], strict=False)) < 1.5, acks
+    assert all(r == MAV_RESULT_IN_PROGRESS for r, _ in acks[:-1]), acks
+    assert any("mode OFFBOARD" in x for x in out)
+    ev = serve.events()
+    assert not any(e["type"] == "denied" for e in ev), [e for e in ev if e["type"] == "denied"]
+    held = [e for e in ev if e["type"] == "offboard_request_held"]
+    assert held and held[0]["link"] == "controller"
+
+
+def test_a_controller_that_never_streamed_is_denied_at_once_with_its_reason(serve: ServeProc) -> None:
+    m = gcs_connection(serve.gcs_port)
+    arm_and_takeoff(m)
+    from pymavlink import mavutil
+
+    c = mavutil.mavlink_connection(f"udpin:127.0.0.1:{serve.ctl_port}", source_system=245, source_component=191,
+                                   dialect="common")
+    assert c.wait_heartbeat(timeout=60) is not None
+    c.mav.heartbeat_send(6, 8, 0, 0, 0)
+    c.mav.command_long_send(1, 1, 176, 0, 1, 6, 0, 0, 0, 0, 0)
+    ack = wait_for(c, lambda x: x.get_type() == "COMMAND_ACK" and x.command == 176, timeout_s=10, heartbeat=False)
+    assert ack is not None and ack.result not in (MAV_RESULT_ACCEPTED, MAV_RESULT_IN_PROGRESS), ack
+    c.close()
+    denied = [e for e in serve.events() if e["type"] == "denied"]
+    assert denied and denied[0]["reason"] in ("setpoint_stale", "precondition"), denied
+    assert not any(e["type"] == "offboard_request_held" for e in serve.events())
+
+
+def test_killing_the_client_revokes_within_the_loss_time_plus_one_tick(serve: ServeProc) -> None:
+    m = gcs_connection(serve.gcs_port)
+    arm_and_takeoff(m)
+    ctl = _client(serve, "--flow", "velocity", "--fly-s", "600")
+    out = lines_until(ctl, "mode OFFBOARD", timeout_s=60)
+    assert any("mode OFFBOARD" in x for x in out), out
+    assert wait_for(m, lambda x: x.get_type() == "HEARTBEAT" and x.get_srcComponent() == 1
+                    and (x.custom_mode >> 16) & 0xFF == 6) is not None
+    os.kill(ctl.pid, signal.SIGKILL)  # type: ignore[attr-defined]
+    hb = wait_for(m, lambda x: x.get_type() == "HEARTBEAT" and x.get_srcComponent() == 1
+                  and (x.custom_mode >> 16) & 0xFF != 6)
+    assert hb is not None, "the mode never left OFFBOARD"
+    [rv] = [e for e in serve.events() if e["type"] == "revoked"][:1]
+    assert rv["reason"] in ("controller_heartbeat", "setpoint_stale")
+    # in the core's clock: the silence at the revocation is at most the watchdog (itself at most
+    # links.offboard_loss_timeout_s = 1 s, PX4's COM_OF_LOSS_T) plus one tick
+    d = rv["reason_detail"]
+    assert d["limit"] <= 1.0 and d["limit"] < d["value"] <= d["limit"] + TICK_S + 1e-9, d
+
+
+FENCE_60M = """
+geofence:
+  inclusion_circles:
+    - {name: test range, center_ne_m: [0.0, 0.0], radius_m: 60.0}
+"""
+
+
+def test_an_outward_offboard_flight_is_revoked_by_the_fence_and_stays_inside(tmp_path: Path) -> None:
+    cfg = tmp_path / "fence60.yaml"
+    cfg.write_text(FENCE_60M)
+    sp = start_serve(tmp_path, "--config", str(cfg))
+    try:
+        m = gcs_connection(sp.gcs_port)
+        arm_and_takeoff(m)
+        ctl = _client(sp, "--flow", "velocity", "--vn", "3", "--fly-s", "600")
+        out = lines_until(ctl, "mode left OFFBOARD", timeout_s=90)
+        assert any("mode OFFBOARD" in x for x in out) and any("mode left OFFBOARD" in x for x in out), out
+        worst = 0.0
+        for _ in range(150):  # the next ~15 s of positions (10 Hz): never outside the 60 m circle
+            pos = wait_for(m, lambda x: x.get_type() == "LOCAL_POSITION_NED", timeout_s=5)
+            assert pos is not None
+            worst = max(worst, math.hypot(pos.x, pos.y))
+        assert worst < 60.0, worst
+    finally:
+        stop(sp)
+    revoked = [e for e in sp.events() if e["type"] == "revoked"]
+    assert revoked and revoked[0]["reason"] == "geofence", revoked
