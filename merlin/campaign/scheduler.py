@@ -260,19 +260,36 @@ def _local(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
             _stop_worker(w)
 
 
+def start_ray(opts: CampaignOptions) -> bool:
+    """Connect to ``opts.address`` or start a local Ray instance of ``n_workers`` CPUs; False (nothing
+    done) when Ray is already initialised. A caller flying many batches (the falsifier) starts it once."""
+    import ray
+
+    if ray.is_initialized():
+        return False
+    if opts.address:
+        ray.init(address=opts.address, log_to_driver=False)
+    else:
+        env = {"PYTHONPATH": os.pathsep.join([str(REPO_ROOT), os.environ.get("PYTHONPATH", "")]),
+               **worker_env()}
+        ray.init(num_cpus=opts.n_workers, include_dashboard=False, log_to_driver=False,
+                 object_store_memory=200 * 1024 * 1024, runtime_env={"env_vars": env})
+    return True
+
+
+def fly(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
+    """Fly ``specs`` on ``opts.backend`` and call ``emit(spec, record)`` as each finishes (completion
+    order), with no store and no plan: for a caller that plans its own runs batch by batch, as the
+    falsifier (``merlin.falsify``) does with each optimiser generation."""
+    if opts.backend not in ("local", "ray"):
+        raise ConfigError("merlin campaign", [f"--backend: {opts.backend!r}; allowed: local, ray"])
+    (_ray if opts.backend == "ray" else _local)(specs, opts, emit)
+
+
 def _ray(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
     import ray
 
-    started = False
-    if not ray.is_initialized():
-        if opts.address:
-            ray.init(address=opts.address, log_to_driver=False)
-        else:
-            env = {"PYTHONPATH": os.pathsep.join([str(REPO_ROOT), os.environ.get("PYTHONPATH", "")]),
-                   **worker_env()}
-            ray.init(num_cpus=opts.n_workers, include_dashboard=False, log_to_driver=False,
-                     object_store_memory=200 * 1024 * 1024, runtime_env={"env_vars": env})
-        started = True
+    started = start_ray(opts)
     try:
         # max_retries: Ray flies a task again when its worker process or node is lost; after that the
         # run is stored as an error, as on the local backend (WORKER_ATTEMPTS in all)

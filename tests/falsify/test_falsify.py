@@ -1,0 +1,212 @@
+"""The falsifier: it finds a planted breach and its worst case reproduces; it is deterministic for a seed;
+its optimiser converges and restarts; every adversary it writes is a valid scenario; bad input exits 2."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from shapely.geometry import Point
+
+from merlin.cli import main
+from merlin.config.loader import load_config, validate_model
+from merlin.config.models import MerlinConfig
+from merlin.falsify.search import ClassSearch, search
+from merlin.falsify.space import adversary_classes, load_site
+from sims.scenario import Scenario
+
+HERE = Path(__file__).parent
+ROOT = HERE.parents[1]
+UNSAFE = HERE / "unsafe_position_only.yaml"
+DEFAULT = ROOT / "examples" / "configs" / "default.yaml"
+FIXED_WING = ROOT / "examples" / "configs" / "fixedwing_default.yaml"
+
+
+def _site(path: Path, vehicle: str = "multirotor"):
+    return load_site(load_config(path), vehicle, str(path))
+
+
+def test_finds_the_planted_breach_and_the_worst_case_reproduces(tmp_path: Path) -> None:
+    out = tmp_path / "f"
+    rc = main(["falsify", str(UNSAFE), "--budget", "6", "--classes", "velocity", "--workers", "2", "--seed", "3",
+               "--out", str(out), "--quiet"])
+    summary = json.loads((out / "falsify.json").read_text())
+    worst = summary["worst"]
+    assert worst["margin_m"] < 0.0, f"no breach found on a position-only fence: {worst}"
+    assert rc == 1  # a breach found
+    # the written scenario, flown again by `merlin sim`'s loader and runner, gives the very same margin
+    assert worst["reproduced_margin_m"] == pytest.approx(worst["margin_m"], abs=1e-9)
+    assert "reproduction_differs" not in worst
+    assert worst["command"].startswith("merlin sim ") and (out / "worst.yaml").exists()
+    sc = yaml.safe_load((out / "worst.yaml").read_text())
+    assert sc["controller"]["type"].endswith("adversaries_search:SearchVelocity")
+    for name in ("summary.md", "summary.html", "margins.png", "best_so_far.png", "evaluations.jsonl"):
+        assert (out / name).stat().st_size > 0, name
+    assert len((out / "evaluations.jsonl").read_text().splitlines()) == 6
+
+
+def _synthetic_fly(target: np.ndarray):
+    """A stand-in for the simulator: the margin is a smooth function of the class's unit coordinates with
+    its minimum (-3 m) at ``target``: the optimiser's behaviour, seconds instead of minutes."""
+
+    def fly(specs):
+        out = {}
+        for s in specs:
+            u = np.array(s.samples["__u__"]) if "__u__" in s.samples else None
+            assert u is not None
+            out[s.run_id] = {"status": "ok", "wall_s": 0.0,
+                             "metrics": {"min_fence_margin_m": float(40.0 * np.sum((u - target) ** 2) - 3.0),
+                                         "max_fence_breach_m": 0.0}}
+        return out
+
+    return fly
+
+
+class _UnitValues:
+    """Wraps an adversary class so the synthetic fly sees the unit coordinates."""
+
+    def __init__(self, adv):
+        self._adv = adv
+
+    def __getattr__(self, k):
+        return getattr(self._adv, k)
+
+    def values(self, u):
+        return {"__u__": [float(x) for x in u]}
+
+    def scenario(self, site, u, seed):
+        return {"name": "synthetic"}
+
+
+def test_cma_drives_the_margin_down_and_restarts_with_a_larger_population() -> None:
+    site = _site(DEFAULT)
+    adv = _UnitValues(adversary_classes("multirotor")[0])
+    target = np.full(adv.dim, 0.3)
+    res = search(site, (adv,), 3000, 1, 1, _synthetic_fly(target))
+    evs = res.evaluations
+    first = min(e.objective for e in evs[:10])
+    best = res.best()
+    assert best is not None and best.objective < -2.9 < first
+    assert res.restarts["velocity"] >= 1  # converged, then IPOP restarted
+    sizes = {e.restart: sum(1 for x in evs if x.restart == e.restart and x.generation == e.generation) for e in evs}
+    assert sizes[1] == 2 * sizes[0]
+
+
+def test_the_same_seed_flies_the_same_runs_and_another_seed_does_not() -> None:
+    site = _site(DEFAULT)
+    classes = adversary_classes("multirotor")
+
+    def fly(specs):
+        # a margin that depends on the whole scenario (so any difference in what was built shows)
+        def margin(sc):
+            return int(hashlib.sha256(json.dumps(sc, sort_keys=True).encode()).hexdigest()[:6], 16) / 1e5
+
+        return {s.run_id: {"status": "ok", "metrics": {"min_fence_margin_m": margin(s.scenario),
+                                                       "max_fence_breach_m": 0.0}} for s in specs}
+
+    a = search(site, classes, 60, 7, 11, fly)
+    b = search(site, classes, 60, 7, 11, fly)
+    c = search(site, classes, 60, 8, 11, fly)
+    assert [e.record() for e in a.evaluations] == [e.record() for e in b.evaluations]
+    assert [e.u for e in a.evaluations] != [e.u for e in c.evaluations]
+    assert len(a.evaluations) == 60
+    assert {e.adversary for e in a.evaluations} == {c.name for c in classes}
+
+
+def test_search_is_deterministic_through_the_real_simulator() -> None:
+    from merlin.campaign.execute import execute
+
+    site = _site(UNSAFE)
+    cls = tuple(c for c in adversary_classes("multirotor") if c.name == "velocity")
+
+    def fly(specs):
+        return {s.run_id: execute(s) for s in specs}
+
+    a = search(site, cls, 2, 4, 9, fly, popsize=2)
+    b = search(site, cls, 2, 4, 9, fly, popsize=2)
+    assert [(e.u, e.margin_m) for e in a.evaluations] == [(e.u, e.margin_m) for e in b.evaluations]
+    assert all(e.status == "ok" and math.isfinite(e.margin_m) for e in a.evaluations)
+
+
+@pytest.mark.parametrize(("cfg", "vehicle"), [(DEFAULT, "multirotor"), (UNSAFE, "multirotor"),
+                                              (FIXED_WING, "aerosonde")])
+@settings(max_examples=25, deadline=None)
+@given(data=st.data())
+def test_every_point_of_every_box_is_a_valid_scenario_started_inside_the_range(cfg, vehicle, data) -> None:
+    site = _site(cfg, vehicle)
+    for adv in adversary_classes(vehicle):
+        u = np.array(data.draw(st.lists(st.floats(-0.5, 1.5, allow_nan=False), min_size=adv.dim,
+                                        max_size=adv.dim), label=adv.name))
+        sc = adv.scenario(site, u, 1)
+        model = validate_model(Scenario, sc, f"falsify {adv.name}", {})
+        validate_model(MerlinConfig, sc["config"], "config", {})
+        n, e, d = model.initial.pos_ned_m
+        # the start is inside the range, clear of every boundary and keep-out by the fence's own margin
+        assert site.allowed.contains(Point(n, e))
+        # (to the shrunk area's chord error at its rounded corners, and the scenario's millimetres)
+        assert site.allowed.boundary.distance(Point(n, e)) >= 0.99 * site.min_clear_m - 0.01
+        assert d < 0.0 and model.duration_s > 0.0
+        if site.ceiling_m is not None:
+            assert -d < site.ceiling_m
+        if site.floor_m is not None:
+            assert -d > site.floor_m
+
+
+def test_edge_points_cover_the_keep_outs_of_the_default_range() -> None:
+    site = _site(DEFAULT)
+    assert len(site.rings) == 3  # the field's outline, the barn and the radio mast
+    mast = Point(260.0, -190.0)
+    us = np.linspace(0.0, 1.0, 400, endpoint=False)
+    near_mast = [u for u in us if Point(*site.edge_point(u)[0]).distance(mast) < 36.0]
+    assert near_mast, "no start point on the radio mast keep-out's edge"
+    start, outward = site.start(near_mast[0], 20.0)
+    # outward from the allowed area at a keep-out's edge points into the keep-out
+    assert Point(*(start + 20.0 * outward)).distance(mast) < Point(*start).distance(mast)
+
+
+def test_class_search_splits_the_last_generation_without_telling_it() -> None:
+    adv = adversary_classes("multirotor")[0]
+    s = ClassSearch(adv, np.random.SeedSequence(1), budget=13, popsize=5)
+    seen = 0
+    while s.left > 0:
+        xs = s.ask()
+        s.tell(xs, [float(np.sum(x)) for x in xs])
+        seen += len(xs)
+    assert seen == 13 and s.es.countiter == 2
+
+
+@pytest.mark.parametrize(("argv", "needle"), [
+    (["falsify", "no/such/config.yaml", "--out", "{out}"], "not found"),
+    (["falsify", str(DEFAULT), "--budget", "0", "--out", "{out}"], "--budget"),
+    (["falsify", str(DEFAULT), "--budget", "3", "--out", "{out}"], "fewer than one run per adversary class"),
+    (["falsify", str(DEFAULT), "--vehicle", "aerosonde", "--out", "{out}"], "vehicle.type"),
+    (["falsify", str(DEFAULT), "--classes", "velocity,teleport", "--out", "{out}"], "teleport"),
+    (["falsify", str(DEFAULT), "--seed", "-1", "--out", "{out}"], "--seed"),
+    (["falsify", str(DEFAULT), "--workers", "-2", "--out", "{out}"], "--workers"),
+])
+def test_bad_input_exits_2_naming_the_option(tmp_path: Path, capsys, argv, needle) -> None:
+    rc = main([a.replace("{out}", str(tmp_path / "o")) for a in argv])
+    assert rc == 2
+    assert needle in capsys.readouterr().err
+
+
+def test_a_config_without_a_fence_exits_2(tmp_path: Path, capsys) -> None:
+    p = tmp_path / "nofence.yaml"
+    p.write_text("merlin_config_version: 1\nname: no-fence\ngeofence: {enabled: false}\n")
+    assert main(["falsify", str(p), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "geofence.enabled" in err and str(p) in err
+
+
+def test_a_bad_config_value_exits_2(tmp_path: Path, capsys) -> None:
+    p = tmp_path / "bad.yaml"
+    p.write_text("merlin_config_version: 1\nname: bad\ngeofence: {margin_m: -4}\n")
+    assert main(["falsify", str(p), "--out", str(tmp_path / "o")]) == 2
+    assert "margin_m" in capsys.readouterr().err
