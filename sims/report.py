@@ -83,18 +83,13 @@ def write_log(r: RunResult, out: Path) -> Path:
 def write_ulog(r: RunResult, out: Path) -> Path:
     """``flight.ulg``: the run as PX4's topics and Merlin's own (merlin.ulog.flight), for Flight Review,
     PlotJuggler and pyulog; ``merlin replay`` reads it back (docs/field-tools.md)."""
-    from merlin.link.params import envelope_params
-    from merlin.ulog.flight import FlightMeta, config_json, write_flight_ulog
+    from merlin.ulog.flight import flight_meta, write_flight_ulog
 
     out.mkdir(parents=True, exist_ok=True)
-    cfg, sc = r.config, r.scenario
-    meta = FlightMeta(
-        home_lat_deg=cfg.home.lat_deg, home_lon_deg=cfg.home.lon_deg, home_alt_amsl_m=cfg.home.alt_amsl_m,
-        fixed_wing=sc.vehicle in FIXED_WING_VEHICLES,
-        info={"merlin_scenario": sc.name, "merlin_seed": int(sc.seed), "merlin_config_sha256": r.config_sha256,
-              "merlin_estimator": sc.estimator, "merlin_decisions_digest": r.decisions_digest},
-        parameters=envelope_params(cfg.envelope.resolve(cfg.envelope.active_stage)),
-        config_json=config_json(cfg))
+    sc = r.scenario
+    meta = flight_meta(r.config, sc.vehicle in FIXED_WING_VEHICLES, {
+        "merlin_scenario": sc.name, "merlin_seed": int(sc.seed), "merlin_config_sha256": r.config_sha256,
+        "merlin_estimator": sc.estimator, "merlin_decisions_digest": r.decisions_digest}, "MERLIN_SITL")
     p = out / "flight.ulg"
     write_flight_ulog(p, {**r.log, **r.aux}, r.events, meta)
     return p

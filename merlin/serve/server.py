@@ -109,6 +109,7 @@ BULK_PER_TICK = 2  # bulk messages per link per tick (an encode costs ~0.1 ms, d
 GC_EVERY_TICKS = 250  # a young-generation collection, done by hand right after a tick (small: < 1 ms)
 GC_MIDDLE_EVERY = 20  # every 20th of them collects the middle generation too
 GC_BULK_OBJECTS = 500  # more new objects than this at a collection point are frozen, not traversed
+ULOG_RATE_HZ = 50.0  # flight.ulg's sample rate, as merlin sim's log (scenario log_rate_hz default)
 EFFECTIVE_CONFIG = "effective_config.yaml"  # in the output directory, next to flight.tlog and events.jsonl
 # PARAM_SET is accepted on the ground station's link only: the experimental controller is untrusted and must
 # never rewrite the limits that judge it (icd/ICD.md section 8.2)
@@ -196,6 +197,15 @@ class Server:
         # takes tens of milliseconds. A killed process loses nothing either way (one write(2) per record).
         self.tlog = TlogWriter(opts.out_dir / "flight.tlog", fsync_interval_s=None)
         self.events = EventLog(opts.out_dir / "events.jsonl")
+        # flight.ulg: the flight as PX4's topics and Merlin's at 50 Hz, for Flight Review and PlotJuggler
+        # (merlin.ulog.flight; docs/field-tools.md), appended a second at a time
+        from merlin.ulog.flight import FlightRecorder, flight_meta
+
+        self.ulog = FlightRecorder(
+            opts.out_dir / "flight.ulg",
+            flight_meta(self.cfg, opts.vehicle in FIXED_WING_VEHICLES,
+                        {"merlin_config_sha256": config_sha256(self.cfg), "merlin_serve": 1}, "MERLIN_SERVE"),
+            self.loop.core_cfg.envelope, every_ticks=round(opts.rate_hz / ULOG_RATE_HZ), fence=self.loop.core_cfg.fence)
         self._syncer = threading.Thread(target=self._sync_files, name="serve-fsync", daemon=True)
         self.links: list[_LinkState] = []
         sid, cid = opts.system_id, opts.component_id
@@ -571,6 +581,7 @@ class Server:
         if sp_arrival_ns:
             self.stats.record_setpoint_latency(time.monotonic_ns() - sp_arrival_ns)
         self.decision = d
+        self.ulog.record(t, state, d, self.sp, self.loop)
         for e in d.events:
             self._on_event(e, d)
         changed = prev is None or (prev.authority, prev.behavior, prev.armed) != (d.authority, d.behavior, d.armed)
@@ -952,6 +963,7 @@ class Server:
         for ls in self.links:
             ls.endpoint.close()
         self.tlog.close()
+        self.ulog.close()
         self.events.close()
         return summary
 

@@ -146,22 +146,27 @@ class FlightULog:
         if "truth_n" in cols:
             formats.append(MERLIN_SIM_TRUTH)
         env = [c for c in cols if c.startswith("env_")]
-        timers = {c for c in cols if c.startswith("detail_") and any(c.endswith("_" + e[4:]) for e in env)}
+        # the envelope monitor's detail: per parameter, how long it has been outside (0 inside); a column is
+        # there only once a parameter was outside, so every parameter gets its field
+        timers = [f"detail_envelope_{c[4:]}" for c in env]
         self._extra["merlin_envelope"] = float_topic("merlin_envelope", [
             *[(field_name(c[4:]), unit_of(c[4:])) for c in env],
-            *[(field_name(c[len("detail_"):]) + "_outside_s", "s") for c in sorted(timers)]])
+            *[(field_name(c[len("detail_envelope_"):]) + "_outside_s", "s") for c in timers]])
         mons = [c for c in cols if c.startswith("mon_")]
         self._extra["merlin_monitors"] = float_topic("merlin_monitors", [(field_name(c[4:]), "") for c in mons],
                                                      kind="bool")
-        details = [c for c in cols if c.startswith("detail_") and c not in timers]
+        details = [c for c in cols if c.startswith("detail_") and c not in set(timers)]
         self._extra["merlin_monitor_detail"] = float_topic(
             "merlin_monitor_detail", [(field_name(c[len("detail_"):]), unit_of(c)) for c in details])
-        self._extra["merlin_fence"] = float_topic("merlin_fence", [("margin_m", "m")])
+        if "fence_margin" in cols:
+            self._extra["merlin_fence"] = float_topic("merlin_fence", [("margin_m", "m")])
         rest = [c for c in cols if c not in _CONSUMED and not c.startswith(("env_", "mon_", "detail_"))]
         self._extra["merlin_redundancy"] = float_topic("merlin_redundancy", [(field_name(c), unit_of(c)) for c in rest])
-        self._sources = {"merlin_envelope": [*env, *sorted(timers)], "merlin_monitors": mons,
-                         "merlin_monitor_detail": details, "merlin_fence": ["fence_margin"],
-                         "merlin_redundancy": rest}
+        self._timers = frozenset(timers)
+        self._sources = {"merlin_envelope": [*env, *timers], "merlin_monitors": mons,
+                         "merlin_monitor_detail": details, "merlin_redundancy": rest}
+        if "fence_margin" in cols:
+            self._sources["merlin_fence"] = ["fence_margin"]
         formats += [f for f in self._extra.values() if len(f.fields) > 1]
         for f in formats:
             w.add_format(f)
@@ -172,7 +177,8 @@ class FlightULog:
         for f in formats:
             self._ids[f.name] = w.subscribe(f.name)
 
-    def append(self, cols: Mapping[str, np.ndarray], events: Sequence[Mapping[str, Any]] = ()) -> None:
+    def append(self, cols: Mapping[str, np.ndarray], events: Sequence[Mapping[str, Any]] = (),
+               interleave: bool = True) -> None:
         """Write ``cols`` (each column an array as long as ``t``; a shorter one, which cannot be placed in
         time, is left out) and ``events`` (dicts with ``t``)."""
         n = len(cols["t"])
@@ -183,10 +189,14 @@ class FlightULog:
             missing = set(self._columns) - set(cols)
             cols = {**{k: np.full(len(cols["t"]), math.nan) for k in missing}, **cols}
         batches = self._batches(cols)
-        self.writer.write_interleaved(batches)
+        if interleave:
+            self.writer.write_interleaved(batches)
+        else:  # topic by topic: cheaper, for a batch of a second or so (readers sort by timestamp anyway)
+            for b in batches:
+                self.writer.write_records(b)
         for e in sorted(events, key=lambda e: float(e["t"])):
             level = _EVENT_LEVEL.get(str(e.get("type")), "info")
-            self.writer.log(level, int(round(float(e["t"]) * 1e6)), event_text(e))
+            self.writer.log(level, round(float(e["t"]) * 1e6), event_text(e))
 
     def _batches(self, c: Mapping[str, np.ndarray]) -> list[np.ndarray]:
         n = len(c["t"])
@@ -283,12 +293,103 @@ class FlightULog:
             values = {}
             for f, src in zip(fmt.fields[1:], sources, strict=True):
                 v = col(src)
+                if src in self._timers:
+                    v = np.nan_to_num(v, nan=0.0)
                 values[f.name] = (v > 0.5) if f.type == "bool" else v
             rec(topic, values)
         return out
 
     def close(self) -> None:
         self.writer.close()
+
+
+class FlightRecorder:
+    """A live flight's ULog (``merlin serve``): :meth:`record` at every tick samples the tick's state and
+    decision every ``every_ticks`` ticks into a row named as ``merlin sim``'s log columns, and every
+    ``flush_rows`` rows appends them (:class:`FlightULog`), with the events since, as one batch: one
+    ``write(2)`` per topic, so a killed process loses at most the rows of the batch in progress."""
+
+    def __init__(self, path: str | Path, meta: FlightMeta, envelope: Sequence[Any], every_ticks: int,
+                 flush_rows: int = 50, fence: Any = None) -> None:
+        self.log = FlightULog(path, meta)
+        self.fence = fence  # merlin.core.geofence.Fence: the signed margin of the truth, as merlin sim logs it
+        self.every = max(1, every_ticks)
+        self.flush_rows = flush_rows
+        self._envelope = tuple((f"env_{lim.name}", lim.index, lim.display_scale) for lim in envelope)
+        self._timer_keys = {lim.name: f"detail_envelope_{lim.name}" for lim in envelope}
+        self._rows: list[dict[str, float]] = []
+        self._events: list[dict[str, Any]] = []
+        self._k = 0
+
+    def record(self, t: float, state: Any, decision: Any, setpoint: Any, loop: Any) -> None:
+        """One tick: ``state`` the core read, ``decision`` its answer, ``setpoint`` the experimental one in
+        use (None), ``loop`` the vehicle (truth, motors, battery, wind)."""
+        for e in decision.events:
+            self._events.append(e.to_dict())
+        k = self._k
+        self._k += 1
+        if k % self.every:
+            return
+        from merlin.core.envelope import envelope_values
+
+        ev = envelope_values(state)
+        cmd = decision.command
+        p, v, a = state.pos_ned_m, state.vel_ned_mps, state.att_rpy_rad
+        r, f = state.rates_frd_radps, state.accel_frd_mps2
+        tr = loop.truth
+        motors = loop.actuators
+        row = {
+            "t": t, "truth_n": tr.pos_ned_m[0], "truth_e": tr.pos_ned_m[1], "truth_d": tr.pos_ned_m[2],
+            "truth_vn": tr.vel_ned_mps[0], "truth_ve": tr.vel_ned_mps[1], "truth_vd": tr.vel_ned_mps[2],
+            "truth_roll": tr.rpy_rad[0], "truth_pitch": tr.rpy_rad[1], "truth_yaw": tr.rpy_rad[2],
+            "est_n": p[0], "est_e": p[1], "est_d": p[2], "est_vn": v[0], "est_ve": v[1], "est_vd": v[2],
+            "est_roll": a[0], "est_pitch": a[1], "est_yaw": a[2], "est_p": r[0], "est_q": r[1], "est_r": r[2],
+            "est_ax": f[0], "est_ay": f[1], "est_az": f[2], "sigma_h": state.pos_sigma_h_m,
+            "sigma_v": state.pos_sigma_v_m, "nav_mode": float(state.nav_mode), "nav_inertial_s": state.nav_inertial_s,
+            "authority": float(decision.authority), "behavior": float(decision.behavior),
+            "armed": float(decision.armed), "landed": float(state.landed),
+            "cmd_kind": float(cmd.kind), "cmd_vn": cmd.vel_ned_mps[0], "cmd_ve": cmd.vel_ned_mps[1],
+            "cmd_vd": cmd.vel_ned_mps[2], "cmd_roll": cmd.att_rpy_rad[0], "cmd_pitch": cmd.att_rpy_rad[1],
+            "cmd_yaw": cmd.yaw_rad, "cmd_thrust": cmd.thrust, "cmd_blend": cmd.blend,
+            "m0": motors[0], "m1": motors[1], "m2": motors[2], "m3": motors[3],
+            "battery_frac": loop.batt_frac, "wind_n": loop.wind_ned[0], "wind_e": loop.wind_ned[1],
+        }
+        sp = setpoint
+        row.update({"sp_kind": float(sp.kind), "sp_n": sp.pos_ned_m[0], "sp_e": sp.pos_ned_m[1],
+                    "sp_d": sp.pos_ned_m[2], "sp_vn": sp.vel_ned_mps[0], "sp_ve": sp.vel_ned_mps[1],
+                    "sp_vd": sp.vel_ned_mps[2], "sp_roll": sp.att_rpy_rad[0], "sp_pitch": sp.att_rpy_rad[1],
+                    "sp_yaw": sp.yaw_rad, "sp_thrust": sp.thrust} if sp is not None else
+                   dict.fromkeys(("sp_kind", "sp_n", "sp_e", "sp_d", "sp_vn", "sp_ve", "sp_vd", "sp_roll",
+                                  "sp_pitch", "sp_yaw", "sp_thrust"), math.nan))
+        for key, index, scale in self._envelope:
+            row[key] = ev[index] * scale
+        for key in self._timer_keys.values():
+            row[key] = 0.0
+        for ms in decision.monitors:
+            row[f"mon_{ms.name}"] = float(ms.tripped)
+            for dk, dv in ms.detail:
+                row[f"detail_{ms.name}_{dk}"] = dv
+        self._rows.append(row)
+        if len(self._rows) >= self.flush_rows:
+            self.flush()
+
+    def flush(self) -> None:
+        rows, self._rows = self._rows, []
+        events, self._events = self._events, []
+        if not rows:
+            return
+        keys = list(rows[0])
+        cols = {k: np.array([r.get(k, math.nan) for r in rows], dtype=float) for k in keys}
+        if self.fence is not None:
+            from merlin.core import geofence
+
+            pos = np.stack([cols["truth_n"], cols["truth_e"], cols["truth_d"]], axis=1)
+            cols["fence_margin"] = geofence.signed_margins_m(self.fence, pos, cols["landed"] < 0.5)
+        self.log.append(cols, events, interleave=False)
+
+    def close(self) -> None:
+        self.flush()
+        self.log.close()
 
 
 def write_flight_ulog(path: str | Path, cols: Mapping[str, np.ndarray], events: Sequence[Mapping[str, Any]],
@@ -300,6 +401,18 @@ def write_flight_ulog(path: str | Path, cols: Mapping[str, np.ndarray], events: 
     finally:
         f.close()
     return f.bytes_written
+
+
+def flight_meta(cfg: Any, fixed_wing: bool, info: dict[str, str | int | float], ver_hw: str) -> FlightMeta:
+    """A flight's :class:`FlightMeta` from its configuration (``MerlinConfig``): home, the active envelope
+    stage as PX4-style parameters (``ENV_<ABBR>_MIN/_MAX/_DUR/_EN``, as ``merlin serve`` exposes them) and
+    the configuration itself."""
+    from merlin.link.params import envelope_params
+
+    return FlightMeta(home_lat_deg=cfg.home.lat_deg, home_lon_deg=cfg.home.lon_deg,
+                      home_alt_amsl_m=cfg.home.alt_amsl_m, fixed_wing=fixed_wing, ver_hw=ver_hw, info=info,
+                      parameters=envelope_params(cfg.envelope.resolve(cfg.envelope.active_stage)),
+                      config_json=config_json(cfg))
 
 
 def config_json(cfg: Any) -> str:

@@ -221,6 +221,11 @@ class ULogWriter:
         if n:
             self._put(self.records(msg_id, columns, n).tobytes())
 
+    def write_records(self, records: np.ndarray) -> None:
+        """Write a record array made by :meth:`records`."""
+        if len(records):
+            self._put(records.tobytes())
+
     def write_interleaved(self, batches: Iterable[np.ndarray]) -> None:
         """Write several subscriptions' record arrays (:meth:`records`) merged in timestamp order (stable:
         equal timestamps keep the order of ``batches``), as a logger writes samples as they come."""

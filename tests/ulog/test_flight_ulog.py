@@ -37,7 +37,7 @@ PX4_TOPICS = {
 }
 MERLIN_TOPICS = {
     "merlin_authority": ["authority", "behavior", "armed", "landed"],
-    "merlin_envelope": ["roll_deg", "pitch_deg", "envelope_roll_deg_outside_s"],
+    "merlin_envelope": ["roll_deg", "pitch_deg", "roll_deg_outside_s", "altitude_m_outside_s"],
     "merlin_monitors": ["envelope"],
     "merlin_fence": ["margin_m"],
     "merlin_nav": ["nav_mode", "sigma_h_m", "sigma_v_m", "inertial_s"],
