@@ -16,7 +16,7 @@ import pyarrow.parquet as pq
 
 from merlin import _build
 from merlin.config.runtime import build_core_config, envelope_limits
-from merlin.core.types import Authority, Behavior
+from merlin.core.types import Authority, Behavior, CommandKind, NavMode
 from sims.expectations import Verdict
 from sims.runner import FIXED_WING_VEHICLES, RunResult
 
@@ -69,11 +69,92 @@ def write_summary(r: RunResult, verdicts: list[Verdict], out: Path) -> Path:
     return p
 
 
+#: The log's angle columns, in radians in the run (SI inside), written in degrees under a ``_deg`` name so
+#: that the Parquet file has one unit per quantity: the envelope's columns are in the configuration's
+#: degrees (``env_roll_deg``)
+_ANGLES_RAD = ("truth_roll", "truth_pitch", "truth_yaw", "cmd_roll", "cmd_pitch", "sp_roll")
+#: Coded columns: their values' names (the enums of merlin.core.types)
+_ENUMS = {"authority": Authority, "behavior": Behavior, "nav_mode": NavMode, "cmd_kind": CommandKind}
+_BOOLS = ("armed", "landed")
+_UNITS = {"t": "s", "sigma_h": "m", "battery_frac": "1 (0..1)", "wind_n": "m/s", "wind_e": "m/s",
+          "fence_margin": "m (signed: negative outside)", "cmd_thrust": "1 (0..1)", "cmd_blend": "1 (0..1)",
+          "m0": "1 (0..1)", "m1": "1 (0..1)", "m2": "1 (0..1)", "m3": "1 (0..1)"}
+
+
+def _unit(name: str) -> str:
+    """A log column's unit, from its name (merlin.ulog.topics.unit_of for the suffixed ones)."""
+    from merlin.ulog.topics import unit_of
+
+    if name in _UNITS:
+        return _UNITS[name]
+    if name.endswith(("_vn", "_ve", "_vd")):
+        return "m/s"
+    if name.split("_")[0] in ("truth", "est") and name.endswith(("_n", "_e", "_d")):
+        return "m"
+    return unit_of(name.removeprefix("env_"))
+
+
+def log_table(r: RunResult) -> pa.Table:
+    """The run's log as a self-describing table: each field's unit (``unit``) and, for coded columns, the
+    names of the codes (``labels``, JSON) in its metadata, and a dictionary-encoded ``<column>_name`` beside
+    it; booleans as booleans; angles in degrees (``_deg``); the latitude, longitude and altitude (WGS84,
+    metres AMSL) of the truth and of the estimate beside their north/east/down. The log's values themselves
+    (and so the run's decisions_digest, a hash of the log) are unchanged."""
+    from merlin.geodesy import LocalFrame
+
+    h = r.config.home
+    frame = LocalFrame(h.lat_deg, h.lon_deg, h.alt_amsl_m)
+    fields: list[pa.Field] = []
+    arrays: list[pa.Array] = []
+
+    def add(name: str, values: Any, unit: str = "", labels: dict[int, str] | None = None) -> None:
+        meta = {}
+        if unit:
+            meta[b"unit"] = unit.encode()
+        if labels is not None:
+            meta[b"labels"] = json.dumps({str(k): v for k, v in labels.items()}).encode()
+        arr = pa.array(values)
+        arrays.append(arr)
+        fields.append(pa.field(name, arr.type, metadata=meta or None))
+
+    L = r.log
+    for name, col in L.items():
+        if name in _ANGLES_RAD:
+            add(f"{name}_deg", np.degrees(col), "deg")
+        elif name in _ENUMS:
+            enum = _ENUMS[name]
+            labels = {int(m): m.name for m in enum}
+            add(name, col.astype(np.uint8), "", labels)
+            # the dictionary is indexed by the code itself (the enums number their members from 0)
+            words = [labels.get(i, str(i)) for i in range(max(labels) + 1)]
+            names = pa.DictionaryArray.from_arrays(pa.array(col.astype(np.int8)), pa.array(words))
+            arrays.append(names)
+            fields.append(pa.field(f"{name}_name", names.type))
+        elif name in _BOOLS or name.startswith("mon_"):
+            add(name, col > 0.5)
+        else:
+            add(name, col, _unit(name))
+        if name == "truth_d":
+            lat, lon, alt = frame.geodetic_from_ned(np.stack([L["truth_n"], L["truth_e"], L["truth_d"]], axis=1))
+            add("truth_lat_deg", lat, "deg (WGS84)")
+            add("truth_lon_deg", lon, "deg (WGS84)")
+            add("truth_alt_m", alt, "m AMSL")
+        elif name == "est_d":
+            lat, lon, alt = frame.geodetic_from_ned(np.stack([L["est_n"], L["est_e"], L["est_d"]], axis=1))
+            add("est_lat_deg", lat, "deg (WGS84)")
+            add("est_lon_deg", lon, "deg (WGS84)")
+            add("est_alt_m", alt, "m AMSL")
+    return pa.Table.from_arrays(arrays, schema=pa.schema(fields))
+
+
 def write_log(r: RunResult, out: Path) -> Path:
     out.mkdir(parents=True, exist_ok=True)
-    table = pa.table({k: pa.array(v) for k, v in r.log.items()})
+    table = log_table(r)
+    h = r.config.home
     meta = {b"scenario": r.scenario.name.encode(), b"config_sha256": r.config_sha256.encode(),
-            b"seed": str(r.scenario.seed).encode()}
+            b"seed": str(r.scenario.seed).encode(), b"decisions_digest": r.decisions_digest.encode(),
+            b"frame": (f"NED metres about home ({h.lat_deg}, {h.lon_deg}, {h.alt_amsl_m} m AMSL), Merlin's "
+                       "azimuthal equidistant projection on the WGS84 ellipsoid; body FRD").encode()}
     table = table.replace_schema_metadata(meta)
     p = out / "log.parquet"
     pq.write_table(table, p)
