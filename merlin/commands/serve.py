@@ -2,6 +2,17 @@
 like PX4 SITL (GCS: bind 18570, send to 127.0.0.1:14550; offboard API: bind 14580, send to
 127.0.0.1:14540), answering whoever replies. With no arguments it uses the built-in configuration.
 
+PX4 SITL's conventions, so that code written against PX4 SITL runs unchanged (icd/ICD.md section 6.6):
+
+* Home: the built-in configuration starts at PX4 SITL's default home, Zurich Irchel Park (47.397742 N,
+  8.545594 E, 488 m AMSL); PX4_HOME_LAT, PX4_HOME_LON and PX4_HOME_ALT move it, for the built-in
+  configuration or a file's. A configuration's fence given relative to home (``*_ne_m``) follows the home;
+  one given in latitude/longitude does not, so moving the home of such a file is refused with an error
+  naming the fence field (the range would be left behind, thousands of kilometres away).
+* ``--instance N`` as PX4's multi-vehicle SITL (``px4 -i N``, ROMFS ``px4-rc.mavlink``): GCS link bound to
+  18570+N (sending to 14550), offboard link bound to 14580+N sending to 14540+N (14549 above instance 9),
+  system id N+1. An explicit port or ``--sysid`` option wins.
+
 Exit codes: 0 stopped normally (duration elapsed, SIGINT or SIGTERM), 2 invalid input.
 """
 
@@ -11,6 +22,7 @@ import argparse
 import datetime as dt
 import json
 import logging
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -25,12 +37,17 @@ def register(sub: Any) -> None:
                         "without --config it flies the built-in fixed-wing configuration)")
     p.add_argument("--rate-hz", type=float, default=250.0, help="core and simulation tick rate (default 250)")
     p.add_argument("--speedup", type=float, default=1.0, help="run faster than real time (tests), default 1")
-    p.add_argument("--sysid", type=int, default=1, help="Merlin's MAVLink system id (default 1)")
+    p.add_argument("--instance", "-i", type=int, default=0,
+                   help="vehicle instance, as PX4's multi-vehicle SITL (px4 -i N): ports offset by N, system id N+1")
+    p.add_argument("--sysid", type=int, default=None, help="Merlin's MAVLink system id (default instance + 1)")
     p.add_argument("--compid", type=int, default=1, help="Merlin's component id (default 1, AUTOPILOT1)")
-    p.add_argument("--gcs-port", type=int, default=14550, help="ground-station remote UDP port (default 14550)")
-    p.add_argument("--gcs-bind-port", type=int, default=18570, help="local UDP port of the GCS link (18570)")
-    p.add_argument("--offboard-port", type=int, default=14540, help="offboard-API remote UDP port (default 14540)")
-    p.add_argument("--offboard-bind-port", type=int, default=14580, help="local UDP port of the controller link")
+    p.add_argument("--gcs-port", type=int, default=None, help="ground-station remote UDP port (default 14550)")
+    p.add_argument("--gcs-bind-port", type=int, default=None,
+                   help="local UDP port of the GCS link (default 18570 + instance)")
+    p.add_argument("--offboard-port", type=int, default=None,
+                   help="offboard-API remote UDP port (default 14540 + instance; 14549 above instance 9, as PX4)")
+    p.add_argument("--offboard-bind-port", type=int, default=None,
+                   help="local UDP port of the controller link (default 14580 + instance)")
     p.add_argument("--remote-host", default="127.0.0.1", help="where telemetry goes until a peer replies")
     p.add_argument("--no-gcs", action="store_true", help="no ground-station link")
     p.add_argument("--serial", default=None, metavar="DEV:BAUD",
@@ -86,6 +103,72 @@ def _load(path: str | None) -> tuple[Any, Path]:
     return validate_model(MerlinConfig, data, path, lines, {"config_dir": config_dir}), config_dir
 
 
+#: PX4 SITL's default home (Tools/simulation: Zurich Irchel Park), what PX4's examples hard-code.
+PX4_SITL_HOME = (47.397742, 8.545594, 488.0)
+#: The environment variables PX4 SITL reads for its home, with the configuration field each sets.
+PX4_HOME_ENV = (("PX4_HOME_LAT", "lat_deg"), ("PX4_HOME_LON", "lon_deg"), ("PX4_HOME_ALT", "alt_amsl_m"))
+
+
+def sitl_ports(instance: int) -> dict[str, int]:
+    """The UDP ports of PX4 SITL instance ``instance`` (ROMFS/px4fmu_common/init.d-posix/px4-rc.mavlink)."""
+    return {"gcs_bind_port": 18570 + instance, "gcs_port": 14550, "offboard_bind_port": 14580 + instance,
+            "offboard_port": 14540 + instance if instance <= 9 else 14549}
+
+
+def _absolute_fence_fields(geofence: Any) -> list[str]:
+    """The fence fields given in latitude/longitude (they do not move with home)."""
+    out = []
+    for kind in ("inclusion_polygons", "exclusion_polygons"):
+        for k, poly in enumerate(getattr(geofence, kind)):
+            if poly.vertices_deg is not None or poly.holes_deg:
+                out.append(f"geofence.{kind}[{k}].{'vertices_deg' if poly.vertices_deg is not None else 'holes_deg'}")
+    for kind in ("inclusion_circles", "exclusion_circles"):
+        for k, circle in enumerate(getattr(geofence, kind)):
+            if circle.center_deg is not None:
+                out.append(f"geofence.{kind}[{k}].center_deg")
+    return out
+
+
+def sitl_home(cfg: Any, path: str | None, environ: Any) -> Any:
+    """``cfg`` with the home PX4 SITL would start at: the built-in configuration at PX4_SITL_HOME, any
+    configuration moved by PX4_HOME_LAT / PX4_HOME_LON / PX4_HOME_ALT. ConfigError for a value that is not a
+    number in range, and for moving the home of a configuration whose fence is in latitude/longitude."""
+    from pydantic import ValidationError
+
+    from merlin.config.loader import ConfigError
+    from merlin.config.models import HomeConfig
+
+    home = cfg.home.model_dump()
+    if path is None:
+        home.update(zip(("lat_deg", "lon_deg", "alt_amsl_m"), PX4_SITL_HOME, strict=True))
+    set_by = []
+    for var, fld in PX4_HOME_ENV:
+        text = environ.get(var)
+        if text is None or not text.strip():
+            continue
+        try:
+            home[fld] = float(text)
+        except ValueError:
+            raise ConfigError(var, [f"{text!r} is not a number (home.{fld})"]) from None
+        set_by.append(var)
+    try:
+        new_home = HomeConfig.model_validate(home)
+    except ValidationError as err:
+        e = err.errors()[0]
+        where = next((v for v, f in PX4_HOME_ENV if f == e["loc"][0]), "home")
+        raise ConfigError(where, [f"home.{e['loc'][0]} = {e['input']}: {e['msg']}"]) from None
+    if new_home == cfg.home:
+        return cfg
+    fixed = _absolute_fence_fields(cfg.geofence)
+    if fixed:
+        why = ", ".join(set_by) or "the PX4 SITL default home"
+        raise ConfigError(path or "<built-in default>", [
+            f"{f} is in latitude/longitude: moving home to ({new_home.lat_deg:.6f}, {new_home.lon_deg:.6f}) by "
+            f"{why} would leave the fence behind; give it about home (vertices_ne_m / center_ne_m) or keep the "
+            "file's home" for f in fixed])
+    return cfg.model_copy(update={"home": new_home})
+
+
 def _vehicle_config(vehicle: str, path: str | None, cfg: Any) -> Any:
     """The configuration for ``--vehicle``: a fixed wing (JSBSim) flies the built-in fixed-wing configuration
     when no file is given, and refuses a configuration that is not a fixed wing's; a multirotor must exist."""
@@ -113,15 +196,23 @@ def options_from_args(args: argparse.Namespace) -> Any:
     from merlin.serve.server import ServeOptions, UdpLinkSpec
 
     problems = []
+    if not 0 <= args.instance <= 254:  # system id instance + 1 <= 255
+        problems.append(f"--instance {args.instance}: allowed 0..254")
+    else:
+        for name, port in sitl_ports(args.instance).items():
+            if getattr(args, name) is None:
+                setattr(args, name, port)
+        if args.sysid is None:
+            args.sysid = args.instance + 1
     if not 100.0 <= args.rate_hz <= 1000.0:  # the simulation step (1/rate) is at most 10 ms
         problems.append(f"--rate-hz {args.rate_hz}: allowed 100..1000")
     if not 0.1 <= args.speedup <= 20.0:
         problems.append(f"--speedup {args.speedup}: allowed 0.1..20")
-    if not 1 <= args.sysid <= 255:
+    if args.sysid is not None and not 1 <= args.sysid <= 255:
         problems.append(f"--sysid {args.sysid}: allowed 1..255")
     for name in ("gcs_port", "gcs_bind_port", "offboard_port", "offboard_bind_port"):
         v = getattr(args, name)
-        if not 0 <= v <= 65535:
+        if v is not None and not 0 <= v <= 65535:
             problems.append(f"--{name.replace('_', '-')} {v}: allowed 0..65535")
     if not 0 <= args.realtime_priority <= 99:
         problems.append(f"--realtime-priority {args.realtime_priority}: allowed 0..99")
@@ -138,6 +229,7 @@ def options_from_args(args: argparse.Namespace) -> Any:
         raise ConfigError("command line", problems)
     cfg, config_dir = _load(args.config)
     cfg = _vehicle_config(args.vehicle, args.config, cfg)  # issue 8: the fixed wing
+    cfg = sitl_home(cfg, args.config, os.environ)
     overrides = LinkOverrides(
         key_file=Path(args.signing_key) if args.signing_key else None,
         allow_unsigned_provisioning=args.allow_unsigned_provisioning,

@@ -4,6 +4,7 @@ default, OFFBOARD asked for right after the first setpoint, and supervision stil
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import re
@@ -59,7 +60,7 @@ def test_offboard_start_right_after_the_first_setpoint_is_held_then_granted(serv
     assert acks[-1][0] == MAV_RESULT_ACCEPTED, out
     # MAVSDK waits retries x timeout = 1.5 s after each IN_PROGRESS: every answer came within that
     times = [0.0] + [t for _, t in acks]
-    assert max(b - a for a, b in zip(times, times[1:], strict=False)) < 1.5, acks
+    assert max(b - a for a, b in itertools.pairwise(times)) < 1.5, acks
     assert all(r == MAV_RESULT_IN_PROGRESS for r, _ in acks[:-1]), acks
     assert any("mode OFFBOARD" in x for x in out)
     ev = serve.events()
