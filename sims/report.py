@@ -176,35 +176,93 @@ def write_ulog(r: RunResult, out: Path) -> Path:
     return p
 
 
-def _fence_patches(ax: Any, r: RunResult) -> None:
-    cfg = build_core_config(r.config)
-    fence = cfg.fence
+def _fence_geometry(r: RunResult) -> tuple[Any, Any]:
+    """(allowed area, keep-out area) as shapely geometries in (north, east) metres; None where absent."""
+    fence = build_core_config(r.config).fence
     if fence is None:
-        return
-    allowed = fence.allowed_area
-    excl = fence.exclusion_area
+        return None, None
+    return fence.allowed_area, fence.exclusion_area
 
+
+def _draw_fence(ax: Any, allowed: Any, excl: Any, lw: float = 1.5, labels: bool = True) -> None:
     def draw(geom: Any, **kw: Any) -> None:
         if geom is None or geom.is_empty:
             return
-        geoms = getattr(geom, "geoms", [geom])
-        for g in geoms:
+        label = kw.pop("label", None)
+        for g in getattr(geom, "geoms", [geom]):
             if g.geom_type != "Polygon":
                 continue
             n, e = g.exterior.xy  # coordinates are (north, east)
-            ax.plot(e, n, **kw)
+            ax.plot(e, n, label=label, **kw)
+            label = None
             for hole in g.interiors:
                 hn, he = hole.xy
                 ax.plot(he, hn, **kw)
 
-    draw(allowed, color="tab:green", lw=1.5, label="inclusion")
-    draw(excl, color="tab:red", lw=1.5, label="keep-out")
+    draw(allowed, color="tab:green", lw=lw, label="inclusion" if labels else None)
+    draw(excl, color="tab:red", lw=lw, label="keep-out" if labels else None)
+
+
+def _nearest_edges(allowed: Any, excl: Any, track_ne: np.ndarray) -> list[tuple[float, Any, Any]]:
+    """(distance, point on the track, point on the edge) to the nearest inclusion edge and the nearest
+    keep-out edge, in (north, east) metres, nearest first."""
+    from shapely.geometry import LineString, MultiPoint
+    from shapely.ops import nearest_points
+
+    pts = track_ne[np.isfinite(track_ne).all(axis=1)]
+    if len(pts) == 0:
+        return []
+    path = LineString(pts) if len(pts) > 1 and np.ptp(pts, axis=0).any() else MultiPoint(pts)
+    out = []
+    for geom in (allowed, excl):
+        if geom is None or geom.is_empty:
+            continue
+        a, b = nearest_points(path, geom.boundary)
+        out.append((a.distance(b), a, b))
+    return sorted(out, key=lambda x: x[0])
+
+
+def _edge_kinds(allowed: Any, excl: Any, edges: list[tuple[float, Any, Any]]) -> list[str]:
+    """"inclusion" or "keep-out" for each of ``_nearest_edges``' entries (the boundary it lies on)."""
+    out = []
+    for _, _, b in edges:
+        da = allowed.boundary.distance(b) if allowed is not None and not allowed.is_empty else np.inf
+        de = excl.boundary.distance(b) if excl is not None and not excl.is_empty else np.inf
+        out.append("inclusion" if da <= de else "keep-out")
+    return out
+
+
+def ground_track_view(track_ne: np.ndarray, edges: list[tuple[float, Any, Any]]) -> tuple[float, float, float, float]:
+    """(east min, east max, north min, north max) of the main view: the flight, padded by 15 % of its extent
+    (at least 10 m), widened to show its nearest fence edges when they are within three flight extents
+    (a 20 m hover beside a 2 km range is framed on the hover and the edge it came closest to)."""
+    pts = track_ne[np.isfinite(track_ne).all(axis=1)]
+    if len(pts) == 0:
+        pts = np.zeros((1, 2))
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    extent = float(max(np.max(hi - lo), 20.0))
+    for d, _, edge in edges:
+        if d <= 3.0 * extent:
+            lo = np.minimum(lo, [edge.x, edge.y])
+            hi = np.maximum(hi, [edge.x, edge.y])
+    pad = max(10.0, 0.15 * float(np.max(hi - lo)))
+    lo, hi = lo - pad, hi + pad
+    # no narrower than 2:1 either way, so a straight-line flight still reads as a map
+    span = hi - lo
+    need = np.maximum(span, 0.5 * float(np.max(span)))
+    mid = (lo + hi) / 2
+    lo, hi = mid - need / 2, mid + need / 2
+    return float(lo[1]), float(hi[1]), float(lo[0]), float(hi[0])
 
 
 def plot_ground_track(r: RunResult, out: Path) -> Path:
+    """The flight framed on itself and its nearest fence edges (the distance to each drawn), the whole
+    range as an inset with the main view's box."""
     L = r.log
     fig, ax = plt.subplots(figsize=(7, 7))
-    _fence_patches(ax, r)
+    allowed, excl = _fence_geometry(r)
+    _draw_fence(ax, allowed, excl)
+    track = np.stack([L["truth_n"], L["truth_e"]], axis=1)
     auth = L["authority"]
     colors = {0: "tab:blue", 1: "tab:orange", 2: "tab:purple", 3: "tab:cyan"}
     for a, c in colors.items():
@@ -217,12 +275,35 @@ def plot_ground_track(r: RunResult, out: Path) -> Path:
         te = [x[2] for x in r.fence_triggers]
         ax.scatter(te, tn, marker="x", s=80, color="k", zorder=5, label="fence triggered")
     ax.plot([0], [0], marker="^", color="k", ms=6, ls="none", label="home")
+    edges = _nearest_edges(allowed, excl, track)
+    e0, e1, n0, n1 = ground_track_view(track, edges)
+    notes = []
+    for (d, a_pt, b_pt), kind in zip(edges, _edge_kinds(allowed, excl, edges), strict=True):
+        shown = e0 <= b_pt.y <= e1 and n0 <= b_pt.x <= n1
+        if shown:
+            ax.plot([a_pt.y, b_pt.y], [a_pt.x, b_pt.x], color="0.3", lw=0.8, ls="--")
+            ax.annotate(f"{d:.1f} m", ((a_pt.y + b_pt.y) / 2, (a_pt.x + b_pt.x) / 2), fontsize=8, color="0.2")
+        notes.append(f"nearest {kind} edge: {d:.1f} m" + ("" if shown else " (outside this view)"))
+    if notes:
+        ax.text(0.01, 0.99, "\n".join(notes), transform=ax.transAxes, va="top", fontsize=8,
+                bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})
+    ax.set_xlim(e0, e1)
+    ax.set_ylim(n0, n1)
     ax.set_xlabel("east [m]")
     ax.set_ylabel("north [m]")
-    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_aspect("equal", adjustable="box")
     ax.grid(alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
-    ax.set_title(f"{r.scenario.name}: ground track (truth)")
+    ax.legend(loc="lower left", fontsize=8)
+    ax.set_title(f"{r.scenario.name}: ground track (truth) and the nearest fence edges")
+    if allowed is not None and not allowed.is_empty:
+        inset = ax.inset_axes((1.03, 0.62, 0.38, 0.38))  # beside the plot: it never hides the flight
+        _draw_fence(inset, allowed, excl, lw=0.8, labels=False)
+        inset.plot(L["truth_e"], L["truth_n"], color="tab:blue", lw=0.8)
+        inset.plot([e0, e1, e1, e0, e0], [n0, n0, n1, n1, n0], color="k", lw=0.8)
+        inset.set_aspect("equal", adjustable="datalim")
+        inset.set_xticks([])
+        inset.set_yticks([])
+        inset.set_xlabel("whole range", fontsize=7)
     p = out / "ground_track.png"
     fig.savefig(p, dpi=110, bbox_inches="tight")
     plt.close(fig)
