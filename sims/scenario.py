@@ -290,6 +290,9 @@ class Scenario(S):
     redundancy: Redundancy = Redundancy()
     camera: Camera | None = Field(None, description="downward camera + visual odometry (needs estimator: ekf)")
     sensors: SensorNoise = SensorNoise()
+    accept_risk: list[str] = Field(
+        [], description="cross-check errors (docs/crosschecks.md) this scenario flies on purpose, by id (e.g. "
+                        "XC003 for a braking rate the vehicle cannot deliver); recorded in summary.json")
 
     @model_validator(mode="after")
     def _camera_needs_ekf(self) -> Scenario:

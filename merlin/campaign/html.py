@@ -68,8 +68,9 @@ def config_section(cfg: Any, title: str) -> str:
              table_html(limits.trigger_table(cfg))]
     found = limits.findings(cfg)
     if found:
-        parts.append("<h4>Warnings: inconsistent settings</h4>")
-        parts += [f'<div class="warn">{_e(f.text)} <small>({_e(", ".join(f.keys))})</small></div>' for f in found]
+        parts.append("<h4>Cross-checks: inconsistent settings</h4>")
+        parts += [f'<div class="warn"><b>{_e(f.severity.value)} {_e(f.label)}</b>: {_e(f.text)} '
+                  f'<small>({_e(", ".join(f.keys))})</small></div>' for f in found]
     else:
         parts.append("<p>No inconsistent settings found.</p>")
     return "\n".join(parts)

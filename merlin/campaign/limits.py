@@ -1,18 +1,18 @@
-"""What a configuration's limits mean before flying: fence trigger distances and consistency warnings.
+"""What a configuration's limits mean before flying: fence trigger distances, and the cross-checks' findings.
 
 Pure: a validated :class:`MerlinConfig` in, tables and findings out. Shared by ``merlin review`` and the
-campaign report, so both say the same thing about the same file. Trigger distances come from
+campaign report, so both say the same thing about the same file (the findings come from the one registry
+of cross-checks, :mod:`merlin.config.crosschecks`). Trigger distances come from
 :func:`merlin.core.geofence.trigger_distance_m`, the closed form the core's check agrees with.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
-import shapely
 
+from merlin.config.crosschecks import Finding, run_checks
 from merlin.config.models import MerlinConfig
 from merlin.config.runtime import build_core_config
 from merlin.config.summary import Table
@@ -20,17 +20,6 @@ from merlin.core.geofence import Fence, FenceParams, trigger_distance_m
 
 #: headings relative to the boundary's outward normal shown in tables and plots (0: head-on)
 HEADINGS_DEG = (0.0, 30.0, 45.0, 60.0, 90.0)
-
-
-@dataclass(frozen=True, slots=True)
-class Finding:
-    """One inconsistency: the keys involved and, in numbers, why it matters."""
-
-    keys: tuple[str, ...]
-    text: str
-
-    def to_dict(self) -> dict[str, object]:
-        return {"keys": list(self.keys), "text": self.text}
 
 
 def fence_of(cfg: MerlinConfig) -> Fence | None:
@@ -73,77 +62,7 @@ def trigger_table(cfg: MerlinConfig, sigma_h_m: float = 0.0) -> Table:
                  keys=keys, headers=headers, rows=rows)
 
 
-def home_to_boundary_m(fence: Fence | None) -> float | None:
-    """Horizontal distance from home to the nearest edge of the allowed area (None: no inclusion zone)."""
-    if fence is None or fence.allowed_area is None:
-        return None
-    return float(shapely.distance(shapely.Point(0.0, 0.0), shapely.boundary(fence.allowed_area)))
-
-
 def findings(cfg: MerlinConfig) -> list[Finding]:
-    """Settings that contradict each other, each with the numbers that show it."""
-    out: list[Finding] = []
-    v, g, w, t = cfg.vehicle, cfg.geofence, cfg.watchdogs, cfg.trusted
-    vmax = v.max_speed_h_mps
-    env = cfg.envelope.effective()
-    stage = cfg.envelope.active_stage
-    fence = fence_of(cfg) if g.enabled else None
-    if not g.enabled:
-        out.append(Finding(("geofence.enabled",), "the geofence is disabled: nothing keeps the vehicle on the range"))
-    else:
-        for wd in ("controller_heartbeat", "setpoint_stale"):
-            timeout = getattr(w, wd).timeout_s
-            d = vmax * timeout
-            if g.margin_m < d:
-                out.append(Finding(
-                    ("geofence.margin_m", f"watchdogs.{wd}.timeout_s", "vehicle.max_speed_h_mps"),
-                    f"fence margin {g.margin_m:g} m is smaller than the {d:.1f} m covered at the maximum speed "
-                    f"{vmax:g} m/s during the {wd} timeout of {timeout:g} s"))
-    reach = home_to_boundary_m(fence)
-    if reach is not None:
-        t_reach = reach / vmax
-        for p in ("vel_n_mps", "vel_e_mps", "altitude_m"):
-            lim = env[p]
-            if lim.enabled and lim.duration_s > t_reach:
-                out.append(Finding(
-                    (f"envelope.stages.{stage}.{p}.duration_s", "vehicle.max_speed_h_mps"),
-                    f"{p} exceedance duration {lim.duration_s:g} s is longer than the {t_reach:.1f} s the vehicle "
-                    f"needs at {vmax:g} m/s to reach the fence {reach:.1f} m from home"))
-        d0 = trigger_distance_m(fence_params(cfg), vmax, 0.0)
-        if d0 >= reach:
-            out.append(Finding(
-                ("geofence.margin_m", "vehicle.max_speed_h_mps"),
-                f"at {vmax:g} m/s head-on the fence trips {d0:.1f} m from the boundary, but home is only "
-                f"{reach:.1f} m from it: a flight at full speed is revoked from anywhere"))
-    if g.enabled and g.altitude_ceiling_m is not None and t.rtl_altitude_m > g.altitude_ceiling_m:
-        out.append(Finding(("trusted.rtl_altitude_m", "geofence.altitude_ceiling_m"),
-                           f"RTL climbs to {t.rtl_altitude_m:g} m, above the fence ceiling {g.altitude_ceiling_m:g} m"))
-    alt = env["altitude_m"]
-    if alt.enabled and t.takeoff_altitude_m < alt.min:
-        out.append(Finding((f"envelope.stages.{stage}.altitude_m.min", "trusted.takeoff_altitude_m"),
-                           f"take-off altitude {t.takeoff_altitude_m:g} m is below the envelope minimum "
-                           f"{alt.min:g} m: a grant right after take-off violates the envelope at once"))
-    if alt.enabled and g.enabled and g.altitude_ceiling_m is not None and alt.max > g.altitude_ceiling_m:
-        out.append(Finding((f"envelope.stages.{stage}.altitude_m.max", "geofence.altitude_ceiling_m"),
-                           f"envelope altitude maximum {alt.max:g} m is above the fence ceiling "
-                           f"{g.altitude_ceiling_m:g} m: the fence trips before the envelope limit is reached"))
-    o = cfg.operator
-    if o.oversight_envelope:
-        for p in ("vel_n_mps", "vel_e_mps"):
-            lim = env[p]
-            if lim.enabled and o.max_speed_h_mps > min(abs(lim.min), abs(lim.max)):
-                out.append(Finding((f"envelope.stages.{stage}.{p}", "operator.max_speed_h_mps"),
-                                   f"full stick ({o.max_speed_h_mps:g} m/s) exceeds the {p} limits "
-                                   f"[{lim.min:g}, {lim.max:g}] that oversee the operator"))
-    for p in ("vel_n_mps", "vel_e_mps"):
-        lim = env[p]
-        if lim.enabled and min(abs(lim.min), abs(lim.max)) > vmax:
-            out.append(Finding((f"envelope.stages.{stage}.{p}", "vehicle.max_speed_h_mps"),
-                               f"the {p} limits [{lim.min:g}, {lim.max:g}] lie beyond the vehicle's maximum speed "
-                               f"{vmax:g} m/s: they can never trip"))
-    hb = cfg.handover
-    if hb.cooldown_s < w.controller_heartbeat.timeout_s:
-        out.append(Finding(("handover.cooldown_s", "watchdogs.controller_heartbeat.timeout_s"),
-                           f"cool-down {hb.cooldown_s:g} s is shorter than the heartbeat timeout "
-                           f"{w.controller_heartbeat.timeout_s:g} s: a flapping controller can be re-granted at once"))
-    return out
+    """The configuration's cross-checks (:mod:`merlin.config.crosschecks`, without a vehicle model), so the
+    campaign report says what ``merlin review`` says about the same file."""
+    return run_checks(cfg)

@@ -3,10 +3,12 @@
 Loads and validates the file exactly as a flight would (:func:`merlin.config.loader.load_config`), builds
 the core's runtime configuration (so geometry a reviewer can get wrong, such as a self-intersecting fence
 polygon, is reported here and not at take-off), then prints the configuration's name and canonical
-SHA-256 (the value every log records) and the tables of :mod:`merlin.config.summary`.
+SHA-256 (the value every log records), the tables of :mod:`merlin.config.summary` and the cross-checks of
+:mod:`merlin.config.crosschecks` (against the vehicle model of ``--vehicle``).
 
-Exit codes: 0 valid; 2 invalid (the message on stderr names the file, the line, the key path, the value and
-what is allowed).
+Exit codes: 0 valid, no cross-check error (warnings are printed); 1 valid, but a cross-check error that
+``--accept-risk`` does not accept; 2 invalid (the message on stderr names the file, the line, the key path,
+the value and what is allowed).
 """
 
 from __future__ import annotations
@@ -181,11 +183,22 @@ def _has_zones(cfg: MerlinConfig) -> bool:
     return bool(g.inclusion_polygons or g.inclusion_circles or g.exclusion_polygons or g.exclusion_circles)
 
 
+def default_vehicle(cfg: MerlinConfig) -> str | None:
+    """The simulator vehicle a configuration is checked against when none is named: the default
+    multirotor's file for a multirotor, none for a fixed wing (its airframe limits are checked elsewhere)."""
+    return "quadrotor_default" if cfg.vehicle.type.value == "multirotor" else None
+
+
 def run(args: argparse.Namespace) -> int:
+    from merlin.config.crosschecks import Severity, parse_accept, run_checks, vehicle_capability
     from merlin.resources import shipped  # a shipped configuration by name: `merlin check-config default`
 
     checked = load_and_build(shipped(args.file, "configs"))
     cfg = checked.cfg
+    accept = parse_accept(args.accept_risk)
+    vehicle = args.vehicle if args.vehicle is not None else default_vehicle(cfg)
+    found = run_checks(cfg, checked.core.fence, vehicle_capability(vehicle), build=False)
+    blocking = [f for f in found if f.severity is Severity.ERROR and f.check_id not in accept]
     if args.stage is not None and args.stage not in cfg.envelope.stages:
         raise ConfigError(
             checked.source,
@@ -195,11 +208,25 @@ def run(args: argparse.Namespace) -> int:
         cfg, checked.fence, checked.core.config_sha256, checked.source, extra_stage=args.stage
     )
     if args.json:
-        doc: dict[str, Any] = {"valid": True, **summary.to_json()}
+        doc: dict[str, Any] = {"valid": True, **summary.to_json(), "vehicle_model": vehicle,
+                               "crosschecks": [{**f.to_dict(), "accepted": f.check_id in accept} for f in found]}
         print(json.dumps(doc, indent=2, ensure_ascii=False, allow_nan=False))
     else:
         print(render_summary_text(summary), end="")
-    return 0
+        print("\n" + render_findings(found, accept, vehicle))
+    return 1 if blocking else 0
+
+
+def render_findings(found: list[Any], accept: frozenset[str], vehicle: str | None) -> str:
+    """The cross-checks' findings as text, errors first; an accepted error says so."""
+    title = f"Cross-checks (docs/crosschecks.md; vehicle model: {vehicle or 'none'})"
+    lines = [title, "-" * len(title)]
+    if not found:
+        lines.append("no finding")
+    for f in found:
+        mark = " (ACCEPTED by --accept-risk)" if f.check_id in accept else ""
+        lines.append(f"  {f.line()}{mark}")
+    return "\n".join(lines)
 
 
 def register(subparsers: Any) -> None:
@@ -210,10 +237,21 @@ def register(subparsers: Any) -> None:
             "Validate a configuration file as a flight would, build the trusted core's runtime configuration "
             "(fence geometry included), and print the configuration's canonical SHA-256, the envelope of the "
             "active stage (and of --stage), the stages, the fence, the watchdogs, the arbiter table and the "
-            "handover parameters. Exit 0 if valid, 2 if not (the error names the file, line, key and value)."
+            "handover parameters, and the cross-checks (docs/crosschecks.md). Exit 0 if valid, 1 on a cross-check "
+            "error not accepted with --accept-risk, 2 if invalid (the error names the file, line, key and value)."
         ),
     )
     p.add_argument("file", type=Path, help="the YAML configuration file, or the name of a shipped one (default)")
     p.add_argument("--stage", metavar="NAME", help="also show the envelope of this stage")
     p.add_argument("--json", action="store_true", help="print the same information as JSON")
+    add_crosscheck_arguments(p)
     p.set_defaults(func=run)
+
+
+def add_crosscheck_arguments(p: Any) -> None:
+    """``--vehicle`` and ``--accept-risk``, shared by the commands that run the cross-checks."""
+    p.add_argument("--vehicle", default=None,
+                   help="the vehicle model the cross-checks hold the configuration against: a file in sims/vehicles "
+                        "(without .yaml) or a path (default: quadrotor_default for a multirotor configuration)")
+    p.add_argument("--accept-risk", action="append", default=None, metavar="XCNNN[,XCNNN]",
+                   help="accept a cross-check error by its id (repeatable); it is reported as accepted")

@@ -2,6 +2,9 @@
 like PX4 SITL (GCS: bind 18570, send to 127.0.0.1:14550; offboard API: bind 14580, send to
 127.0.0.1:14540), answering whoever replies. With no arguments it uses the built-in configuration.
 
+Before the links open, the configuration goes through the cross-checks against ``--vehicle``
+(:mod:`merlin.config.crosschecks`): an error refuses to fly unless ``--accept-risk`` accepts it by id.
+
 PX4 SITL's conventions, so that code written against PX4 SITL runs unchanged (icd/ICD.md section 6.6):
 
 * Home: the built-in configuration starts at PX4 SITL's default home, Zurich Irchel Park (47.397742 N,
@@ -13,7 +16,8 @@ PX4 SITL's conventions, so that code written against PX4 SITL runs unchanged (ic
   18570+N (sending to 14550), offboard link bound to 14580+N sending to 14540+N (14549 above instance 9),
   system id N+1. An explicit port or ``--sysid`` option wins.
 
-Exit codes: 0 stopped normally (duration elapsed, SIGINT or SIGTERM), 2 invalid input.
+Exit codes: 0 stopped normally (duration elapsed, SIGINT or SIGTERM), 2 invalid input or a configuration
+refused by a cross-check error.
 """
 
 from __future__ import annotations
@@ -73,6 +77,9 @@ def register(sub: Any) -> None:
                    help="run the tick scheduler SCHED_FIFO at priority N and lock the process in RAM (mlockall) "
                         "(Linux, needs the privilege); 0 off")
     p.add_argument("--quiet", action="store_true")
+    p.add_argument("--accept-risk", action="append", default=None, metavar="XCNNN[,XCNNN]",
+                   help="fly despite this cross-check error (docs/crosschecks.md; repeatable); logged and written "
+                        "to crosschecks.json in --out")
     p.set_defaults(func=run)
 
 
@@ -257,12 +264,31 @@ def options_from_args(args: argparse.Namespace) -> Any:
     )
 
 
+def preflight(cfg: Any, vehicle: str, source: str, accept_risk: list[str] | None, out_dir: Path) -> Any:
+    """The cross-checks (merlin.config.crosschecks) of the configuration to fly, against ``vehicle``: refuse
+    (CrossCheckRefusal, exit 2) on an error not accepted by id; log every accepted error and warning, and
+    write them to ``crosschecks.json`` beside the flight's logs, so the record says what was flown anyway."""
+    from merlin.config.crosschecks import gate, parse_accept, run_checks, vehicle_capability
+
+    result = gate(run_checks(cfg, vehicle=vehicle_capability(vehicle)), parse_accept(accept_risk), source)
+    log = logging.getLogger("merlin.serve.crosschecks")
+    for f in result.accepted:
+        log.warning("risk accepted by --accept-risk: %s", f.line())
+    for f in result.warnings:
+        log.warning("%s", f.line())
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "crosschecks.json").write_text(
+        json.dumps({"source": source, "vehicle": vehicle, **result.to_dict()}, indent=2) + "\n", encoding="utf-8")
+    return result
+
+
 def run(args: argparse.Namespace) -> int:
     from merlin.serve.server import Server, install_signal_handlers
 
     opts = options_from_args(args)
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    preflight(opts.config, args.vehicle, opts.config_source, getattr(args, "accept_risk", None), opts.out_dir)
     server = Server(opts)
     install_signal_handlers(server)
     if not args.quiet:

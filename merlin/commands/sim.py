@@ -1,6 +1,12 @@
 """``merlin sim SCENARIO.yaml --out DIR [--seed N]``: fly one scenario in closed loop and report it.
 
-Exit codes: 0 every expectation passed, 1 one failed, 2 invalid input (file, key, value named).
+Before flying, the configuration goes through the cross-checks (:mod:`merlin.config.crosschecks`) against
+the scenario's vehicle model: an error refuses the flight (exit 2) unless it is accepted by id, with
+``--accept-risk XCNNN`` or the scenario's ``accept_risk`` list; what was accepted, and every warning, is
+recorded in ``summary.json`` under ``crosschecks``.
+
+Exit codes: 0 every expectation passed, 1 one failed, 2 invalid input (file, key, value named) or a
+configuration refused by a cross-check error.
 """
 
 from __future__ import annotations
@@ -18,13 +24,30 @@ def register(sub: Any) -> None:
     p.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots (faster)")
     p.add_argument("--quiet", action="store_true", help="no progress bar or per-expectation lines")
+    p.add_argument("--accept-risk", action="append", default=None, metavar="XCNNN[,XCNNN]",
+                   help="fly despite this cross-check error (repeatable; recorded in summary.json)")
     p.set_defaults(func=run)
 
 
+def preflight(sc: Any, cfg: Any, source: str, accept: frozenset[str] = frozenset()) -> Any:
+    """The cross-checks of a scenario's configuration against its vehicle: the gate's result (what was
+    accepted, the warnings), or :class:`~merlin.config.crosschecks.CrossCheckRefusal` on an error that neither
+    ``accept`` nor the scenario's ``accept_risk`` accepts."""
+    from merlin.config.crosschecks import gate, parse_accept, run_checks, vehicle_capability
+
+    accepted = accept | parse_accept(sc.accept_risk, f"{source}: accept_risk")
+    found = run_checks(cfg, vehicle=vehicle_capability(sc.vehicle))
+    return gate(found, accepted, source)
+
+
 def run_one(
-    scenario: str, out: Path, seed: int | None = None, plots: bool = True, quiet: bool = True
+    scenario: str, out: Path, seed: int | None = None, plots: bool = True, quiet: bool = True,
+    accept: frozenset[str] = frozenset(),
 ) -> dict[str, Any]:
-    """Load, fly, evaluate and write one scenario; returns the summary dict. Raises ConfigError on bad input."""
+    """Load, check, fly, evaluate and write one scenario; returns the summary dict. Raises ConfigError on bad
+    input, CrossCheckRefusal (a ConfigError) on a configuration with an unaccepted cross-check error."""
+    import json
+
     from merlin.resources import shipped  # a shipped scenario by name: `merlin sim nominal`
     from sims.expectations import evaluate_all
     from sims.report import summary_dict, write_all
@@ -33,6 +56,7 @@ def run_one(
 
     scenario = str(shipped(scenario, "scenarios"))
     sc, cfg = load_scenario(scenario, seed=seed)
+    checks = preflight(sc, cfg, str(scenario), accept)
     bar = None
     if not quiet and sys.stderr.isatty():
         from tqdm import tqdm
@@ -49,12 +73,20 @@ def run_one(
         bar.close()
     verdicts = evaluate_all(sc.expectations, result.events, result.log, result.metrics)
     write_all(result, verdicts, out, plots=plots)
-    return summary_dict(result, verdicts)
+    summary = summary_dict(result, verdicts)
+    summary["crosschecks"] = checks.to_dict()
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=False) + "\n")
+    return summary
 
 
 def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
-    summary = run_one(args.scenario, out, args.seed, plots=not args.no_plots, quiet=args.quiet)
+    from merlin.config.crosschecks import parse_accept
+
+    summary = run_one(args.scenario, out, args.seed, plots=not args.no_plots, quiet=args.quiet,
+                      accept=parse_accept(args.accept_risk))
+    for f in summary["crosschecks"]["accepted"]:
+        print(f"merlin sim: risk accepted: {f['id']} {f['slug']}: {f['text']}", file=sys.stderr)
     if not args.quiet:
         for x in summary["expectations"]:
             mark = "PASS" if x["passed"] else "FAIL"

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
@@ -116,10 +117,38 @@ def validate_model(
         data = {}
     if not isinstance(data, dict):
         raise ConfigError(source, [f"(top level): expected a mapping of keys, got {type(data).__name__}"])
+    bad = non_finite_numbers(data, lines)
+    if bad:
+        raise ConfigError(source, bad)
     try:
-        return model.model_validate(data, context=context)
+        validated = model.model_validate(data, context=context)
     except ValidationError as err:
         raise ConfigError(source, describe_validation_error(err, lines)) from None
+    bad = non_finite_numbers(validated.model_dump(mode="python"), lines)  # text such as "nan" read as a number
+    if bad:
+        raise ConfigError(source, bad)
+    return validated
+
+
+def non_finite_numbers(data: Any, lines: Mapping[tuple[str | int, ...], int],
+                       path: tuple[str | int, ...] = ()) -> list[str]:
+    """One problem per NaN or infinity anywhere in ``data`` (nested mappings and lists), naming its line,
+    key path and value. No limit, position, wind or time in a configuration or scenario means anything as
+    NaN or infinity: a NaN start position flew and reported ``no_fence_breach`` as passed."""
+    out: list[str] = []
+    if isinstance(data, Mapping):
+        for k, v in data.items():
+            out += non_finite_numbers(v, lines, (*path, k))
+    elif isinstance(data, (list, tuple)):
+        for i, v in enumerate(data):
+            out += non_finite_numbers(v, lines, (*path, i))
+    elif isinstance(data, float) and not math.isfinite(data):
+        key = "".join(f"[{p}]" if isinstance(p, int) else (f".{p}" if i else str(p)) for i, p in enumerate(path))
+        line = next((lines[path[:k]] for k in range(len(path), 0, -1) if path[:k] in lines), None)
+        where = f"line {line}: " if line is not None else ""
+        out.append(f"{where}{key or '(top level)'}: value {data!r} is not a finite number; every number must be "
+                   "finite (no NaN or infinity)")
+    return out
 
 
 def load_config_text(text: str, source: str = "<config>") -> MerlinConfig:

@@ -62,6 +62,7 @@ class ExceedanceBudget(Strict):
 
     @model_validator(mode="after")
     def _shorter_than_window(self) -> ExceedanceBudget:
+        """`outside_s` must be shorter than `window_s`."""
         if self.outside_s >= self.window_s:
             raise ValueError(f"outside_s ({self.outside_s}) must be shorter than window_s ({self.window_s}):"
                              " a budget as long as its window can never be spent before the duration trips")
@@ -279,7 +280,9 @@ class FenceCircle(Strict):
 class GeofenceConfig(Strict):
     enabled: bool = True
     mode: FenceMode = FenceMode.VELOCITY_PROJECTION
-    margin_m: float = Field(5.0, ge=0.0, le=1000.0, description="kept clear beyond the stopping path")
+    # 8 m: more than the 7.5 m flown at vehicle.max_speed_h_mps (15 m/s) during the 0.5 s controller
+    # timeouts (cross-check XC012, docs/crosschecks.md)
+    margin_m: float = Field(8.0, ge=0.0, le=1000.0, description="kept clear beyond the stopping path")
     sigma_k: float = Field(
         2.0, ge=0.0, le=10.0, description="the check widens by k times the horizontal position sigma"
     )
@@ -321,29 +324,7 @@ class VehicleLimits(Strict):
     max_vertical_decel_mps2: float = Field(3.0, gt=0.0, le=50.0)
     bank_limit_deg: float = Field(35.0, gt=0.0, lt=80.0, description="fixed wing: turn at this bank")
     hover_thrust: float = Field(0.5, gt=0.0, lt=1.0, description="normalised collective in hover")
-    # The clamp on experimental setpoints (multirotor), with PX4's parameters as the reference: an offboard
-    # setpoint beyond them is flown at the limit, and the fence projects what the clamped command can do.
-    max_speed_h_mps: float = Field(
-        15.0, gt=0.0, le=100.0,
-        description="experimental horizontal velocity setpoints are clamped to this (PX4 MPC_XY_VEL_MAX)",
-    )
-    max_speed_up_mps: float = Field(
-        5.0, gt=0.0, le=100.0,
-        description="experimental climb-rate setpoints are clamped to this (PX4 MPC_Z_VEL_MAX_UP)",
-    )
-    max_speed_down_mps: float = Field(
-        3.0, gt=0.0, le=100.0,
-        description="experimental descent-rate setpoints are clamped to this (PX4 MPC_Z_VEL_MAX_DN)",
-    )
-    max_tilt_deg: float = Field(
-        45.0, gt=0.0, lt=80.0,
-        description="experimental attitude setpoints are clamped to this tilt (PX4 MPC_TILTMAX_AIR); the"
-        " fence projects the acceleration g tan(tilt) it can give during reaction_time_s",
-    )
-    max_vertical_accel_mps2: float = Field(
-        4.0, gt=0.0, le=50.0,
-        description="climb or sink acceleration a command can demand during reaction_time_s (PX4 MPC_ACC_UP_MAX)",
-    )
+    max_speed_h_mps: float = Field(15.0, gt=0.0, le=100.0)
 
 
 # ---------------------------------------------------------------------------------------- watchdogs
@@ -484,7 +465,9 @@ class HandoverConfig(Strict):
     max_setpoint_attitude_error_deg: float = Field(15.0, gt=0.0, le=180.0)
     cooldown_s: float = Field(5.0, ge=0.0, description="after a revocation, requests are denied this long")
     max_revocations_per_flight: int = Field(3, ge=0, description="0: unlimited")
-    blend_window_s: float = Field(1.0, ge=0.0, le=10.0, description="command blended over this window")
+    # 0.3 s: no longer than vehicle.reaction_time_s, so that an operator's take-over has full authority
+    # within the reaction time the fence projection allows (cross-check XC011)
+    blend_window_s: float = Field(0.3, ge=0.0, le=10.0, description="command blended over this window")
     max_accel_mps2: float = Field(
         6.0, gt=0.0, description="velocity command slew limit during the blend window"
     )

@@ -20,11 +20,19 @@ ground station that a write failed (mavlink.io, "Parameter Protocol"; PX4 answer
 way), and a STATUSTEXT saying why. An accepted write is answered with the PARAM_VALUE of the new value (as
 PX4 echoes it) and a STATUSTEXT; the owner takes it with :meth:`ParamProtocol.take_writes` and applies it.
 Values are MAV_PARAM_TYPE_REAL32 in the unit of the limit they expose.
+
+Besides the envelope, the PX4 parameters that MAVSDK's Action and Mission plugins and QGroundControl set are
+published under PX4's names and mapped onto the configuration field that has the same meaning
+(:data:`PX4_PARAMS`): a write changes the configuration exactly as editing that field in the file would,
+validated by the same models. PX4's integer parameters (the failsafe actions) are MAV_PARAM_TYPE_INT32,
+their value carried bytewise in PARAM_VALUE.param_value as PX4 carries it (MAVLink's parameter protocol,
+"bytewise encoding"; MAVSDK and QGroundControl decode it so for a PX4 autopilot).
 """
 
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Literal
@@ -36,6 +44,7 @@ from merlin.config.models import ENVELOPE_PARAMETERS, Limit, MerlinConfig
 from merlin.link import inbound as i
 from merlin.link import outbound as o
 
+MAV_PARAM_TYPE_INT32 = 6
 MAV_PARAM_TYPE_REAL32 = 9
 PARAM_ID_LEN = 16
 
@@ -117,6 +126,99 @@ def with_envelope_param(cfg: MerlinConfig, param_id: str, value: float) -> Merli
         raise ValueError(_allowed(err, ("envelope", "stages", stage), fld)) from None
 
 
+@dataclass(frozen=True, slots=True)
+class Px4Param:
+    """A PX4 parameter and the configuration field it is in Merlin: ``path`` into the configuration's data;
+    ``actions`` (failsafe-action parameters) the PX4 value of each rule action, else a plain number."""
+
+    name: str
+    path: tuple[str, ...]
+    meaning: str
+    actions: Mapping[int, str] | None = None
+
+    @property
+    def param_type(self) -> int:
+        return MAV_PARAM_TYPE_REAL32 if self.actions is None else MAV_PARAM_TYPE_INT32
+
+
+#: PX4's failsafe-action values (NAV_RCL_ACT, NAV_DLL_ACT: 0 disabled, 1 hold, 2 return, 3 land,
+#: 5 terminate) and the rule action each is in Merlin's table. PX4's "disabled" still warns in Merlin.
+PX4_FAILSAFE_ACTIONS: Mapping[int, str] = {0: "warn", 1: "hold", 2: "rtl", 3: "land", 5: "terminate"}
+
+#: The PX4 parameters Merlin publishes (PX4's parameter reference gives their meaning there).
+PX4_PARAMS: tuple[Px4Param, ...] = (
+    Px4Param("MIS_TAKEOFF_ALT", ("trusted", "takeoff_altitude_m"),
+             "take-off height above home, m (MAVSDK action.set_takeoff_altitude)"),
+    Px4Param("RTL_RETURN_ALT", ("trusted", "rtl_altitude_m"), "RTL climbs to at least this height, m"),
+    # Merlin's trusted autopilot has one horizontal speed, which is also its limit: both of PX4's names
+    # (MAVSDK's set_maximum_speed writes MPC_XY_VEL_MAX, missions fly MPC_XY_CRUISE) set it
+    Px4Param("MPC_XY_CRUISE", ("trusted", "cruise_speed_mps"), "the trusted autopilot's horizontal speed, m/s"),
+    Px4Param("MPC_XY_VEL_MAX", ("trusted", "cruise_speed_mps"),
+             "the trusted autopilot's horizontal speed, m/s (MAVSDK action.set_maximum_speed)"),
+    # PX4's RC-loss action applies while a pilot flies: Merlin's rule for rc_link under OPERATOR
+    Px4Param("NAV_RCL_ACT", ("arbiter", "rules", "rc_link", "operator"), "RC link lost while the operator flies",
+             PX4_FAILSAFE_ACTIONS),
+    # PX4's data-link-loss action applies to its own autopilot's flight: the rule for gcs_link under TRUSTED
+    Px4Param("NAV_DLL_ACT", ("arbiter", "rules", "gcs_link", "trusted"),
+             "ground-station link lost while Merlin's autopilot flies", PX4_FAILSAFE_ACTIONS),
+)
+_PX4_BY_NAME = {p.name: p for p in PX4_PARAMS}
+
+
+def _get(data: Mapping[str, object], path: tuple[str, ...]) -> object:
+    node: object = data
+    for key in path:
+        assert isinstance(node, Mapping)
+        node = node[key]
+    return node
+
+
+def px4_params(cfg: MerlinConfig) -> list[tuple[str, float]]:
+    """PX4 parameter ids and their values in ``cfg`` (an action as its PX4 number; a rule action PX4 has no
+    number for, such as none, as 0, "disabled")."""
+    data = cfg.model_dump(mode="json")
+    out: list[tuple[str, float]] = []
+    for p in PX4_PARAMS:
+        v = _get(data, p.path)
+        if p.actions is None:
+            out.append((p.name, float(v)))  # type: ignore[arg-type]
+        else:
+            out.append((p.name, float(next((k for k, a in p.actions.items() if a == v and k), 0))))
+    return out
+
+
+def published_params(cfg: MerlinConfig) -> list[tuple[str, float]]:
+    """Every parameter ``merlin serve`` publishes for ``cfg``: the active envelope, then PX4's."""
+    return envelope_params(cfg.envelope.resolve(cfg.envelope.active_stage)) + px4_params(cfg)
+
+
+def int32_params() -> frozenset[str]:
+    """The published parameters whose type is MAV_PARAM_TYPE_INT32."""
+    return frozenset(p.name for p in PX4_PARAMS if p.param_type == MAV_PARAM_TYPE_INT32)
+
+
+def with_param(cfg: MerlinConfig, param_id: str, value: float) -> MerlinConfig:
+    """``cfg`` with one published parameter set (:func:`with_envelope_param` or a :data:`PX4_PARAMS` entry),
+    validated by the configuration models; ValueError saying what is allowed when they refuse it."""
+    p = _PX4_BY_NAME.get(param_id)
+    if p is None:
+        return with_envelope_param(cfg, param_id, value)
+    data = cfg.model_dump(mode="json")
+    node = _get(data, p.path[:-1])
+    assert isinstance(node, dict)
+    if p.actions is not None:
+        if value not in p.actions:
+            allowed = ", ".join(f"{k} {a}" for k, a in p.actions.items())
+            raise ValueError(f"{'.'.join(p.path)}: {value:g} is not a failsafe action; allowed {allowed}")
+        node[p.path[-1]] = p.actions[int(value)]
+    else:
+        node[p.path[-1]] = value
+    try:
+        return MerlinConfig.model_validate(data)
+    except ValidationError as err:
+        raise ValueError(_allowed(err, (), p.path[-1])) from None
+
+
 def _allowed(err: ValidationError, prefix: tuple[str, ...], fld: str) -> str:
     """The models' first complaint, with its key path relative to the stage (``roll_deg.duration_s: Input
     should be less than or equal to 600``)."""
@@ -134,6 +236,16 @@ def float32_decimal(value: float) -> float:
     """The shortest decimal with the same REAL32 as ``value``: a ground station that sends 0.1 means 0.1,
     not 0.100000001490116 (what the 32-bit float on the wire is exactly), and the configuration keeps 0.1."""
     return float(str(np.float32(value)))
+
+
+def int32_to_wire(value: int) -> float:
+    """An INT32 parameter value as PX4 carries it in param_value: its four bytes read as a float."""
+    return float(struct.unpack("<f", struct.pack("<i", value))[0])
+
+
+def int32_from_wire(value: float) -> int:
+    """The INT32 a bytewise-encoded param_value carries."""
+    return int(struct.unpack("<i", struct.pack("<f", value))[0])
 
 
 Validator = Callable[[str, float], str | None]  # returns None to accept, or why not
@@ -156,7 +268,9 @@ class ParamWrite:
 
 class ParamProtocol:
     def __init__(self, params: Iterable[tuple[str, float]], validator: Validator | None = None, *,
-                 locked: bool = False, write_links: frozenset[str] | None = None) -> None:
+                 locked: bool = False, write_links: frozenset[str] | None = None,
+                 int32: frozenset[str] = frozenset()) -> None:
+        self.int32 = int32  # ids published as MAV_PARAM_TYPE_INT32 (bytewise); every other one is REAL32
         self._names: list[str] = []
         self._values: dict[str, float] = {}
         self.replace(params)
@@ -198,9 +312,13 @@ class ParamProtocol:
         out, self._writes = self._writes, []
         return out
 
+    def param_type(self, name: str) -> int:
+        return MAV_PARAM_TYPE_INT32 if name in self.int32 else MAV_PARAM_TYPE_REAL32
+
     def value_message(self, name: str) -> o.ParamValueOut:
-        return o.ParamValueOut(name, self._values[name], MAV_PARAM_TYPE_REAL32, len(self._names),
-                               self._names.index(name))
+        v = self._values[name]
+        wire = int32_to_wire(int(v)) if name in self.int32 else v
+        return o.ParamValueOut(name, wire, self.param_type(name), len(self._names), self._names.index(name))
 
     def handle(self, rx: i.Received) -> list[o.OutMessage]:
         m = rx.msg
@@ -226,8 +344,10 @@ class ParamProtocol:
             return "read-only (config file)"
         if self.read_only is not None:
             return f"read-only {self.read_only}"
-        if m.param_type != MAV_PARAM_TYPE_REAL32:
-            return f"type {m.param_type} refused: is REAL32 ({MAV_PARAM_TYPE_REAL32})"
+        want = self.param_type(m.param_id)
+        if m.param_type != want:
+            name = "INT32" if want == MAV_PARAM_TYPE_INT32 else "REAL32"
+            return f"type {m.param_type} refused: is {name} ({want})"
         if not math.isfinite(value):  # (the codec drops these already; kept so the class stands alone)
             return f"{value} refused: not a finite number"
         reason = self.validator(m.param_id, value)
@@ -245,6 +365,8 @@ class ParamProtocol:
                                            reason="unknown parameter"))
             return [o.StatusTextOut(o.MAV_SEVERITY_WARNING, f"Merlin: {m.param_id} unknown parameter")]
         old = self._values[m.param_id]
+        if m.param_id in self.int32 and m.param_type == MAV_PARAM_TYPE_INT32:
+            asked = float(int32_from_wire(asked))
         value = float32_decimal(asked) if math.isfinite(asked) else asked
         why = self._refusal(rx, m, value)
         if why is not None:

@@ -79,7 +79,7 @@ from merlin.link.commands import (
 )
 from merlin.link.endpoint import MavlinkEndpoint
 from merlin.link.fence_protocol import FenceDescription, FenceProtocol
-from merlin.link.params import ParamProtocol, ParamWrite, envelope_params, with_envelope_param
+from merlin.link.params import ParamProtocol, ParamWrite, int32_params, published_params, with_param
 from merlin.link.security import LinkPolicy
 from merlin.link.signing import write_key_file
 from merlin.link.tlog import TlogWriter
@@ -231,8 +231,8 @@ class Server:
         self.limits = self.cfg.envelope.resolve(self.cfg.envelope.active_stage)
         self.cfg_sha256 = config_sha256(self.cfg)
         self.params_locked = opts.params_locked or self.cfg.links.params_locked
-        self.params = ParamProtocol(envelope_params(self.limits), self._check_param, locked=self.params_locked,
-                                    write_links=PARAM_WRITE_LINKS)
+        self.params = ParamProtocol(published_params(self.cfg), self._check_param, locked=self.params_locked,
+                                    write_links=PARAM_WRITE_LINKS, int32=int32_params())
         self.effective_config = opts.out_dir / EFFECTIVE_CONFIG
         self._write_effective_config()
         self.pending = _Pending()
@@ -489,7 +489,7 @@ class Server:
     def _check_param(self, param_id: str, value: float) -> str | None:
         """The parameter protocol's validator: None if the configuration models accept the new value."""
         try:
-            with_envelope_param(self.cfg, param_id, value)
+            with_param(self.cfg, param_id, value)
         except ValueError as exc:
             return str(exc)
         return None
@@ -505,13 +505,13 @@ class Server:
         assert w.new is not None and w.old is not None
         try:
             # (validated a moment ago by _check_param on this same configuration: ~0.5 ms to build again)
-            cfg = with_envelope_param(self.cfg, w.param_id, w.new)
+            cfg = with_param(self.cfg, w.param_id, w.new)
             self._install_config(cfg, {"source": "PARAM_SET", "link": w.link, "sender": list(w.sender),
                                        "param": w.param_id, "old": w.old, "new": w.new})
         except Exception:  # a bug: the configuration in force stays, and the ground station is told so
             log.exception("applying %s = %g", w.param_id, w.new)
             self.events.write({"t": self.t, "type": "serve_error", "detail": f"applying PARAM_SET {w.param_id}"})
-            self.params.replace(envelope_params(self.limits))
+            self.params.replace(published_params(self.cfg))
             return [self.params.value_message(w.param_id),
                     o.StatusTextOut(o.MAV_SEVERITY_WARNING, f"Merlin: {w.param_id} not set (internal error)")], False
         return outs, True
@@ -533,7 +533,7 @@ class Server:
         self.loop.cfg = cfg
         old_sha, self.cfg, self.cfg_sha256 = self.cfg_sha256, cfg, core_cfg.config_sha256
         self.limits = cfg.envelope.resolve(cfg.envelope.active_stage)
-        self.params.replace(envelope_params(self.limits))
+        self.params.replace(published_params(self.cfg))
         try:
             self._write_effective_config()
         except OSError as exc:  # the change is made and recorded below with its SHA-256 either way

@@ -74,7 +74,7 @@ def test_json_output_is_the_same_information(capsys) -> None:
         "expanded": "conservative",
     }
     fence = doc["geofence"]
-    assert fence["mode"] == "velocity_projection" and fence["margin_m"] == 5.0 and fence["sigma_k"] == 2.0
+    assert fence["mode"] == "velocity_projection" and fence["margin_m"] == 8.0 and fence["sigma_k"] == 2.0
     assert fence["altitude_floor_m"] is None and fence["altitude_ceiling_m"] == 120.0
     assert [(z["kind"], z["name"]) for z in fence["zones"]] == [
         ("inclusion", "north field"),

@@ -208,3 +208,84 @@ def test_a_write_either_changes_exactly_that_parameter_or_is_refused(param: str,
     after = dict(envelope_params(new.envelope.effective()))
     assert after[param] == (float(bool(value)) if param.endswith("_EN") else value)
     assert {k: v for k, v in after.items() if k != param} == {k: v for k, v in before.items() if k != param}
+
+
+# ------------------------------------------------------------------------------------- PX4's parameters
+
+
+def test_px4_parameters_read_the_configuration_fields_they_stand_for() -> None:
+    from merlin.link.params import PX4_PARAMS, px4_params
+
+    cfg = MerlinConfig()
+    got = dict(px4_params(cfg))
+    assert set(got) == {p.name for p in PX4_PARAMS} >= {"MIS_TAKEOFF_ALT", "RTL_RETURN_ALT", "MPC_XY_VEL_MAX",
+                                                         "MPC_XY_CRUISE", "NAV_RCL_ACT", "NAV_DLL_ACT"}
+    assert got["MIS_TAKEOFF_ALT"] == cfg.trusted.takeoff_altitude_m
+    assert got["RTL_RETURN_ALT"] == cfg.trusted.rtl_altitude_m
+    assert got["MPC_XY_VEL_MAX"] == got["MPC_XY_CRUISE"] == cfg.trusted.cruise_speed_mps
+    assert got["NAV_RCL_ACT"] == 2  # rc_link under OPERATOR: rtl
+    assert got["NAV_DLL_ACT"] == 2  # gcs_link under TRUSTED: rtl
+
+
+@pytest.mark.parametrize(("pid", "value", "field"), [
+    ("MIS_TAKEOFF_ALT", 5.0, ("trusted", "takeoff_altitude_m")),
+    ("RTL_RETURN_ALT", 45.0, ("trusted", "rtl_altitude_m")),
+    ("MPC_XY_VEL_MAX", 3.5, ("trusted", "cruise_speed_mps")),
+    ("MPC_XY_CRUISE", 4.0, ("trusted", "cruise_speed_mps")),
+])
+def test_a_px4_parameter_write_changes_its_field_and_the_sha256(pid: str, value: float,
+                                                                field: tuple[str, str]) -> None:
+    from merlin.link.params import with_param
+
+    cfg = MerlinConfig()
+    new = with_param(cfg, pid, value)
+    assert getattr(getattr(new, field[0]), field[1]) == value
+    assert config_sha256(new) != config_sha256(cfg)
+
+
+def test_failsafe_action_parameters_map_onto_the_rule_table_and_refuse_what_is_not_an_action() -> None:
+    from merlin.link.params import with_param
+
+    cfg = with_param(MerlinConfig(), "NAV_DLL_ACT", 3)
+    assert cfg.arbiter.rules["gcs_link"].trusted.value == "land"
+    assert with_param(cfg, "NAV_RCL_ACT", 1).arbiter.rules["rc_link"].operator.value == "hold"
+    with pytest.raises(ValueError, match="not a failsafe action"):
+        with_param(cfg, "NAV_RCL_ACT", 4)
+    with pytest.raises(ValueError, match="termination_enabled"):  # the models' own rule still applies
+        with_param(cfg, "NAV_RCL_ACT", 5)
+    with pytest.raises(ValueError, match="greater than 0"):
+        with_param(cfg, "MIS_TAKEOFF_ALT", -1.0)
+
+
+def test_int32_parameters_travel_bytewise_as_px4_sends_them() -> None:
+    from merlin.link.params import int32_from_wire, int32_params, int32_to_wire, published_params, with_param
+
+    cfg = MerlinConfig()
+    writes: list[tuple[str, float]] = []
+
+    def validator(pid: str, v: float) -> str | None:
+        writes.append((pid, v))
+        try:
+            with_param(cfg, pid, v)
+        except ValueError as exc:
+            return str(exc)
+        return None
+
+    p = ParamProtocol(published_params(cfg), validator, int32=int32_params())
+    p.read_only = None
+    [pv] = p.handle(_rx(i.ParamRequestReadIn(1, 1, "NAV_DLL_ACT", -1)))
+    assert isinstance(pv, o.ParamValueOut) and pv.param_type == 6 and int32_from_wire(pv.value) == 2
+    out = p.handle(_rx(_set("NAV_DLL_ACT", int32_to_wire(3), param_type=6)))
+    assert isinstance(out[0], o.ParamValueOut) and int32_from_wire(out[0].value) == 3
+    assert writes == [("NAV_DLL_ACT", 3.0)] and p.value("NAV_DLL_ACT") == 3.0
+    out = p.handle(_rx(_set("NAV_DLL_ACT", 3.0, param_type=9)))  # a REAL32 write of an INT32 parameter
+    assert "type 9 refused: is INT32 (6)" in out[-1].text  # type: ignore[union-attr]
+
+
+def test_unknown_px4_parameters_stay_refused() -> None:
+    from merlin.link.params import int32_params, published_params
+
+    p = ParamProtocol(published_params(MerlinConfig()), lambda _a, _b: None, int32=int32_params())
+    p.read_only = None
+    out = p.handle(_rx(_set("MPC_Z_VEL_MAX_UP", 2.0)))
+    assert [type(x) for x in out] == [o.StatusTextOut] and "unknown parameter" in out[0].text  # type: ignore[union-attr]

@@ -31,6 +31,13 @@ AIRSPEED = ENVELOPE_PARAMETERS.index("airspeed_mps")
 DISABLED = 0  # MERLIN_ENVELOPE_STATE
 
 
+
+def _built_in() -> MerlinConfig:
+    """What serve flies without --config: the built-in configuration at PX4 SITL's default home."""
+    from merlin.commands.serve import sitl_home
+
+    return sitl_home(MerlinConfig(), None, {})
+
 def _read(m: Any, param: str) -> Any:
     m.mav.param_request_read_send(1, 1, param.encode(), -1)
     return wait_for(m, lambda x: x.get_type() == "PARAM_VALUE" and x.param_id == param)
@@ -131,7 +138,7 @@ def test_limits_set_on_the_ground_are_flown_and_refused_in_flight(serve: ServePr
 
     events = serve.events()
     start = next(e for e in events if e["type"] == "serve_start")
-    assert start["config_sha256"] == config_sha256(MerlinConfig())
+    assert start["config_sha256"] == config_sha256(_built_in())
     assert start["params"] == "writable on the ground (gcs link)"
     sets = [(e["param"], e["result"], e["value"], e["in_force"], e["link"]) for e in events if e["type"] == "param_set"]
     assert sets == [
@@ -172,7 +179,7 @@ def test_params_locked_refuses_every_write(tmp_path: Path) -> None:
     events = sp.events()
     assert next(e for e in events if e["type"] == "serve_start")["params"] == "locked"
     assert not [e for e in events if e["type"] == "config_changed"]
-    assert config_sha256(load_config(sp.out / "effective_config.yaml")) == config_sha256(MerlinConfig())
+    assert config_sha256(load_config(sp.out / "effective_config.yaml")) == config_sha256(_built_in())
 
 
 def test_the_configuration_can_lock_the_parameters(tmp_path: Path) -> None:
