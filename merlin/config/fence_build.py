@@ -19,6 +19,7 @@ from merlin.config.loader import ConfigError
 from merlin.config.models import FenceCircle, FencePolygon, GeofenceConfig, HomeConfig, VehicleLimits
 from merlin.core.geofence import (
     MAX_ABS_POS_M,
+    STANDARD_GRAVITY_MPS2,
     CircleNE,
     Fence,
     FenceModeName,
@@ -49,6 +50,8 @@ def build_fence_params(geofence_cfg: GeofenceConfig, vehicle_cfg: VehicleLimits)
         max_v_decel_mps2=vehicle_cfg.max_vertical_decel_mps2,
         bank_limit_rad=math.radians(vehicle_cfg.bank_limit_deg),
         enabled=geofence_cfg.enabled,
+        max_h_accel_mps2=STANDARD_GRAVITY_MPS2 * math.tan(math.radians(vehicle_cfg.max_tilt_deg)),
+        max_v_accel_mps2=vehicle_cfg.max_vertical_accel_mps2,
     )
 
 

@@ -324,7 +324,29 @@ class VehicleLimits(Strict):
     max_vertical_decel_mps2: float = Field(3.0, gt=0.0, le=50.0)
     bank_limit_deg: float = Field(35.0, gt=0.0, lt=80.0, description="fixed wing: turn at this bank")
     hover_thrust: float = Field(0.5, gt=0.0, lt=1.0, description="normalised collective in hover")
-    max_speed_h_mps: float = Field(15.0, gt=0.0, le=100.0)
+    # The clamp on experimental setpoints (multirotor), with PX4's parameters as the reference: an offboard
+    # setpoint beyond them is flown at the limit, and the fence projects what the clamped command can do.
+    max_speed_h_mps: float = Field(
+        15.0, gt=0.0, le=100.0,
+        description="experimental horizontal velocity setpoints are clamped to this (PX4 MPC_XY_VEL_MAX)",
+    )
+    max_speed_up_mps: float = Field(
+        5.0, gt=0.0, le=100.0,
+        description="experimental climb-rate setpoints are clamped to this (PX4 MPC_Z_VEL_MAX_UP)",
+    )
+    max_speed_down_mps: float = Field(
+        3.0, gt=0.0, le=100.0,
+        description="experimental descent-rate setpoints are clamped to this (PX4 MPC_Z_VEL_MAX_DN)",
+    )
+    max_tilt_deg: float = Field(
+        45.0, gt=0.0, lt=80.0,
+        description="experimental attitude setpoints are clamped to this tilt (PX4 MPC_TILTMAX_AIR); the"
+        " fence projects the acceleration g tan(tilt) it can give during reaction_time_s",
+    )
+    max_vertical_accel_mps2: float = Field(
+        4.0, gt=0.0, le=50.0,
+        description="climb or sink acceleration a command can demand during reaction_time_s (PX4 MPC_ACC_UP_MAX)",
+    )
 
 
 # ---------------------------------------------------------------------------------------- watchdogs

@@ -15,6 +15,7 @@ from merlin.core.config import (
     NavParams,
     OperatorParams,
     RuleRow,
+    SetpointClamp,
     TrustedParams,
     WatchdogTimeouts,
 )
@@ -128,4 +129,10 @@ def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig
         battery=BatteryParams(low_frac=cfg.battery.low_frac, critical_frac=cfg.battery.critical_frac),
         termination_enabled=cfg.arbiter.termination_enabled,
         config_sha256=config_sha256(cfg),
+        clamp=SetpointClamp(
+            max_speed_h_mps=v.max_speed_h_mps,
+            max_speed_up_mps=v.max_speed_up_mps,
+            max_speed_down_mps=v.max_speed_down_mps,
+            max_tilt_rad=v.max_tilt_deg * _DEG,
+        ),
     )

@@ -130,6 +130,17 @@ class BatteryParams:
 
 
 @dataclass(frozen=True, slots=True)
+class SetpointClamp:
+    """What an experimental setpoint may command, as PX4 clamps offboard setpoints (MPC_XY_VEL_MAX,
+    MPC_Z_VEL_MAX_UP, MPC_Z_VEL_MAX_DN, MPC_TILTMAX_AIR). SI units and radians."""
+
+    max_speed_h_mps: float = 15.0
+    max_speed_up_mps: float = 5.0
+    max_speed_down_mps: float = 3.0
+    max_tilt_rad: float = 0.7853981633974483  # 45 deg
+
+
+@dataclass(frozen=True, slots=True)
 class CoreConfig:
     envelope: tuple[EnvelopeLimit, ...]
     rules: tuple[RuleRow, ...]
@@ -142,6 +153,7 @@ class CoreConfig:
     battery: BatteryParams = field(default_factory=BatteryParams)
     termination_enabled: bool = False
     config_sha256: str = ""
+    clamp: SetpointClamp = field(default_factory=SetpointClamp)
 
     def rule(self, monitor: str) -> RuleRow:
         for r in self.rules:

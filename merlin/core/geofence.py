@@ -53,7 +53,7 @@ import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -123,6 +123,10 @@ class FenceParams:
     bank_limit_rad: float = math.radians(35.0)
     gravity_mps2: float = STANDARD_GRAVITY_MPS2
     enabled: bool = True
+    # Multirotor: the largest acceleration a command can demand during the reaction time (horizontally
+    # g tan(max tilt), vertically the climb/sink acceleration limit); see ``demand_vel_ned_mps`` of check().
+    max_h_accel_mps2: float = STANDARD_GRAVITY_MPS2 * math.tan(math.radians(45.0))  # VehicleLimits.max_tilt_deg
+    max_v_accel_mps2: float = 4.0
 
     def __post_init__(self) -> None:
         problems: list[str] = []
@@ -134,7 +138,7 @@ class FenceParams:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 problems.append(f"{name}={v!r} must be finite and >= 0")
-        for name in ("max_h_decel_mps2", "max_v_decel_mps2", "gravity_mps2"):
+        for name in ("max_h_decel_mps2", "max_v_decel_mps2", "gravity_mps2", "max_h_accel_mps2", "max_v_accel_mps2"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0.0):
                 problems.append(f"{name}={v!r} must be finite and > 0")
@@ -521,8 +525,19 @@ def check(
     sigma_v_m: float,
     airborne: bool,
     wind_ne_mps: tuple[float, float] = (0.0, 0.0),
+    demand_vel_ned_mps: Sequence[float] | None = None,
 ) -> FenceResult:
     """The fence verdict for one tick. Pure; never raises on non-finite numbers (they trip "invalid").
+
+    ``demand_vel_ned_mps`` (multirotor): the velocity the command being flown drives towards (for an
+    attitude command, the velocity its tilt gives after the reaction time). Commanded intent counts: during
+    the reaction time the vehicle keeps accelerating towards it, at most at ``max_h_accel_mps2`` (and
+    ``max_v_accel_mps2`` vertically), so the projected path is the reaction leg flown at constant
+    acceleration, ``(v + v_r) t_react / 2``, then braking from ``v_r`` along ``v_r`` (a two-segment path
+    whose first leg's chord lies within ``|v_r - v| t_react / 8`` of the parabola, added to the widening).
+    Only a demand that raises the speed changes the path: braking is never credited. Without it (None), or
+    for a fixed wing, the path is the constant-speed one. Scenarios ``adv_velocity_step_*`` and
+    ``adv_tilt_step_*`` pin it.
 
     ``wind_ne_mps`` (fixed wing only): the horizontal wind. A fixed wing turns at its bank limit in the
     *air*: over the reaction leg and the half turn the wind carries it ``wind * t`` downwind, so the ground
@@ -604,6 +619,13 @@ def check(
         leg = radius = sag = drift = 0.0
         d = v * tr + v * v / (2.0 * prm.max_h_decel_mps2)
         reach = d
+        if demand_vel_ned_mps is not None:
+            dvn, dve, dvd = demand_vel_ned_mps
+            if not math.isfinite(dvn + dve + dvd) or max(abs(dvn), abs(dve), abs(dvd)) > MAX_SPEED_MPS:
+                return _INVALID
+            demand = _demanded_path(n, e, vn, ve, v, dvn, dve, prm)
+            if demand is not None:
+                return _check_demand(fence, n, e, h, vd, -dvd, sigma_v_m, airborne, w, demand)
 
     trip_h = False
     if fence._forbidden is not None:
@@ -643,6 +665,102 @@ def check(
     with np.errstate(all="ignore"):
         kind, clearance = _projected_clearance(
             fence, n, e, vn, ve, v, d, leg, radius, w, sag, reach, fixed_wing, wind
+        )
+    return FenceResult(True, kind, d, clearance)
+
+
+class _DemandPath(NamedTuple):
+    """The multirotor's projected path when its command demands more speed: reaction leg, then braking."""
+
+    verts: FloatArray  # (3, 2): the position, the end of the reaction leg, the stop
+    length_m: float
+    sag_m: float  # the reaction leg's chord against the parabola flown
+
+
+def _demanded_path(
+    n: float, e: float, vn: float, ve: float, v: float, dvn: float, dve: float, prm: FenceParams
+) -> _DemandPath | None:
+    """The path of :func:`check` under a speed-raising demand, or None when the demand does not raise it."""
+    tr = prm.reaction_time_s
+    an, ae = dvn - vn, dve - ve
+    a = math.hypot(an, ae)
+    cap = prm.max_h_accel_mps2 * tr
+    if a > cap:
+        an, ae = an * cap / a, ae * cap / a
+        a = cap
+    rn, re_ = vn + an, ve + ae
+    vr = math.hypot(rn, re_)
+    if not (vr > v + 1e-9):
+        return None
+    n1, e1 = n + 0.5 * (vn + rn) * tr, e + 0.5 * (ve + re_) * tr
+    k = vr / (2.0 * prm.max_h_decel_mps2)
+    verts = np.array(((n, e), (n1, e1), (n1 + rn * k, e1 + re_ * k)))
+    length = math.hypot(n1 - n, e1 - e) + vr * k
+    return _DemandPath(verts, length, a * tr / 8.0)
+
+
+def _check_demand(
+    fence: Fence,
+    n: float,
+    e: float,
+    h: float,
+    vd: float,
+    demand_up: float,
+    sigma_v_m: float,
+    airborne: bool,
+    w: float,
+    path: _DemandPath,
+) -> FenceResult:
+    """:func:`check` for a multirotor whose command demands more speed: the two-segment path horizontally,
+    the reaction-time climb (or sink) towards the demanded vertical speed vertically."""
+    prm = fence.params
+    tr = prm.reaction_time_s
+    verts, d, sag = path.verts, path.length_m, path.sag_m
+    reach = d
+    trip_h = False
+    if fence._forbidden is not None:
+        lb = _lower_bound(fence, n, e)
+        if not (lb > reach + w + sag):
+            if _outside_box(fence, n, e):
+                trip_h = True
+            elif fence._grid_nj and all(
+                _segment_clear(fence, verts[i, 0], verts[i, 1], verts[i + 1, 0], verts[i + 1, 1], w + sag, _GRID_DEPTH)
+                for i in (1, 0)
+            ):
+                trip_h = False
+            else:
+                hazard = _local_hazard(fence, n, e, reach + w + sag)
+                trip_h = hazard is not _NOTHING_NEAR and bool(
+                    shapely.dwithin(hazard, shapely.linestrings(verts), w + sag)
+                )
+    ceiling, floor = prm.altitude_ceiling_m, prm.altitude_floor_m
+    wv = prm.margin_m + prm.sigma_k * sigma_v_m
+    av = prm.max_v_accel_mps2 * tr
+    trip_c = trip_f = False
+    dv_up = dv_down = 0.0
+    if ceiling is not None:
+        up = -vd if vd < 0.0 else 0.0
+        up_r = up + min(max(demand_up - up, 0.0), av)
+        dv_up = 0.5 * (up + up_r) * tr + up_r * up_r / (2.0 * prm.max_v_decel_mps2)
+        trip_c = h + dv_up + wv >= ceiling
+    if airborne and floor is not None:
+        down = vd if vd > 0.0 else 0.0
+        down_r = down + min(max(-demand_up - down, 0.0), av)
+        dv_down = 0.5 * (down + down_r) * tr + down_r * down_r / (2.0 * prm.max_v_decel_mps2)
+        trip_f = h - dv_down - wv <= floor
+    if not (trip_h or trip_c or trip_f):
+        return FenceResult(False, "", d, _NAN)
+    if trip_h and not _inside(fence, n, e):
+        return FenceResult(True, "outside", d, _signed_h(fence, n, e) - w)
+    if trip_c:
+        assert ceiling is not None
+        return FenceResult(True, "ceiling", dv_up, ceiling - h - wv)
+    if trip_f:
+        assert floor is not None
+        return FenceResult(True, "floor", dv_down, h - floor - wv)
+    with np.errstate(all="ignore"):
+        kind, clearance = _projected_clearance(
+            fence, n, e, 0.0, 0.0, d, d, 0.0, 0.0, w + sag, 0.0, reach, False, _NO_WIND, verts
         )
     return FenceResult(True, kind, d, clearance)
 
@@ -976,9 +1094,14 @@ def _projected_clearance(
     reach: float,
     fixed_wing: bool,
     wind: tuple[float, float] = _NO_WIND,
+    path_verts: FloatArray | None = None,
 ) -> tuple[FenceKind, float]:
-    """Which hazard limits the projected path and how much path is available before it (the limit)."""
-    if fixed_wing:
+    """Which hazard limits the projected path and how much path is available before it (the limit).
+
+    ``path_verts``: a multirotor path given as a polyline (:func:`_demanded_path`) instead of the segment."""
+    if path_verts is not None:
+        paths = [(path_verts, 0.0)]
+    elif fixed_wing:
         un, ue = (vn / v, ve / v) if v > 0.0 else (1.0, 0.0)
         paths = [_turn_path(fence, n, e, un, ue, leg, radius, side, wind, v) for side in (1.0, -1.0)]
     else:
@@ -1145,6 +1268,27 @@ def clear_of_floor(fence: Fence, pos_ned_m: Sequence[float], sigma_v_m: float) -
     return h - (prm.margin_m + prm.sigma_k * sigma_v_m) > floor
 
 
+def nearest_boundary_ne(fence: Fence, n: float, e: float) -> tuple[float, float, float] | None:
+    """The nearest horizontal hazard: ``(distance_m, un, ue)``, with ``(un, ue)`` the unit direction from the
+    position towards it (outward); a negative distance when the position is already outside, the direction
+    then pointing further out (away from the allowed area). None without horizontal zones, for non-finite
+    input, or exactly on a boundary. For the operator's fence (:func:`merlin.core.shaping.operator_command`,
+    as ArduPilot's AC_Avoid): one shapely call, made only while a fenced pilot flies."""
+    if fence._forbidden is None or not math.isfinite(n + e) or max(abs(n), abs(e)) > MAX_ABS_POS_M:
+        return None
+    pt = shapely.points((n, e))
+    inside = _inside(fence, n, e)
+    other = fence._forbidden if inside else (fence._allowed if fence._has_inclusion else fence._excl_boundary)
+    q = shapely.get_coordinates(shapely.shortest_line(pt, other))[1]
+    dn, de = float(q[0]) - n, float(q[1]) - e
+    d = math.hypot(dn, de)
+    if not d > 0.0:
+        return None
+    if inside:
+        return d, dn / d, de / d
+    return -d, -dn / d, -de / d
+
+
 def signed_margin_m(fence: Fence, pos_ned_m: Sequence[float], *, airborne: bool = False) -> float:
     """Distance to the nearest fence boundary: positive inside, negative outside (metrics and plots).
 
@@ -1199,7 +1343,11 @@ def signed_margins_m(fence: Fence, pos_ned_m: FloatArray, airborne: FloatArray) 
 
 
 def trigger_distance_m(
-    params: FenceParams, speed_mps: float, heading_rad: float = 0.0, sigma_h_m: float = 0.0
+    params: FenceParams,
+    speed_mps: float,
+    heading_rad: float = 0.0,
+    sigma_h_m: float = 0.0,
+    accel_mps2: float = 0.0,
 ) -> float:
     """Distance from a straight boundary at which :func:`check` trips an approach at this speed.
 
@@ -1208,6 +1356,8 @@ def trigger_distance_m(
     (away) turn reaches ``leg cos(heading) + R (1 - |sin(heading)|)`` towards the boundary. Position-only
     mode: 0 (it trips on the boundary). For the reviewer's "trigger distance against speed and heading"
     curve; :func:`check` agrees with it to the arc chord error (fixed wing) on a long straight wall.
+    ``accel_mps2`` (multirotor): the acceleration the command demands along the velocity during the
+    reaction time (capped at ``max_h_accel_mps2``), as :func:`check`'s ``demand_vel_ned_mps``.
     """
     if params.mode == "position_only":
         return 0.0
@@ -1220,5 +1370,11 @@ def trigger_distance_m(
         leg = v * params.reaction_time_s
         radius = v * v / (params.gravity_mps2 * math.tan(params.bank_limit_rad))
         return leg * c + radius * (1.0 - abs(math.sin(heading_rad))) + w
-    d = v * params.reaction_time_s + v * v / (2.0 * params.max_h_decel_mps2)
+    tr = params.reaction_time_s
+    a = min(max(accel_mps2, 0.0), params.max_h_accel_mps2)
+    if a > 0.0:
+        vr = v + a * tr
+        d = 0.5 * (v + vr) * tr + vr * vr / (2.0 * params.max_h_decel_mps2)
+        return max(0.0, d * c) + w + a * tr * tr / 8.0
+    d = v * tr + v * v / (2.0 * params.max_h_decel_mps2)
     return max(0.0, d * c) + w

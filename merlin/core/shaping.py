@@ -15,7 +15,9 @@ import math
 from typing import Final, NamedTuple
 
 from merlin.autopilot.guidance import limit_velocity_change, position_to_velocity, stopping_point
-from merlin.core.config import HandoverParams, OperatorParams, TrustedParams
+from merlin.core import geofence
+from merlin.core.config import HandoverParams, OperatorParams, SetpointClamp, TrustedParams
+from merlin.core.geofence import Fence
 from merlin.core.types import (
     ZERO3,
     Authority,
@@ -83,12 +85,67 @@ def setpoint_to_command(sp: Setpoint, s: VehicleState, source: Authority, tp: Tr
     )
 
 
+def clamp_command(cmd: Command, lim: SetpointClamp) -> Command:
+    """An experimental command limited to what the configured vehicle may be asked, as PX4 clamps offboard
+    setpoints: the horizontal speed to ``max_speed_h_mps`` (direction kept), the vertical to
+    ``max_speed_up_mps`` / ``max_speed_down_mps``, the tilt of an attitude command to ``max_tilt_rad``
+    (roll and pitch scaled together, heading and thrust kept). Anything within the limits passes unchanged."""
+    if cmd.kind is _CMD_ATTITUDE:
+        r, p, y = cmd.att_rpy_rad
+        tilt = math.acos(min(1.0, max(-1.0, math.cos(r) * math.cos(p))))
+        if not tilt > lim.max_tilt_rad:
+            return cmd
+        # the tilt of (k r, k p) rises with k: bisect for the largest k within the limit (never above it)
+        lo, hi = 0.0, 1.0
+        for _ in range(40):
+            k = 0.5 * (lo + hi)
+            if math.cos(k * r) * math.cos(k * p) >= math.cos(lim.max_tilt_rad):
+                lo = k
+            else:
+                hi = k
+        return cmd._replace(att_rpy_rad=(r * lo, p * lo, y))
+    if cmd.kind is not _CMD_VELOCITY:
+        return cmd
+    vn, ve, vd = cmd.vel_ned_mps
+    h = math.hypot(vn, ve)
+    down = min(max(vd, -lim.max_speed_up_mps), lim.max_speed_down_mps)
+    if h <= lim.max_speed_h_mps and down == vd:
+        return cmd
+    k = lim.max_speed_h_mps / h if h > lim.max_speed_h_mps else 1.0
+    return cmd._replace(vel_ned_mps=(vn * k, ve * k, down))
+
+
+def demanded_velocity(cmd: Command | None, s: VehicleState, reaction_time_s: float, gravity_mps2: float) -> Vec3 | None:
+    """The velocity the command being flown drives the vehicle towards, for the fence projection: a velocity
+    command's own; for an attitude command the velocity its tilt gives after ``reaction_time_s`` at
+    ``g tan(tilt)`` (the thrust holding the height). None for any other command or a non-finite one."""
+    if cmd is None:
+        return None
+    if cmd.kind is _CMD_VELOCITY:
+        v = cmd.vel_ned_mps
+        return v if math.isfinite(v[0] + v[1] + v[2]) else None
+    if cmd.kind is not _CMD_ATTITUDE:
+        return None
+    r, p, y = cmd.att_rpy_rad
+    vz = math.cos(p) * math.cos(r)
+    if not (math.isfinite(r + p + y) and vz > 0.1):
+        return None
+    # body z axis in NED (ZYX Euler angles); the thrust along -z holding the height gives -g z_h / z_d
+    zn = math.cos(y) * math.sin(p) * math.cos(r) + math.sin(y) * math.sin(r)
+    ze = math.sin(y) * math.sin(p) * math.cos(r) - math.cos(y) * math.sin(r)
+    k = -gravity_mps2 * reaction_time_s / vz
+    v = s.vel_ned_mps
+    return (v[0] + k * zn, v[1] + k * ze, v[2])
+
+
 class OperatorMemory(NamedTuple):
     """What the operator's position-assist mode remembers: the heading and the point held at centre sticks."""
 
     yaw_rad: float
     hold_ned_m: Vec3 | None
     vel_cmd: Vec3 | None = None  # last velocity command, for the acceleration limit
+    # the pilot took over while the geofence was tripped (an override grace): outward sticks are limited
+    fenced: bool = False
 
 
 def operator_command(
@@ -98,9 +155,16 @@ def operator_command(
     dt: float,
     cfg: OperatorParams,
     tp: TrustedParams,
+    fence: Fence | None = None,
 ) -> tuple[OperatorMemory, Command]:
     """Sticks to a velocity command, as PX4's position mode: deflection commands speed in the heading frame,
-    centred sticks hold the position where the vehicle stops."""
+    centred sticks hold the position where the vehicle stops.
+
+    A pilot who took over during a fence trip (``mem.fenced``, the override grace) is fenced too, as
+    ArduPilot's AC_Avoid limits a pilot's stick at the fence: the velocity towards the nearest boundary is
+    limited to what stops the vehicle at the widening (``margin_m + sigma_k * sigma_h``) after the
+    fence's reaction time at the trusted braking deceleration; inward and along the boundary stay free
+    (scenario ``adv_pilot_regrab_outward``)."""
 
     def dz(x: float) -> float:
         if not math.isfinite(x):
@@ -127,6 +191,8 @@ def operator_command(
         )
     else:
         hold = None
+    if mem.fenced and fence is not None:
+        vn, ve = _fence_pilot(fence, s, vn, ve, tp.max_horizontal_decel_mps2)
     # Stick steps become acceleration-limited velocity ramps (as PX4's position mode, MPC_ACC_HOR): the
     # human asks for a speed, the trusted inner loops get there without a tilt spike.
     prev = mem.vel_cmd if mem.vel_cmd is not None else s.vel_ned_mps
@@ -142,7 +208,28 @@ def operator_command(
         yaw_rate_radps=yaw_in * cfg.max_yaw_rate_radps,
         pos_target_ned_m=hold,
     )
-    return OperatorMemory(yaw, hold, (vn, ve, vd)), cmd
+    return OperatorMemory(yaw, hold, (vn, ve, vd), mem.fenced), cmd
+
+
+def _fence_pilot(fence: Fence, s: VehicleState, vn: float, ve: float, decel_mps2: float) -> tuple[float, float]:
+    """The pilot's horizontal velocity command with its outward part limited (see :func:`operator_command`)."""
+    near = geofence.nearest_boundary_ne(fence, s.pos_ned_m[0], s.pos_ned_m[1])
+    if near is None:
+        return vn, ve
+    dist, un, ue = near
+    prm = fence.params
+    room = dist - (prm.margin_m + prm.sigma_k * s.pos_sigma_h_m)
+    out = vn * un + ve * ue
+    if room <= 0.0:
+        limit = 0.0
+    else:
+        # largest v with v t_react + v^2 / (2 a) <= room: the projection's stop lands on the widening
+        a, tr = decel_mps2, prm.reaction_time_s
+        limit = a * (-tr + math.sqrt(tr * tr + 2.0 * room / a))
+    if out <= limit:
+        return vn, ve
+    k = out - limit
+    return vn - k * un, ve - k * ue
 
 
 class Blend(NamedTuple):

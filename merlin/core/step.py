@@ -27,6 +27,8 @@ from merlin.core.shaping import (
     Blend,
     OperatorMemory,
     blend_start,
+    clamp_command,
+    demanded_velocity,
     operator_command,
     setpoint_to_command,
     shape,
@@ -446,8 +448,11 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     if cfg.fence is not None:
         if cfg.fence.params.vehicle == "fixed_wing":  # a fixed wing's escape turn drifts with the wind
             wind_ne = geofence.wind_triangle_ne(s.vel_ned_mps, s.airspeed_mps, s.att_rpy_rad[2])
+        # the command being flown (the last actuated one) drives the vehicle during the reaction time too
+        demand = (None if cfg.fence.params.vehicle == "fixed_wing" else demanded_velocity(
+            st.last_command, s, cfg.fence.params.reaction_time_s, cfg.fence.params.gravity_mps2))
         fence_res = geofence.check(cfg.fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, s.pos_sigma_v_m,
-                                   floor_reached, wind_ne)
+                                   floor_reached, wind_ne, demand)
         if fence_res.tripped:
             tripped["geofence"] = _fence_reason(fence_res)
     wd = cfg.watchdogs
@@ -568,15 +573,17 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     op_mem = st.operator
     source = (authority, behavior)
     if source != st.last_source and authority is _OPERATOR:
-        op_mem = OperatorMemory(s.att_rpy_rad[2], None, None)
+        # a takeover during a fence trip (its override grace) fences the pilot for the rest of the session
+        op_mem = OperatorMemory(s.att_rpy_rad[2], None, None, "geofence" in arb.grace_monitors)
     if not arb.armed or (flies_trusted and behavior is _IDLE):
         incoming = Command(_CMD_IDLE, authority)
     elif flies_trusted and behavior is _TERMINATE:
         incoming = Command(_CMD_TERMINATE, authority)
     elif authority is _OPERATOR:
-        op_mem, incoming = operator_command(op, s, op_mem, dt, cfg.operator, cfg.trusted)
+        op_mem, incoming = operator_command(op, s, op_mem, dt, cfg.operator, cfg.trusted, cfg.fence)
     elif authority is _EXPERIMENTAL and sp is not None and sp_bad is None:
-        incoming = setpoint_to_command(sp, s, authority, cfg.trusted)
+        # commanded intent counts: what the validator accepts is flown only within the vehicle's limits
+        incoming = clamp_command(setpoint_to_command(sp, s, authority, cfg.trusted), cfg.clamp)
     elif g_setpoint is not None:
         incoming = setpoint_to_command(g_setpoint, s, _TRUSTED, cfg.trusted)
     else:  # unreachable in practice: EXPERIMENTAL without a valid setpoint is revoked this tick

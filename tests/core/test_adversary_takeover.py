@@ -1,0 +1,133 @@
+"""The safety promise under an adversary: whatever legal setpoint the experimental controller sends, Merlin's
+takeover brakes as the fence projection assumed, so the vehicle stops no deeper than projected (+1 m) and
+inside the range. Closed loop (the simulator), with hypothesis choosing the step; plus the clamp, the
+projection of commanded intent and the pilot's fence in the core alone."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from merlin.config.models import MerlinConfig
+from merlin.config.runtime import build_core_config
+from merlin.core.config import SetpointClamp
+from merlin.core.geofence import Fence, FenceParams, PolygonNE, check, trigger_distance_m
+from merlin.core.shaping import OperatorMemory, clamp_command, demanded_velocity, operator_command
+from merlin.core.types import Authority, Command, CommandKind, OperatorInput, VehicleState
+from sims.runner import run_scenario
+from sims.scenario import Scenario
+
+HALF = 300.0
+
+
+def _range_config() -> MerlinConfig:
+    data = MerlinConfig().model_dump(mode="json")
+    data["geofence"].update(
+        margin_m=3.0, sigma_k=2.0, altitude_ceiling_m=120.0, inclusion_circles=[], exclusion_circles=[],
+        exclusion_polygons=[],
+        inclusion_polygons=[{"name": "r", "vertices_ne_m": [[-HALF, -HALF], [HALF, -HALF], [HALF, HALF], [-HALF, HALF]]}],
+    )
+    data["envelope"]["active_stage"] = "expanded"
+    stage = data["envelope"]["stages"]["expanded"]
+    for k in ("vel_n_mps", "vel_e_mps", "vel_d_mps"):
+        stage[k].update(min=-100.0, max=100.0)
+    return MerlinConfig.model_validate(data)
+
+
+CFG = _range_config()
+
+
+@settings(max_examples=6, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+@given(
+    speed=st.floats(20.0, 100.0),
+    heading=st.floats(-60.0, 60.0),
+    dist=st.floats(15.0, 120.0),
+)
+def test_a_velocity_step_stops_no_deeper_than_projected(speed: float, heading: float, dist: float) -> None:
+    sc = Scenario.model_validate({
+        "name": "step", "duration_s": 8.5 + dist / 10.0 + 10.0, "seed": 3,
+        "initial": {"pos_ned_m": [HALF - dist, 0.0, 0.0]},
+        "gcs": [{"t": 0.5, "command": "arm"}, {"t": 1.0, "command": "takeoff", "param": 10}],
+        "controller": {"type": "experimental_controllers.adversaries:VelocityStep",
+                       "params": {"request_at_s": 8.0, "start_at_s": 8.5, "heading_deg": heading, "speed_mps": speed}},
+        "log_rate_hz": 400.0,
+    })
+    r = run_scenario(sc, CFG)
+    log = r.log
+    assert float(np.nanmin(log["fence_margin"])) > 0.0  # never outside the range
+    trip = next(e for e in r.events if e["type"] == "monitor_tripped" and e["reason_detail"]["monitor"] == "geofence")
+    i = int(np.searchsorted(log["t"], trip["t"]))
+    v0 = np.array([log["truth_vn"][i], log["truth_ve"][i]])
+    u = v0 / np.hypot(*v0)
+    along = (log["truth_n"][i:] - log["truth_n"][i]) * u[0] + (log["truth_e"][i:] - log["truth_e"][i]) * u[1]
+    assert float(np.max(along)) <= float(trip["reason_detail"]["value"]) + 1.0
+
+
+def test_the_clamp_limits_speed_climb_and_tilt_and_passes_what_is_within() -> None:
+    lim = SetpointClamp(max_speed_h_mps=15.0, max_speed_up_mps=5.0, max_speed_down_mps=3.0,
+                        max_tilt_rad=math.radians(45.0))
+    c = clamp_command(Command(CommandKind.VELOCITY, Authority.EXPERIMENTAL, vel_ned_mps=(60.0, 80.0, -20.0)), lim)
+    assert math.isclose(math.hypot(c.vel_ned_mps[0], c.vel_ned_mps[1]), 15.0)
+    assert math.isclose(c.vel_ned_mps[0] / c.vel_ned_mps[1], 0.75)  # direction kept
+    assert c.vel_ned_mps[2] == -5.0
+    ok = Command(CommandKind.VELOCITY, Authority.EXPERIMENTAL, vel_ned_mps=(3.0, 4.0, 1.0))
+    assert clamp_command(ok, lim) is ok
+    a = clamp_command(Command(CommandKind.ATTITUDE, Authority.EXPERIMENTAL, att_rpy_rad=(0.9, -0.9, 1.0), thrust=0.6), lim)
+    tilt = math.acos(math.cos(a.att_rpy_rad[0]) * math.cos(a.att_rpy_rad[1]))
+    assert tilt <= math.radians(45.0) + 1e-9 and a.att_rpy_rad[2] == 1.0 and a.thrust == 0.6
+
+
+_WALL = Fence(FenceParams(margin_m=3.0, sigma_k=0.0),
+              inclusion_polygons=(PolygonNE(((-500.0, -500.0), (100.0, -500.0), (100.0, 500.0), (-500.0, 500.0))),))
+
+
+@settings(max_examples=200, deadline=None)
+@given(v=st.floats(0.0, 30.0), demand=st.floats(0.0, 100.0), x=st.floats(-300.0, 99.0))
+def test_a_demand_for_more_speed_never_makes_the_projection_less_cautious(v: float, demand: float, x: float) -> None:
+    s = (x, 0.0, -10.0)
+    base = check(_WALL, s, (v, 0.0, 0.0), 0.0, 0.0, True)
+    dem = check(_WALL, s, (v, 0.0, 0.0), 0.0, 0.0, True, (0.0, 0.0), (demand, 0.0, 0.0))
+    assert dem.tripped or not base.tripped
+    # and it trips exactly where trigger_distance_m says it does on a straight wall (to the parabola's sag)
+    a = min(max(demand - v, 0.0) / _WALL.params.reaction_time_s, _WALL.params.max_h_accel_mps2)
+    room = 100.0 - x
+    td = trigger_distance_m(_WALL.params, v, 0.0, 0.0, a)
+    if room > td + 0.05:
+        assert not dem.tripped
+    if room < td - 0.05:
+        assert dem.tripped
+
+
+def test_an_attitude_command_demands_its_tilt_acceleration() -> None:
+    s = VehicleState(pos_ned_m=(0.0, 0.0, -10.0), vel_ned_mps=(2.0, 0.0, 0.0))
+    cmd = Command(CommandKind.ATTITUDE, Authority.EXPERIMENTAL, att_rpy_rad=(0.0, math.radians(-30.0), 0.0), thrust=0.6)
+    d = demanded_velocity(cmd, s, 0.3, 9.80665)
+    assert d is not None
+    assert math.isclose(d[0], 2.0 + 9.80665 * math.tan(math.radians(30.0)) * 0.3, rel_tol=1e-9)
+    assert abs(d[1]) < 1e-12
+
+
+def test_a_fenced_pilot_cannot_push_outward_but_flies_along_and_inward_freely() -> None:
+    core = build_core_config(_range_config())
+    fence = core.fence
+    assert fence is not None
+    s = VehicleState(pos_ned_m=(HALF - 6.0, 0.0, -10.0), vel_ned_mps=(0.0, 0.0, 0.0), armed=True, landed=False)
+    mem = OperatorMemory(0.0, None, (0.0, 0.0, 0.0), True)
+    out = OperatorInput(pitch=1.0, link_t_s=0.0)  # full stick north: outward
+    _, c = operator_command(out, s, mem, 1.0, core.operator, core.trusted, fence)
+    # 3 m of room beyond the 3 m widening: at most the speed whose projected stop (0.3 s, 4 m/s^2) uses it
+    assert 0.0 < c.vel_ned_mps[0] <= 4.0 * (-0.3 + math.sqrt(0.09 + 2.0 * 3.0 / 4.0)) + 1e-9
+    inside_widening = VehicleState(pos_ned_m=(HALF - 2.0, 0.0, -10.0), armed=True, landed=False)
+    _, c = operator_command(out, inside_widening, mem, 1.0, core.operator, core.trusted, fence)
+    assert c.vel_ned_mps[0] <= 1e-9  # within the widening already: nothing outward
+    back = OperatorInput(pitch=-1.0, link_t_s=0.0)
+    _, c = operator_command(back, inside_widening, mem, 1.0, core.operator, core.trusted, fence)
+    assert c.vel_ned_mps[0] < -3.0  # inward: free
+    along = OperatorInput(roll=1.0, link_t_s=0.0)
+    _, c = operator_command(along, s, mem, 1.0, core.operator, core.trusted, fence)
+    assert c.vel_ned_mps[1] > 3.0  # east, along the boundary: free
+    _, c = operator_command(out, s, mem._replace(fenced=False), 1.0, core.operator, core.trusted, fence)
+    assert c.vel_ned_mps[0] > 3.0  # an unfenced pilot is not limited
