@@ -192,12 +192,18 @@ class AdversaryClass:
 # ------------------------------------------------------------------------------------------- builders
 
 def _heights(site: Site) -> tuple[float, float]:
+    """The start heights searched: clear of the ceiling and the floor by the fence's margin plus k sigma and
+    3 m (a start whose projection already trips the fence is not the adversary's doing: it would begin
+    with a revocation of nobody, and the grant would be refused)."""
+    gf = site.cfg.geofence
+    clear = gf.margin_m + gf.sigma_k * 1.0 + 3.0
     ceiling = site.ceiling_m if site.ceiling_m is not None else 150.0
     if site.vehicle == "aerosonde":
         floor = site.floor_m if site.floor_m is not None else 20.0
-        return floor + 5.0, ceiling - 10.0
-    floor = site.floor_m if site.floor_m is not None else 0.0
-    return max(floor + 2.0, 4.0), ceiling - 2.0
+        return floor + clear, ceiling - max(clear, 10.0)
+    if site.floor_m is not None:
+        return site.floor_m + clear, ceiling - clear
+    return 4.0, ceiling - clear
 
 
 def _common(site: Site, v: dict[str, float], seed: int, name: str) -> tuple[dict[str, Any], np.ndarray, np.ndarray]:

@@ -153,10 +153,12 @@ def test_every_point_of_every_box_is_a_valid_scenario_started_inside_the_range(c
         # (to the shrunk area's chord error at its rounded corners, and the scenario's millimetres)
         assert site.allowed.boundary.distance(Point(n, e)) >= 0.99 * site.min_clear_m - 0.01
         assert d < 0.0 and model.duration_s > 0.0
+        # and clear of the ceiling and the floor by as much (the fence does not trip before the adversary acts)
+        clear = site.cfg.geofence.margin_m + site.cfg.geofence.sigma_k + 3.0
         if site.ceiling_m is not None:
-            assert -d < site.ceiling_m
+            assert -d <= site.ceiling_m - clear + 1e-3
         if site.floor_m is not None:
-            assert -d > site.floor_m
+            assert -d >= site.floor_m + clear - 1e-3
 
 
 def test_edge_points_cover_the_keep_outs_of_the_default_range() -> None:
