@@ -492,6 +492,24 @@ def _cooldown(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
                      "be re-granted at once")
 
 
+@cross_check("XC021", "attitude-limit-above-clamp", Severity.WARNING,
+             "an envelope roll or pitch limit lies beyond the tilt attitude setpoints are clamped to")
+def _att_above_clamp(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
+    cfg = inp.cfg
+    if cfg.vehicle.type.value != "multirotor":
+        return
+    env = cfg.envelope.effective()
+    tilt = cfg.vehicle.max_tilt_deg
+    for p in ("roll_deg", "pitch_deg"):
+        lim = env[p]
+        if lim.enabled and min(abs(lim.min), abs(lim.max)) > tilt:
+            yield c.make((_stage_key(cfg, p), "vehicle.max_tilt_deg"),
+                         {"limit_deg": min(abs(lim.min), abs(lim.max)), "tilt_deg": tilt},
+                         f"the {p} limits [{lim.min:g}, {lim.max:g}] lie beyond the {tilt:g} deg attitude setpoints "
+                         "are clamped to (vehicle.max_tilt_deg): no setpoint reaches them, only a disturbance or a "
+                         "failing vehicle")
+
+
 #: Every check, in id order. Add a new one here (module docstring: "Adding a check").
 CHECKS: tuple[CrossCheck, ...] = (
     _home_outside_inclusion,
@@ -514,6 +532,7 @@ CHECKS: tuple[CrossCheck, ...] = (
     _env_ceiling,
     _stick,
     _cooldown,
+    _att_above_clamp,
 )
 
 

@@ -71,6 +71,8 @@ CASES: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
     ("XC018", {"geofence": {"altitude_ceiling_m": 90.0}}, {"geofence": {"altitude_ceiling_m": 100.0}}),
     ("XC019", {"operator": {"max_speed_h_mps": 9.0}}, {"operator": {"max_speed_h_mps": 8.0}}),
     ("XC020", {"handover": {"cooldown_s": 0.2}}, {"handover": {"cooldown_s": 0.5}}),
+    ("XC021", {"envelope": _stage(roll_deg={"min": -50, "max": 50, "duration_s": 1.0})},
+     {"envelope": _stage(roll_deg={"min": -45, "max": 45, "duration_s": 1.0})}),
 ]
 
 
