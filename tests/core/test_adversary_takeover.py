@@ -5,7 +5,9 @@ projection of commanded intent and the pilot's fence in the core alone."""
 
 from __future__ import annotations
 
+import itertools
 import math
+from dataclasses import replace
 
 import numpy as np
 from hypothesis import HealthCheck, given, settings
@@ -16,9 +18,20 @@ from merlin.config.runtime import build_core_config
 from merlin.core.config import SetpointClamp
 from merlin.core.geofence import Fence, FenceParams, PolygonNE, check, trigger_distance_m
 from merlin.core.shaping import OperatorMemory, clamp_command, demanded_velocity, operator_command
-from merlin.core.types import Authority, Command, CommandKind, OperatorInput, VehicleState
+from merlin.core.types import (
+    Authority,
+    Behavior,
+    Command,
+    CommandKind,
+    GcsCommandKind,
+    OperatorInput,
+    Setpoint,
+    SetpointKind,
+    VehicleState,
+)
 from sims.runner import run_scenario
 from sims.scenario import Scenario
+from tests.core.harness import DT, HOVER_10M, Harness
 
 HALF = 300.0
 
@@ -131,3 +144,45 @@ def test_a_fenced_pilot_cannot_push_outward_but_flies_along_and_inward_freely() 
     assert c.vel_ned_mps[1] > 3.0  # east, along the boundary: free
     _, c = operator_command(out, s, mem._replace(fenced=False), 1.0, core.operator, core.trusted, fence)
     assert c.vel_ned_mps[0] > 3.0  # an unfenced pilot is not limited
+
+
+def _revoked_while_moving() -> tuple[Harness, list]:
+    """Granted, the controller steps to 30 m/s north while the vehicle flies 10 m/s north tilted 30 deg; then
+    its heartbeat stops (a revocation to HOLD). Returns the harness and the trusted commands of 0.5 s."""
+    cfg = MerlinConfig.model_validate({"geofence": {"enabled": False}, "envelope": {"active_stage": "expanded"}})
+    h = Harness(cfg=cfg)
+    h.airborne()
+    h.grant()
+    moving = replace(HOVER_10M, vel_ned_mps=(10.0, 0.0, 0.0), att_rpy_rad=(0.0, math.radians(-30.0), 0.0))
+    h.setpoint = Setpoint(SetpointKind.VELOCITY, vel_ned_mps=(30.0, 0.0, 0.0))
+    h.run(0.2, state=moving)
+    h.heartbeat = False
+    d = h.tick()
+    while d.authority is not Authority.TRUSTED:
+        d = h.tick()
+    cmds = [d.command] + [h.tick().command for _ in range(round(0.5 / DT))]
+    return h, cmds
+
+
+def test_a_revocation_brakes_from_the_vehicle_state_not_from_the_revoked_setpoint() -> None:
+    _, cmds = _revoked_while_moving()
+    decel = MerlinConfig().vehicle.max_horizontal_decel_mps2
+    # the first trusted command is the vehicle's own velocity braked by one tick, not the 30 m/s asked for
+    assert cmds[0].vel_ned_mps[0] <= 10.0 + 1e-9
+    for a, b in itertools.pairwise(cmds):
+        assert b.vel_ned_mps[0] <= a.vel_ned_mps[0] + 1e-9  # never speeds up again
+        assert a.vel_ned_mps[0] - b.vel_ned_mps[0] <= decel * DT + 1e-9  # at the trusted braking rate
+    assert cmds[-1].vel_ned_mps[0] <= 10.0 - 0.9 * decel * 0.5
+
+
+def test_a_behaviour_change_during_the_takeover_does_not_restart_the_braking() -> None:
+    h, cmds = _revoked_while_moving()
+    before = cmds[-1].vel_ned_mps[0]
+    d = h.command(GcsCommandKind.RTL)
+    assert d.behavior is Behavior.RTL
+    decel = MerlinConfig().vehicle.max_horizontal_decel_mps2
+    # RTL carries HOLD's braked command on (the vehicle still reads 10 m/s: a restart would go back to it)
+    assert abs(d.command.vel_ned_mps[0] - before) <= decel * DT + 1e-9
+    after = [d.command] + [h.tick().command for _ in range(round(0.5 / DT))]
+    for a, b in itertools.pairwise(after):
+        assert b.vel_ned_mps[0] <= a.vel_ned_mps[0] + 1e-9
