@@ -303,6 +303,20 @@ class FlightULog:
         self.writer.close()
 
 
+#: The columns of a row of :class:`FlightRecorder`, in its order, before the setpoint's and the envelope's
+_SERVE_FIXED = (
+    "t", "truth_n", "truth_e", "truth_d", "truth_vn", "truth_ve", "truth_vd", "truth_roll", "truth_pitch",
+    "truth_yaw", "est_n", "est_e", "est_d", "est_vn", "est_ve", "est_vd", "est_roll", "est_pitch", "est_yaw",
+    "est_p", "est_q", "est_r", "est_ax", "est_ay", "est_az", "sigma_h", "sigma_v", "nav_mode", "nav_inertial_s",
+    "authority", "behavior", "armed", "landed", "cmd_kind", "cmd_vn", "cmd_ve", "cmd_vd", "cmd_roll",
+    "cmd_pitch", "cmd_yaw", "cmd_thrust", "cmd_blend", "m0", "m1", "m2", "m3", "battery_frac", "wind_n",
+    "wind_e",
+)
+_SERVE_SETPOINT = ("sp_kind", "sp_n", "sp_e", "sp_d", "sp_vn", "sp_ve", "sp_vd", "sp_roll", "sp_pitch", "sp_yaw",
+                   "sp_thrust")
+_NO_SETPOINT = [math.nan] * len(_SERVE_SETPOINT)
+
+
 class FlightRecorder:
     """A live flight's ULog (``merlin serve``): :meth:`record` at every tick samples the tick's state and
     decision every ``every_ticks`` ticks into a row named as ``merlin sim``'s log columns, and every
@@ -313,11 +327,19 @@ class FlightRecorder:
                  flush_rows: int = 50, fence: Any = None) -> None:
         self.log = FlightULog(path, meta)
         self.fence = fence  # merlin.core.geofence.Fence: the signed margin of the truth, as merlin sim logs it
+        if fence is not None:  # the geometry's first query prepares it (about 10 ms): here, not in a tick
+            from merlin.core import geofence
+
+            geofence.signed_margins_m(fence, np.zeros((1, 3)), np.zeros(1, dtype=bool))
         self.every = max(1, every_ticks)
         self.flush_rows = flush_rows
-        self._envelope = tuple((f"env_{lim.name}", lim.index, lim.display_scale) for lim in envelope)
-        self._timer_keys = {lim.name: f"detail_envelope_{lim.name}" for lim in envelope}
-        self._rows: list[dict[str, float]] = []
+        self._envelope = tuple((lim.index, lim.display_scale) for lim in envelope)
+        self._timer_pos = {lim.name: i for i, lim in enumerate(envelope)}
+        # a row is a list in the order of ``_keys`` (a dict per row cost more than the rest of a flush)
+        self._keys: list[str] = [*_SERVE_FIXED, *_SERVE_SETPOINT, *(f"env_{lim.name}" for lim in envelope),
+                                 *(f"detail_envelope_{lim.name}" for lim in envelope)]
+        self._mon_index: dict[str, int] | None = None  # monitor name -> position, from the first decision
+        self._rows: list[list[float]] = []
         self._events: list[dict[str, Any]] = []
         self._k = 0
 
@@ -332,43 +354,41 @@ class FlightRecorder:
             return
         from merlin.core.envelope import envelope_values
 
+        if self._mon_index is None:
+            self._mon_index = {ms.name: i for i, ms in enumerate(decision.monitors)}
+            self._keys += [f"mon_{name}" for name in self._mon_index]
         ev = envelope_values(state)
         cmd = decision.command
         p, v, a = state.pos_ned_m, state.vel_ned_mps, state.att_rpy_rad
         r, f = state.rates_frd_radps, state.accel_frd_mps2
         tr = loop.truth
-        motors = loop.actuators
-        row = {
-            "t": t, "truth_n": tr.pos_ned_m[0], "truth_e": tr.pos_ned_m[1], "truth_d": tr.pos_ned_m[2],
-            "truth_vn": tr.vel_ned_mps[0], "truth_ve": tr.vel_ned_mps[1], "truth_vd": tr.vel_ned_mps[2],
-            "truth_roll": tr.rpy_rad[0], "truth_pitch": tr.rpy_rad[1], "truth_yaw": tr.rpy_rad[2],
-            "est_n": p[0], "est_e": p[1], "est_d": p[2], "est_vn": v[0], "est_ve": v[1], "est_vd": v[2],
-            "est_roll": a[0], "est_pitch": a[1], "est_yaw": a[2], "est_p": r[0], "est_q": r[1], "est_r": r[2],
-            "est_ax": f[0], "est_ay": f[1], "est_az": f[2], "sigma_h": state.pos_sigma_h_m,
-            "sigma_v": state.pos_sigma_v_m, "nav_mode": float(state.nav_mode), "nav_inertial_s": state.nav_inertial_s,
-            "authority": float(decision.authority), "behavior": float(decision.behavior),
-            "armed": float(decision.armed), "landed": float(state.landed),
-            "cmd_kind": float(cmd.kind), "cmd_vn": cmd.vel_ned_mps[0], "cmd_ve": cmd.vel_ned_mps[1],
-            "cmd_vd": cmd.vel_ned_mps[2], "cmd_roll": cmd.att_rpy_rad[0], "cmd_pitch": cmd.att_rpy_rad[1],
-            "cmd_yaw": cmd.yaw_rad, "cmd_thrust": cmd.thrust, "cmd_blend": cmd.blend,
-            "m0": motors[0], "m1": motors[1], "m2": motors[2], "m3": motors[3],
-            "battery_frac": loop.batt_frac, "wind_n": loop.wind_ned[0], "wind_e": loop.wind_ned[1],
-        }
+        tp, tv, ta = tr.pos_ned_m, tr.vel_ned_mps, tr.rpy_rad
+        m, w = loop.actuators, loop.wind_ned
+        cv, ca = cmd.vel_ned_mps, cmd.att_rpy_rad
+        row = [t, tp[0], tp[1], tp[2], tv[0], tv[1], tv[2], ta[0], ta[1], ta[2],
+               p[0], p[1], p[2], v[0], v[1], v[2], a[0], a[1], a[2], r[0], r[1], r[2], f[0], f[1], f[2],
+               state.pos_sigma_h_m, state.pos_sigma_v_m, float(state.nav_mode), state.nav_inertial_s,
+               float(decision.authority), float(decision.behavior), float(decision.armed), float(state.landed),
+               float(cmd.kind), cv[0], cv[1], cv[2], ca[0], ca[1], cmd.yaw_rad, cmd.thrust, cmd.blend,
+               m[0], m[1], m[2], m[3], loop.batt_frac, w[0], w[1]]
         sp = setpoint
-        row.update({"sp_kind": float(sp.kind), "sp_n": sp.pos_ned_m[0], "sp_e": sp.pos_ned_m[1],
-                    "sp_d": sp.pos_ned_m[2], "sp_vn": sp.vel_ned_mps[0], "sp_ve": sp.vel_ned_mps[1],
-                    "sp_vd": sp.vel_ned_mps[2], "sp_roll": sp.att_rpy_rad[0], "sp_pitch": sp.att_rpy_rad[1],
-                    "sp_yaw": sp.yaw_rad, "sp_thrust": sp.thrust} if sp is not None else
-                   dict.fromkeys(("sp_kind", "sp_n", "sp_e", "sp_d", "sp_vn", "sp_ve", "sp_vd", "sp_roll",
-                                  "sp_pitch", "sp_yaw", "sp_thrust"), math.nan))
-        for key, index, scale in self._envelope:
-            row[key] = ev[index] * scale
-        for key in self._timer_keys.values():
-            row[key] = 0.0
+        if sp is None:
+            row += _NO_SETPOINT
+        else:
+            row += [float(sp.kind), *sp.pos_ned_m, *sp.vel_ned_mps, *sp.att_rpy_rad[:2], sp.yaw_rad, sp.thrust]
+        row += [ev[i] * scale for i, scale in self._envelope]
+        timers = [0.0] * len(self._envelope)
+        mons = [math.nan] * len(self._mon_index)
         for ms in decision.monitors:
-            row[f"mon_{ms.name}"] = float(ms.tripped)
-            for dk, dv in ms.detail:
-                row[f"detail_{ms.name}_{dk}"] = dv
+            j = self._mon_index.get(ms.name)
+            if j is not None:
+                mons[j] = 1.0 if ms.tripped else 0.0
+            for dk, dv in ms.detail:  # the envelope monitor's: how long each parameter has been outside
+                i = self._timer_pos.get(dk)
+                if i is not None and ms.name == "envelope":
+                    timers[i] = dv
+        row += timers
+        row += mons
         self._rows.append(row)
         if len(self._rows) >= self.flush_rows:
             self.flush()
@@ -378,12 +398,12 @@ class FlightRecorder:
         events, self._events = self._events, []
         if not rows:
             return
-        keys = list(rows[0])
-        cols = {k: np.array([r.get(k, math.nan) for r in rows], dtype=float) for k in keys}
+        arr = np.array(rows, dtype=float)
+        cols = {k: arr[:, i] for i, k in enumerate(self._keys)}
         if self.fence is not None:
             from merlin.core import geofence
 
-            pos = np.stack([cols["truth_n"], cols["truth_e"], cols["truth_d"]], axis=1)
+            pos = arr[:, 1:4]  # truth north, east, down
             cols["fence_margin"] = geofence.signed_margins_m(self.fence, pos, cols["landed"] < 0.5)
         self.log.append(cols, events, interleave=False)
 
