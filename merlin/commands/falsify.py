@@ -77,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
                                    f"({len(classes)}: {[c.name for c in classes]})"])
     backend = "ray" if args.address else args.backend
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(SOURCE, [f"--out: {args.out!r} is a file; give a directory (created if missing)"])
     out.mkdir(parents=True, exist_ok=True)
     return falsify(cfg_path, site, classes, args.budget, args.seed, backend, args.workers, args.address, out,
                    quiet=args.quiet)

@@ -199,6 +199,13 @@ def test_bad_input_exits_2_naming_the_option(tmp_path: Path, capsys, argv, needl
     assert needle in capsys.readouterr().err
 
 
+def test_an_out_that_is_a_file_exits_2(tmp_path: Path, capsys) -> None:
+    f = tmp_path / "file"
+    f.write_text("")
+    assert main(["falsify", str(DEFAULT), "--out", str(f)]) == 2
+    assert "--out" in capsys.readouterr().err
+
+
 def test_a_config_without_a_fence_exits_2(tmp_path: Path, capsys) -> None:
     p = tmp_path / "nofence.yaml"
     p.write_text("merlin_config_version: 1\nname: no-fence\ngeofence: {enabled: false}\n")
