@@ -208,6 +208,15 @@ def step(g: GuidanceState, s: VehicleState, cfg: TrustedParams, dt: float) -> tu
     )
 
 
+def mission_leg_speed(cfg: TrustedParams, index: int) -> float:
+    """The horizontal speed of the mission leg towards waypoint ``index``: the mission's own (a
+    DO_CHANGE_SPEED item) where it is slower, else the cruise speed, which the trusted autopilot never exceeds."""
+    speeds = cfg.mission_speed_mps
+    if index < len(speeds) and 0.0 < speeds[index] < cfg.cruise_speed_mps:
+        return speeds[index]
+    return cfg.cruise_speed_mps
+
+
 def limit_velocity_change(prev: Vec3, target: Vec3, max_dh_mps: float, max_dv_mps: float) -> Vec3:
     """Move from ``prev`` towards ``target`` by at most ``max_dh_mps`` horizontally and ``max_dv_mps``
     vertically: one tick of an acceleration limit."""
@@ -275,7 +284,7 @@ def _target(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[Guid
             return g2, _hold(g2, s, cfg)
         wp = wps[i]
         vel = position_to_velocity(
-            wp, s.pos_ned_m, (0.0, 0.0, 0.0), cfg.position_gain_per_s, cfg.cruise_speed_mps,
+            wp, s.pos_ned_m, (0.0, 0.0, 0.0), cfg.position_gain_per_s, mission_leg_speed(cfg, i),
             cfg.climb_speed_mps, cfg.land_speed_mps * 2.0,
         )
         g2 = g if i == g.mission_index else g._replace(mission_index=i, done=False)

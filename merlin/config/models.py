@@ -63,6 +63,7 @@ class ExceedanceBudget(Strict):
     @model_validator(mode="after")
     def _shorter_than_window(self) -> ExceedanceBudget:
         """`outside_s` must be shorter than `window_s`."""
+        """`outside_s` must be shorter than `window_s`."""
         if self.outside_s >= self.window_s:
             raise ValueError(f"outside_s ({self.outside_s}) must be shorter than window_s ({self.window_s}):"
                              " a budget as long as its window can never be spent before the duration trips")
@@ -528,6 +529,24 @@ class TrustedConfig(Strict):
         default_factory=list, description="trusted mission waypoints [north_m, east_m, down_m] about home"
     )
     mission_acceptance_m: float = Field(2.0, gt=0.0)
+    mission_speed_mps: list[Annotated[float, Field(ge=0.0, le=100.0)]] = Field(
+        default_factory=list,
+        description="speed of the leg towards each mission waypoint, m/s (0: cruise speed; the trusted autopilot"
+        " never flies faster than cruise_speed_mps); empty, or one per waypoint",
+    )
+    mission_end: Literal["hold", "rtl", "land"] = Field(
+        "hold", description="after the last mission waypoint: hold there, return to launch, or land there"
+    )
+
+    @model_validator(mode="after")
+    def _one_speed_per_waypoint(self) -> TrustedConfig:
+        """`mission_speed_mps` is empty or has one entry per waypoint of `mission_ned_m`."""
+        n, m = len(self.mission_speed_mps), len(self.mission_ned_m)
+        if n and n != m:
+            raise ValueError(f"mission_speed_mps has {n} entries for {m} waypoints in mission_ned_m: give one"
+                             " per waypoint, or none")
+        return self
+
 
 
 # The fusion EKF's tunables (merlin/nav/config.py NavConfig is built from this, field for field; see

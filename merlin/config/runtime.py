@@ -20,7 +20,7 @@ from merlin.core.config import (
     WatchdogTimeouts,
 )
 from merlin.core.envelope import PARAMETER_INDEX
-from merlin.core.types import Action
+from merlin.core.types import Action, Behavior
 
 _DEG = math.pi / 180.0
 _ANGLE_PARAMS = {
@@ -118,6 +118,8 @@ def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig
             hover_thrust=v.hover_thrust,
             mission_ned_m=tuple((float(a), float(b), float(c)) for a, b, c in t.mission_ned_m),
             mission_acceptance_m=t.mission_acceptance_m,
+            mission_speed_mps=tuple(float(v) for v in t.mission_speed_mps),
+            mission_end={"hold": Behavior.HOLD, "rtl": Behavior.RTL, "land": Behavior.LAND}[t.mission_end],
         ),
         nav=NavParams(
             experimental_requires_gps=cfg.nav.experimental_requires_gps,

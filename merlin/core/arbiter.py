@@ -97,6 +97,8 @@ class ArbiterState(NamedTuple):
     grace_monitors: frozenset[str] = frozenset()
     landed_since_s: float | None = None
     takeoff_alt_m: float = 0.0
+    after_takeoff: Behavior = Behavior.HOLD  # what TAKEOFF hands over to at its height (MISSION: a mission
+    # started on the ground)
 
     @property
     def behavior(self) -> Behavior:
@@ -310,7 +312,19 @@ def _commands(st: ArbiterState, view: TickView, cfg: CoreConfig, events: list[Ev
             reason = _simple(ReasonCode.GCS_COMMAND, "takeoff commanded")
             st = _cancel_exchange(st, now, reason, events)
             st = _to_trusted(st, now, reason, events, base=Behavior.TAKEOFF)
-            st = st._replace(takeoff_alt_m=alt, latches=_drop_on_request(st.latches))
+            st = st._replace(takeoff_alt_m=alt, after_takeoff=Behavior.HOLD, latches=_drop_on_request(st.latches))
+            _ack(now, cmd, True, ok, events)
+            continue
+        if k is GcsCommandKind.MISSION and view.landed and cfg.trusted.mission_ned_m:
+            # As PX4 does, a mission started on the ground takes off first: Merlin's trusted take-off (to its
+            # configured height, lower if the first waypoint is lower), then the mission (scenario
+            # trusted_mission_from_ground)
+            first_m = -cfg.trusted.mission_ned_m[0][2]
+            alt = min(cfg.trusted.takeoff_altitude_m, first_m) if first_m > 1.0 else cfg.trusted.takeoff_altitude_m
+            reason = _simple(ReasonCode.GCS_COMMAND, "mission commanded on the ground: take-off first")
+            st = _cancel_exchange(st, now, reason, events)
+            st = _to_trusted(st, now, reason, events, base=Behavior.TAKEOFF)
+            st = st._replace(takeoff_alt_m=alt, after_takeoff=Behavior.MISSION, latches=_drop_on_request(st.latches))
             _ack(now, cmd, True, ok, events)
             continue
         behavior = _MODE_BEHAVIOR[k]

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from typing import Final
 
 from merlin.core.geofence import Fence
-from merlin.core.types import Action
+from merlin.core.types import Action, Behavior
 
 
 class Clear:
@@ -110,6 +110,10 @@ class TrustedParams:
     hover_thrust: float = 0.5
     mission_ned_m: tuple[tuple[float, float, float], ...] = ()
     mission_acceptance_m: float = 2.0
+    # the speed of the leg towards each mission waypoint (0: cruise speed; never above it), and what the
+    # trusted autopilot flies after the last waypoint: HOLD there, RTL or LAND (scenario trusted_mission_rtl)
+    mission_speed_mps: tuple[float, ...] = ()
+    mission_end: Behavior = Behavior.HOLD
 
 
 @dataclass(frozen=True, slots=True)

@@ -72,6 +72,7 @@ _SHADOW: Final = Authority.SHADOW
 _IDLE: Final = Behavior.IDLE
 _TAKEOFF: Final = Behavior.TAKEOFF
 _HOLD: Final = Behavior.HOLD
+_MISSION: Final = Behavior.MISSION
 _TERMINATE: Final = Behavior.TERMINATE
 _NAV_VO: Final = NavMode.VO
 _NAV_INERTIAL: Final = NavMode.INERTIAL
@@ -108,6 +109,7 @@ class CoreState(NamedTuple):
     checked_setpoint: Setpoint | None = None
     checked_setpoint_bad: Reason | None = None
     inertial_land_due: bool = False  # nav_inertial_timeout has tripped and navigation is still inertial-only
+    mission_index: int = 0  # the mission waypoint to resume at (MISSION left for HOLD and entered again)
     # the envelope's exceedance-budget rings (merlin.core.envelope) and the authority they are charged to
     env_budget: tuple[envelope.BudgetRing, ...] = ()
     env_budget_authority: Authority = Authority.TRUSTED
@@ -548,6 +550,7 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     authority = arb.authority
     g = st.guidance
     flies_trusted = authority in (_TRUSTED, _SHADOW) and arb.armed
+    mission_index = st.mission_index if arb.armed else 0  # a new flight starts the mission from its start
     g_setpoint: Setpoint | None = None
     if flies_trusted and behavior not in (_IDLE, _TERMINATE):
         if g is None or g.behavior is not behavior:
@@ -560,9 +563,17 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
                 g = g._replace(vel_cmd=prev_g.vel_cmd)
             if behavior is _TAKEOFF:
                 g = g._replace(anchor_ned_m=(g.anchor_ned_m[0], g.anchor_ned_m[1], -arb.takeoff_alt_m))
+            elif behavior is _MISSION and mission_index < len(cfg.trusted.mission_ned_m):
+                g = g._replace(mission_index=mission_index)  # resumed where it was paused, as PX4 does
         g, g_setpoint = guidance.step(g, s, cfg.trusted, dt)
         if behavior is _TAKEOFF and g.done:
-            arb = arb._replace(base=_HOLD)
+            arb = arb._replace(base=arb.after_takeoff, after_takeoff=_HOLD)
+        elif behavior is _MISSION:
+            mission_index = g.mission_index
+            if g.done:  # flown: a later start flies it again from the first waypoint
+                mission_index = 0
+                if cfg.trusted.mission_end is not _HOLD:
+                    arb = arb._replace(base=cfg.trusted.mission_end)
     else:
         g = None
     prev_behavior = st.last_source[1] if st.last_source is not None else _IDLE
@@ -654,6 +665,7 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
         sp,  # checked_setpoint
         sp_bad,  # checked_setpoint_bad
         "nav_inertial_timeout" in tripped if state_bad is None else st.inertial_land_due,  # inertial_land_due
+        mission_index,  # mission_index
         env.budget,  # env_budget
         budget_auth,  # env_budget_authority
         floor_reached,  # floor_reached

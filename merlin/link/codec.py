@@ -615,6 +615,10 @@ def encode(out: o.OutMessage, mod: ModuleType) -> list[Any]:
         case o.MissionAckOut():
             return [M.MAVLink_mission_ack_message(out.target_system, out.target_component, out.result,
                                                   out.mission_type)]
+        case o.MissionCurrentOut():
+            return [M.MAVLink_mission_current_message(out.seq, out.total, out.mission_state, out.in_mission_mode)]
+        case o.MissionItemReachedOut():
+            return [M.MAVLink_mission_item_reached_message(out.seq)]
         case o.AuthorityGrantOut():
             return [M.MAVLink_merlin_authority_grant_message(
                 out.time_boot_ms, out.grant_seq, out.request_id, out.target_system, out.target_component,

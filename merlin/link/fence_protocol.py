@@ -11,39 +11,39 @@ point; x/y are latitude/longitude, so QGroundControl and MAVSDK's Geofence plugi
 unchanged.
 
 :class:`FenceProtocol` plays the vehicle (serving uploads and downloads) and the client (starting them),
-so two instances can talk to each other. It owns no socket and no clock: :meth:`handle` takes a received
-message and the time, :meth:`tick` takes the time, and both return the messages to send. Other mission
-types are answered minimally (an empty list on download, UNSUPPORTED on upload) so ground stations that
-synchronise all three lists on connection carry on.
+so two instances can talk to each other; the transfer itself (requests, retries, timeouts) is
+:class:`merlin.link.mission_transfer.ItemTransfer`'s, shared with the waypoint mission.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from enum import Enum
+from dataclasses import dataclass
 
 from merlin.config.models import FenceCircle, FencePolygon, GeofenceConfig
 from merlin.geodesy import LocalFrame
-from merlin.link import inbound as i
 from merlin.link import outbound as o
-
-MAV_MISSION_TYPE_MISSION = 0
-MAV_MISSION_TYPE_FENCE = 1
-MAV_MISSION_TYPE_ALL = 255
-
-MAV_MISSION_ACCEPTED = 0
-MAV_MISSION_ERROR = 1
-MAV_MISSION_UNSUPPORTED_FRAME = 2
-MAV_MISSION_UNSUPPORTED = 3
-MAV_MISSION_NO_SPACE = 4
-MAV_MISSION_INVALID = 5
-MAV_MISSION_INVALID_PARAM1 = 6
-MAV_MISSION_INVALID_PARAM5_X = 10
-MAV_MISSION_INVALID_PARAM6_Y = 11
-MAV_MISSION_INVALID_SEQUENCE = 13
-MAV_MISSION_DENIED = 14
-MAV_MISSION_OPERATION_CANCELLED = 15
+from merlin.link.mission_transfer import (
+    DEFAULT_MAX_ITEMS,
+    MAV_FRAME_GLOBAL,
+    MAV_MISSION_ACCEPTED,
+    MAV_MISSION_DENIED,
+    MAV_MISSION_ERROR,
+    MAV_MISSION_INVALID,
+    MAV_MISSION_INVALID_PARAM1,
+    MAV_MISSION_INVALID_PARAM5_X,
+    MAV_MISSION_INVALID_PARAM6_Y,
+    MAV_MISSION_INVALID_SEQUENCE,
+    MAV_MISSION_NO_SPACE,
+    MAV_MISSION_OPERATION_CANCELLED,
+    MAV_MISSION_TYPE_ALL,
+    MAV_MISSION_TYPE_FENCE,
+    MAV_MISSION_TYPE_MISSION,
+    MAV_MISSION_UNSUPPORTED,
+    MAV_MISSION_UNSUPPORTED_FRAME,
+    ItemTransfer,
+    WireItem,
+)
 
 MAV_CMD_NAV_FENCE_RETURN_POINT = 5000
 MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION = 5001
@@ -51,12 +51,8 @@ MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION = 5002
 MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION = 5003
 MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION = 5004
 
-MAV_FRAME_GLOBAL = 0
 FENCE_FRAMES = frozenset({0, 3, 5, 6})  # GLOBAL, GLOBAL_RELATIVE_ALT and their _INT forms
 
-#: Default cap on fence items: far above any real fence (QGroundControl's are tens of items), far below
-#: what would let a peer make the vehicle hold a huge list.
-DEFAULT_MAX_ITEMS = 512
 MAX_RADIUS_M = 1.0e6  # as merlin.config.models.FenceCircle
 
 
@@ -80,15 +76,8 @@ class FenceCircleLL:
     group: int = 0
 
 
-@dataclass(frozen=True, slots=True)
-class FenceItem:
-    command: int
-    param1: float
-    param2: float
-    lat_deg: float
-    lon_deg: float
-    z: float = 0.0
-    frame: int = MAV_FRAME_GLOBAL
+#: One fence item on the wire (the transfer engine's item).
+FenceItem = WireItem
 
 
 @dataclass(frozen=True, slots=True)
@@ -210,24 +199,6 @@ class FenceDescription:
 # ------------------------------------------------------------------------------------- state machine
 
 
-class Phase(Enum):
-    IDLE = "idle"
-    RECEIVING = "receiving"  # we request items (an upload to us, or our download)
-    SENDING = "sending"  # we answer item requests (a download from us, or our upload)
-
-
-@dataclass(slots=True)
-class _Transfer:
-    phase: Phase
-    peer: tuple[int, int]
-    client: bool  # True: we started it (our upload / our download)
-    count: int = 0
-    items: list[FenceItem] = field(default_factory=list)
-    deadline_s: float = 0.0
-    retries: int = 0
-    last: tuple[o.OutMessage, ...] = ()
-
-
 @dataclass(frozen=True, slots=True)
 class FenceTransferResult:
     """How the latest transfer ended: ``result`` is a MAV_MISSION_RESULT; ``fence`` the fence received
@@ -239,8 +210,10 @@ class FenceTransferResult:
     fence: FenceDescription | None = None
 
 
-class FenceProtocol:
+class FenceProtocol(ItemTransfer):
     """One end of the fence mission protocol (see module doc)."""
+
+    mission_type = MAV_MISSION_TYPE_FENCE
 
     def __init__(
         self,
@@ -251,197 +224,48 @@ class FenceProtocol:
         timeout_s: float = 1.5,
         max_retries: int = 4,
     ) -> None:
-        self.system_id = system_id
-        self.component_id = component_id
+        super().__init__(system_id, component_id, max_items, timeout_s, max_retries)
         self.fence = fence or FenceDescription()
-        self.max_items = max_items
-        self.timeout_s = timeout_s
-        self.max_retries = max_retries
-        self.accept_uploads = True  # the serve process turns this off when uploads are not allowed
-        self._t: _Transfer | None = None
         self.results: list[FenceTransferResult] = []
-        self.counters: dict[str, int] = {"too_many": 0, "invalid": 0, "timeouts": 0, "unexpected": 0}
-
-    @property
-    def busy(self) -> bool:
-        return self._t is not None
 
     def take_results(self) -> list[FenceTransferResult]:
         out, self.results = self.results, []
         return out
 
-    # ------------------------------------------------------------------------------ client role
-
     def start_upload(self, fence: FenceDescription, target: tuple[int, int], t_s: float) -> list[o.OutMessage]:
-        items = list(fence.to_items())
-        self._t = _Transfer(Phase.SENDING, target, client=True, count=len(items), items=items)
-        return self._send(o.MissionCountOut(target[0], target[1], len(items), MAV_MISSION_TYPE_FENCE), t_s)
+        return self._start_upload_items(list(fence.to_items()), target, t_s)
 
-    def start_download(self, target: tuple[int, int], t_s: float) -> list[o.OutMessage]:
-        self._t = _Transfer(Phase.RECEIVING, target, client=True, count=-1)
-        return self._send(o.MissionRequestListOut(target[0], target[1], MAV_MISSION_TYPE_FENCE), t_s)
+    # the hooks of ItemTransfer
 
-    # ------------------------------------------------------------------------------- messages
+    def _items(self) -> list[WireItem]:
+        return list(self.fence.to_items())
 
-    def handle(self, rx: i.Received, t_s: float) -> list[o.OutMessage]:
-        """React to one received mission-protocol message; anything else returns []."""
-        m = rx.msg
-        peer = (rx.system_id, rx.component_id)
-        mtype = getattr(m, "mission_type", None)
-        if mtype is None:
-            return []
-        if mtype != MAV_MISSION_TYPE_FENCE:
-            return self._other_type(m, peer)
-        t = self._t
-        match m:
-            case i.MissionCountIn():
-                if t is not None and t.client and t.phase is Phase.RECEIVING and t.peer == peer and t.count < 0:
-                    return self._begin_receive(t, m.count, t_s)
-                return self._incoming_upload(m, peer, t_s)
-            case i.MissionRequestListIn():
-                items = list(self.fence.to_items())
-                self._t = _Transfer(Phase.SENDING, peer, client=False, count=len(items), items=items)
-                return self._send(o.MissionCountOut(peer[0], peer[1], len(items), MAV_MISSION_TYPE_FENCE), t_s)
-            case i.MissionRequestIntIn():
-                if t is None or t.phase is not Phase.SENDING or t.peer != peer:
-                    self.counters["unexpected"] += 1
-                    return []
-                if not 0 <= m.seq < t.count:
-                    self.counters["unexpected"] += 1
-                    return []
-                it = t.items[m.seq]
-                return self._send(o.MissionItemIntOut(
-                    peer[0], peer[1], m.seq, it.frame, it.command, it.param1, it.param2, 0.0, 0.0,
-                    it.lat_deg, it.lon_deg, it.z, MAV_MISSION_TYPE_FENCE), t_s)
-            case i.MissionItemIntIn():
-                if t is None or t.phase is not Phase.RECEIVING or t.peer != peer or t.count < 0:
-                    self.counters["unexpected"] += 1
-                    return []
-                if m.seq != len(t.items):
-                    return self._request_next(t, t_s)  # duplicate or out of order: ask again for the one we need
-                t.items.append(FenceItem(m.command, m.param1, m.param2, m.lat_deg, m.lon_deg, m.z, m.frame))
-                t.retries = 0
-                if len(t.items) < t.count:
-                    return self._request_next(t, t_s)
-                return self._finish_receive(t)
-            case i.MissionAckIn():
-                if t is None or t.peer != peer or t.phase is not Phase.SENDING:
-                    return []
-                self._t = None
-                if t.client:
-                    fence = FenceDescription.from_items(tuple(t.items)) if m.result == MAV_MISSION_ACCEPTED else None
-                    self.results.append(FenceTransferResult(
-                        True, m.result, "", fence if isinstance(fence, FenceDescription) else None))
-                return []
-            case i.MissionClearAllIn():
-                if not self.accept_uploads:
-                    return [o.MissionAckOut(peer[0], peer[1], MAV_MISSION_DENIED, MAV_MISSION_TYPE_FENCE)]
-                self.fence = FenceDescription()
-                self.results.append(FenceTransferResult(True, MAV_MISSION_ACCEPTED, "cleared", self.fence))
-                return [o.MissionAckOut(peer[0], peer[1], MAV_MISSION_ACCEPTED, MAV_MISSION_TYPE_FENCE)]
-        return []
-
-    def _other_type(self, m: object, peer: tuple[int, int]) -> list[o.OutMessage]:
-        match m:
-            case i.MissionRequestListIn(mission_type=mt) if mt != MAV_MISSION_TYPE_ALL:
-                return [o.MissionCountOut(peer[0], peer[1], 0, mt)]
-            case i.MissionCountIn(mission_type=mt):
-                result = MAV_MISSION_ACCEPTED if m.count == 0 else MAV_MISSION_UNSUPPORTED
-                return [o.MissionAckOut(peer[0], peer[1], result, mt)]
-            case i.MissionClearAllIn(mission_type=mt):
-                if mt == MAV_MISSION_TYPE_ALL:
-                    return self.handle_clear_all(peer)
-                return [o.MissionAckOut(peer[0], peer[1], MAV_MISSION_ACCEPTED, mt)]
-        return []
-
-    def handle_clear_all(self, peer: tuple[int, int]) -> list[o.OutMessage]:
-        if not self.accept_uploads:
-            return [o.MissionAckOut(peer[0], peer[1], MAV_MISSION_DENIED, MAV_MISSION_TYPE_ALL)]
-        self.fence = FenceDescription()
-        self.results.append(FenceTransferResult(True, MAV_MISSION_ACCEPTED, "cleared", self.fence))
-        return [o.MissionAckOut(peer[0], peer[1], MAV_MISSION_ACCEPTED, MAV_MISSION_TYPE_ALL)]
-
-    def _incoming_upload(self, m: i.MissionCountIn, peer: tuple[int, int], t_s: float) -> list[o.OutMessage]:
-        def ack(result: int) -> list[o.OutMessage]:
-            return [o.MissionAckOut(peer[0], peer[1], result, MAV_MISSION_TYPE_FENCE)]
-
-        if not self.accept_uploads:
-            return ack(MAV_MISSION_DENIED)
-        if m.count > self.max_items:
-            self.counters["too_many"] += 1
-            self.results.append(FenceTransferResult(True, MAV_MISSION_NO_SPACE, f"count {m.count} > {self.max_items}"))
-            return ack(MAV_MISSION_NO_SPACE)
-        if self._t is not None and self._t.peer != peer:
-            return ack(MAV_MISSION_DENIED)  # one transfer at a time; the other peer keeps its session
-        if m.count == 0:
-            self._t = None
-            self.fence = FenceDescription()
-            self.results.append(FenceTransferResult(True, MAV_MISSION_ACCEPTED, "empty", self.fence))
-            return ack(MAV_MISSION_ACCEPTED)
-        t = _Transfer(Phase.RECEIVING, peer, client=False)
-        self._t = t
-        return self._begin_receive(t, m.count, t_s)
-
-    def _begin_receive(self, t: _Transfer, count: int, t_s: float) -> list[o.OutMessage]:
-        if count > self.max_items:
-            self.counters["too_many"] += 1
-            self._t = None
-            self.results.append(FenceTransferResult(not t.client, MAV_MISSION_NO_SPACE, f"count {count}"))
-            return [o.MissionAckOut(t.peer[0], t.peer[1], MAV_MISSION_NO_SPACE, MAV_MISSION_TYPE_FENCE)]
-        t.count = count
-        t.items = []
-        if count == 0:
-            return self._finish_receive(t)
-        return self._request_next(t, t_s)
-
-    def _request_next(self, t: _Transfer, t_s: float) -> list[o.OutMessage]:
-        return self._send(o.MissionRequestIntOut(t.peer[0], t.peer[1], len(t.items), MAV_MISSION_TYPE_FENCE), t_s)
-
-    def _finish_receive(self, t: _Transfer) -> list[o.OutMessage]:
-        self._t = None
-        fence = FenceDescription.from_items(tuple(t.items))
+    def _decode(self, items: tuple[WireItem, ...]) -> tuple[int, str, object]:
+        fence = FenceDescription.from_items(items)
         if isinstance(fence, FenceDescription):
-            result, detail = MAV_MISSION_ACCEPTED, ""
-            if not t.client:
-                self.fence = fence
-        else:
-            result, detail = fence
-            self.counters["invalid"] += 1
-        self.results.append(FenceTransferResult(
-            not t.client, result, detail, fence if isinstance(fence, FenceDescription) else None))
-        return [o.MissionAckOut(t.peer[0], t.peer[1], result, MAV_MISSION_TYPE_FENCE)]
+            return MAV_MISSION_ACCEPTED, "", fence
+        return fence[0], fence[1], None
 
-    def _send(self, msg: o.OutMessage, t_s: float) -> list[o.OutMessage]:
-        if self._t is not None:
-            self._t.last = (msg,)
-            self._t.deadline_s = t_s + self.timeout_s
-        return [msg]
+    def _install(self, payload: object) -> None:
+        assert isinstance(payload, FenceDescription)
+        self.fence = payload
 
-    # ---------------------------------------------------------------------------------- timing
+    def _clear(self, detail: str) -> None:
+        self.fence = FenceDescription()
+        self.results.append(FenceTransferResult(True, MAV_MISSION_ACCEPTED, detail, self.fence))
 
-    def tick(self, t_s: float) -> list[o.OutMessage]:
-        """Retries and timeouts: re-send the last message after ``timeout_s`` of silence, give up after
-        ``max_retries`` re-sends (the receiving end says so with OPERATION_CANCELLED)."""
-        t = self._t
-        if t is None or t_s < t.deadline_s:
-            return []
-        # The vehicle serving a download answers requests and never re-sends on its own; it just forgets.
-        if t.phase is Phase.SENDING and not t.client and t.count > 0 and t.retries >= 0:
-            t.retries += 1
-            if t.retries > self.max_retries:
-                self._t = None
-                self.counters["timeouts"] += 1
-                return []
-            t.deadline_s = t_s + self.timeout_s
-            return []
-        if t.retries >= self.max_retries:
-            self._t = None
-            self.counters["timeouts"] += 1
-            self.results.append(FenceTransferResult(
-                (t.phase is Phase.RECEIVING) != t.client, MAV_MISSION_OPERATION_CANCELLED, "timeout"))
-            if t.phase is Phase.RECEIVING and t.count >= 0:
-                return [o.MissionAckOut(t.peer[0], t.peer[1], MAV_MISSION_OPERATION_CANCELLED, MAV_MISSION_TYPE_FENCE)]
-            return []
-        t.retries += 1
-        t.deadline_s = t_s + self.timeout_s
-        return list(t.last)
+    def _record(self, upload: bool, result: int, detail: str, payload: object = None) -> None:
+        fence = payload if isinstance(payload, FenceDescription) else None
+        self.results.append(FenceTransferResult(upload, result, detail, fence))
+
+
+__all__ = [
+    "DEFAULT_MAX_ITEMS", "FENCE_FRAMES", "MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION", "MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION",
+    "MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION", "MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION",
+    "MAV_CMD_NAV_FENCE_RETURN_POINT", "MAV_FRAME_GLOBAL", "MAV_MISSION_ACCEPTED", "MAV_MISSION_DENIED",
+    "MAV_MISSION_ERROR", "MAV_MISSION_INVALID", "MAV_MISSION_INVALID_PARAM1", "MAV_MISSION_INVALID_PARAM5_X",
+    "MAV_MISSION_INVALID_PARAM6_Y", "MAV_MISSION_INVALID_SEQUENCE", "MAV_MISSION_NO_SPACE",
+    "MAV_MISSION_OPERATION_CANCELLED", "MAV_MISSION_TYPE_ALL", "MAV_MISSION_TYPE_FENCE", "MAV_MISSION_TYPE_MISSION",
+    "MAV_MISSION_UNSUPPORTED", "MAV_MISSION_UNSUPPORTED_FRAME", "MAX_RADIUS_M", "FenceCircleLL", "FenceDescription",
+    "FenceItem", "FencePolygonLL", "FenceProtocol", "FenceTransferResult",
+]

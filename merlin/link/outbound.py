@@ -223,6 +223,26 @@ class MissionAckOut:
     mission_type: int
 
 
+# MISSION_STATE (common.xml), MISSION_CURRENT.mission_state
+MISSION_STATE_NO_MISSION, MISSION_STATE_NOT_STARTED, MISSION_STATE_ACTIVE = 1, 2, 3
+MISSION_STATE_PAUSED, MISSION_STATE_COMPLETE = 4, 5
+
+
+@dataclass(frozen=True, slots=True)
+class MissionCurrentOut:
+    """MISSION_CURRENT: the item being flown, of ``total``; ``in_mission_mode`` 1 in AUTO.MISSION, 2 outside it."""
+
+    seq: int
+    total: int
+    mission_state: int
+    in_mission_mode: int
+
+
+@dataclass(frozen=True, slots=True)
+class MissionItemReachedOut:
+    seq: int
+
+
 @dataclass(frozen=True, slots=True)
 class AuthorityGrantOut:
     time_boot_ms: int
@@ -307,6 +327,8 @@ OutMessage = (
     | MissionRequestListOut
     | MissionItemIntOut
     | MissionAckOut
+    | MissionCurrentOut
+    | MissionItemReachedOut
     | AuthorityGrantOut
     | AuthorityDenyOut
     | AuthorityRevokeOut

@@ -48,6 +48,7 @@ from merlin.core.step import TrustedCore
 from merlin.core.types import (
     Authority,
     AuthorityRequest,
+    Behavior,
     Decision,
     Event,
     EventKind,
@@ -79,6 +80,14 @@ from merlin.link.commands import (
 )
 from merlin.link.endpoint import MavlinkEndpoint
 from merlin.link.fence_protocol import FenceDescription, FenceProtocol
+from merlin.link.mission_protocol import (
+    MissionEnd,
+    MissionPlan,
+    MissionProtocol,
+    check_legs_against_fence,
+    plan_from_config,
+)
+from merlin.link.mission_transfer import MAV_MISSION_ACCEPTED, MAV_MISSION_TYPE_ALL, MAV_MISSION_TYPE_MISSION
 from merlin.link.params import ParamProtocol, ParamWrite, int32_params, published_params, with_param
 from merlin.link.security import LinkPolicy
 from merlin.link.signing import write_key_file
@@ -117,7 +126,7 @@ PARAM_WRITE_LINKS = frozenset({"gcs"})
 #: The messages :meth:`Server._stream_messages` produces (streams, and MAV_CMD_REQUEST_MESSAGE answers).
 STREAM_NAMES = frozenset({
     "HEARTBEAT", "ATTITUDE", "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "GPS_RAW_INT", "VFR_HUD", "SYS_STATUS",
-    "EXTENDED_SYS_STATE", "HOME_POSITION", "MERLIN_AUTHORITY_STATUS", "MERLIN_ENVELOPE_STATUS",
+    "EXTENDED_SYS_STATE", "HOME_POSITION", "MERLIN_AUTHORITY_STATUS", "MERLIN_ENVELOPE_STATUS", "MISSION_CURRENT",
 })
 
 
@@ -228,6 +237,15 @@ class Server:
         self.bridge = OffboardModeBridge()
         self.fence = FenceProtocol(sid, cid, FenceDescription.from_config(self.cfg.geofence, self.frame))
         self._fence_link: _LinkState | None = None
+        t_ = self.cfg.trusted
+        self.mission = MissionProtocol(sid, cid, self.frame, plan_from_config(
+            t_.mission_ned_m, t_.mission_speed_mps, t_.mission_end, self.frame))
+        self.mission.check = self._check_mission
+        self._mission_link: _LinkState | None = None
+        self._mission_reached = -1  # the highest item sequence reported with MISSION_ITEM_REACHED this flight
+        self._mission_current = -1  # the last MISSION_CURRENT seq sent
+        self._mission_complete = False  # flown to its end this flight (its end item reported on landing)
+        self._was_armed = False
         self.limits = self.cfg.envelope.resolve(self.cfg.envelope.active_stage)
         self.cfg_sha256 = config_sha256(self.cfg)
         self.params_locked = opts.params_locked or self.cfg.links.params_locked
@@ -339,15 +357,8 @@ class Server:
             for dest in (self.links if changed else [ls]):
                 dest.bulk.extend(outs)
             return
-        if isinstance(m, i.MissionClearAllIn):
-            for out in self.fence.handle_clear_all(sender):
-                self._send(ls, out)
-            return
         if hasattr(m, "mission_type"):
-            self._fence_link = ls
-            for out in self.fence.handle(rx, t):
-                self._send(ls, out)
-            self._apply_fence_results()
+            self._on_mission_protocol(ls, rx, m, sender)
 
     def _on_command(self, ls: _LinkState, rx: i.Received, m: i.CommandIn, sender: tuple[int, int]) -> None:
         intents = interpret_command(m, ls.role, self.frame.alt0_amsl_m, rx.t_s)
@@ -472,6 +483,99 @@ class Server:
             if name is not None:
                 for msg in self._stream_messages(name, ls):
                     self._send(ls, msg)
+
+    def _on_mission_protocol(self, ls: _LinkState, rx: i.Received, m: Any, sender: tuple[int, int]) -> None:
+        """The mission protocol: waypoint missions to :attr:`mission`, fences (and the minimal answers for
+        rally points) to :attr:`fence`; clearing every list (MAV_MISSION_TYPE_ALL) clears both, one answer."""
+        if m.mission_type == MAV_MISSION_TYPE_MISSION:
+            self._mission_link = ls
+            outs = self.mission.handle(rx, rx.t_s)
+        elif isinstance(m, i.MissionClearAllIn) and m.mission_type == MAV_MISSION_TYPE_ALL:
+            outs = self.mission.handle_clear_all(sender)
+            if isinstance(outs[0], o.MissionAckOut) and outs[0].result == MAV_MISSION_ACCEPTED:
+                outs = self.fence.handle_clear_all(sender)
+        else:
+            self._fence_link = ls
+            outs = self.fence.handle(rx, rx.t_s)
+        for out in outs:
+            self._send(ls, out)
+        self._apply_fence_results()
+        self._apply_mission_results()
+
+    def _check_mission(self, plan: MissionPlan) -> tuple[int, str] | None:
+        """The mission protocol's judge of an uploaded plan: its legs against the fence in force."""
+        geo = self.cfg.geofence
+        fence = self.loop.core_cfg.fence if geo.enabled else None
+        return check_legs_against_fence(plan, fence, geo.margin_m, geo.altitude_ceiling_m)
+
+    def _apply_mission_results(self) -> None:
+        for res in self.mission.take_results():
+            self.events.write({"t": self.t, "type": "mission_transfer", "upload": res.upload,
+                               "result": res.result, "detail": res.detail})
+            if res.result != MAV_MISSION_ACCEPTED:
+                if res.upload and res.detail:  # the ground station shows why, naming the item
+                    self._broadcast(o.StatusTextOut(o.MAV_SEVERITY_WARNING, f"Merlin: mission rejected: {res.detail}"))
+                continue
+            if not res.upload or res.plan is None:
+                continue
+            # flown by the trusted mission behaviour: the plan becomes the configuration's mission (uploads are
+            # refused while armed, as every configuration change is, ICD 8.1)
+            trusted = type(self.cfg.trusted).model_validate(
+                {**self.cfg.trusted.model_dump(), **res.plan.trusted_update()})
+            self._install_config(self.cfg.model_copy(update={"trusted": trusted}),
+                                 {"source": "mission upload", "items": len(res.plan.items)})
+            self._mission_reached, self._mission_current, self._mission_complete = -1, -1, False
+            self.events.write({"t": self.t, "type": "mission_applied", "items": len(res.plan.items),
+                               "waypoints": len(res.plan.waypoints), "end": res.plan.end.value})
+
+    def _mission_progress(self, d: Decision) -> None:
+        """MISSION_ITEM_REACHED for each item passed while flying the mission, and MISSION_CURRENT when the
+        item being flown changes; the end item (RTL, LAND) is reported reached once the vehicle has landed
+        and disarmed, as MAVSDK counts a mission finished by it."""
+        plan = self.mission.plan
+        if d.armed and not self._was_armed:  # a new flight flies the mission from its start
+            self._mission_reached, self._mission_complete = -1, False
+        self._was_armed = d.armed
+        if plan.empty:
+            return
+        st = self.loop.core.state
+        g = st.guidance
+        outs: list[o.OutMessage] = []
+        if d.behavior is Behavior.MISSION and g is not None and g.behavior is Behavior.MISSION:
+            idx = g.mission_index
+            if idx >= len(plan.waypoints):
+                self._mission_complete = True
+                upto = plan.end_seq - 1 if plan.end_seq >= 0 else len(plan.items) - 1
+            else:
+                upto = plan.seq_of(idx) - 1
+            outs += [o.MissionItemReachedOut(k) for k in range(self._mission_reached + 1, upto + 1)]
+            self._mission_reached = max(self._mission_reached, upto)
+        if (self._mission_complete and plan.end_seq > self._mission_reached and not d.armed
+                and plan.end is not MissionEnd.HOLD):
+            outs.append(o.MissionItemReachedOut(plan.end_seq))
+            self._mission_reached = plan.end_seq
+        cur = self._mission_current_message(d)
+        if cur.seq != self._mission_current:
+            self._mission_current = cur.seq
+            outs.append(cur)
+        for msg in outs:
+            self._broadcast(msg)
+
+    def _mission_current_message(self, d: Decision | None) -> o.MissionCurrentOut:
+        plan = self.mission.plan
+        if plan.empty:
+            return o.MissionCurrentOut(0, 0, o.MISSION_STATE_NO_MISSION, 2)
+        st = self.loop.core.state
+        g = st.guidance
+        flying = d is not None and d.behavior is Behavior.MISSION
+        idx = g.mission_index if flying and g is not None and g.behavior is Behavior.MISSION else st.mission_index
+        if self._mission_complete:
+            state, seq = o.MISSION_STATE_COMPLETE, plan.seq_of(len(plan.waypoints))
+        else:
+            state = o.MISSION_STATE_ACTIVE if flying else (
+                o.MISSION_STATE_PAUSED if idx > 0 else o.MISSION_STATE_NOT_STARTED)
+            seq = plan.seq_of(idx)
+        return o.MissionCurrentOut(seq, len(plan.items), state, 1 if flying else 2)
 
     def _apply_fence_results(self) -> None:
         for res in self.fence.take_results():
@@ -604,6 +708,14 @@ class Server:
                 for out in outs:
                     self._send(self._fence_link, out)
             self._apply_fence_results()
+        self.mission.accept_uploads = not d.armed
+        if self.mission.busy:
+            outs = self.mission.tick(t)
+            if outs and self._mission_link is not None:
+                for out in outs:
+                    self._send(self._mission_link, out)
+            self._apply_mission_results()
+        self._mission_progress(d)
         k = self.loop.k
         for s in self.streams:
             if k % s.period_ticks == s.phase_ticks:
@@ -671,6 +783,8 @@ class Server:
             return [o.extended_sys_state_from_state(s)]
         if name == "HOME_POSITION":
             return [o.home_position_from_frame(self.frame)]
+        if name == "MISSION_CURRENT":
+            return [self._mission_current_message(d)]
         if name == "MERLIN_AUTHORITY_STATUS":
             return [self._authority_status(d)] if d is not None else []
         if name == "MERLIN_ENVELOPE_STATUS":

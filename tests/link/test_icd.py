@@ -83,6 +83,7 @@ def _samples() -> list[o.OutMessage]:
         o.AutopilotVersionOut((0, 1, 0), ICD_VERSION, "00000000"), o.ParamValueOut("A", 1.0, 9, 1, 0),
         o.MissionCountOut(1, 1, 0, 1), o.MissionRequestIntOut(1, 1, 0, 1), o.MissionRequestListOut(1, 1, 1),
         o.MissionItemIntOut(1, 1, 0, 0, 5003, 1, 0, 0, 0, 0, 0, 0, 1), o.MissionAckOut(1, 1, 0, 1),
+        o.MissionCurrentOut(2, 5, o.MISSION_STATE_ACTIVE, 1), o.MissionItemReachedOut(1),
         o.AuthorityGrantOut(0, 1, 0, 1, 1, Authority.EXPERIMENTAL, 1, 1), o.AuthorityDenyOut(0, 0, 0, 1, 1, r),
         o.AuthorityRevokeOut(0, 1, 0, 0, r, Authority.EXPERIMENTAL, Authority.TRUSTED, Behavior.RTL, 5, 1),
         o.AuthorityStatusOut(0, Authority.TRUSTED, Behavior.IDLE, 0, 0, 0, 3, 0, ReasonCode.NONE, 0),

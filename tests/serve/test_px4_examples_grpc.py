@@ -1,0 +1,176 @@
+"""MAVSDK-Python's example programs run unchanged against a fresh ``merlin serve``, as against PX4 SITL.
+
+Each test starts ``merlin serve`` with no arguments but its ports (PX4 SITL's conventions: its home is the
+examples' home), runs one program of :mod:`tests.serve.px4_examples` (the calls, order and waits of the
+MAVSDK-Python example of the same name, on the gRPC ``mavsdk_grpc`` package) on the offboard port, and
+checks that it ran to its end with no error and that the vehicle did what PX4 would have done. The last test
+shows the supervision on an unchanged program: with a fence uploaded, the offboard example flying outward
+is revoked (the mode leaves OFFBOARD) and the vehicle stays inside.
+"""
+
+from __future__ import annotations
+
+import math
+import socket
+import time
+from typing import Any
+
+import pytest
+
+from tests.serve.conftest import STEP_TIMEOUT_S, ServeProc, gcs_connection, lines_until, wait_for
+from tests.serve.px4_examples import PX4_HOME
+
+pytest.importorskip("mavsdk_grpc", reason="the gRPC MAVSDK-Python (pip install mavsdk-grpc) runs the examples")
+pytestmark = pytest.mark.integration
+
+FINISHED = "EXAMPLE FINISHED"
+
+
+def _free_tcp_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def run_example(serve: ServeProc, name: str, timeout_s: float) -> str:
+    """Run the program ``name`` to its end; its whole output."""
+    p = serve.spawn("-m", "tests.serve.px4_examples", name, f"udpin://0.0.0.0:{serve.ctl_port}",
+                    str(_free_tcp_port()))
+    out = "\n".join(lines_until(p, FINISHED, timeout_s))
+    assert FINISHED in out, f"{name} did not run to its end:\n{out[-3000:]}"
+    assert "failed with error code" not in out, out[-3000:]
+    return out
+
+
+def _types(serve: ServeProc, kind: str) -> list[dict[str, Any]]:
+    return [e for e in serve.events() if e["type"] == kind]
+
+
+def _behaviours(serve: ServeProc) -> list[str]:
+    return [e["behavior"] for e in _types(serve, "behavior")]
+
+
+def _check_offboard_flown(serve: ServeProc) -> None:
+    assert _types(serve, "granted"), "never granted OFFBOARD"
+    assert not _types(serve, "denied"), _types(serve, "denied")
+
+
+def test_home_is_px4_sitl_home(serve: ServeProc) -> None:
+    m = gcs_connection(serve.gcs_port)
+    home = wait_for(m, lambda x: x.get_type() == "HOME_POSITION")
+    assert home is not None
+    assert (home.latitude / 1e7, home.longitude / 1e7) == pytest.approx(PX4_HOME[:2], abs=1e-6)
+    assert home.altitude / 1e3 == pytest.approx(PX4_HOME[2], abs=0.1)
+
+
+def test_firmware_version(serve: ServeProc) -> None:
+    run_example(serve, "firmware_version", 60)
+
+
+def test_all_params(serve: ServeProc) -> None:
+    out = run_example(serve, "all_params", 90)
+    assert "name:" in out.lower() or "IntParam" in out or "FloatParam" in out, out[-2000:]
+
+
+def test_offboard_velocity_ned(serve: ServeProc) -> None:
+    run_example(serve, "offboard_velocity_ned", 120)
+    _check_offboard_flown(serve)
+
+
+def test_offboard_position_ned(serve: ServeProc) -> None:
+    run_example(serve, "offboard_position_ned", 120)
+    _check_offboard_flown(serve)
+
+
+def test_offboard_velocity_body(serve: ServeProc) -> None:
+    run_example(serve, "offboard_velocity_body", 150)
+    _check_offboard_flown(serve)
+
+
+def test_offboard_attitude(serve: ServeProc) -> None:
+    run_example(serve, "offboard_attitude", 90)
+    _check_offboard_flown(serve)
+
+
+def test_offboard_position_velocity_ned(serve: ServeProc) -> None:
+    run_example(serve, "offboard_position_velocity_ned", 120)
+    _check_offboard_flown(serve)
+
+
+def test_takeoff_and_land(serve: ServeProc) -> None:
+    run_example(serve, "takeoff_and_land", 90)
+    assert "TAKEOFF" in _behaviours(serve) and "LAND" in _behaviours(serve)
+
+
+def test_telemetry_takeoff_and_land(serve: ServeProc) -> None:
+    out = run_example(serve, "telemetry_takeoff_and_land", 120)  # it returns once landed
+    assert "Altitude: 10" in out or "Altitude: 9" in out, out[-2000:]
+
+
+def test_mission(serve: ServeProc) -> None:
+    """Upload, arm, start on the ground: Merlin takes off, flies the three waypoints, returns (MAVSDK's
+    set_return_to_launch_after_mission) and lands; the program returns once the vehicle is down."""
+    out = run_example(serve, "mission", 170)
+    assert "Mission progress: 3/3" in out, out[-2000:]
+    [applied] = _types(serve, "mission_applied")
+    assert applied["waypoints"] == 3 and applied["end"] == "rtl"
+    b = _behaviours(serve)
+    assert b[:3] == ["TAKEOFF", "MISSION", "RTL"], b
+
+
+def _distance_m(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
+    k = 111_320.0
+    return math.hypot((lat2 - lat1) * k, (lon2 - lon1) * k * math.cos(math.radians(lat1)))
+
+
+def test_goto(serve: ServeProc) -> None:
+    m = gcs_connection(serve.gcs_port)
+    run_example(serve, "goto", 90)
+    target = (47.399386, 8.535245)
+
+    def dist() -> float:
+        pos = wait_for(m, lambda x: x.get_type() == "GLOBAL_POSITION_INT")
+        assert pos is not None
+        return _distance_m(pos.lat / 1e7, pos.lon / 1e7, *target)
+
+    d0 = dist()
+    time.sleep(15.0)
+    assert dist() < d0 - 30.0, "the vehicle is not flying to the goto target"
+
+
+def test_do_orbit(serve: ServeProc) -> None:
+    run_example(serve, "do_orbit", 150)
+    assert "RTL" in _behaviours(serve)
+
+
+def _upload_circle_fence(m: Any, lat: float, lon: float, radius_m: float) -> None:
+    m.mav.mission_count_send(1, 1, 1, 1)  # one item, MAV_MISSION_TYPE_FENCE
+    req = wait_for(m, lambda x: x.get_type() in ("MISSION_REQUEST_INT", "MISSION_REQUEST") and x.mission_type == 1)
+    assert req is not None and req.seq == 0
+    m.mav.mission_item_int_send(1, 1, 0, 0, 5003, 0, 1, radius_m, 0.0, 0.0, 0.0, round(lat * 1e7), round(lon * 1e7),
+                                0.0, 1)  # MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION
+    ack = wait_for(m, lambda x: x.get_type() == "MISSION_ACK" and x.mission_type == 1)
+    assert ack is not None and ack.type == 0, ack
+
+
+def test_offboard_example_flying_out_of_an_uploaded_fence_is_revoked_and_stays_inside(serve: ServeProc) -> None:
+    """offboard_position_velocity_ned flies 50 m north; with a 25 m fence around home uploaded first, Merlin
+    takes authority back (the program sees the mode leave OFFBOARD) and the vehicle never leaves the fence."""
+    m = gcs_connection(serve.gcs_port)
+    home = wait_for(m, lambda x: x.get_type() == "HOME_POSITION")
+    assert home is not None
+    lat0, lon0 = home.latitude / 1e7, home.longitude / 1e7
+    _upload_circle_fence(m, lat0, lon0, 25.0)
+    p = serve.spawn("-m", "tests.serve.px4_examples", "offboard_position_velocity_ned",
+                    f"udpin://0.0.0.0:{serve.ctl_port}", str(_free_tcp_port()))
+    farthest = 0.0
+    t_end = time.monotonic() + 90.0
+    while time.monotonic() < t_end and p.poll() is None:
+        pos = wait_for(m, lambda x: x.get_type() == "GLOBAL_POSITION_INT", timeout_s=STEP_TIMEOUT_S)
+        if pos is not None:
+            farthest = max(farthest, _distance_m(lat0, lon0, pos.lat / 1e7, pos.lon / 1e7))
+    out = "\n".join(lines_until(p, FINISHED, 30))
+    revoked = _types(serve, "revoked")
+    assert revoked and revoked[0]["reason"] == "geofence", (revoked, out[-2000:])
+    assert _types(serve, "granted"), out[-2000:]
+    assert farthest < 25.0, farthest

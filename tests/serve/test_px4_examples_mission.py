@@ -1,0 +1,148 @@
+"""Waypoint missions over the standard mission protocol against a fresh ``merlin serve``, the way a ground
+station (QGroundControl, a pymavlink script) flies one on PX4: upload, download, MISSION_START on the ground,
+MISSION_ITEM_REACHED and MISSION_CURRENT, pause (AUTO.LOITER) and resume (AUTO.MISSION) where it paused, the
+landing item, clear; uploads refused while armed, and a mission whose leg leaves the fence refused at upload
+with a MISSION_ACK error and a STATUSTEXT naming the item."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import pytest
+
+from merlin.geodesy import LocalFrame
+from tests.serve.conftest import ServeProc, command, gcs_connection, wait_for
+
+pytestmark = pytest.mark.integration
+
+MISSION = 0  # MAV_MISSION_TYPE_MISSION
+REL_INT = 6  # MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+PX4_AUTO, PX4_LOITER, PX4_MISSION = 4, 3, 4
+
+
+def _home(m: Any) -> LocalFrame:
+    h = wait_for(m, lambda x: x.get_type() == "HOME_POSITION")
+    assert h is not None
+    return LocalFrame(h.latitude / 1e7, h.longitude / 1e7, h.altitude / 1e3)
+
+
+def _item(frame: LocalFrame, seq: int, cmd: int, n: float = 0.0, e: float = 0.0, height: float = 0.0,
+          p1: float = 0.0, p2: float = 0.0, mav_frame: int = REL_INT) -> tuple[Any, ...]:
+    lat, lon, _ = frame.to_geodetic(n, e)
+    x, y = (round(lat * 1e7), round(lon * 1e7)) if mav_frame == REL_INT else (0, 0)
+    return (1, 1, seq, mav_frame, cmd, int(seq == 0), 1, p1, p2, 0.0, math.nan, x, y, height, MISSION)
+
+
+def _upload(m: Any, items: list[tuple[Any, ...]]) -> Any:
+    """Upload; the MISSION_ACK."""
+    m.mav.mission_count_send(1, 1, len(items), MISSION)
+    while True:
+        msg = wait_for(m, lambda x: x.get_type() in ("MISSION_REQUEST_INT", "MISSION_ACK") and x.mission_type == MISSION)
+        assert msg is not None, "no answer to the mission upload"
+        if msg.get_type() == "MISSION_ACK":
+            return msg
+        m.mav.mission_item_int_send(*items[msg.seq])
+
+
+def _download(m: Any) -> list[Any]:
+    m.mav.mission_request_list_send(1, 1, MISSION)
+    count = wait_for(m, lambda x: x.get_type() == "MISSION_COUNT" and x.mission_type == MISSION)
+    assert count is not None
+    got = []
+    for seq in range(count.count):
+        m.mav.mission_request_int_send(1, 1, seq, MISSION)
+        it = wait_for(m, lambda x, s=seq: x.get_type() == "MISSION_ITEM_INT" and x.seq == s)
+        assert it is not None
+        got.append(it)
+    m.mav.mission_ack_send(1, 1, 0, MISSION)
+    return got
+
+
+def _statustext(m: Any, needle: str) -> str | None:
+    """The first STATUSTEXT containing ``needle``, its chunks joined (MAVLink 2 splits texts over 50
+    characters into chunks with one id, the last shorter than 50)."""
+    chunks: dict[int, list[str]] = {}
+    while True:
+        msg = wait_for(m, lambda x: x.get_type() == "STATUSTEXT")
+        if msg is None:
+            return None
+        parts = chunks.setdefault(msg.id, [])
+        parts.append(msg.text)
+        if msg.id == 0 or len(msg.text) < 50:
+            text = "".join(chunks.pop(msg.id))
+            if needle in text:
+                return text
+
+
+def _px4_mode(hb: Any) -> tuple[int, int]:
+    return (hb.custom_mode >> 16) & 0xFF, (hb.custom_mode >> 24) & 0xFF
+
+
+def test_a_mission_leaving_the_fence_is_refused_naming_the_item(serve: ServeProc) -> None:
+    m = gcs_connection(serve.gcs_port)
+    frame = _home(m)
+    # the default range is a 300 m circle about home: the second leg ends 500 m out
+    ack = _upload(m, [_item(frame, 0, 16, 20.0, 0.0, 10.0), _item(frame, 1, 16, 500.0, 0.0, 10.0)])
+    assert ack.type == 1, ack  # MAV_MISSION_ERROR
+    text = _statustext(m, "mission rejected")
+    assert text is not None and "item 1 (NAV_WAYPOINT)" in text and "leaves the fence" in text, text
+    assert _download(m) == []  # nothing half-applied
+
+
+def test_an_unsupported_item_is_refused_naming_it(serve: ServeProc) -> None:
+    m = gcs_connection(serve.gcs_port)
+    frame = _home(m)
+    ack = _upload(m, [_item(frame, 0, 16, 20.0, 0.0, 10.0), _item(frame, 1, 183, p1=9.0, p2=1500.0, mav_frame=2)])
+    assert ack.type == 3, ack  # MAV_MISSION_UNSUPPORTED
+    text = _statustext(m, "mission rejected")
+    assert text is not None and "item 1 (command 183) is not supported" in text, text
+
+
+def test_mission_upload_download_start_pause_resume_land_clear(serve: ServeProc) -> None:
+    m = gcs_connection(serve.gcs_port)
+    frame = _home(m)
+    items = [
+        _item(frame, 0, 16, 15.0, 0.0, 8.0),  # NAV_WAYPOINT
+        _item(frame, 1, 178, p1=1.0, p2=3.0, mav_frame=2),  # DO_CHANGE_SPEED 3 m/s
+        _item(frame, 2, 16, 15.0, 15.0, 8.0),
+        _item(frame, 3, 16, 0.0, 15.0, 8.0),
+        _item(frame, 4, 21, mav_frame=2),  # NAV_LAND where it is
+    ]
+    ack = _upload(m, items)
+    assert ack.type == 0, ack
+    assert [it.command for it in _download(m)] == [16, 178, 16, 16, 21]
+    cur = wait_for(m, lambda x: x.get_type() == "MISSION_CURRENT")
+    assert cur is not None and cur.total == 5 and cur.seq == 0
+
+    assert command(m, 400, 1.0).result == 0  # arm
+    assert command(m, 300, 0.0, 0.0).result == 0  # MISSION_START on the ground: take off, then the mission
+    reached = wait_for(m, lambda x: x.get_type() == "MISSION_ITEM_REACHED" and x.seq == 1, timeout_s=60)
+    assert reached is not None, "waypoint 0 and the speed item were never reached"
+
+    # uploads are refused in flight (the configuration changes only on the ground, disarmed)
+    assert _upload(m, items[:1]).type == 14  # MAV_MISSION_DENIED
+
+    # pause with AUTO.LOITER (what MAVSDK's pause_mission sends), then resume
+    assert command(m, 176, 1.0, PX4_AUTO, PX4_LOITER).result == 0
+    hb = wait_for(m, lambda x: x.get_type() == "HEARTBEAT" and x.type != 6 and _px4_mode(x) == (PX4_AUTO, PX4_LOITER))
+    assert hb is not None
+    paused = wait_for(m, lambda x: x.get_type() == "MISSION_CURRENT" and x.mission_state == 4)  # MISSION_STATE_PAUSED
+    assert paused is not None and paused.seq == 2, paused
+    assert command(m, 176, 1.0, PX4_AUTO, PX4_MISSION).result == 0
+    cur = wait_for(m, lambda x: x.get_type() == "MISSION_CURRENT" and x.mission_state == 3)  # ACTIVE
+    assert cur is not None and cur.seq == 2, "the mission did not resume at the item it paused at"
+    for seq in (2, 3):
+        assert wait_for(m, lambda x, s=seq: x.get_type() == "MISSION_ITEM_REACHED" and x.seq == s, timeout_s=60)
+    # NAV_LAND: the vehicle lands where it is, disarms, and the landing item is reported reached
+    assert wait_for(m, lambda x: x.get_type() == "MISSION_ITEM_REACHED" and x.seq == 4, timeout_s=90)
+    hb = wait_for(m, lambda x: x.get_type() == "HEARTBEAT" and x.type != 6 and not x.base_mode & 128)
+    assert hb is not None
+    pos = wait_for(m, lambda x: x.get_type() == "GLOBAL_POSITION_INT")
+    n, e, _ = frame.to_ned(pos.lat / 1e7, pos.lon / 1e7)
+    assert math.hypot(n, e - 15.0) < 3.0, (n, e)
+
+    m.mav.mission_clear_all_send(1, 1, MISSION)
+    ack = wait_for(m, lambda x: x.get_type() == "MISSION_ACK" and x.mission_type == MISSION)
+    assert ack is not None and ack.type == 0
+    assert _download(m) == []
