@@ -141,3 +141,18 @@ def test_replay_of_the_runs_ulog_reproduces_its_revocation(run: tuple[object, Pa
     after = res.t_s > t_rev + 0.05
     assert np.all(res.authority[after] == int(Authority.TRUSTED))
     assert math.isclose(r.log["authority"][r.log["t"] > t_rev + 0.05].max(), 0.0)
+
+
+def test_replay_reproduces_a_fence_revocation(tmp_path: Path) -> None:
+    """Figure 4(a): the velocity-projected fence revokes an experimental controller flying at the
+    boundary; the run's ULog, replayed, revokes for the same boundary at the next logged rows."""
+    scenario = ROOT / "examples" / "scenarios" / "figure4_projection_9mps.yaml"
+    sc, cfg = load_scenario(scenario)
+    r = run_scenario(sc, cfg, source=str(scenario))
+    log, _ = home_frame(read_log(write_ulog(r, tmp_path)), cfg)
+    res = replay(log, MerlinConfig.model_validate_json(log.config_json or ""), rate_hz=50.0)
+    a = next(e for e in r.events if e["type"] == "revoked")
+    b = res.revocations[0]
+    assert a["reason"] == b["reason"] == "geofence"
+    assert a["reason_detail"]["parameter"] == b["reason_detail"]["parameter"] == "inclusion"
+    assert a["t"] <= b["t"] <= a["t"] + 2.0 / 50.0 + 1e-9
