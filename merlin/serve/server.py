@@ -524,9 +524,21 @@ class Server:
                 {**self.cfg.trusted.model_dump(), **res.plan.trusted_update()})
             self._install_config(self.cfg.model_copy(update={"trusted": trusted}),
                                  {"source": "mission upload", "items": len(res.plan.items)})
+            self._hand_mission_to_fixed_wing(res.plan)
             self._mission_reached, self._mission_current, self._mission_complete = -1, -1, False
             self.events.write({"t": self.t, "type": "mission_applied", "items": len(res.plan.items),
                                "waypoints": len(res.plan.waypoints), "end": res.plan.end.value})
+
+    def _hand_mission_to_fixed_wing(self, plan: MissionPlan) -> None:
+        """A fixed wing flies MISSION in its own actuator stage (L1 legs at cruise airspeed, then a loiter at
+        the last waypoint), whose waypoints are built once from the configuration: give it the new ones."""
+        stage = getattr(self.loop, "stage", None)
+        if stage is None or not hasattr(stage, "mission"):
+            return
+        from merlin.autopilot.fixedwing_guidance import Waypoint
+
+        airspeed = stage.gp.rtl_airspeed_mps  # the stage's cruise airspeed
+        stage.mission = tuple(Waypoint(n, e, -d, airspeed) for n, e, d in (w.pos_ned_m for w in plan.waypoints))
 
     def _mission_progress(self, d: Decision) -> None:
         """MISSION_ITEM_REACHED for each item passed while flying the mission, and MISSION_CURRENT when the
