@@ -172,7 +172,7 @@ def write_ulog(r: RunResult, out: Path) -> Path:
         "merlin_scenario": sc.name, "merlin_seed": int(sc.seed), "merlin_config_sha256": r.config_sha256,
         "merlin_estimator": sc.estimator, "merlin_decisions_digest": r.decisions_digest}, "MERLIN_SITL")
     p = out / "flight.ulg"
-    write_flight_ulog(p, {**r.log, **r.aux}, r.events, meta)
+    write_flight_ulog(p, {**r.log, **r.aux}, r.events, meta, r.gps_fixes)
     return p
 
 

@@ -247,6 +247,9 @@ class RunResult:
     # details): the ULog's source (merlin.ulog.flight), kept out of the log so that decisions_digest, a
     # hash of the log's columns, does not move with it
     aux: dict[str, np.ndarray] = field(default_factory=dict)
+    # (arrival time, sample) of every GPS fix of receiver 0 the vehicle received (sensor frames are sampled
+    # only with the EKF or redundancy: none with the stand-in estimator); the ULog's vehicle_gps_position
+    gps_fixes: list[tuple[float, Any]] = field(default_factory=list)
 
 
 class _Log:
@@ -687,6 +690,7 @@ def run_scenario(
     log = _Log(_LOG_COLUMNS + tuple(f"env_{lim.name}" for lim in core_cfg.envelope))
     aux = _Log(_AUX_COLUMNS)
     aux_details: list[dict[str, float]] = []  # the monitors' details, per log row (keys vary by row)
+    gps_fixes: list[tuple[float, Any]] = []
     mon_keys: dict[str, str] = {}  # monitor name -> its log column
     log_every = max(1, round(1.0 / (sc.log_rate_hz * dt)))
     events: list[dict[str, Any]] = []
@@ -736,6 +740,9 @@ def run_scenario(
                     events.append({"t": t, "type": "fault_start" if a else "fault_end", "fault": f_type})
         state = loop.sense()
         truth = loop.truth
+        frame = loop.frame
+        if frame is not None and frame.gps is not None:
+            gps_fixes.append((t, frame.gps))
         # links
         if "gcs_link_loss" not in active and (gcs_t is None or t - gcs_t >= GCS_HEARTBEAT_PERIOD_S - 1e-9):
             gcs_t = t
@@ -888,4 +895,5 @@ def run_scenario(
         controller_log=list(ctrl.log) if ctrl is not None else [],
         nav=loop.vision.trace.to_dict(loop.ekf) if loop.vision is not None else {},
         aux={**aux.arrays(), **_aligned(aux_details)},
+        gps_fixes=gps_fixes,
     )

@@ -178,7 +178,7 @@ class FlightULog:
             self._ids[f.name] = w.subscribe(f.name)
 
     def append(self, cols: Mapping[str, np.ndarray], events: Sequence[Mapping[str, Any]] = (),
-               interleave: bool = True) -> None:
+               interleave: bool = True, gps: Sequence[tuple[float, Any]] = ()) -> None:
         """Write ``cols`` (each column an array as long as ``t``; a shorter one, which cannot be placed in
         time, is left out) and ``events`` (dicts with ``t``)."""
         n = len(cols["t"])
@@ -189,6 +189,8 @@ class FlightULog:
             missing = set(self._columns) - set(cols)
             cols = {**{k: np.full(len(cols["t"]), math.nan) for k in missing}, **cols}
         batches = self._batches(cols)
+        if gps:
+            batches.append(self._gps_records(gps))
         if interleave:
             self.writer.write_interleaved(batches)
         else:  # topic by topic: cheaper, for a batch of a second or so (readers sort by timestamp anyway)
@@ -197,6 +199,22 @@ class FlightULog:
         for e in sorted(events, key=lambda e: float(e["t"])):
             level = _EVENT_LEVEL.get(str(e.get("type")), "info")
             self.writer.log(level, round(float(e["t"]) * 1e6), event_text(e))
+
+    def _gps_records(self, gps: Sequence[tuple[float, Any]]) -> np.ndarray:
+        """vehicle_gps_position of (arrival time, merlin.measurements.GpsSample) pairs: stamped when the fix
+        reached the vehicle, ``timestamp_sample`` its time of validity."""
+        n = len(gps)
+        pos = np.array([g.pos_ned_m for _, g in gps], dtype=float).reshape(n, 3)
+        vel = np.array([g.vel_ned_mps for _, g in gps], dtype=float).reshape(n, 3)
+        lat, lon = self.frame.latlon_from_ne(pos[:, 0], pos[:, 1])
+        return self.writer.records(self._ids["vehicle_gps_position"], {
+            "timestamp": np.round(np.array([t for t, _ in gps]) * 1e6).astype(np.uint64),
+            "timestamp_sample": np.round(np.array([g.t_s for _, g in gps]) * 1e6).astype(np.uint64),
+            "latitude_deg": lat, "longitude_deg": lon, "altitude_msl_m": self.meta.home_alt_amsl_m - pos[:, 2],
+            "fix_type": [g.fix_type for _, g in gps], "eph": [g.eph_m for _, g in gps],
+            "epv": [g.epv_m for _, g in gps], "vel_m_s": np.hypot(vel[:, 0], vel[:, 1]), "vel_n_m_s": vel[:, 0],
+            "vel_e_m_s": vel[:, 1], "vel_d_m_s": vel[:, 2], "vel_ned_valid": True,
+            "satellites_used": [g.satellites for _, g in gps]}, n)
 
     def _batches(self, c: Mapping[str, np.ndarray]) -> list[np.ndarray]:
         n = len(c["t"])
@@ -341,6 +359,7 @@ class FlightRecorder:
         self._mon_index: dict[str, int] | None = None  # monitor name -> position, from the first decision
         self._rows: list[list[float]] = []
         self._events: list[dict[str, Any]] = []
+        self._gps: list[tuple[float, Any]] = []
         self._k = 0
 
     def record(self, t: float, state: Any, decision: Any, setpoint: Any, loop: Any) -> None:
@@ -348,6 +367,9 @@ class FlightRecorder:
         use (None), ``loop`` the vehicle (truth, motors, battery, wind)."""
         for e in decision.events:
             self._events.append(e.to_dict())
+        frame = loop.frame
+        if frame is not None and frame.gps is not None:
+            self._gps.append((t, frame.gps))
         k = self._k
         self._k += 1
         if k % self.every:
@@ -396,6 +418,7 @@ class FlightRecorder:
     def flush(self) -> None:
         rows, self._rows = self._rows, []
         events, self._events = self._events, []
+        gps, self._gps = self._gps, []
         if not rows:
             return
         arr = np.array(rows, dtype=float)
@@ -405,7 +428,7 @@ class FlightRecorder:
 
             pos = arr[:, 1:4]  # truth north, east, down
             cols["fence_margin"] = geofence.signed_margins_m(self.fence, pos, cols["landed"] < 0.5)
-        self.log.append(cols, events, interleave=False)
+        self.log.append(cols, events, interleave=False, gps=gps)
 
     def close(self) -> None:
         self.flush()
@@ -413,11 +436,12 @@ class FlightRecorder:
 
 
 def write_flight_ulog(path: str | Path, cols: Mapping[str, np.ndarray], events: Sequence[Mapping[str, Any]],
-                      meta: FlightMeta) -> int:
-    """A whole flight's ULog at ``path``; returns its size in bytes."""
+                      meta: FlightMeta, gps: Sequence[tuple[float, Any]] = ()) -> int:
+    """A whole flight's ULog at ``path`` (``gps``: the GPS fixes, see :meth:`FlightULog._gps_records`);
+    returns its size in bytes."""
     f = FlightULog(path, meta)
     try:
-        f.append(cols, events)
+        f.append(cols, events, gps=gps)
     finally:
         f.close()
     return f.bytes_written

@@ -54,6 +54,13 @@ PX4_FORMATS: tuple[Format, ...] = (
         Field("int32_t", "accelerometer_timestamp_relative", unit="us"),
         Field("float", "accelerometer_m_s2", 3, unit="m/s^2"), Field("uint32_t", "accelerometer_integral_dt", unit="us"),
     )),
+    Format("vehicle_gps_position", (
+        _T, _TS, Field("double", "latitude_deg", unit="deg"), Field("double", "longitude_deg", unit="deg"),
+        Field("double", "altitude_msl_m", unit="m"), Field("uint8_t", "fix_type"), Field("float", "eph", unit="m"),
+        Field("float", "epv", unit="m"), Field("float", "vel_m_s", unit="m/s"), Field("float", "vel_n_m_s", unit="m/s"),
+        Field("float", "vel_e_m_s", unit="m/s"), Field("float", "vel_d_m_s", unit="m/s"),
+        Field("bool", "vel_ned_valid"), Field("uint8_t", "satellites_used"),
+    )),
     Format("vehicle_status", (
         _T, Field("uint8_t", "arming_state"), Field("uint8_t", "nav_state"), Field("uint8_t", "vehicle_type"),
     )),

@@ -156,3 +156,20 @@ def test_replay_reproduces_a_fence_revocation(tmp_path: Path) -> None:
     assert a["reason"] == b["reason"] == "geofence"
     assert a["reason_detail"]["parameter"] == b["reason_detail"]["parameter"] == "inclusion"
     assert a["t"] <= b["t"] <= a["t"] + 2.0 / 50.0 + 1e-9
+
+
+def test_gps_fixes_are_vehicle_gps_position(tmp_path: Path) -> None:
+    """With the EKF the simulated receiver's fixes are logged as PX4's vehicle_gps_position, stamped on
+    arrival, none while the GPS is lost."""
+    scenario = ROOT / "examples" / "scenarios" / "gps_loss_vo.yaml"
+    sc, cfg = load_scenario(scenario)
+    sc = sc.model_copy(update={"duration_s": 12.0})
+    r = run_scenario(sc, cfg, source=str(scenario))
+    assert r.gps_fixes
+    u = ULog(str(write_ulog(r, tmp_path)))
+    gps = _topic(u, "vehicle_gps_position")
+    assert len(gps["timestamp"]) == len(r.gps_fixes)
+    assert np.all(gps["timestamp"] >= gps["timestamp_sample"]) and np.all(gps["fix_type"] == 3)
+    lp = _topic(u, "vehicle_global_position")
+    assert abs(float(np.median(gps["latitude_deg"])) - float(np.median(lp["lat"]))) < 1e-4
+    assert u.msg_info_dict["unit:vehicle_gps_position.altitude_msl_m"] == "m"
