@@ -149,8 +149,8 @@ def _budget_accrue(ring: BudgetRing, lim: EnvelopeLimit, now: float, dt: float) 
         ring = BudgetRing(k, 0.0, tuple(slots), math.fsum(slots))
     elif k < ring.bucket:  # time went back (a new run with a reused state): start again
         ring = BudgetRing(k)
-    if dt > 0.0:
-        ring = ring._replace(current_s=ring.current_s + dt)
+    if dt > 0.0:  # positional, not _replace: this runs on every tick a parameter is outside
+        ring = BudgetRing(ring.bucket, ring.current_s + dt, ring.ring, ring.ring_s)
     return ring
 
 
