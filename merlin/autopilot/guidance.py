@@ -9,14 +9,27 @@ advanced by :func:`step`.
 The position loop is a proportional law with speed limits, the outer loop of PX4's multicopter position
 controller (position error -> velocity setpoint); the velocity, attitude and rate loops live in the
 actuator stage (:mod:`merlin.autopilot.multirotor_control`).
+
+Every trusted escape stays inside the range (:mod:`merlin.autopilot.route`, planned once by :func:`enter`):
+RTL follows a route home that keeps :data:`ROUTE_MARGIN_M` beyond the fence's widening from every keep-out
+and from the boundary of non-convex inclusion zones (scenarios ``rtl_default_mast``, ``rtl_l_corner``);
+HOLD holds where it stops if that point keeps the fence's widening plus :data:`SAFE_POINT_PAD_M`, else it
+flies to the nearest point that does; LAND lands in place under the same condition, else flies there first
+(never into a keep-out). With no route home, RTL flies the configured fallback instead
+(``trusted.no_route_fallback``: HOLD or LAND, each at a safe point) and :attr:`GuidanceState.note` says why.
+Routes are legs at the behaviour's height: corners are flown at a speed whose turn at half the braking
+deceleration cuts them by at most :data:`CORNER_CUT_M`.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Final, NamedTuple
 
+from merlin.autopilot import route
 from merlin.core.config import TrustedParams
+from merlin.core.geofence import Fence
 from merlin.core.types import Behavior, NavMode, Setpoint, SetpointKind, Vec3, VehicleState
 
 RTL_CLIMB, RTL_RETURN, RTL_DESCEND = 0, 1, 2
@@ -24,6 +37,21 @@ RTL_CLIMB, RTL_RETURN, RTL_DESCEND = 0, 1, 2
 ALTITUDE_ACCEPTANCE_M = 0.5
 #: LAND's speed below ``land_final_height_m``, as a fraction of ``land_speed_mps``.
 LAND_FINAL_SPEED_FRACTION = 0.5
+#: A route's clearance beyond the fence's widening (``margin_m + sigma_k * sigma_h``): the corner cut
+#: (:data:`CORNER_CUT_M`) and the waypoint switch (:data:`ROUTE_ACCEPTANCE_M`) fit inside it, so the vehicle
+#: flying the route never comes within the widening and the fence's monitor does not trip on the way.
+ROUTE_MARGIN_M = 3.0
+#: A HOLD or LAND point keeps the fence's widening plus this (a point at the widening itself trips the
+#: projection for any drift outward).
+SAFE_POINT_PAD_M = 1.0
+#: Distance from a route's intermediate point at which the next leg is taken.
+ROUTE_ACCEPTANCE_M = 1.5
+#: Largest distance by which the turn at a route's corner may cut inside it (sets the corner speed).
+CORNER_CUT_M = 1.0
+#: Fraction of ``max_horizontal_decel_mps2`` used for braking into corners and turning through them.
+ROUTE_ACCEL_FRACTION = 0.5
+#: :attr:`GuidanceState.fallback`: RTL found no route home and flies HOLD or LAND instead.
+FALLBACK_NONE, FALLBACK_HOLD, FALLBACK_LAND = 0, 1, 2
 
 # Enum members read on every tick, bound once (``merlin.core.types``, "Enum members on the hot path").
 _HOLD: Final = Behavior.HOLD
@@ -44,6 +72,11 @@ class GuidanceState(NamedTuple):
     mission_index: int = 0
     done: bool = False  # TAKEOFF reached its height; MISSION flew its last waypoint
     vel_cmd: Vec3 = (0.0, 0.0, 0.0)  # the last velocity setpoint, for the acceleration limit
+    # the route (north, east) flown first: RTL's home, HOLD's and LAND's safe point are its last point
+    path_ne_m: tuple[tuple[float, float], ...] = ()
+    leg: int = 0  # index in path_ne_m of the point flown to
+    fallback: int = FALLBACK_NONE
+    note: str = ""  # why the behaviour does not fly as asked (no route, a moved hold point): for an event
 
 
 def position_to_velocity(
@@ -80,7 +113,10 @@ def stopping_point(s: VehicleState, decel_mps2: float) -> Vec3:
     return (p[0] + v[0] * kh, p[1] + v[1] * kh, p[2] + v[2] * abs(v[2]) * k)
 
 
-def enter(behavior: Behavior, s: VehicleState, cfg: TrustedParams) -> GuidanceState:
+def enter(behavior: Behavior, s: VehicleState, cfg: TrustedParams, fence: Fence | None = None) -> GuidanceState:
+    """The behaviour's memory from the state it starts in. With a ``fence`` that has horizontal zones, RTL's
+    route home, HOLD's and LAND's safe point (and the route there) are planned here, once (see the module
+    docstring); :attr:`GuidanceState.note` then says what could not be flown as asked."""
     yaw = s.att_rpy_rad[2]
     if not math.isfinite(yaw):
         yaw = 0.0
@@ -93,10 +129,124 @@ def enter(behavior: Behavior, s: VehicleState, cfg: TrustedParams) -> GuidanceSt
         phase = RTL_RETURN  # already near home: no climb (PX4's RTL_MIN_DIST behaviour)
     v = s.vel_ned_mps
     v0 = v if all(math.isfinite(x) for x in v) else (0.0, 0.0, 0.0)
-    return GuidanceState(behavior=behavior, anchor_ned_m=anchor, yaw_rad=yaw, phase=phase, vel_cmd=v0)
+    g = GuidanceState(behavior=behavior, anchor_ned_m=anchor, yaw_rad=yaw, phase=phase, vel_cmd=v0)
+    if (
+        fence is None
+        or behavior not in (Behavior.HOLD, Behavior.RTL, Behavior.LAND)
+        or not (math.isfinite(anchor[0]) and math.isfinite(anchor[1]))
+        or s.nav_mode is _NAV_INERTIAL
+        or s.nav_mode is _NAV_LOST  # no position to fly a route on: the behaviour flies as it always did
+        or not route.has_zones(fence)
+    ):
+        return g
+    widening = _widening_m(fence, s)
+    if behavior is Behavior.RTL:
+        return _enter_rtl(g, fence, widening, cfg)
+    return _to_safe_point(g, fence, widening, behavior.name)
+
+
+def _widening_m(fence: Fence, s: VehicleState) -> float:
+    """The fence's widening at this state: ``margin_m + sigma_k * sigma_h`` (the distance from a hazard
+    within which the projection trips)."""
+    p = fence.params
+    sigma = s.pos_sigma_h_m if math.isfinite(s.pos_sigma_h_m) and s.pos_sigma_h_m > 0.0 else 0.0
+    return p.margin_m + p.sigma_k * sigma
+
+
+def _enter_rtl(g: GuidanceState, fence: Fence, widening_m: float, cfg: TrustedParams) -> GuidanceState:
+    a = g.anchor_ned_m
+    clearance = widening_m + ROUTE_MARGIN_M
+    path = route.plan_path(fence, (a[0], a[1]), (0.0, 0.0), clearance)
+    if path is not None:
+        return g._replace(path_ne_m=path)
+    land = cfg.no_route_fallback == "land"
+    why = (
+        f"RTL: no route home from ({a[0]:.1f}, {a[1]:.1f}) m keeps {clearance:.1f} m from the fence's zones;"
+        f" {'landing' if land else 'holding'} instead (trusted.no_route_fallback: {cfg.no_route_fallback})"
+    )
+    fb = FALLBACK_LAND if land else FALLBACK_HOLD
+    moved = _to_safe_point(g._replace(fallback=fb, phase=0), fence, widening_m, "LAND" if land else "HOLD")
+    return moved._replace(note=f"{why}; {moved.note}" if moved.note else why)
+
+
+def _to_safe_point(g: GuidanceState, fence: Fence, widening_m: float, what: str) -> GuidanceState:
+    """HOLD and LAND: stay at the anchor if it keeps the widening plus :data:`SAFE_POINT_PAD_M` from every
+    hazard, else go to the nearest point that does (along a route), or, with none reachable, stay."""
+    a = g.anchor_ned_m
+    clearance = widening_m + SAFE_POINT_PAD_M
+    here = (a[0], a[1])
+    q = route.safe_point(fence, here, clearance)
+    if q is None:
+        return g._replace(note=f"{what}: no point of the range keeps {clearance:.1f} m from the fence's zones;"
+                          f" staying at ({a[0]:.1f}, {a[1]:.1f}) m")
+    if q == here:
+        return g
+    path = route.plan_path(fence, here, q, clearance)
+    if path is None:
+        return g._replace(note=f"{what}: ({a[0]:.1f}, {a[1]:.1f}) m is {clearance:.1f} m or less from the"
+                          f" fence's zones and no route leads out; staying there")
+    return g._replace(
+        anchor_ned_m=(q[0], q[1], a[2]),
+        path_ne_m=path,
+        note=f"{what}: ({a[0]:.1f}, {a[1]:.1f}) m is within {clearance:.1f} m of the fence's zones;"
+        f" moving to ({q[0]:.1f}, {q[1]:.1f}) m first",
+    )
+
+
+def _advance_leg(g: GuidanceState, s: VehicleState) -> GuidanceState:
+    """Take the next leg once within :data:`ROUTE_ACCEPTANCE_M` of an intermediate point of the route."""
+    path, i = g.path_ne_m, g.leg
+    last = len(path) - 1
+    p = s.pos_ned_m
+    while i < last and math.hypot(path[i][0] - p[0], path[i][1] - p[1]) <= ROUTE_ACCEPTANCE_M:
+        i += 1
+    return g if i == g.leg else g._replace(leg=i)
+
+
+def on_route(g: GuidanceState) -> bool:
+    """Whether the vehicle is still flying to an intermediate point of its route (not yet its last leg)."""
+    return g.leg < len(g.path_ne_m) - 1
+
+
+def corner_speed_mps(prev: tuple[float, float], at: tuple[float, float], nxt: tuple[float, float],
+                     accel_mps2: float, max_mps: float) -> float:
+    """The speed at which a turn at ``accel_mps2`` through the route's corner ``at`` cuts inside it by at
+    most :data:`CORNER_CUT_M`: an arc of radius ``R = v^2 / a`` tangent to both legs passes the corner at
+    ``R (1 / cos(theta / 2) - 1)`` for a heading change ``theta``."""
+    a_n, a_e = at[0] - prev[0], at[1] - prev[1]
+    b_n, b_e = nxt[0] - at[0], nxt[1] - at[1]
+    la, lb = math.hypot(a_n, a_e), math.hypot(b_n, b_e)
+    if la < 1e-9 or lb < 1e-9:
+        return max_mps
+    cos_t = max(-1.0, min(1.0, (a_n * b_n + a_e * b_e) / (la * lb)))
+    excess = 1.0 / max(math.sqrt(0.5 * (1.0 + cos_t)), 1e-9) - 1.0  # 1 / cos(theta / 2) - 1
+    if excess <= 1e-12:
+        return max_mps
+    return min(max_mps, math.sqrt(accel_mps2 * CORNER_CUT_M / excess))
+
+
+def _route_velocity(g: GuidanceState, s: VehicleState, cfg: TrustedParams, down_m: float) -> Setpoint:
+    """Fly to the route's intermediate point ``g.leg`` at height ``-down_m``: straight at it, braking at
+    :data:`ROUTE_ACCEL_FRACTION` of the braking deceleration to its corner speed."""
+    path, i = g.path_ne_m, g.leg
+    wp = path[i]
+    prev = path[i - 1] if i > 0 else (g.anchor_ned_m[0], g.anchor_ned_m[1])
+    accel = ROUTE_ACCEL_FRACTION * cfg.max_horizontal_decel_mps2
+    v_corner = corner_speed_mps(prev, wp, path[i + 1], accel, cfg.cruise_speed_mps)
+    p = s.pos_ned_m
+    dn, de = wp[0] - p[0], wp[1] - p[1]
+    d = math.hypot(dn, de)
+    speed = min(cfg.cruise_speed_mps, math.sqrt(v_corner * v_corner + 2.0 * accel * max(d - ROUTE_ACCEPTANCE_M, 0.0)))
+    speed = max(speed, min(v_corner, cfg.cruise_speed_mps))
+    k = speed / d if d > 1e-9 else 0.0
+    vd = min(max(cfg.position_gain_per_s * (down_m - p[2]), -cfg.climb_speed_mps), cfg.land_speed_mps * 2.0)
+    target = (wp[0], wp[1], down_m)
+    return Setpoint(_SP_VELOCITY, pos_ned_m=target, vel_ned_mps=(dn * k, de * k, vd), yaw_rad=g.yaw_rad)
 
 
 def _hold(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> Setpoint:
+    if on_route(g):
+        return _route_velocity(g, s, cfg, g.anchor_ned_m[2])
     vel = position_to_velocity(
         g.anchor_ned_m,
         s.pos_ned_m,
@@ -203,7 +353,10 @@ def step(g: GuidanceState, s: VehicleState, cfg: TrustedParams, dt: float) -> tu
     )
     # g2._replace(vel_cmd=v) and sp._replace(vel_ned_mps=v), built directly: _replace costs twice as much
     return (
-        GuidanceState(g2.behavior, g2.anchor_ned_m, g2.yaw_rad, g2.phase, g2.mission_index, g2.done, v),
+        GuidanceState(
+            g2.behavior, g2.anchor_ned_m, g2.yaw_rad, g2.phase, g2.mission_index, g2.done, v, g2.path_ne_m,
+            g2.leg, g2.fallback, g2.note,
+        ),
         Setpoint(sp.kind, sp.pos_ned_m, v, sp.yaw_rad, sp.yaw_rate_radps, sp.att_rpy_rad, sp.thrust),
     )
 
@@ -231,6 +384,10 @@ def limit_velocity_change(prev: Vec3, target: Vec3, max_dh_mps: float, max_dv_mp
 def _target(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[GuidanceState, Setpoint]:
     """The behaviour's unlimited velocity setpoint."""
     b = g.behavior
+    if g.path_ne_m:
+        g = _advance_leg(g, s)
+    if g.fallback != FALLBACK_NONE:  # RTL without a route home (see enter)
+        b = _HOLD if g.fallback == FALLBACK_HOLD else _LAND
     if b is _HOLD:
         return g, _hold(g, s, cfg)
 
@@ -246,6 +403,13 @@ def _target(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[Guid
         return g2, Setpoint(_SP_VELOCITY, pos_ned_m=target, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
 
     if b is _LAND:
+        if g.path_ne_m and not g.done:  # to the safe point first, at the present height, then land there
+            a = g.anchor_ned_m
+            if on_route(g):
+                return g, _route_velocity(g, s, cfg, a[2])
+            if math.hypot(a[0] - s.pos_ned_m[0], a[1] - s.pos_ned_m[1]) > cfg.rtl_acceptance_m:
+                return g, _hold(g, s, cfg)
+            g = g._replace(done=True)
         return g, _land_at(g.anchor_ned_m, g, s, cfg)
 
     if b is _RTL:
@@ -255,13 +419,19 @@ def _target(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[Guid
         phase = g.phase
         if phase == RTL_CLIMB and s.alt_m >= safe_alt - ALTITUDE_ACCEPTANCE_M:
             phase = RTL_RETURN
-        if phase == RTL_RETURN and math.hypot(s.pos_ned_m[0], s.pos_ned_m[1]) <= cfg.rtl_acceptance_m:
+        if (
+            phase == RTL_RETURN
+            and not on_route(g)
+            and math.hypot(s.pos_ned_m[0], s.pos_ned_m[1]) <= cfg.rtl_acceptance_m
+        ):
             phase = RTL_DESCEND
         g2 = g if phase == g.phase else g._replace(phase=phase)
         if phase == RTL_DESCEND:
             return g2, _land_at((0.0, 0.0, 0.0), g2, s, cfg)
         if phase == RTL_CLIMB:
             target = (g.anchor_ned_m[0], g.anchor_ned_m[1], -safe_alt)
+        elif on_route(g2):
+            return g2, _route_velocity(g2, s, cfg, -safe_alt)
         else:
             target = (0.0, 0.0, -safe_alt)
         vel = position_to_velocity(
@@ -292,3 +462,53 @@ def _target(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[Guid
 
     # IDLE and TERMINATE: nothing to fly; the command stage turns the motors off.
     return g, Setpoint(SetpointKind.VELOCITY, pos_ned_m=s.pos_ned_m, yaw_rad=g.yaw_rad)
+
+
+# --------------------------------------------------------------------- GOTO, ORBIT, DO_CHANGE_SPEED
+
+
+def goto(g: GuidanceState, target_ned_m: Vec3) -> GuidanceState:
+    """The behaviour ``g`` (HOLD or ORBIT) re-aimed at a commanded point: GOTO's hold point, ORBIT's centre.
+    Flown straight from where the vehicle is (the command was refused unless the point keeps the fence's
+    margin); the acceleration-limited command carries on from where it is."""
+    return GuidanceState(g.behavior, target_ned_m, g.yaw_rad, vel_cmd=g.vel_cmd)
+
+
+def with_speed(cfg: TrustedParams, speed_mps: float) -> TrustedParams:
+    """``cfg`` flying at ``speed_mps`` (MAV_CMD_DO_CHANGE_SPEED), never faster than its cruise speed, which
+    is also the trusted autopilot's limit."""
+    return replace(cfg, cruise_speed_mps=min(cfg.cruise_speed_mps, speed_mps))
+
+
+#: Radial error to radial velocity while orbiting, 1/s (the position loop's gain would fight the turn).
+ORBIT_RADIAL_GAIN_PER_S = 0.5
+
+
+def orbit_step(g: GuidanceState, s: VehicleState, cfg: TrustedParams, dt: float, radius_m: float,
+               speed_mps: float) -> tuple[GuidanceState, Setpoint]:
+    """ORBIT (MAV_CMD_DO_ORBIT, as PX4's orbit flies it): circle ``g.anchor_ned_m`` at ``|radius_m|``,
+    clockwise seen from above for a positive radius, at ``speed_mps`` (0: the cruise speed; never faster
+    than the cruise speed nor than the speed whose centripetal acceleration ``v^2 / r`` reaches
+    ``max_horizontal_decel_mps2``), at the centre's height, nose towards the centre (PX4's default yaw
+    behaviour). The velocity is the tangent at that speed plus a proportional return to the circle, and
+    changes no faster than :func:`step` lets any behaviour's."""
+    c = g.anchor_ned_m
+    r = abs(radius_m)
+    dn, de = s.pos_ned_m[0] - c[0], s.pos_ned_m[1] - c[1]
+    dist = math.hypot(dn, de)
+    un, ue = (dn / dist, de / dist) if dist > 1e-3 else (1.0, 0.0)
+    v = speed_mps if speed_mps > 0.0 else cfg.cruise_speed_mps
+    v = min(v, cfg.cruise_speed_mps, math.sqrt(cfg.max_horizontal_decel_mps2 * r))
+    turn = 1.0 if radius_m > 0.0 else -1.0  # clockwise: the bearing from the centre increases
+    radial = -ORBIT_RADIAL_GAIN_PER_S * (dist - r)
+    vn = turn * v * -ue + radial * un
+    ve = turn * v * un + radial * ue
+    h = math.hypot(vn, ve)
+    if h > cfg.cruise_speed_mps:
+        vn, ve = vn * cfg.cruise_speed_mps / h, ve * cfg.cruise_speed_mps / h
+    vd = min(max(cfg.position_gain_per_s * (c[2] - s.pos_ned_m[2]), -cfg.climb_speed_mps), cfg.land_speed_mps * 2.0)
+    on_circle = (c[0] + un * r, c[1] + ue * r, c[2])
+    vel = limit_velocity_change(g.vel_cmd, (vn, ve, vd), cfg.max_horizontal_decel_mps2 * dt,
+                                cfg.max_vertical_decel_mps2 * dt)
+    yaw = math.atan2(-ue, -un)
+    return g._replace(vel_cmd=vel), Setpoint(_SP_VELOCITY, pos_ned_m=on_circle, vel_ned_mps=vel, yaw_rad=yaw)

@@ -510,6 +510,37 @@ def _att_above_clamp(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
                          "failing vehicle")
 
 
+@cross_check("XC022", "no-safe-return-path", Severity.ERROR,
+             "from part of the range no route home keeps the fence's margin from the keep-outs and the boundary")
+def _return_path(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
+    fence = inp.fence
+    if fence is None or inp.cfg.vehicle.type != "multirotor":
+        return  # the fixed wing's routes keep a turn radius more: its own analysis (docs/fixed-wing.md)
+    from merlin.autopilot import guidance, route
+
+    # the clearance RTL's route keeps with a perfect position (with position uncertainty it keeps more)
+    clearance = fence.params.margin_m + guidance.ROUTE_MARGIN_M
+    r = route.home_reachability(fence, clearance, REACHABILITY_SPACING_M)
+    if r.unreachable == 0:
+        return
+    assert r.worst_ne_m is not None
+    n, e = r.worst_ne_m
+    yield c.make(
+        ("geofence.inclusion_polygons", "geofence.exclusion_polygons", "geofence.exclusion_circles",
+         "geofence.margin_m", "trusted.no_route_fallback"),
+        {"unreachable_fraction": r.unreachable_fraction, "worst_north_m": n, "worst_east_m": e,
+         "clearance_m": clearance, "spacing_m": r.spacing_m},
+        f"{100.0 * r.unreachable_fraction:.1f} % of the range (sampled every {r.spacing_m:g} m) has no route home"
+        f" that keeps {clearance:.1f} m from the keep-outs and the boundary, e.g. from ({n:.0f}, {e:.0f}) m"
+        f" north/east of home: RTL from there flies trusted.no_route_fallback"
+        f" ({inp.cfg.trusted.no_route_fallback}) instead of returning",
+    )
+
+
+#: Grid spacing of the range's sample points for XC022, m.
+REACHABILITY_SPACING_M = 10.0
+
+
 #: Every check, in id order. Add a new one here (module docstring: "Adding a check").
 CHECKS: tuple[CrossCheck, ...] = (
     _home_outside_inclusion,
@@ -533,6 +564,7 @@ CHECKS: tuple[CrossCheck, ...] = (
     _stick,
     _cooldown,
     _att_above_clamp,
+    _return_path,
 )
 
 

@@ -529,6 +529,13 @@ class TrustedConfig(Strict):
         default_factory=list, description="trusted mission waypoints [north_m, east_m, down_m] about home"
     )
     mission_acceptance_m: float = Field(2.0, gt=0.0)
+    no_route_fallback: Literal["hold", "land"] = Field(
+        "land",
+        description="what RTL flies when no route home stays inside the range (keep-outs walling home off):"
+        " land or hold, each at the nearest point that keeps the fence's margin, with an event saying why."
+        " land (the default, as PX4 and ArduPilot do when they cannot return) ends the flight in a known"
+        " time; hold waits for the operator while the battery lasts",
+    )
     mission_speed_mps: list[Annotated[float, Field(ge=0.0, le=100.0)]] = Field(
         default_factory=list,
         description="speed of the leg towards each mission waypoint, m/s (0: cruise speed; the trusted autopilot"

@@ -118,6 +118,7 @@ def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig
             hover_thrust=v.hover_thrust,
             mission_ned_m=tuple((float(a), float(b), float(c)) for a, b, c in t.mission_ned_m),
             mission_acceptance_m=t.mission_acceptance_m,
+            no_route_fallback=t.no_route_fallback,
             mission_speed_mps=tuple(float(v) for v in t.mission_speed_mps),
             mission_end={"hold": Behavior.HOLD, "rtl": Behavior.RTL, "land": Behavior.LAND}[t.mission_end],
         ),

@@ -110,6 +110,7 @@ class TrustedParams:
     hover_thrust: float = 0.5
     mission_ned_m: tuple[tuple[float, float, float], ...] = ()
     mission_acceptance_m: float = 2.0
+    no_route_fallback: str = "land"  # RTL with no route home inside the range: "hold" or "land" (at a safe point)
     # the speed of the leg towards each mission waypoint (0: cruise speed; never above it), and what the
     # trusted autopilot flies after the last waypoint: HOLD there, RTL or LAND (scenario trusted_mission_rtl)
     mission_speed_mps: tuple[float, ...] = ()

@@ -555,7 +555,10 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     if flies_trusted and behavior not in (_IDLE, _TERMINATE):
         if g is None or g.behavior is not behavior:
             prev_g = g
-            g = guidance.enter(behavior, s, cfg.trusted)
+            g = guidance.enter(behavior, s, cfg.trusted, cfg.fence)
+            if g.note:  # the behaviour cannot fly as asked inside the range (no route home, a moved hold point)
+                what = "no_route" if g.fallback else "safe_point"
+                events.append(Event(now, EventKind.WARNING, reason=Reason(ReasonCode.GEOFENCE, "route", what, text=g.note)))
             if prev_g is not None:
                 # A change of behaviour during a takeover (HOLD -> RTL) continues the braking the previous
                 # behaviour's acceleration-limited command was doing, from where that command is: restarting

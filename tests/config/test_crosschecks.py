@@ -39,6 +39,13 @@ def _stage(**limits: Any) -> dict[str, Any]:
     return {"active_stage": "t", "stages": {"t": {"extends": "conservative", **limits}}}
 
 
+_RANGE = {"name": "range", "vertices_ne_m": [[-100, -100], [-100, 100], [300, 100], [300, -100]]}
+
+
+def _strip(east_end_m: float) -> dict[str, Any]:
+    return {"name": "strip", "vertices_ne_m": [[100, -120], [100, east_end_m], [120, east_end_m], [120, -120]]}
+
+
 # (check id, a configuration that trips it, a neighbouring one that does not)
 CASES: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
     ("XC001", {"geofence": {"inclusion_circles": [{"center_ne_m": [500.0, 0.0], "radius_m": 100.0}]}},
@@ -73,6 +80,12 @@ CASES: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
     ("XC020", {"handover": {"cooldown_s": 0.2}}, {"handover": {"cooldown_s": 0.5}}),
     ("XC021", {"envelope": _stage(roll_deg={"min": -50, "max": 50, "duration_s": 1.0})},
      {"envelope": _stage(roll_deg={"min": -45, "max": 45, "duration_s": 1.0})}),
+    # a keep-out strip across the range walls its north end off from home; with a 40 m gap at its east end
+    # the return goes round it
+    ("XC022", {"geofence": {"inclusion_circles": [], "inclusion_polygons": [_RANGE],
+                            "exclusion_polygons": [_strip(120.0)]}},
+     {"geofence": {"inclusion_circles": [], "inclusion_polygons": [_RANGE],
+                   "exclusion_polygons": [_strip(60.0)]}}),
 ]
 
 
