@@ -28,6 +28,7 @@ import math
 from collections.abc import Mapping
 from typing import NamedTuple
 
+from merlin.core import geofence
 from merlin.core.config import Clear, CoreConfig, RuleRow
 from merlin.core.types import (
     ACTION_BEHAVIOR,
@@ -53,6 +54,7 @@ BEHAVIOR_RANK: dict[Behavior, int] = {
     Behavior.RTL: 4,
     Behavior.LAND: 5,
     Behavior.TERMINATE: 6,
+    Behavior.ORBIT: 2,  # a commanded hold that circles: as HOLD, below every failsafe behaviour
 }
 
 #: Monitors that the operator-oversight switches in the configuration can exempt the human from.
@@ -97,6 +99,11 @@ class ArbiterState(NamedTuple):
     grace_monitors: frozenset[str] = frozenset()
     landed_since_s: float | None = None
     takeoff_alt_m: float = 0.0
+    target_ned_m: tuple[float, float, float] | None = None  # GOTO's hold point or ORBIT's centre, until replaced
+    target_seq: int = 0  # counts GOTO/ORBIT commands: a new one re-enters the behaviour
+    orbit_radius_m: float = 0.0  # ORBIT: > 0 clockwise (seen from above), < 0 counter-clockwise
+    orbit_speed_mps: float = 0.0  # ORBIT's tangential speed; 0: the cruise speed
+    speed_mps: float = 0.0  # DO_CHANGE_SPEED: the trusted autopilot's horizontal speed from now on; 0: cruise
     after_takeoff: Behavior = Behavior.HOLD  # what TAKEOFF hands over to at its height (MISSION: a mission
     # started on the ground)
 
@@ -177,7 +184,8 @@ def _to_trusted(
 ) -> ArbiterState:
     if st.authority is not Authority.TRUSTED:
         events.append(_authority_event(now, st.authority, Authority.TRUSTED, reason))
-    return st._replace(authority=Authority.TRUSTED, base=base)
+    # a new behaviour forgets GOTO's point and ORBIT's circle (the command that set them sets them again)
+    return st._replace(authority=Authority.TRUSTED, base=base, target_ned_m=None)
 
 
 def _simple(code: ReasonCode, text: str) -> Reason:
@@ -327,6 +335,16 @@ def _commands(st: ArbiterState, view: TickView, cfg: CoreConfig, events: list[Ev
             st = st._replace(takeoff_alt_m=alt, after_takeoff=Behavior.MISSION, latches=_drop_on_request(st.latches))
             _ack(now, cmd, True, ok, events)
             continue
+        if k is GcsCommandKind.SPEED:
+            if not (math.isfinite(cmd.param) and cmd.param > 0.0):
+                _ack(now, cmd, False, _simple(ReasonCode.INVALID_INPUT, f"refused: speed {cmd.param} m/s"), events)
+            else:
+                st = st._replace(speed_mps=cmd.param)
+                _ack(now, cmd, True, ok, events)
+            continue
+        if k is GcsCommandKind.GOTO or k is GcsCommandKind.ORBIT:
+            st = _goto_or_orbit(st, view, cfg, cmd, events)
+            continue
         behavior = _MODE_BEHAVIOR[k]
         if view.landed and behavior is not Behavior.LAND:
             _ack(now, cmd, False, _simple(ReasonCode.LANDED, "refused: on the ground; take off first"), events)
@@ -339,10 +357,65 @@ def _commands(st: ArbiterState, view: TickView, cfg: CoreConfig, events: list[Ev
     return st
 
 
+#: Points checked on an orbit's circle against the fence (a chord of a 50 m circle is ~10 m).
+ORBIT_FENCE_POINTS = 32
+
+
+def _target_block(cfg: CoreConfig, target: tuple[float, float, float], radius_m: float) -> Reason | None:
+    """Why a GOTO point (``radius_m`` 0) or an ORBIT circle is refused: outside the fence, or closer to its
+    boundary than the fence's margin (the trusted autopilot would fly into the fence's projection)."""
+    fence = cfg.fence
+    if fence is None or not fence.params.enabled:
+        return None
+    margin = fence.params.margin_m
+    n0, e0, d0 = target
+    k = ORBIT_FENCE_POINTS if radius_m else 1
+    for j in range(k):
+        a = 2.0 * math.pi * j / k
+        p = (n0 + abs(radius_m) * math.cos(a), e0 + abs(radius_m) * math.sin(a), d0)
+        near = geofence.nearest_boundary_ne(fence, p[0], p[1])
+        if not geofence.contains(fence, p) or (near is not None and near[0] < margin):
+            what = "orbit circle" if radius_m else "target"
+            return Reason(ReasonCode.GEOFENCE, "arbiter", "target_clearance_m", near[0] if near else 0.0, margin,
+                          0.0, f"refused: the {what} at ({p[0]:.1f}, {p[1]:.1f}, {-p[2]:.1f} m up) is not inside"
+                          f" the fence by its {margin:g} m margin")
+    return None
+
+
+def _goto_or_orbit(st: ArbiterState, view: TickView, cfg: CoreConfig, cmd: GcsCommand,
+                   events: list[Event]) -> ArbiterState:
+    """GOTO (hold at a point) and ORBIT (circle a centre): in the air, inside the fence with its margin."""
+    now = view.now
+    target = cmd.target_ned_m
+    orbit = cmd.kind is GcsCommandKind.ORBIT
+    radius = cmd.param if orbit else 0.0
+    if view.landed:
+        _ack(now, cmd, False, _simple(ReasonCode.LANDED, "refused: on the ground; take off first"), events)
+        return st
+    if target is None or not all(math.isfinite(x) for x in target) or (orbit and not (
+            math.isfinite(radius) and radius != 0.0)):
+        _ack(now, cmd, False, _simple(ReasonCode.INVALID_INPUT, "refused: no finite target or radius"), events)
+        return st
+    block = _target_block(cfg, target, radius)
+    if block is not None:
+        _ack(now, cmd, False, block, events)
+        return st
+    behavior = Behavior.ORBIT if orbit else Behavior.HOLD
+    reason = _simple(ReasonCode.GCS_COMMAND, f"{'ORBIT' if orbit else 'GOTO'} commanded by ground station")
+    st = _cancel_exchange(st, now, reason, events)
+    st = _to_trusted(st, now, reason, events, base=behavior)
+    speed = cmd.speed_mps if math.isfinite(cmd.speed_mps) and cmd.speed_mps > 0.0 else 0.0
+    st = st._replace(latches=_drop_on_request(st.latches), target_ned_m=target, target_seq=st.target_seq + 1,
+                     orbit_radius_m=radius, orbit_speed_mps=speed if orbit else st.orbit_speed_mps,
+                     speed_mps=speed if (speed and not orbit) else st.speed_mps)
+    _ack(now, cmd, True, Reason(ReasonCode.NONE), events)
+    return st
+
+
 def _disarm(st: ArbiterState, now: float, reason: Reason, events: list[Event]) -> ArbiterState:
     st = _cancel_exchange(st, now, reason, events)
     st = _to_trusted(st, now, reason, events, base=Behavior.IDLE)
-    return st._replace(armed=False, latches=(), landed_since_s=None)
+    return st._replace(armed=False, latches=(), landed_since_s=None, speed_mps=0.0)
 
 
 def _exchange_block(st: ArbiterState, view: TickView, cfg: CoreConfig, target: Authority) -> Reason | None:

@@ -74,6 +74,7 @@ _TAKEOFF: Final = Behavior.TAKEOFF
 _HOLD: Final = Behavior.HOLD
 _MISSION: Final = Behavior.MISSION
 _TERMINATE: Final = Behavior.TERMINATE
+_ORBIT: Final = Behavior.ORBIT
 _NAV_VO: Final = NavMode.VO
 _NAV_INERTIAL: Final = NavMode.INERTIAL
 _NAV_LOST: Final = NavMode.LOST
@@ -553,7 +554,8 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     mission_index = st.mission_index if arb.armed else 0  # a new flight starts the mission from its start
     g_setpoint: Setpoint | None = None
     if flies_trusted and behavior not in (_IDLE, _TERMINATE):
-        if g is None or g.behavior is not behavior:
+        if g is None or g.behavior is not behavior or arb.target_seq != st.arbiter.target_seq or (
+                arb.target_ned_m is None and st.arbiter.target_ned_m is not None):  # new behaviour, GOTO/ORBIT, or target dropped
             prev_g = g
             g = guidance.enter(behavior, s, cfg.trusted, cfg.fence)
             if g.note:  # the behaviour cannot fly as asked inside the range (no route home, a moved hold point)
@@ -568,7 +570,14 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
                 g = g._replace(anchor_ned_m=(g.anchor_ned_m[0], g.anchor_ned_m[1], -arb.takeoff_alt_m))
             elif behavior is _MISSION and mission_index < len(cfg.trusted.mission_ned_m):
                 g = g._replace(mission_index=mission_index)  # resumed where it was paused, as PX4 does
-        g, g_setpoint = guidance.step(g, s, cfg.trusted, dt)
+        if arb.target_ned_m is not None and g.anchor_ned_m != arb.target_ned_m and (
+                behavior is _HOLD or behavior is _ORBIT):
+            g = guidance.goto(g, arb.target_ned_m)  # GOTO's point, ORBIT's centre (set at the command)
+        tp = cfg.trusted if not arb.speed_mps else guidance.with_speed(cfg.trusted, arb.speed_mps)
+        if behavior is _ORBIT:
+            g, g_setpoint = guidance.orbit_step(g, s, tp, dt, arb.orbit_radius_m, arb.orbit_speed_mps)
+        else:
+            g, g_setpoint = guidance.step(g, s, tp, dt)
         if behavior is _TAKEOFF and g.done:
             arb = arb._replace(base=arb.after_takeoff, after_takeoff=_HOLD)
         elif behavior is _MISSION:

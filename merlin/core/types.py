@@ -46,6 +46,7 @@ class Behavior(IntEnum):
     RTL = 4
     LAND = 5
     TERMINATE = 6  # flight termination: motors off (last resort, off by default)
+    ORBIT = 7  # circle a centre at a radius and speed (MAV_CMD_DO_ORBIT)
 
 
 class Action(IntEnum):
@@ -107,6 +108,9 @@ class GcsCommandKind(IntEnum):
     LAND = 5
     MISSION = 6
     TERMINATE = 7
+    GOTO = 8  # hold at a target position (MAV_CMD_DO_REPOSITION; PX4 flies it in AUTO.LOITER)
+    ORBIT = 9  # circle a centre (MAV_CMD_DO_ORBIT)
+    SPEED = 10  # the trusted autopilot's horizontal speed from now on (MAV_CMD_DO_CHANGE_SPEED)
 
 
 class ReasonCode(IntEnum):
@@ -248,9 +252,11 @@ class OperatorInput:
 @dataclass(frozen=True, slots=True)
 class GcsCommand:
     kind: GcsCommandKind
-    param: float = 0.0  # TAKEOFF: altitude above home, m
+    param: float = 0.0  # TAKEOFF: altitude above home, m; ORBIT: radius, m (> 0 clockwise); SPEED: m/s
     seq: int = 0  # echoed in the acknowledgement
     force: bool = False  # ARM/DISARM: skip the checks, as MAVLink's 21196 magic does
+    target_ned_m: Vec3 | None = None  # GOTO: where to hold; ORBIT: the centre (NED about home)
+    speed_mps: float = 0.0  # GOTO: ground speed, ORBIT: tangential speed; 0: the configured cruise speed
 
 
 @dataclass(frozen=True, slots=True)

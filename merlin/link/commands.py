@@ -24,7 +24,9 @@ from merlin.core.types import (
     GcsCommandKind,
     ReasonCode,
     RequestKind,
+    Vec3,
 )
+from merlin.geodesy import LocalFrame
 from merlin.link import inbound as i
 from merlin.link import outbound as o
 from merlin.link.px4_modes import MODE_COMMANDS, OFFBOARD, Px4MainMode, Px4Mode
@@ -33,7 +35,11 @@ MAV_CMD_NAV_LOITER_UNLIM = 17
 MAV_CMD_NAV_RETURN_TO_LAUNCH = 20
 MAV_CMD_NAV_LAND = 21
 MAV_CMD_NAV_TAKEOFF = 22
+MAV_CMD_DO_ORBIT = 34
 MAV_CMD_DO_SET_MODE = 176
+MAV_CMD_DO_CHANGE_SPEED = 178
+MAV_CMD_DO_REPOSITION = 192
+MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN = 246
 MAV_CMD_DO_FLIGHTTERMINATION = 185
 MAV_CMD_MISSION_START = 300
 MAV_CMD_COMPONENT_ARM_DISARM = 400
@@ -88,12 +94,20 @@ Intent = GcsCommand | AuthorityRequest | RequestMessage | SetMessageInterval | R
 
 
 def interpret_command(
-    cmd: i.CommandIn, role: LinkRole, home_alt_amsl_m: float, t_s: float = 0.0
+    cmd: i.CommandIn, role: LinkRole, home_alt_amsl_m: float, t_s: float = 0.0, *,
+    frame: LocalFrame | None = None, pos_ned_m: Vec3 | None = None, fixed_wing: bool = False,
 ) -> tuple[Intent, ...]:
     """What a command asks for. Several intents are returned in order (a controller leaving OFFBOARD for
-    another mode first RELEASEs, then asks for the behaviour)."""
+    another mode first RELEASEs, then asks for the behaviour). ``frame`` and ``pos_ned_m`` (the vehicle's
+    position) resolve the positions of DO_REPOSITION and DO_ORBIT; without them those are refused."""
     p = cmd.params
     c = cmd.command
+    if c in (MAV_CMD_DO_REPOSITION, MAV_CMD_DO_ORBIT, MAV_CMD_DO_CHANGE_SPEED):
+        return _guided(cmd, role, t_s, frame, pos_ned_m, fixed_wing)
+    if c == MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN:
+        # PX4 reboots; a simulated vehicle under merlin serve is restarted by restarting the process
+        return (Refused(MAV_RESULT_UNSUPPORTED, "reboot/shutdown is not done by merlin serve: restart the"
+                                                " process"),)
     if c == MAV_CMD_COMPONENT_ARM_DISARM:
         if p[0] == 1.0:
             return (GcsCommand(GcsCommandKind.ARM, force=p[1] == ARM_FORCE_MAGIC),)
@@ -137,6 +151,57 @@ def interpret_command(
     return (Refused(MAV_RESULT_UNSUPPORTED, f"command {c} is not implemented"),)
 
 
+#: COMMAND_INT frames of DO_REPOSITION / DO_ORBIT positions: altitude above mean sea level, or above home.
+MAV_FRAMES_AMSL = frozenset({0, 5})  # MAV_FRAME_GLOBAL, MAV_FRAME_GLOBAL_INT
+MAV_FRAMES_RELATIVE = frozenset({3, 6})  # MAV_FRAME_GLOBAL_RELATIVE_ALT(_INT)
+#: DO_CHANGE_SPEED speed types Merlin's trusted autopilot flies: airspeed and ground speed (horizontal).
+SPEED_TYPES_HORIZONTAL = frozenset({0, 1})
+
+
+def _guided(cmd: i.CommandIn, role: LinkRole, t_s: float, frame: LocalFrame | None, pos_ned_m: Vec3 | None,
+            fixed_wing: bool) -> tuple[Intent, ...]:
+    """MAVSDK Action's goto_location (DO_REPOSITION), do_orbit (DO_ORBIT) and set_current_speed
+    (DO_CHANGE_SPEED), as the trusted autopilot's GOTO, ORBIT and SPEED; positions in the frame PX4 reads
+    them in (COMMAND_INT's frame, COMMAND_LONG as MAV_FRAME_GLOBAL), NaN for "where the vehicle is"."""
+    p, c = cmd.params, cmd.command
+    name = {MAV_CMD_DO_REPOSITION: "DO_REPOSITION", MAV_CMD_DO_ORBIT: "DO_ORBIT"}.get(c, "DO_CHANGE_SPEED")
+    if fixed_wing:
+        return (Refused(MAV_RESULT_UNSUPPORTED, f"{name} is not flown by the fixed wing's trusted autopilot"),)
+    if c == MAV_CMD_DO_CHANGE_SPEED:
+        if int(p[0]) not in SPEED_TYPES_HORIZONTAL or not math.isfinite(p[0]):
+            return (Refused(MAV_RESULT_UNSUPPORTED, f"DO_CHANGE_SPEED speed type {p[0]:g}: only 0 (air) or 1"
+                                                    " (ground) speed"),)
+        if not (math.isfinite(p[1]) and p[1] > 0.0):
+            return (Refused(MAV_RESULT_DENIED, f"DO_CHANGE_SPEED speed {p[1]:g} m/s: a speed above 0 is needed"),)
+        return (GcsCommand(GcsCommandKind.SPEED, param=p[1]),)
+    if frame is None or pos_ned_m is None:
+        return (Refused(MAV_RESULT_UNSUPPORTED, f"{name}: no position to resolve it against"),)
+    f = 0 if cmd.frame is None else cmd.frame  # COMMAND_LONG: PX4 reads it as MAV_FRAME_GLOBAL
+    if f not in MAV_FRAMES_AMSL and f not in MAV_FRAMES_RELATIVE:
+        return (Refused(MAV_RESULT_UNSUPPORTED, f"{name} in MAV_FRAME {f}: only global (AMSL) or relative"
+                                                " to home"),)
+    lat, lon, alt = p[4], p[5], p[6]
+    n, e = pos_ned_m[0], pos_ned_m[1]
+    if math.isfinite(lat) and math.isfinite(lon) and not (lat == 0.0 and lon == 0.0):
+        n, e, _ = frame.to_ned(lat, lon)
+    d = pos_ned_m[2]
+    if math.isfinite(alt):
+        d = -(alt - frame.alt0_amsl_m) if f in MAV_FRAMES_AMSL else -alt
+    target = (float(n), float(e), float(d))
+    if c == MAV_CMD_DO_REPOSITION:
+        speed = p[0] if math.isfinite(p[0]) and p[0] > 0.0 else 0.0
+        intent = GcsCommand(GcsCommandKind.GOTO, target_ned_m=target, speed_mps=speed)
+    else:
+        radius = p[0]
+        if not (math.isfinite(radius) and radius != 0.0):
+            return (Refused(MAV_RESULT_DENIED, f"DO_ORBIT radius {radius:g} m: a non-zero radius is needed"),)
+        speed = abs(p[1]) if math.isfinite(p[1]) and p[1] != 0.0 else 0.0
+        intent = GcsCommand(GcsCommandKind.ORBIT, param=radius, target_ned_m=target, speed_mps=speed)
+    if role is LinkRole.CONTROLLER:
+        return (AuthorityRequest(RequestKind.RELEASE, t_s=t_s), intent)
+    return (intent,)
+
+
 def _is_msg_id(v: float) -> bool:
     return math.isfinite(v) and v == int(v) and 0 <= v < 2**24
 
@@ -178,6 +243,7 @@ class _Pending:
     command: int
     grant_seq: int = 0  # nonzero once granted: the next setpoint acknowledges it
     held_since_s: float | None = None  # held by the edge (IN_PROGRESS sent), not yet passed to the core
+    answered: bool = False  # the command was acknowledged already (OFFBOARD accepted on the ground)
     next_progress_s: float = 0.0  # when IN_PROGRESS is due again while held
 
 
@@ -208,8 +274,10 @@ class OffboardModeBridge:
         """When the request being held was received, None if none is held."""
         return None if self._pending is None else self._pending.held_since_s
 
-    def requested(self, cmd: i.CommandIn, sender: tuple[int, int]) -> None:
-        self._pending = _Pending(sender, cmd.command)
+    def requested(self, cmd: i.CommandIn, sender: tuple[int, int], answered: bool = False) -> None:
+        """A REQUEST made by ``cmd``; ``answered``: its COMMAND_ACK was sent already (the request is the
+        serve process's own, for a command it accepted earlier), so the core's answer sends none."""
+        self._pending = _Pending(sender, cmd.command, answered=answered)
 
     def is_repeat(self, cmd: i.CommandIn, sender: tuple[int, int]) -> bool:
         """Whether ``cmd`` is a retransmission of the request being held (MAVSDK resends a command it has no
@@ -249,6 +317,8 @@ class OffboardModeBridge:
             return []
         if event.kind is EventKind.GRANTED and p.grant_seq == 0:
             self._pending = _Pending(p.sender, p.command, event.seq)
+            if p.answered:
+                return []
             return [o.CommandAckOut(p.command, MAV_RESULT_ACCEPTED, p.sender[0], p.sender[1])]
         if event.kind is EventKind.DENIED:
             if p.grant_seq:
@@ -258,6 +328,8 @@ class OffboardModeBridge:
             if event.seq != 0:
                 return []
             self._pending = None
+            if p.answered:
+                return []
             temporary = event.reason.code in (ReasonCode.COOLDOWN, ReasonCode.BUSY,
                                               ReasonCode.HEARTBEAT_NOT_ESTABLISHED, ReasonCode.SETPOINT_INCONSISTENT)
             result = MAV_RESULT_TEMPORARILY_REJECTED if temporary else MAV_RESULT_DENIED

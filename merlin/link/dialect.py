@@ -48,7 +48,7 @@ import pymavlink
 
 #: Version of the interface control document (icd/ICD.md) this code implements: (major, minor, patch).
 #: Major changes break controllers; minor ones add messages or fields (MAVLink 2 extensions) only.
-ICD_VERSION: tuple[int, int, int] = (1, 2, 0)
+ICD_VERSION: tuple[int, int, int] = (1, 3, 0)
 
 #: The dialect's file name in the :mod:`merlin.link` package (package data).
 SHIPPED_XML = "merlin.xml"

@@ -84,6 +84,10 @@ class Px4Mode:
 OFFBOARD = Px4Mode(Px4MainMode.OFFBOARD)
 POSCTL = Px4Mode(Px4MainMode.POSCTL)
 TERMINATION = Px4Mode(Px4MainMode.TERMINATION)
+#: PX4 flies MAV_CMD_DO_ORBIT in its orbit navigation state, reported as POSCTL with sub-mode ORBIT (1)
+#: (px4_custom_mode.h, PX4_CUSTOM_SUB_MODE_POSCTL_ORBIT).
+PX4_SUB_MODE_POSCTL_ORBIT = 1
+ORBIT = Px4Mode(Px4MainMode.POSCTL, PX4_SUB_MODE_POSCTL_ORBIT)
 
 _BEHAVIOR_MODE: dict[Behavior, Px4Mode] = {
     Behavior.IDLE: Px4Mode(Px4MainMode.AUTO, Px4AutoSubMode.READY),
@@ -93,6 +97,7 @@ _BEHAVIOR_MODE: dict[Behavior, Px4Mode] = {
     Behavior.RTL: Px4Mode(Px4MainMode.AUTO, Px4AutoSubMode.RTL),
     Behavior.LAND: Px4Mode(Px4MainMode.AUTO, Px4AutoSubMode.LAND),
     Behavior.TERMINATE: TERMINATION,
+    Behavior.ORBIT: ORBIT,
 }
 
 

@@ -54,12 +54,14 @@ from merlin.core.types import (
     EventKind,
     ExperimentalInput,
     GcsCommand,
+    GcsCommandKind,
     Inputs,
     NavMode,
     OperatorInput,
     ReasonCode,
     RequestKind,
     Setpoint,
+    SetpointKind,
 )
 from merlin.geodesy import LocalFrame
 from merlin.link import inbound as i
@@ -89,10 +91,12 @@ from merlin.link.mission_protocol import (
 )
 from merlin.link.mission_transfer import MAV_MISSION_ACCEPTED, MAV_MISSION_TYPE_ALL, MAV_MISSION_TYPE_MISSION
 from merlin.link.params import ParamProtocol, ParamWrite, int32_params, published_params, with_param
+from merlin.link.px4_modes import OFFBOARD
 from merlin.link.security import LinkPolicy
 from merlin.link.signing import write_key_file
 from merlin.link.tlog import TlogWriter
 from merlin.serve.link_security import LinkSetup, describe
+from merlin.serve.offboard_takeoff import HANDOVER_MARGIN_M, Facts, OffboardTakeoff
 from merlin.serve.records import EventLog, TickStats, write_effective_config
 from merlin.serve.streams import CONTROLLER_RATES_HZ, GCS_RATES_HZ, Stream, plan_streams, replan
 
@@ -271,6 +275,8 @@ class Server:
         self._last_revoke_t: float | None = None
         self._controller_sender: tuple[int, int] | None = None
         self._sp_rx_t: float | None = None  # when the latest valid setpoint arrived (core clock)
+        self.takeoff = OffboardTakeoff()  # PX4's offboard take-off flow (merlin.serve.offboard_takeoff)
+        self._takeoff_cmd: tuple[_LinkState, i.CommandIn, tuple[int, int]] | None = None
         self._stop = False
         self._read_ns = 0  # when the datagram being handled was read from its socket (monotonic ns)
         self._t0_ns = time.monotonic_ns()
@@ -361,7 +367,9 @@ class Server:
             self._on_mission_protocol(ls, rx, m, sender)
 
     def _on_command(self, ls: _LinkState, rx: i.Received, m: i.CommandIn, sender: tuple[int, int]) -> None:
-        intents = interpret_command(m, ls.role, self.frame.alt0_amsl_m, rx.t_s)
+        intents = interpret_command(m, ls.role, self.frame.alt0_amsl_m, rx.t_s, frame=self.frame,
+                                    pos_ned_m=self.loop.state.pos_ned_m,
+                                    fixed_wing=self.mav_type == o.MAV_TYPE_FIXED_WING)
         acked = False
         for intent in intents:
             if isinstance(intent, GcsCommand):
@@ -374,6 +382,16 @@ class Server:
                     acked = True
                     if self.bridge.is_repeat(m, sender):
                         self._send(ls, self.bridge.hold(self.bridge.held_since_s or rx.t_s))
+                        continue
+                    if self._accept_on_ground(rx.t_s):
+                        self.takeoff.accept()
+                        self._takeoff_cmd = (ls, m, sender)
+                        self._send(ls, command_ack(m, sender, MAV_RESULT_ACCEPTED))
+                        if self.decision is not None:
+                            self._send(ls, self._heartbeat(ls, self.decision))
+                        self.events.write({"t": rx.t_s, "type": "offboard_takeoff", "phase": "accepted",
+                                           "link": ls.name, "detail": "OFFBOARD on the ground: Merlin's take-off"
+                                           " flies at the arming, the request follows in the air"})
                         continue
                     self.bridge.requested(m, sender)
                     self._exchange_peer = (ls, sender)
@@ -429,6 +447,60 @@ class Server:
         need = self.cfg.handover.heartbeat_alive_min_s
         return (f"setpoints streaming; controller alive {self._alive_s(t):.2f} s of the {need:.2f} s required:"
                 " held (IN_PROGRESS) until then")
+
+    def _accept_on_ground(self, t: float) -> bool:
+        """Whether an OFFBOARD request starts PX4's offboard take-off flow: on the ground, disarmed, with
+        position or velocity setpoints streaming (merlin.serve.offboard_takeoff)."""
+        sp = self.pending.setpoint[1] if self.pending.setpoint is not None else None
+        kind_ok = isinstance(sp, (i.SetpointIn, i.GlobalSetpointIn)) or (
+            sp is None and self.sp is not None and self.sp.kind is not SetpointKind.ATTITUDE)
+        return (not self.loop.armed and bool(self.loop.state.landed) and self._streaming(t) and kind_ok
+                and self.takeoff.phase.value == "idle")
+
+    def _handover_alt_m(self) -> float:
+        """The height from which the envelope allows a grant after Merlin's take-off."""
+        lim = self.limits.get("altitude_m")
+        low = lim.min if lim is not None and lim.enabled else 0.0
+        return max(low, 0.0) + HANDOVER_MARGIN_M
+
+    def _advance_takeoff(self, t: float, p: _Pending) -> None:
+        """One tick of PX4's offboard take-off flow: command the take-off at the arming, send the request
+        once high enough, show the truth again when it ends."""
+        d = self.decision
+        if d is None or not self.takeoff.shows_offboard:
+            return
+        s = self.loop.state
+        step = self.takeoff.step(Facts(bool(d.armed), bool(s.landed), s.alt_m, d.authority, d.behavior,
+                                       self._streaming(t), self._handover_alt_m()))
+        if step.takeoff:
+            self._cmd_seq += 1
+            p.commands.append(GcsCommand(GcsCommandKind.TAKEOFF, param=math.nan, seq=self._cmd_seq))
+            self.events.write({"t": t, "type": "offboard_takeoff", "phase": "climbing",
+                               "detail": f"Merlin's take-off to {self.cfg.trusted.takeoff_altitude_m:g} m;"
+                               f" the request at {self._handover_alt_m():g} m"})
+        if step.request and self._takeoff_cmd is not None:
+            ls, cmd, sender = self._takeoff_cmd
+            self.bridge.requested(cmd, sender, answered=True)
+            self._exchange_peer = (ls, sender)
+            p.requests.append(AuthorityRequest(RequestKind.REQUEST, t_s=t))
+            self.events.write({"t": t, "type": "offboard_takeoff", "phase": "requested", "alt_m": round(s.alt_m, 3)})
+        if step.ended:
+            self._end_takeoff(t, step.ended)
+
+    def _end_takeoff(self, t: float, why: str) -> None:
+        self.takeoff.end()
+        self.events.write({"t": t, "type": "offboard_takeoff", "phase": "ended", "detail": why})
+        if self.decision is not None:
+            for ls in self.links:
+                self._send(ls, self._heartbeat(ls, self.decision))
+
+    def _heartbeat(self, ls: _LinkState, d: Decision) -> o.HeartbeatOut:
+        """HEARTBEAT for ``ls``: the controller's link shows OFFBOARD during the offboard take-off flow, as
+        PX4 would show it; every other link (and that one otherwise) the truth."""
+        hb = o.heartbeat_from_decision(d, self.mav_type)
+        if ls.role is LinkRole.CONTROLLER and self.takeoff.shows_offboard:
+            return replace(hb, mode=OFFBOARD)
+        return hb
 
     def _advance_held_request(self, t: float, requests: list[AuthorityRequest]) -> None:
         """At a tick: pass a held standard request to the core once it can decide (the heartbeat rule met,
@@ -673,6 +745,7 @@ class Server:
         p = self.pending
         self.pending = _Pending()
         self._advance_held_request(t, p.requests)
+        self._advance_takeoff(t, p)
         sp_arrival_ns = 0
         if p.setpoint is not None:
             sp_t, m, sp_arrival_ns = p.setpoint
@@ -702,8 +775,8 @@ class Server:
             self._on_event(e, d)
         changed = prev is None or (prev.authority, prev.behavior, prev.armed) != (d.authority, d.behavior, d.armed)
         if changed:
-            hb = o.heartbeat_from_decision(d, self.mav_type)
-            self._broadcast(hb)
+            for ls in self.links:
+                self._send(ls, self._heartbeat(ls, d))
             self._broadcast(self._authority_status(d))
         if self._revoke_repeats and self._revoke_repeats[0][0] <= t:
             due = [m for (tt, m) in self._revoke_repeats if tt <= t]
@@ -771,7 +844,7 @@ class Server:
         ms = self._boot_ms()
         d = self.decision
         if name == "HEARTBEAT":
-            return [o.heartbeat_from_decision(d, self.mav_type)] if d is not None else []
+            return [self._heartbeat(ls, d)] if d is not None else []
         if name == "ATTITUDE":
             return [o.attitude_from_state(s, ms)]
         if name == "LOCAL_POSITION_NED":
@@ -822,6 +895,8 @@ class Server:
             auth = Authority.SHADOW if e.to is Authority.SHADOW else Authority.EXPERIMENTAL
             self._broadcast(o.grant_from_event(e, ms, peer, req_id, auth, hc.ack_timeout_s, hc.blend_window_s))
         elif e.kind is EventKind.DENIED:
+            if self.takeoff.phase.value == "requested" and e.seq == 0:
+                self._end_takeoff(self.t, f"denied: {e.reason.describe()}")
             req_id = self._take_request_id() if e.seq == 0 else 0
             retry = hc.cooldown_s - (self.t - self._last_revoke_t) if (
                 e.reason.code is ReasonCode.COOLDOWN and self._last_revoke_t is not None) else 0.0
@@ -842,6 +917,9 @@ class Server:
             if waiting is not None:
                 ls, cmd, sender = waiting
                 self._send(ls, command_ack(cmd, sender, MAV_RESULT_ACCEPTED if e.accepted else MAV_RESULT_DENIED))
+                if not e.accepted and e.command is not None:  # why, for the sender's message panel
+                    self._send(ls, o.StatusTextOut(o.MAV_SEVERITY_WARNING,
+                                                   f"Merlin: {e.command.name} refused: {e.reason.describe()}"))
         if e.reason.code is not ReasonCode.NONE and e.kind in (EventKind.REVOKED, EventKind.DENIED):
             self._last_reason = e.reason.code
         text = o.statustext_for_event(e)

@@ -165,3 +165,57 @@ def test_bridge_ignores_unrelated_denials_and_clears_on_lapse() -> None:
     assert b.waiting
     assert b.on_event(Event(2.1, EventKind.DENIED, reason=Reason(ReasonCode.ACK_TIMEOUT), seq=7)) == []
     assert not b.waiting and b.on_setpoint(2.2) is None
+
+
+# ------------------------------------------------------------- MAVSDK Action: goto, orbit, speed, reboot
+
+
+def _cmd_int(command: int, frame: int, *params: float) -> i.CommandIn:
+    p = (*params, *([0.0] * (7 - len(params))))
+    return i.CommandIn(command, p, 1, 1, 0, frame)  # type: ignore[arg-type]
+
+
+def test_reposition_and_orbit_resolve_their_positions_as_px4_reads_them() -> None:
+    from merlin.geodesy import LocalFrame
+
+    f = LocalFrame(47.397742, 8.545594, 488.0)
+    lat, lon, _ = f.to_geodetic(40.0, -10.0, 0.0)
+    here = (1.0, 2.0, -12.0)
+    # MAVSDK goto_location: COMMAND_INT, MAV_FRAME_GLOBAL_INT, altitude above mean sea level
+    [g] = interpret_command(_cmd_int(192, 5, -1, 1, 0, NAN, lat, lon, 503.0), LinkRole.GCS, 488.0, frame=f,
+                            pos_ned_m=here)
+    assert isinstance(g, GcsCommand) and g.kind is GcsCommandKind.GOTO
+    assert g.target_ned_m == pytest.approx((40.0, -10.0, -15.0), abs=1e-3) and g.speed_mps == 0.0
+    # relative-altitude frame; COMMAND_LONG is read as MAV_FRAME_GLOBAL (AMSL); NaN keeps where the vehicle is
+    [g] = interpret_command(_cmd_int(192, 6, 3.0, 1, 0, NAN, lat, lon, 20.0), LinkRole.GCS, 488.0, frame=f,
+                            pos_ned_m=here)
+    assert g.target_ned_m[2] == pytest.approx(-20.0) and g.speed_mps == 3.0  # type: ignore[union-attr,index]
+    [g] = interpret_command(_cmd(192, -1, 1, 0, NAN, NAN, NAN, NAN), LinkRole.GCS, 488.0, frame=f, pos_ned_m=here)
+    assert g.target_ned_m == here  # type: ignore[union-attr]
+    # MAVSDK do_orbit: radius, velocity, yaw behaviour, centre
+    [o_] = interpret_command(_cmd_int(34, 5, 15.0, 2.5, 0, 0, lat, lon, NAN), LinkRole.GCS, 488.0, frame=f,
+                             pos_ned_m=here)
+    assert isinstance(o_, GcsCommand) and o_.kind is GcsCommandKind.ORBIT and o_.param == 15.0
+    assert o_.speed_mps == 2.5 and o_.target_ned_m[2] == here[2]  # type: ignore[index]
+    # from the controller's link: it leaves OFFBOARD first, as for every behaviour
+    rel, _ = interpret_command(_cmd_int(192, 5, -1, 1, 0, NAN, lat, lon, NAN), LinkRole.CONTROLLER, 488.0,
+                               frame=f, pos_ned_m=here)
+    assert isinstance(rel, AuthorityRequest) and rel.kind is RequestKind.RELEASE
+
+
+def test_refusals_say_why_terrain_frames_fixed_wing_zero_radius_reboot() -> None:
+    from merlin.geodesy import LocalFrame
+
+    f = LocalFrame(47.0, 8.0, 400.0)
+    for cmd, kw, result in (
+        (_cmd_int(192, 10, -1, 1, 0, NAN, 47.0, 8.0, 10.0), {}, MAV_RESULT_UNSUPPORTED),  # terrain frame
+        (_cmd_int(34, 5, 0.0, 2, 0, 0, 47.0, 8.0, NAN), {}, MAV_RESULT_DENIED),  # zero radius
+        (_cmd_int(192, 5, -1, 1, 0, NAN, 47.0, 8.0, 410.0), {"fixed_wing": True}, MAV_RESULT_UNSUPPORTED),
+        (_cmd(178, 2, 1.0), {}, MAV_RESULT_UNSUPPORTED),  # climb speed
+        (_cmd(178, 1, -1.0), {}, MAV_RESULT_DENIED),
+        (_cmd(246, 1), {}, MAV_RESULT_UNSUPPORTED),  # reboot
+    ):
+        [r] = interpret_command(cmd, LinkRole.GCS, 400.0, frame=f, pos_ned_m=(0.0, 0.0, -5.0), **kw)  # type: ignore[arg-type]
+        assert isinstance(r, Refused) and r.result == result and r.detail, (cmd, r)
+    [s] = interpret_command(_cmd(178, 1, 2.5, -1), LinkRole.GCS, 400.0)
+    assert s == GcsCommand(GcsCommandKind.SPEED, param=2.5)

@@ -107,15 +107,18 @@ def run(args: argparse.Namespace) -> int:
         with c.lock:
             c.setpoint = (args.mask, (0.0, 0.0, -args.height), (0.0, 0.0, 0.0))
     threading.Thread(target=c.streamer, daemon=True).start()
-    if args.flow == "takeoff":
-        time.sleep(args.prestream_s)
-        c.set_offboard(args.set_mode)
-        c.arm()
+    # the tutorial's order: OFFBOARD, then arm, after the pre-stream; everything received meanwhile is read
+    # (a client that stops reading loses what its socket buffer cannot hold)
+    switch_at = time.monotonic() + args.prestream_s if args.flow == "takeoff" else None
     end = time.monotonic() + args.fly_s
     last_mode: int | None = None
     offboard_seen = False
     while time.monotonic() < end:
-        msg: Any = c.m.recv_match(blocking=True, timeout=0.2)
+        if switch_at is not None and time.monotonic() >= switch_at:
+            c.set_offboard(args.set_mode)
+            c.arm()
+            switch_at = None
+        msg: Any = c.m.recv_match(blocking=True, timeout=0.05)
         if msg is None:
             continue
         kind = msg.get_type()

@@ -134,3 +134,62 @@ def test_an_outward_offboard_flight_is_revoked_by_the_fence_and_stays_inside(tmp
         stop(sp)
     revoked = [e for e in sp.events() if e["type"] == "revoked"]
     assert revoked and revoked[0]["reason"] == "geofence", revoked
+
+
+def _takeoff_flow(sp: ServeProc, height: str, *extra: str) -> tuple[list[str], object]:
+    m = gcs_connection(sp.gcs_port)
+    ctl = _client(sp, "--flow", "takeoff", "--height", height, "--prestream-s", "3", "--fly-s", "60",
+                  "--report-position", *extra)
+    return lines_until(ctl, "mode OFFBOARD", timeout_s=30), m
+
+
+@pytest.mark.parametrize("set_mode", ["command", "message"])
+def test_px4_tutorial_take_off_in_offboard_is_flown_by_merlin_then_handed_over(serve: ServeProc,
+                                                                             set_mode: str) -> None:
+    # PX4's offboard tutorial (MAVROS offb_node, here pymavlink): on the ground and disarmed, stream a position
+    # setpoint up, switch to OFFBOARD (DO_SET_MODE, or the SET_MODE message MAVROS sends), arm
+    out, m = _takeoff_flow(serve, "5", "--set-mode", set_mode)
+    brief = [x for x in out if "position" not in x]
+    assert any("ack command=176 result=0" in x for x in out), brief  # accepted on the ground, as PX4 does
+    first = next(x for x in out if "mode OFFBOARD" in x)
+    assert "armed=False" in out[out.index(first) - 1], out  # shown OFFBOARD before the arming, as PX4 shows it
+    # the ground station sees the truth meanwhile: Merlin's own take-off (AUTO.TAKEOFF)
+    tk = wait_for(m, lambda x: x.get_type() == "HEARTBEAT" and x.get_srcComponent() == 1
+                  and x.custom_mode == (4 << 16 | 2 << 24))
+    assert tk is not None
+    # then the grant, in the air, above the envelope's lowest altitude (3 m) plus the margin
+    off = wait_for(m, lambda x: x.get_type() == "HEARTBEAT" and x.get_srcComponent() == 1
+                   and (x.custom_mode >> 16) & 0xFF == 6)
+    assert off is not None, "never handed over"
+    ev = serve.events()
+    phases = [e["phase"] for e in ev if e["type"] == "offboard_takeoff"]
+    assert phases[:3] == ["accepted", "climbing", "requested"], phases
+    req = next(e for e in ev if e.get("phase") == "requested")
+    assert req["alt_m"] >= 4.0 - 0.1
+    granted = [e for e in ev if e["type"] == "authority" and e.get("to") == "EXPERIMENTAL"]
+    assert granted, [e for e in ev if e["type"] in ("denied", "offboard_takeoff")]
+    # the controller's setpoint (5 m up) is flown: the vehicle settles near 5 m
+    got = wait_for(m, lambda x: x.get_type() == "LOCAL_POSITION_NED" and abs(-x.z - 5.0) < 0.5, timeout_s=30)
+    assert got is not None
+
+
+def test_px4_tutorial_with_a_setpoint_below_the_envelope_takes_off_and_is_refused_with_its_reason(
+        serve: ServeProc) -> None:
+    # the tutorial's 2 m is below the conservative envelope's altitude_m.min (3 m): Merlin flies its take-off,
+    # and the request is refused (the setpoint commands a height outside the envelope); the controller sees
+    # the mode leave OFFBOARD and the reason in STATUSTEXT, and the vehicle holds under Merlin
+    out, m = _takeoff_flow(serve, "2")
+    assert any("mode OFFBOARD" in x for x in out), out
+    ctl = serve.extra[-1]
+    more = lines_until(ctl, "mode left OFFBOARD", timeout_s=60)
+    assert any("mode left OFFBOARD" in x for x in more), more
+    more += lines_until(ctl, "altitude_m", timeout_s=10)  # the reason follows the mode change
+    text = " ".join(x for x in out + more if "statustext" in x)
+    assert "altitude_m" in text, text
+    hold = wait_for(m, lambda x: x.get_type() == "HEARTBEAT" and x.get_srcComponent() == 1
+                    and x.custom_mode in (4 << 16 | 3 << 24, 4 << 16 | 2 << 24))
+    assert hold is not None and hold.base_mode & 128  # armed, Merlin's take-off or hold
+    ev = serve.events()
+    denied = [e for e in ev if e["type"] == "denied"]
+    assert denied and denied[0]["reason"] == "envelope", denied
+    assert not any(e["type"] == "authority" and e.get("to") == "EXPERIMENTAL" for e in ev)
