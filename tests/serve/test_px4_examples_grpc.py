@@ -50,6 +50,15 @@ def _behaviours(serve: ServeProc) -> list[str]:
     return [e["behavior"] for e in _types(serve, "behavior")]
 
 
+def _wait_behaviour(serve: ServeProc, behaviour: str, timeout_s: float = 10.0) -> list[str]:
+    """The behaviours so far, once ``behaviour`` is among them (an example may exit the moment its last
+    command is acknowledged, a tick before the behaviour's record is written) or the time is up."""
+    t_end = time.monotonic() + timeout_s
+    while behaviour not in _behaviours(serve) and time.monotonic() < t_end:
+        time.sleep(0.2)
+    return _behaviours(serve)
+
+
 def _check_offboard_flown(serve: ServeProc) -> None:
     assert _types(serve, "granted"), "never granted OFFBOARD"
     assert not _types(serve, "denied"), _types(serve, "denied")
@@ -99,7 +108,8 @@ def test_offboard_position_velocity_ned(serve: ServeProc) -> None:
 
 def test_takeoff_and_land(serve: ServeProc) -> None:
     run_example(serve, "takeoff_and_land", 90)
-    assert "TAKEOFF" in _behaviours(serve) and "LAND" in _behaviours(serve)
+    b = _wait_behaviour(serve, "LAND")
+    assert "TAKEOFF" in b and "LAND" in b, b
 
 
 def test_telemetry_takeoff_and_land(serve: ServeProc) -> None:
@@ -140,7 +150,7 @@ def test_goto(serve: ServeProc) -> None:
 
 def test_do_orbit(serve: ServeProc) -> None:
     run_example(serve, "do_orbit", 150)
-    assert "RTL" in _behaviours(serve)
+    assert "RTL" in _wait_behaviour(serve, "RTL")
 
 
 def _upload_circle_fence(m: Any, lat: float, lon: float, radius_m: float) -> None:

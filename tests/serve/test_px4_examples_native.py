@@ -4,6 +4,8 @@ ground), take-off and land, and offboard velocity NED."""
 
 from __future__ import annotations
 
+import time
+
 import pytest
 
 from tests.serve.conftest import ServeProc, lines_until
@@ -26,6 +28,13 @@ def _behaviours(serve: ServeProc) -> list[str]:
     return [e["behavior"] for e in serve.events() if e["type"] == "behavior"]
 
 
+def _wait_behaviour(serve: ServeProc, behaviour: str, timeout_s: float = 10.0) -> list[str]:
+    t_end = time.monotonic() + timeout_s  # the program may exit a tick before the behaviour is recorded
+    while behaviour not in _behaviours(serve) and time.monotonic() < t_end:
+        time.sleep(0.2)
+    return _behaviours(serve)
+
+
 def test_native_mission(serve: ServeProc) -> None:
     out = run_native(serve, "mission", 170)
     assert "Mission progress: 3/3" in out, out[-2000:]
@@ -34,7 +43,8 @@ def test_native_mission(serve: ServeProc) -> None:
 
 def test_native_takeoff_and_land(serve: ServeProc) -> None:
     run_native(serve, "takeoff_and_land", 90)
-    assert "TAKEOFF" in _behaviours(serve) and "LAND" in _behaviours(serve)
+    b = _wait_behaviour(serve, "LAND")
+    assert "TAKEOFF" in b and "LAND" in b, b
 
 
 def test_native_offboard_velocity_ned(serve: ServeProc) -> None:
