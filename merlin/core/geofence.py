@@ -108,7 +108,9 @@ PointNE = tuple[float, float]
 class FenceParams:
     """How the fence is checked. SI units and radians (degrees are converted in ``merlin.config``).
 
-    Defaults mirror :class:`merlin.config.models.GeofenceConfig` and ``VehicleLimits``.
+    Defaults mirror :class:`merlin.config.models.GeofenceConfig` and ``VehicleLimits``, except ``margin_m``:
+    the configuration's default is 8 m (cross-check XC012, docs/crosschecks.md), the 5 m here is what the
+    core's own tests are written against.
     """
 
     mode: FenceModeName = "velocity_projection"

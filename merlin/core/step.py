@@ -114,9 +114,10 @@ class CoreState(NamedTuple):
     # the envelope's exceedance-budget rings (merlin.core.envelope) and the authority they are charged to
     env_budget: tuple[envelope.BudgetRing, ...] = ()
     env_budget_authority: Authority = Authority.TRUSTED
-    # the vehicle has been above the fence floor (with its margin) since it last left the ground: the floor
-    # applies from then on, so the trusted take-off climbs through it (scenario adv_floor_takeoff)
-    floor_reached: bool = False
+    # the fence floor applies: from the start (a vehicle first seen airborne, e.g. a fixed wing in flight, is
+    # judged at once), not while on the ground, and after a take-off once the vehicle has climbed clear of it,
+    # so that the take-off passes through it (scenario adv_floor_takeoff)
+    floor_reached: bool = True
 
 
 def initial_state(cfg: CoreConfig) -> CoreState:
@@ -444,8 +445,8 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
         tripped["envelope"] = env.reason
     fence_res = None
     wind_ne = (0.0, 0.0)
-    # The floor applies once the vehicle has climbed clear of it since leaving the ground (a NaN height
-    # compares False: never clear), so the trusted take-off climbs through it instead of tripping it.
+    # The floor applies unless the vehicle has been on the ground and not yet climbed clear of it since (a NaN
+    # height compares False: never clear), so the trusted take-off climbs through it instead of tripping it.
     floor_reached = not s.landed and cfg.fence is not None and (
         st.floor_reached or geofence.clear_of_floor(cfg.fence, s.pos_ned_m, s.pos_sigma_v_m))
     if cfg.fence is not None:

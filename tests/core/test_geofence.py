@@ -8,6 +8,7 @@ fence does not; non-finite inputs never crash the check; a position outside alwa
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from functools import cache
 
 import numpy as np
@@ -668,7 +669,7 @@ def test_property_multirotor_check_equals_a_direct_shapely_reference(n, e, speed
 
 def test_build_default_config_fence() -> None:
     fence = build_fence(GeofenceConfig(), HomeConfig(), VehicleLimits())
-    assert fence.params == FenceParams()
+    assert fence.params == replace(FenceParams(), margin_m=8.0)  # the configuration's default margin (XC012)
     assert contains(fence, (0.0, 0.0, 0.0)) and contains(fence, (299.9, 0.0, 0.0))
     assert not contains(fence, (300.01, 0.0, 0.0))
 
