@@ -373,6 +373,14 @@ class Server:
         acked = False
         for intent in intents:
             if isinstance(intent, GcsCommand):
+                refused = self._mission_start_refused(intent)
+                if refused is not None:  # as PX4's mission feasibility check at start, with Merlin's leg check
+                    self._send(ls, command_ack(m, sender, MAV_RESULT_DENIED))
+                    self._broadcast(o.StatusTextOut(o.MAV_SEVERITY_WARNING, f"Merlin: mission not started: {refused}"))
+                    self.events.write({"t": rx.t_s, "type": "command_refused", "link": ls.name,
+                                       "command": m.command, "detail": f"mission: {refused}"})
+                    acked = True
+                    continue
                 self._cmd_seq += 1
                 self.pending.commands.append(replace(intent, seq=self._cmd_seq))
                 self._cmd_waiting[self._cmd_seq] = (ls, m, sender)
@@ -600,6 +608,14 @@ class Server:
             self._mission_reached, self._mission_current, self._mission_complete = -1, -1, False
             self.events.write({"t": self.t, "type": "mission_applied", "items": len(res.plan.items),
                                "waypoints": len(res.plan.waypoints), "end": res.plan.end.value})
+
+    def _mission_start_refused(self, cmd: GcsCommand) -> str | None:
+        """Why a MISSION command must be refused now: the uploaded mission no longer fits the fence in force
+        (a fence uploaded after it); None otherwise."""
+        if cmd.kind is not GcsCommandKind.MISSION or self.mission.plan.empty:
+            return None
+        refused = self._check_mission(self.mission.plan)
+        return None if refused is None else refused[1]
 
     def _hand_mission_to_fixed_wing(self, plan: MissionPlan) -> None:
         """A fixed wing flies MISSION in its own actuator stage (L1 legs at cruise airspeed, then a loiter at

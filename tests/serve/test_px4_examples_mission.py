@@ -146,3 +146,21 @@ def test_mission_upload_download_start_pause_resume_land_clear(serve: ServeProc)
     ack = wait_for(m, lambda x: x.get_type() == "MISSION_ACK" and x.mission_type == MISSION)
     assert ack is not None and ack.type == 0
     assert _download(m) == []
+
+
+def test_a_mission_that_no_longer_fits_a_later_fence_is_not_started(serve: ServeProc) -> None:
+    """A fence uploaded after the mission, smaller than its legs: MISSION_START is DENIED with a STATUSTEXT
+    naming the item (PX4 checks a mission's feasibility when it starts, too)."""
+    m = gcs_connection(serve.gcs_port)
+    frame = _home(m)
+    assert _upload(m, [_item(frame, 0, 16, 60.0, 0.0, 10.0)]).type == 0
+    lat, lon, _ = frame.to_geodetic(0.0, 0.0)
+    m.mav.mission_count_send(1, 1, 1, 1)  # a 40 m inclusion circle about home (MAV_MISSION_TYPE_FENCE)
+    assert wait_for(m, lambda x: x.get_type() == "MISSION_REQUEST_INT" and x.mission_type == 1) is not None
+    m.mav.mission_item_int_send(1, 1, 0, 0, 5003, 0, 1, 40.0, 0.0, 0.0, 0.0, round(lat * 1e7), round(lon * 1e7), 0.0, 1)
+    ack = wait_for(m, lambda x: x.get_type() == "MISSION_ACK" and x.mission_type == 1)
+    assert ack is not None and ack.type == 0
+    assert command(m, 400, 1.0).result == 0
+    assert command(m, 300, 0.0, 0.0).result == 2  # MAV_RESULT_DENIED
+    text = _statustext(m, "mission not started")
+    assert text is not None and "item 0 (NAV_WAYPOINT)" in text and "leaves the fence" in text, text
