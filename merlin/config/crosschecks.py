@@ -537,6 +537,37 @@ def _return_path(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
     )
 
 
+@cross_check("XC023", "mission-leaves-range", Severity.ERROR,
+             "a trusted mission waypoint or leg lies within the fence's margin of a keep-out or the boundary")
+def _mission_in_range(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
+    fence, wps = inp.fence, inp.cfg.trusted.mission_ned_m
+    if fence is None or not wps:
+        return
+    from merlin.autopilot import route
+
+    if not route.has_zones(fence):
+        return
+    margin = fence.params.margin_m
+    pts = [(0.0, 0.0)] + [(float(w[0]), float(w[1])) for w in wps]  # the mission starts over home
+    for i in range(1, len(pts)):
+        a, b = pts[i - 1], pts[i]
+        leg = shapely.LineString([a, b]) if a != b else shapely.Point(b)
+        worst = min(route.hazard_distance_m(fence, a), route.hazard_distance_m(fence, b))
+        for hz in (fence.exclusion_area, shapely.boundary(fence.allowed_area) if fence.has_inclusion else None):
+            if hz is not None:
+                worst = min(worst, float(shapely.distance(hz, leg)))
+        if fence.has_inclusion and not shapely.covers(fence.allowed_area, leg):
+            worst = min(worst, -float(shapely.length(shapely.difference(leg, fence.allowed_area))))
+        if worst < margin:
+            yield c.make(
+                ("trusted.mission_ned_m", "geofence.margin_m"),
+                {"waypoint": float(i - 1), "clearance_m": worst, "margin_m": margin},
+                f"the leg to mission waypoint {i - 1} ({b[0]:.0f}, {b[1]:.0f}) m comes {worst:.1f} m from a"
+                f" keep-out or the boundary (negative: through it), within the fence's {margin:g} m margin: the"
+                " fence trips on the trusted mission and RTL takes over",
+            )
+
+
 #: Grid spacing of the range's sample points for XC022, m.
 REACHABILITY_SPACING_M = 10.0
 
@@ -565,6 +596,7 @@ CHECKS: tuple[CrossCheck, ...] = (
     _cooldown,
     _att_above_clamp,
     _return_path,
+    _mission_in_range,
 )
 
 

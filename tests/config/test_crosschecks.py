@@ -42,6 +42,9 @@ def _stage(**limits: Any) -> dict[str, Any]:
 _RANGE = {"name": "range", "vertices_ne_m": [[-100, -100], [-100, 100], [300, 100], [300, -100]]}
 
 
+_MAST = {"name": "mast", "center_ne_m": [100.0, 50.0], "radius_m": 20.0}
+
+
 def _strip(east_end_m: float) -> dict[str, Any]:
     return {"name": "strip", "vertices_ne_m": [[100, -120], [100, east_end_m], [120, east_end_m], [120, -120]]}
 
@@ -86,6 +89,11 @@ CASES: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
                             "exclusion_polygons": [_strip(120.0)]}},
      {"geofence": {"inclusion_circles": [], "inclusion_polygons": [_RANGE],
                    "exclusion_polygons": [_strip(60.0)]}}),
+    # a mission leg along 100 N crosses a 20 m keep-out circle at (100, 50); along 60 N it passes 20 m clear
+    ("XC023", {"geofence": {"exclusion_circles": [_MAST]},
+               "trusted": {"mission_ned_m": [[100.0, 0.0, -20.0], [100.0, 100.0, -20.0]]}},
+     {"geofence": {"exclusion_circles": [_MAST]},
+      "trusted": {"mission_ned_m": [[60.0, 0.0, -20.0], [60.0, 100.0, -20.0]]}}),
 ]
 
 
