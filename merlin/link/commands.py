@@ -151,7 +151,7 @@ def interpret_command(
     return (Refused(MAV_RESULT_UNSUPPORTED, f"command {c} is not implemented"),)
 
 
-#: COMMAND_INT frames of DO_REPOSITION / DO_ORBIT positions: altitude above mean sea level, or above home.
+#: COMMAND_INT frames of DO_REPOSITION / DO_ORBIT positions Merlin reads (the altitude is AMSL in each).
 MAV_FRAMES_AMSL = frozenset({0, 5})  # MAV_FRAME_GLOBAL, MAV_FRAME_GLOBAL_INT
 MAV_FRAMES_RELATIVE = frozenset({3, 6})  # MAV_FRAME_GLOBAL_RELATIVE_ALT(_INT)
 #: DO_CHANGE_SPEED speed types Merlin's trusted autopilot flies: airspeed and ground speed (horizontal).
@@ -161,8 +161,9 @@ SPEED_TYPES_HORIZONTAL = frozenset({0, 1})
 def _guided(cmd: i.CommandIn, role: LinkRole, t_s: float, frame: LocalFrame | None, pos_ned_m: Vec3 | None,
             fixed_wing: bool) -> tuple[Intent, ...]:
     """MAVSDK Action's goto_location (DO_REPOSITION), do_orbit (DO_ORBIT) and set_current_speed
-    (DO_CHANGE_SPEED), as the trusted autopilot's GOTO, ORBIT and SPEED; positions in the frame PX4 reads
-    them in (COMMAND_INT's frame, COMMAND_LONG as MAV_FRAME_GLOBAL), NaN for "where the vehicle is"."""
+    (DO_CHANGE_SPEED), as the trusted autopilot's GOTO, ORBIT and SPEED; positions as PX4 reads them
+    (latitude/longitude, altitude above mean sea level, in any global frame of COMMAND_INT or in
+    COMMAND_LONG), NaN for "where the vehicle is"."""
     p, c = cmd.params, cmd.command
     name = {MAV_CMD_DO_REPOSITION: "DO_REPOSITION", MAV_CMD_DO_ORBIT: "DO_ORBIT"}.get(c, "DO_CHANGE_SPEED")
     if fixed_wing:
@@ -178,15 +179,16 @@ def _guided(cmd: i.CommandIn, role: LinkRole, t_s: float, frame: LocalFrame | No
         return (Refused(MAV_RESULT_UNSUPPORTED, f"{name}: no position to resolve it against"),)
     f = 0 if cmd.frame is None else cmd.frame  # COMMAND_LONG: PX4 reads it as MAV_FRAME_GLOBAL
     if f not in MAV_FRAMES_AMSL and f not in MAV_FRAMES_RELATIVE:
-        return (Refused(MAV_RESULT_UNSUPPORTED, f"{name} in MAV_FRAME {f}: only global (AMSL) or relative"
-                                                " to home"),)
+        return (Refused(MAV_RESULT_UNSUPPORTED, f"{name} in MAV_FRAME {f}: only the global frames 0, 3, 5, 6"),)
     lat, lon, alt = p[4], p[5], p[6]
     n, e = pos_ned_m[0], pos_ned_m[1]
     if math.isfinite(lat) and math.isfinite(lon) and not (lat == 0.0 and lon == 0.0):
         n, e, _ = frame.to_ned(lat, lon)
     d = pos_ned_m[2]
     if math.isfinite(alt):
-        d = -(alt - frame.alt0_amsl_m) if f in MAV_FRAMES_AMSL else -alt
+        # above mean sea level in every global frame, as PX4 reads both commands (its navigator and orbit
+        # task take param7 as AMSL): MAVSDK's do_orbit sends its absolute altitude in the relative frame
+        d = -(alt - frame.alt0_amsl_m)
     target = (float(n), float(e), float(d))
     if c == MAV_CMD_DO_REPOSITION:
         speed = p[0] if math.isfinite(p[0]) and p[0] > 0.0 else 0.0

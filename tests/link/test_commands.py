@@ -186,8 +186,9 @@ def test_reposition_and_orbit_resolve_their_positions_as_px4_reads_them() -> Non
                             pos_ned_m=here)
     assert isinstance(g, GcsCommand) and g.kind is GcsCommandKind.GOTO
     assert g.target_ned_m == pytest.approx((40.0, -10.0, -15.0), abs=1e-3) and g.speed_mps == 0.0
-    # relative-altitude frame; COMMAND_LONG is read as MAV_FRAME_GLOBAL (AMSL); NaN keeps where the vehicle is
-    [g] = interpret_command(_cmd_int(192, 6, 3.0, 1, 0, NAN, lat, lon, 20.0), LinkRole.GCS, 488.0, frame=f,
+    # the relative-altitude frame still carries an AMSL altitude, as PX4 reads it (and MAVSDK's do_orbit sends
+    # it); COMMAND_LONG is read as MAV_FRAME_GLOBAL; NaN keeps where the vehicle is
+    [g] = interpret_command(_cmd_int(192, 6, 3.0, 1, 0, NAN, lat, lon, 508.0), LinkRole.GCS, 488.0, frame=f,
                             pos_ned_m=here)
     assert g.target_ned_m[2] == pytest.approx(-20.0) and g.speed_mps == 3.0  # type: ignore[union-attr,index]
     [g] = interpret_command(_cmd(192, -1, 1, 0, NAN, NAN, NAN, NAN), LinkRole.GCS, 488.0, frame=f, pos_ned_m=here)
