@@ -12,6 +12,7 @@ breach found (or a run crashed), 2 invalid input.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 import time
@@ -96,9 +97,15 @@ def falsify(cfg_path: Path, site: Any, classes: tuple[Any, ...], budget: int, se
     t0 = time.perf_counter()
     done = 0
 
+    partial = out / "evaluations.jsonl"
+    partial.write_text("", encoding="utf-8")
+
     def progress(evs: list[Any]) -> None:
         nonlocal done
         done += len(evs)
+        # each generation's records as it completes: an interrupted search keeps what it has flown
+        with partial.open("a", encoding="utf-8") as f:
+            f.writelines(json.dumps(e.record(), sort_keys=True) + "\n" for e in evs)
         if not quiet:
             ok = [e.margin_m for e in evs if e.status == "ok" and e.margin_m is not None]
             rate = done / max(time.perf_counter() - t0, 1e-9) * 60.0
