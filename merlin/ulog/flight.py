@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -200,6 +200,25 @@ class FlightULog:
             level = _EVENT_LEVEL.get(str(e.get("type")), "info")
             self.writer.log(level, round(float(e["t"]) * 1e6), event_text(e))
 
+    def append_steps(self, cols: Mapping[str, np.ndarray], events: Sequence[Mapping[str, Any]] = (),
+                     gps: Sequence[tuple[float, Any]] = ()) -> Iterator[None]:
+        """:meth:`append` (topic by topic) one topic per step, for a caller that spreads a batch over
+        several ticks (:class:`FlightRecorder`)."""
+        n = len(cols["t"])
+        cols = {k: v for k, v in cols.items() if len(v) == n}
+        if not self._ids:
+            self._define(cols)
+            yield
+        for b in self._batch_steps(cols):
+            if b is not None:
+                self.writer.write_records(b)
+            yield
+        if gps:
+            self.writer.write_records(self._gps_records(gps))
+        for e in sorted(events, key=lambda e: float(e["t"])):
+            level = _EVENT_LEVEL.get(str(e.get("type")), "info")
+            self.writer.log(level, round(float(e["t"]) * 1e6), event_text(e))
+
     def _gps_records(self, gps: Sequence[tuple[float, Any]]) -> np.ndarray:
         """vehicle_gps_position of (arrival time, merlin.measurements.GpsSample) pairs: stamped when the fix
         reached the vehicle, ``timestamp_sample`` its time of validity."""
@@ -217,9 +236,13 @@ class FlightULog:
             "satellites_used": [g.satellites for _, g in gps]}, n)
 
     def _batches(self, c: Mapping[str, np.ndarray]) -> list[np.ndarray]:
+        return [b for b in self._batch_steps(c) if b is not None]
+
+    def _batch_steps(self, c: Mapping[str, np.ndarray]) -> Iterator[np.ndarray | None]:
+        """Each topic's record array (None: no sample of it in ``c``), one at a time."""
         n = len(c["t"])
         if not n:
-            return []
+            return
         w, ids, m = self.writer, self._ids, self.meta
         nan = np.full(n, math.nan)
 
@@ -234,73 +257,72 @@ class FlightULog:
         period_us = int(np.median(np.diff(t_us))) if n > 1 else 0
         nav_mode = col("nav_mode")
         lat, lon = self.frame.latlon_from_ne(col("est_n"), col("est_e"))
-        out = []
 
-        def rec(topic: str, values: dict[str, Any], rows: np.ndarray | None = None) -> None:
+        def rec(topic: str, values: dict[str, Any], rows: np.ndarray | None = None) -> np.ndarray | None:
             if rows is None:
-                out.append(w.records(ids[topic], {"timestamp": t_us, **values}, n))
-                return
+                return w.records(ids[topic], {"timestamp": t_us, **values}, n)
             k = int(rows.sum())
-            if k:
-                sel = {key: (v[rows] if isinstance(v, np.ndarray) and v.shape[:1] == (n,) else v)
-                       for key, v in values.items()}
-                out.append(w.records(ids[topic], {"timestamp": t_us[rows], **sel}, k))
+            if not k:
+                return None
+            sel = {key: (v[rows] if isinstance(v, np.ndarray) and v.shape[:1] == (n,) else v)
+                   for key, v in values.items()}
+            return w.records(ids[topic], {"timestamp": t_us[rows], **sel}, k)
 
         valid = nav_mode != 3  # NavMode.LOST: no horizontal position
-        rec("vehicle_local_position", {
+        yield rec("vehicle_local_position", {
             "timestamp_sample": t_us, "xy_valid": valid, "z_valid": True, "v_xy_valid": valid, "v_z_valid": True,
             "x": col("est_n"), "y": col("est_e"), "z": col("est_d"), "vx": col("est_vn"), "vy": col("est_ve"),
             "vz": col("est_vd"), "heading": col("est_yaw"), "xy_global": True, "z_global": True,
             "ref_timestamp": 0, "ref_lat": m.home_lat_deg, "ref_lon": m.home_lon_deg, "ref_alt": m.home_alt_amsl_m,
             "eph": col("sigma_h"), "epv": col("sigma_v")})
-        rec("vehicle_global_position", {"timestamp_sample": t_us, "lat": lat, "lon": lon,
+        yield rec("vehicle_global_position", {"timestamp_sample": t_us, "lat": lat, "lon": lon,
                                         "alt": m.home_alt_amsl_m - col("est_d"), "eph": col("sigma_h"),
                                         "epv": col("sigma_v")})
-        rec("vehicle_attitude", {"timestamp_sample": t_us,
+        yield rec("vehicle_attitude", {"timestamp_sample": t_us,
                                  "q": quaternion(col("est_roll"), col("est_pitch"), col("est_yaw"))})
         rates = vec("est_p", "est_q", "est_r")
-        rec("vehicle_angular_velocity", {"timestamp_sample": t_us, "xyz": rates})
-        rec("sensor_combined", {"gyro_rad": rates, "gyro_integral_dt": period_us,
+        yield rec("vehicle_angular_velocity", {"timestamp_sample": t_us, "xyz": rates})
+        yield rec("sensor_combined", {"gyro_rad": rates, "gyro_integral_dt": period_us,
                                 "accelerometer_timestamp_relative": 0,
                                 "accelerometer_m_s2": vec("est_ax", "est_ay", "est_az"),
                                 "accelerometer_integral_dt": period_us})
         armed = col("armed") > 0.5
         auth, beh = col("authority").astype(int), col("behavior").astype(int)
-        rec("vehicle_status", {"arming_state": np.where(armed, ARMING_STATE_ARMED, ARMING_STATE_DISARMED),
+        yield rec("vehicle_status", {"arming_state": np.where(armed, ARMING_STATE_ARMED, ARMING_STATE_DISARMED),
                                "nav_state": nav_state(auth, beh), "vehicle_type": 2 if m.fixed_wing else 1})
         landed = col("landed") > 0.5
-        rec("vehicle_land_detected", {"landed": landed, "maybe_landed": landed, "ground_contact": landed})
-        rec("battery_status", {"connected": True, "remaining": col("battery_frac")})
+        yield rec("vehicle_land_detected", {"landed": landed, "maybe_landed": landed, "ground_contact": landed})
+        yield rec("battery_status", {"connected": True, "remaining": col("battery_frac")})
         motors = vec("m0", "m1", "m2", "m3")
         control = np.full((n, 12), math.nan)
         control[:, :4] = motors
         output = np.zeros((n, 16))
         output[:, :4] = motors
-        rec("actuator_motors", {"timestamp_sample": t_us, "control": control})
-        rec("actuator_outputs", {"noutputs": 4, "output": output})
+        yield rec("actuator_motors", {"timestamp_sample": t_us, "control": control})
+        yield rec("actuator_outputs", {"noutputs": 4, "output": output})
         kind = col("sp_kind")
         has_sp = np.isfinite(kind)
         pos_sp = kind == int(SetpointKind.POSITION)
         traj = has_sp & (kind != int(SetpointKind.ATTITUDE))
         position = vec("sp_n", "sp_e", "sp_d")
         position[~pos_sp] = math.nan
-        rec("trajectory_setpoint", {"position": position, "velocity": vec("sp_vn", "sp_ve", "sp_vd"),
+        yield rec("trajectory_setpoint", {"position": position, "velocity": vec("sp_vn", "sp_ve", "sp_vd"),
                                     "yaw": col("sp_yaw")}, traj)
         att = kind == int(SetpointKind.ATTITUDE)
         thrust_body = np.zeros((n, 3))
         thrust_body[:, 2] = -col("sp_thrust")
-        rec("vehicle_attitude_setpoint", {"q_d": quaternion(col("sp_roll"), col("sp_pitch"), col("sp_yaw")),
+        yield rec("vehicle_attitude_setpoint", {"q_d": quaternion(col("sp_roll"), col("sp_pitch"), col("sp_yaw")),
                                           "thrust_body": thrust_body, "yaw_sp_move_rate": 0.0}, att)
-        rec("merlin_experimental_setpoint", {"kind": np.nan_to_num(kind).astype(np.uint8),
+        yield rec("merlin_experimental_setpoint", {"kind": np.nan_to_num(kind).astype(np.uint8),
                                              "thrust": col("sp_thrust")}, has_sp)
-        rec("merlin_authority", {"authority": auth, "behavior": beh, "armed": armed, "landed": landed})
-        rec("merlin_command", {"kind": col("cmd_kind").astype(int), "velocity": vec("cmd_vn", "cmd_ve", "cmd_vd"),
+        yield rec("merlin_authority", {"authority": auth, "behavior": beh, "armed": armed, "landed": landed})
+        yield rec("merlin_command", {"kind": col("cmd_kind").astype(int), "velocity": vec("cmd_vn", "cmd_ve", "cmd_vd"),
                                "roll": col("cmd_roll"), "pitch": col("cmd_pitch"), "yaw": col("cmd_yaw"),
                                "thrust": col("cmd_thrust"), "blend": col("cmd_blend")})
-        rec("merlin_nav", {"nav_mode": np.nan_to_num(nav_mode).astype(int), "sigma_h_m": col("sigma_h"),
+        yield rec("merlin_nav", {"nav_mode": np.nan_to_num(nav_mode).astype(int), "sigma_h_m": col("sigma_h"),
                            "sigma_v_m": col("sigma_v"), "inertial_s": col("nav_inertial_s")})
         if "merlin_sim_truth" in ids:
-            rec("merlin_sim_truth", {"position": vec("truth_n", "truth_e", "truth_d"),
+            yield rec("merlin_sim_truth", {"position": vec("truth_n", "truth_e", "truth_d"),
                                      "velocity": vec("truth_vn", "truth_ve", "truth_vd"), "roll": col("truth_roll"),
                                      "pitch": col("truth_pitch"), "yaw": col("truth_yaw"),
                                      "wind_north": col("wind_n"), "wind_east": col("wind_e")})
@@ -314,8 +336,7 @@ class FlightULog:
                 if src in self._timers:
                     v = np.nan_to_num(v, nan=0.0)
                 values[f.name] = (v > 0.5) if f.type == "bool" else v
-            rec(topic, values)
-        return out
+            yield rec(topic, values)
 
     def close(self) -> None:
         self.writer.close()
@@ -339,7 +360,9 @@ class FlightRecorder:
     """A live flight's ULog (``merlin serve``): :meth:`record` at every tick samples the tick's state and
     decision every ``every_ticks`` ticks into a row named as ``merlin sim``'s log columns, and every
     ``flush_rows`` rows appends them (:class:`FlightULog`), with the events since, as one batch: one
-    ``write(2)`` per topic, so a killed process loses at most the rows of the batch in progress."""
+    ``write(2)`` per topic, so a killed process loses at most the rows of the batch in progress. A batch is
+    written one topic per tick over the ticks that follow (``FlightULog.append_steps``): a whole batch in
+    one tick took about 1.7 ms, a real-time tick's budget (docs/benchmarks/field-tools.md)."""
 
     def __init__(self, path: str | Path, meta: FlightMeta, envelope: Sequence[Any], every_ticks: int,
                  flush_rows: int = 50, fence: Any = None) -> None:
@@ -360,6 +383,7 @@ class FlightRecorder:
         self._rows: list[list[float]] = []
         self._events: list[dict[str, Any]] = []
         self._gps: list[tuple[float, Any]] = []
+        self._pending: Iterator[None] | None = None  # the batch being written, a step per tick
         self._k = 0
 
     def record(self, t: float, state: Any, decision: Any, setpoint: Any, loop: Any) -> None:
@@ -373,6 +397,8 @@ class FlightRecorder:
         k = self._k
         self._k += 1
         if k % self.every:
+            if self._pending is not None and next(self._pending, StopIteration) is StopIteration:
+                self._pending = None
             return
         from merlin.core.envelope import envelope_values
 
@@ -413,9 +439,14 @@ class FlightRecorder:
         row += mons
         self._rows.append(row)
         if len(self._rows) >= self.flush_rows:
-            self.flush()
+            self.flush(spread=True)
 
-    def flush(self) -> None:
+    def flush(self, spread: bool = False) -> None:
+        """Write the rows so far: at once, or (``spread``) a topic per following :meth:`record` call."""
+        if self._pending is not None:  # the previous batch's steps left (a batch outlasting 50 rows)
+            for _ in self._pending:
+                pass
+            self._pending = None
         rows, self._rows = self._rows, []
         events, self._events = self._events, []
         gps, self._gps = self._gps, []
@@ -428,7 +459,12 @@ class FlightRecorder:
 
             pos = arr[:, 1:4]  # truth north, east, down
             cols["fence_margin"] = geofence.signed_margins_m(self.fence, pos, cols["landed"] < 0.5)
-        self.log.append(cols, events, interleave=False, gps=gps)
+        steps = self.log.append_steps(cols, events, gps)
+        if spread:
+            self._pending = steps
+        else:
+            for _ in steps:
+                pass
 
     def close(self) -> None:
         self.flush()
