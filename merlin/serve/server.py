@@ -246,6 +246,7 @@ class Server:
             t_.mission_ned_m, t_.mission_speed_mps, t_.mission_end, self.frame))
         self.mission.check = self._check_mission
         self._mission_link: _LinkState | None = None
+        self._manual_refused: set[str] = set()  # links whose MANUAL_CONTROL was refused (recorded once each)
         self._mission_reached = -1  # the highest item sequence reported with MISSION_ITEM_REACHED this flight
         self._mission_current = -1  # the last MISSION_CURRENT seq sent
         self._mission_complete = False  # flown to its end this flight (its end item reported on landing)
@@ -347,6 +348,17 @@ class Server:
             self.pending.requests.append(m.to_core(t))
             return
         if isinstance(m, i.ManualControlIn):
+            if ls.role is not LinkRole.GCS:
+                # Operator authority lives on the ground station's link (icd/ICD.md sections 4.2 and 13): PX4
+                # takes MANUAL_CONTROL from the offboard link, Merlin never lets the experimental controller
+                # become the operator. Recorded once per link, not per message (it streams at 10-50 Hz).
+                if ls.name not in self._manual_refused:
+                    self._manual_refused.add(ls.name)
+                    self.events.write({"t": t, "type": "manual_control_refused", "link": ls.name,
+                                       "sender": list(sender), "detail": "MANUAL_CONTROL is the GCS link's"})
+                    self._send(ls, o.StatusTextOut(o.MAV_SEVERITY_WARNING,
+                                                   "Merlin: MANUAL_CONTROL ignored on this link (operator: GCS link)"))
+                return
             self.rc_t = t
             self.op = OperatorInput(t, bool(m.buttons & 1), m.roll, m.pitch, m.yaw, m.throttle)
             return

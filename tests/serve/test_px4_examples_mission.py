@@ -7,12 +7,13 @@ with a MISSION_ACK error and a STATUSTEXT naming the item."""
 from __future__ import annotations
 
 import math
+import time
 from typing import Any
 
 import pytest
 
 from merlin.geodesy import LocalFrame
-from tests.serve.conftest import ServeProc, command, gcs_connection, wait_for
+from tests.serve.conftest import ServeProc, arm_and_takeoff, command, gcs_connection, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -164,3 +165,27 @@ def test_a_mission_that_no_longer_fits_a_later_fence_is_not_started(serve: Serve
     assert command(m, 300, 0.0, 0.0).result == 2  # MAV_RESULT_DENIED
     text = _statustext(m, "mission not started")
     assert text is not None and "item 0 (NAV_WAYPOINT)" in text and "leaves the fence" in text, text
+
+
+def _manual_control_burst(m: Any, seconds: float) -> None:
+    t_end = time.monotonic() + seconds
+    while time.monotonic() < t_end:
+        m.mav.manual_control_send(1, 0, 0, 500, 0, 1)  # centred sticks, throttle hold, button 0: takeover
+        time.sleep(0.05)
+
+
+def test_manual_control_from_the_controller_link_never_makes_it_the_operator(serve: ServeProc) -> None:
+    """MAVSDK's manual-control example streams MANUAL_CONTROL on the offboard link (PX4 flies it); Merlin
+    ignores it there, records why once, and the same stream from the ground station does take over."""
+    from pymavlink import mavutil
+
+    m = gcs_connection(serve.gcs_port)
+    arm_and_takeoff(m)
+    ctl = mavutil.mavlink_connection(f"udpin:127.0.0.1:{serve.ctl_port}", source_system=245, source_component=190)
+    assert ctl.wait_heartbeat(timeout=30) is not None
+    _manual_control_burst(ctl, 2.0)
+    events = serve.events()
+    assert not [e for e in events if e["type"] == "authority" and e.get("to") == "OPERATOR"], events[-5:]
+    assert [e["link"] for e in events if e["type"] == "manual_control_refused"] == ["controller"]
+    _manual_control_burst(m, 2.0)  # the control: from the ground station it is the operator's
+    assert [e for e in serve.events() if e["type"] == "authority" and e.get("to") == "OPERATOR"]
