@@ -757,6 +757,10 @@ class Server:
             self.events.write({"t": self.t, "type": "serve_error", "detail": f"writing {EFFECTIVE_CONFIG}: {exc}"})
         self.events.write({"t": self.t, "type": "config_changed", **record, "old_sha256": old_sha,
                            "new_sha256": self.cfg_sha256, "effective_config": str(self.effective_config)})
+        from merlin.link.params import envelope_params  # the ULog's parameters, as flight_meta writes them
+
+        self.ulog.parameters_changed(self.t, envelope_params(self.limits), {
+            "type": "config_changed", "old_sha256": old_sha, "new_sha256": self.cfg_sha256})
 
     def _write_effective_config(self) -> None:
         write_effective_config(self.effective_config, self.cfg.model_dump(mode="json"), [

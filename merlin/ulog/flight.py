@@ -201,7 +201,8 @@ class FlightULog:
             self.writer.log(level, round(float(e["t"]) * 1e6), event_text(e))
 
     def append_steps(self, cols: Mapping[str, np.ndarray], events: Sequence[Mapping[str, Any]] = (),
-                     gps: Sequence[tuple[float, Any]] = ()) -> Iterator[None]:
+                     gps: Sequence[tuple[float, Any]] = (),
+                     parameters: Sequence[tuple[str, float]] = ()) -> Iterator[None]:
         """:meth:`append` (topic by topic) one topic per step, for a caller that spreads a batch over
         several ticks (:class:`FlightRecorder`)."""
         n = len(cols["t"])
@@ -209,6 +210,8 @@ class FlightULog:
         if not self._ids:
             self._define(cols)
             yield
+        for name, value in parameters:  # (a reader stamps a change with the data written before it)
+            self.writer.parameter_changed(name, value)
         for b in self._batch_steps(cols):
             if b is not None:
                 self.writer.write_records(b)
@@ -384,6 +387,8 @@ class FlightRecorder:
         self._events: list[dict[str, Any]] = []
         self._gps: list[tuple[float, Any]] = []
         self._pending: Iterator[None] | None = None  # the batch being written, a step per tick
+        self._params = dict(meta.parameters)  # the parameters as last written
+        self._param_changes: list[tuple[str, float]] = []
         self._k = 0
 
     def record(self, t: float, state: Any, decision: Any, setpoint: Any, loop: Any) -> None:
@@ -441,6 +446,16 @@ class FlightRecorder:
         if len(self._rows) >= self.flush_rows:
             self.flush(spread=True)
 
+    def parameters_changed(self, t: float, parameters: Sequence[tuple[str, float]], record: Mapping[str, Any]) -> None:
+        """The configuration changed (``merlin serve``: a PARAM_SET or a fence upload, on the ground): the
+        parameters whose values changed are written as PX4 writes a parameter change (Flight Review's
+        "changed parameters"), and ``record`` (with its ``type``) as a logged message at ``t``."""
+        for name, value in parameters:
+            if self._params.get(name) != value:
+                self._params[name] = value
+                self._param_changes.append((name, value))
+        self._events.append({"t": t, **record})
+
     def flush(self, spread: bool = False) -> None:
         """Write the rows so far: at once, or (``spread``) a topic per following :meth:`record` call."""
         if self._pending is not None:  # the previous batch's steps left (a batch outlasting 50 rows)
@@ -459,7 +474,8 @@ class FlightRecorder:
 
             pos = arr[:, 1:4]  # truth north, east, down
             cols["fence_margin"] = geofence.signed_margins_m(self.fence, pos, cols["landed"] < 0.5)
-        steps = self.log.append_steps(cols, events, gps)
+        changes, self._param_changes = self._param_changes, []
+        steps = self.log.append_steps(cols, events, gps, changes)
         if spread:
             self._pending = steps
         else:

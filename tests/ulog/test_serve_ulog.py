@@ -29,3 +29,25 @@ def test_serve_writes_a_ulog(tmp_path: Path) -> None:
         assert len(u.get_dataset(topic).data["timestamp"]) == len(t)
     assert "ENV_ROLL_MAX" in u.initial_parameters
     assert np.all(u.get_dataset("vehicle_status").data["arming_state"] == 1)  # never armed: nobody asked
+
+
+def test_a_parameter_change_is_in_the_ulog(tmp_path: Path) -> None:
+    """PARAM_SET on the ground changes the configuration: the ULog has the parameter's change, as PX4
+    logs one (Flight Review's "changed parameters"), and the config_changed record as a logged message."""
+    import time
+
+    from tests.serve.conftest import gcs_connection, start_serve, stop, wait_for
+
+    sp = start_serve(tmp_path)
+    try:
+        m = gcs_connection(sp.gcs_port)
+        m.mav.param_set_send(1, 1, b"ENV_ROLL_MAX", 25.0, 9)  # MAV_PARAM_TYPE_REAL32
+        pv = wait_for(m, lambda x: x.get_type() == "PARAM_VALUE" and x.param_id == "ENV_ROLL_MAX")
+        assert pv is not None and pv.param_value == 25.0
+        time.sleep(2.0)  # a batch or two written after the change
+    finally:
+        stop(sp)
+    u = ULog(str(sp.out / "flight.ulg"))
+    assert u.initial_parameters["ENV_ROLL_MAX"] != 25.0
+    assert [(name, value) for _, name, value in u.changed_parameters] == [("ENV_ROLL_MAX", 25.0)]
+    assert any(msg.message.startswith("CONFIG_CHANGED") for msg in u.logged_messages)
