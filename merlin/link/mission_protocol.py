@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Any
 
+import numpy as np
 import shapely
 
 from merlin.geodesy import LocalFrame
@@ -244,18 +245,23 @@ def check_legs_against_fence(
         seqs.append(plan.end_seq)
     allowed = fence.allowed_area if fence.has_inclusion else None  # inclusion zones less the keep-outs
     inner = shapely.buffer(allowed, -margin_m) if allowed is not None and margin_m > 0.0 else allowed
+    if inner is not None:
+        shapely.prepare(inner)
     excl = fence.exclusion_area
-    for j in range(1, len(points)):
-        a, b = points[j - 1], points[j]
-        leg = shapely.LineString([a, b]) if a != b else shapely.Point(a)
+    # every leg at once (shapely's vectorised predicates, one C loop), then the first failing one is named
+    legs = np.array([shapely.LineString([points[j - 1], points[j]]) if points[j - 1] != points[j]
+                     else shapely.Point(points[j]) for j in range(1, len(points))], dtype=object)
+    bad_excl = (shapely.dwithin(excl, legs, margin_m) | shapely.intersects(excl, legs)
+                if excl is not None else np.zeros(len(legs), dtype=bool))
+    bad_incl = ~shapely.covers(inner, legs) if inner is not None else np.zeros(len(legs), dtype=bool)
+    for j in np.flatnonzero(bad_excl | bad_incl) + 1:
         seq = seqs[j]
         name = _name(plan.items[seq].command) if 0 <= seq < len(plan.items) else "leg"
         frm = "home" if seqs[j - 1] < 0 else f"item {seqs[j - 1]}"
         where = f"item {seq} ({name}): the leg from {frm}"
-        if excl is not None and (shapely.intersects(excl, leg) or shapely.distance(excl, leg) < margin_m):
+        if bad_excl[j - 1]:
             return MAV_MISSION_ERROR, f"{where} enters a keep-out zone (or passes within {margin_m:g} m of one)"
-        if inner is not None and not shapely.covers(inner, leg):
-            return MAV_MISSION_ERROR, f"{where} leaves the fence (or passes within its {margin_m:g} m margin)"
+        return MAV_MISSION_ERROR, f"{where} leaves the fence (or passes within its {margin_m:g} m margin)"
     if ceiling_m is not None:
         for w in plan.waypoints:
             if -w.pos_ned_m[2] > ceiling_m - margin_m:
