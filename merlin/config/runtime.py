@@ -132,7 +132,8 @@ def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig
         battery=BatteryParams(low_frac=cfg.battery.low_frac, critical_frac=cfg.battery.critical_frac),
         termination_enabled=cfg.arbiter.termination_enabled,
         config_sha256=config_sha256(cfg),
-        clamp=SetpointClamp(
+        # a fixed wing flies its speed, not a velocity to hold: its setpoints are judged by the envelope
+        clamp=None if v.type.value == "fixed_wing" else SetpointClamp(
             max_speed_h_mps=v.max_speed_h_mps,
             max_speed_up_mps=v.max_speed_up_mps,
             max_speed_down_mps=v.max_speed_down_mps,

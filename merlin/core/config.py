@@ -158,7 +158,7 @@ class CoreConfig:
     battery: BatteryParams = field(default_factory=BatteryParams)
     termination_enabled: bool = False
     config_sha256: str = ""
-    clamp: SetpointClamp = field(default_factory=SetpointClamp)
+    clamp: SetpointClamp | None = field(default_factory=SetpointClamp)  # None: not clamped (fixed wing)
 
     def rule(self, monitor: str) -> RuleRow:
         for r in self.rules:

@@ -607,7 +607,9 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
         op_mem, incoming = operator_command(op, s, op_mem, dt, cfg.operator, cfg.trusted, cfg.fence)
     elif authority is _EXPERIMENTAL and sp is not None and sp_bad is None:
         # commanded intent counts: what the validator accepts is flown only within the vehicle's limits
-        incoming = clamp_command(setpoint_to_command(sp, s, authority, cfg.trusted), cfg.clamp)
+        incoming = setpoint_to_command(sp, s, authority, cfg.trusted)
+        if cfg.clamp is not None:
+            incoming = clamp_command(incoming, cfg.clamp)
     elif g_setpoint is not None:
         incoming = setpoint_to_command(g_setpoint, s, _TRUSTED, cfg.trusted)
     else:  # unreachable in practice: EXPERIMENTAL without a valid setpoint is revoked this tick
