@@ -214,12 +214,26 @@ def _nearest_edges(allowed: Any, excl: Any, track_ne: np.ndarray) -> list[tuple[
         return []
     path = LineString(pts) if len(pts) > 1 and np.ptp(pts, axis=0).any() else MultiPoint(pts)
     out = []
-    for geom in (allowed, excl):
-        if geom is None or geom.is_empty:
-            continue
-        a, b = nearest_points(path, geom.boundary)
+    for edges in _edge_lines(allowed, excl):
+        a, b = nearest_points(path, edges)
         out.append((a.distance(b), a, b))
     return sorted(out, key=lambda x: x[0])
+
+
+def _edge_lines(allowed: Any, excl: Any) -> list[Any]:
+    """The inclusion edges and the keep-out edges (the allowed area's boundary also runs round the
+    keep-out zones cut out of it: those parts are keep-out edges, not inclusion ones)."""
+    out = []
+    keep_out = excl.boundary if excl is not None and not excl.is_empty else None
+    if allowed is not None and not allowed.is_empty:
+        inclusion = allowed.boundary
+        if keep_out is not None:
+            inclusion = inclusion.difference(keep_out.buffer(0.01))
+        if not inclusion.is_empty:
+            out.append(inclusion)
+    if keep_out is not None:
+        out.append(keep_out)
+    return out
 
 
 def _edge_kinds(allowed: Any, excl: Any, edges: list[tuple[float, Any, Any]]) -> list[str]:
@@ -228,7 +242,7 @@ def _edge_kinds(allowed: Any, excl: Any, edges: list[tuple[float, Any, Any]]) ->
     for _, _, b in edges:
         da = allowed.boundary.distance(b) if allowed is not None and not allowed.is_empty else np.inf
         de = excl.boundary.distance(b) if excl is not None and not excl.is_empty else np.inf
-        out.append("inclusion" if da <= de else "keep-out")
+        out.append("keep-out" if de <= da else "inclusion")  # (a keep-out edge is on both boundaries)
     return out
 
 

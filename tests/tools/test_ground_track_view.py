@@ -36,3 +36,17 @@ def test_a_near_edge_is_in_view_with_its_kind() -> None:
     e0, e1, n0, n1 = ground_track_view(track, edges)
     assert n1 >= 35.0 and e1 >= 40.0  # both edges' nearest points are in view
     assert max(e1 - e0, n1 - n0) <= 2.0 * min(e1 - e0, n1 - n0) + 1e-9  # no narrower than 2:1
+
+
+def test_a_keep_out_cut_from_the_allowed_area_is_a_keep_out_edge() -> None:
+    """The core's allowed area has the keep-out zones cut out of it: their edges are keep-out edges."""
+    field = Polygon([(-1000, -500), (-1000, 500), (0, 500), (0, -500)])
+    mast = Point(-500.0, -500.0).buffer(80.0)
+    allowed = field.difference(mast)
+    track = np.array([[-560.0, 0.0], [-300.0, 20.0]])
+    edges = _nearest_edges(allowed, mast, track)
+    kinds = _edge_kinds(allowed, mast, edges)
+    found = dict(zip(kinds, [d for d, _, _ in edges], strict=True))
+    assert set(found) == {"inclusion", "keep-out"}
+    assert abs(found["inclusion"] - 300.0) < 0.5  # the field's north edge, from (-300, 20)
+    assert abs(found["keep-out"] - (np.hypot(60.0, 500.0) - 80.0)) < 1.0  # the mast's circle, from (-560, 0)
