@@ -136,6 +136,7 @@ def enter(behavior: Behavior, s: VehicleState, cfg: TrustedParams, fence: Fence 
         or not (math.isfinite(anchor[0]) and math.isfinite(anchor[1]))
         or s.nav_mode is _NAV_INERTIAL
         or s.nav_mode is _NAV_LOST  # no position to fly a route on: the behaviour flies as it always did
+        or fence.params.vehicle != "multirotor"  # the fixed wing flies its own routes (fixedwing_route)
         or not route.has_zones(fence)
     ):
         return g
