@@ -50,7 +50,7 @@ async def wait_until(gen: object, pred: object, timeout_s: float) -> object:
 
 
 async def fly(url: str, speed_mps: float, fly_s: float, altitude_m: float, timeout_s: float) -> int:
-    config = Configuration.create_with_component_type(ComponentType.COMPANION_COMPUTER)
+    config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)  # MAVSDK's default
     async with Mavsdk(config) as mavsdk:
         await mavsdk.add_any_connection(url)
         system = await mavsdk.first_autopilot(timeout_s=timeout_s)
@@ -71,19 +71,15 @@ async def fly(url: str, speed_mps: float, fly_s: float, altitude_m: float, timeo
         await wait_until(telemetry.subscribe_position(), lambda p: p.relative_altitude_m > altitude_m, timeout_s)
         say("airborne")
 
-        # MAVSDK re-sends the latest setpoint at 20 Hz from now on. Merlin grants only after the controller
-        # has been alive for handover.heartbeat_alive_min_s (1 s, icd/ICD.md section 7), so stream first.
+        # As MAVSDK's examples do it: one setpoint (MAVSDK re-sends it at 20 Hz from now on), then start().
+        # Merlin holds the request (COMMAND_ACK IN_PROGRESS) until its heartbeat rule is met, then grants it
+        # (icd/ICD.md section 6): no wait or retry is needed here, as none is against PX4.
         await offboard.set_velocity_ned(VelocityNedYaw(0.0, 0.0, 0.0, 0.0))
-        await asyncio.sleep(1.5)
-        for attempt in range(1, 4):
-            try:
-                await offboard.start()
-                break
-            except OffboardError as error:  # denied: the reason is in Merlin's STATUSTEXT
-                say(f"offboard start denied ({error}), attempt {attempt}")
-                if attempt == 3:
-                    return 1
-                await asyncio.sleep(1.0)
+        try:
+            await offboard.start()
+        except OffboardError as error:  # denied: the reason is in Merlin's STATUSTEXT
+            say(f"offboard start denied ({error})")
+            return 1
         mode = await wait_until(telemetry.subscribe_flight_mode(), lambda m: m.name == "OFFBOARD", timeout_s)
         say(f"mode {mode.name}")
 
