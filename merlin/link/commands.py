@@ -308,6 +308,15 @@ class OffboardModeBridge:
         if p is not None:
             self._pending = replace(p, held_since_s=None)
 
+    def cancel_held(self) -> o.CommandAckOut | None:
+        """Drop the request being held (the controller left OFFBOARD before it was decided): its final
+        COMMAND_ACK, DENIED; None when none is held."""
+        p = self._pending
+        if p is None or p.held_since_s is None:
+            return None
+        self._pending = None
+        return o.CommandAckOut(p.command, MAV_RESULT_DENIED, p.sender[0], p.sender[1])
+
     @staticmethod
     def _in_progress(p: _Pending) -> o.CommandAckOut:
         # progress 255: unknown (common.xml COMMAND_ACK.progress)

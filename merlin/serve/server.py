@@ -420,6 +420,8 @@ class Server:
                         self.events.write({"t": rx.t_s, "type": "offboard_request_held", "link": ls.name,
                                            "detail": self._hold_detail(rx.t_s)})
                         continue
+                elif intent.kind is RequestKind.RELEASE:
+                    self._cancel_standard_request(rx.t_s, "released by a mode command")
                 self.pending.requests.append(intent)
             elif isinstance(intent, RequestMessage):
                 if self._can_send(intent.message_id):
@@ -506,6 +508,16 @@ class Server:
             self.events.write({"t": t, "type": "offboard_takeoff", "phase": "requested", "alt_m": round(s.alt_m, 3)})
         if step.ended:
             self._end_takeoff(t, step.ended)
+
+    def _cancel_standard_request(self, t: float, why: str) -> None:
+        """A controller leaving OFFBOARD (a mode command from its link) while its OFFBOARD request is held or
+        its take-off flow runs: the held request is answered DENIED and never goes to the core; the flow ends."""
+        held = self.bridge.cancel_held()
+        if held is not None and self._exchange_peer is not None:
+            self._send(self._exchange_peer[0], held)
+            self.events.write({"t": t, "type": "offboard_request_released", "cancelled": why})
+        if self.takeoff.shows_offboard:
+            self._end_takeoff(t, why)
 
     def _end_takeoff(self, t: float, why: str) -> None:
         self.takeoff.end()

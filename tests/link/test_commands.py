@@ -220,3 +220,33 @@ def test_refusals_say_why_terrain_frames_fixed_wing_zero_radius_reboot() -> None
         assert isinstance(r, Refused) and r.result == result and r.detail, (cmd, r)
     [s] = interpret_command(_cmd(178, 1, 2.5, -1), LinkRole.GCS, 400.0)
     assert s == GcsCommand(GcsCommandKind.SPEED, param=2.5)
+
+
+def test_a_held_request_answers_in_progress_repeats_and_can_be_cancelled() -> None:
+    from merlin.link.commands import IN_PROGRESS_INTERVAL_S, MAV_RESULT_IN_PROGRESS
+
+    b = OffboardModeBridge()
+    cmd = _set_mode(6)
+    b.requested(cmd, (245, 191))
+    first = b.hold(10.0)
+    assert (first.result, first.progress, first.target_system) == (MAV_RESULT_IN_PROGRESS, 255, 245)
+    assert b.held_since_s == 10.0 and b.is_repeat(cmd, (245, 191)) and not b.is_repeat(cmd, (1, 1))
+    assert b.progress(10.0 + IN_PROGRESS_INTERVAL_S / 2) is None
+    assert b.progress(10.0 + IN_PROGRESS_INTERVAL_S).result == MAV_RESULT_IN_PROGRESS  # type: ignore[union-attr]
+    final = b.cancel_held()
+    assert final is not None and final.result == MAV_RESULT_DENIED and not b.waiting
+    assert b.cancel_held() is None
+    # released to the core instead: its answer is the grant's ACCEPTED, as for any request
+    b.requested(cmd, (245, 191))
+    b.hold(20.0)
+    b.release()
+    assert b.held_since_s is None and b.cancel_held() is None
+    [ack] = b.on_event(Event(20.5, EventKind.GRANTED, seq=1))
+    assert ack.result == MAV_RESULT_ACCEPTED  # type: ignore[attr-defined]
+
+
+def test_a_request_answered_already_gets_no_second_command_ack() -> None:
+    b = OffboardModeBridge()
+    b.requested(_set_mode(6), (245, 191), answered=True)  # the take-off in OFFBOARD accepted it on the ground
+    assert b.on_event(Event(1.0, EventKind.GRANTED, seq=3)) == []
+    assert b.on_setpoint(1.1) == AuthorityRequest(RequestKind.ACK, seq=3, t_s=1.1)
