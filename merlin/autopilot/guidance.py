@@ -159,6 +159,9 @@ def _enter_rtl(g: GuidanceState, fence: Fence, widening_m: float, cfg: TrustedPa
     clearance = widening_m + ROUTE_MARGIN_M
     path = route.plan_path(fence, (a[0], a[1]), (0.0, 0.0), clearance)
     if path is not None:
+        if route.hazard_distance_m(fence, (a[0], a[1])) < 0.0:
+            # stopping outside the range or in a keep-out: climb on the way back in, not there first
+            return g._replace(path_ne_m=path, phase=RTL_RETURN)
         return g._replace(path_ne_m=path)
     land = cfg.no_route_fallback == "land"
     why = (

@@ -195,3 +195,22 @@ def test_rtl_from_anywhere_in_the_l_range_bar_stays_clear_of_every_hazard(
     assert s.landed and math.hypot(s.pos_ned_m[0], s.pos_ned_m[1]) < CFG.rtl_acceptance_m + 0.5
     assert worst >= WIDENING_M - 0.5
     assert shapely.contains_xy(L_FENCE.allowed_area, s.pos_ned_m[0], s.pos_ned_m[1])
+
+
+def test_rtl_that_stops_in_a_keep_out_leaves_it_first_and_climbs_on_the_way() -> None:
+    s = _state(150.0, 40.0, 10.0)  # over the antenna's circle, below the RTL height
+    g = guidance.enter(Behavior.RTL, s, CFG, L_FENCE)
+    assert g.phase == guidance.RTL_RETURN  # no climb in place first
+    first = g.path_ne_m[0]
+    assert _hazard_distance(L_FENCE, first[0], first[1]) > 0.0
+    inside_s = 0.0
+    t = 0.0
+    while t < 20.0:
+        g, sp = guidance.step(g, s, CFG, DT)
+        p = tuple(s.pos_ned_m[i] + sp.vel_ned_mps[i] * DT for i in range(3))
+        s = replace(s, pos_ned_m=p, vel_ned_mps=sp.vel_ned_mps)  # type: ignore[arg-type]
+        inside_s += DT if _hazard_distance(L_FENCE, p[0], p[1]) < 0.0 else 0.0
+        t += DT
+    # out of the 25 m circle from 10 m inside it: the ~16 m at up to cruise speed, with the acceleration limit
+    assert inside_s < 5.0
+    assert s.alt_m > 10.0 + 5.0  # climbing meanwhile
