@@ -77,6 +77,7 @@ class GuidanceState(NamedTuple):
     leg: int = 0  # index in path_ne_m of the point flown to
     fallback: int = FALLBACK_NONE
     note: str = ""  # why the behaviour does not fly as asked (no route, a moved hold point): for an event
+    goto_ned_m: Vec3 | None = None  # the commanded point (GOTO, ORBIT's centre) this state answers, flown or not
 
 
 def position_to_velocity(
@@ -359,7 +360,7 @@ def step(g: GuidanceState, s: VehicleState, cfg: TrustedParams, dt: float) -> tu
     return (
         GuidanceState(
             g2.behavior, g2.anchor_ned_m, g2.yaw_rad, g2.phase, g2.mission_index, g2.done, v, g2.path_ne_m,
-            g2.leg, g2.fallback, g2.note,
+            g2.leg, g2.fallback, g2.note, g2.goto_ned_m,
         ),
         Setpoint(sp.kind, sp.pos_ned_m, v, sp.yaw_rad, sp.yaw_rate_radps, sp.att_rpy_rad, sp.thrust),
     )
@@ -471,11 +472,35 @@ def _target(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[Guid
 # --------------------------------------------------------------------- GOTO, ORBIT, DO_CHANGE_SPEED
 
 
-def goto(g: GuidanceState, target_ned_m: Vec3) -> GuidanceState:
-    """The behaviour ``g`` (HOLD or ORBIT) re-aimed at a commanded point: GOTO's hold point, ORBIT's centre.
-    Flown straight from where the vehicle is (the command was refused unless the point keeps the fence's
-    margin); the acceleration-limited command carries on from where it is."""
-    return GuidanceState(g.behavior, target_ned_m, g.yaw_rad, vel_cmd=g.vel_cmd)
+def goto(
+    g: GuidanceState, target_ned_m: Vec3, s: VehicleState | None = None, fence: Fence | None = None
+) -> GuidanceState:
+    """The behaviour ``g`` (HOLD or ORBIT) re-aimed at a commanded point: GOTO's hold point, ORBIT's centre
+    (the command was refused unless the point keeps the fence's margin); the acceleration-limited command
+    carries on from where it is. Given the state and a multirotor fence with zones, HOLD gets there along a
+    route that stays inside the range, as RTL's (:func:`enter`); with no route it holds where it stops, and
+    :attr:`GuidanceState.note` says why. Otherwise it is flown straight from where the vehicle is."""
+    out = GuidanceState(g.behavior, target_ned_m, g.yaw_rad, vel_cmd=g.vel_cmd, goto_ned_m=target_ned_m)
+    if (
+        s is None
+        or fence is None
+        or g.behavior is not Behavior.HOLD
+        or fence.params.vehicle != "multirotor"
+        or s.nav_mode is _NAV_INERTIAL
+        or s.nav_mode is _NAV_LOST
+        or not route.has_zones(fence)
+    ):
+        return out
+    p = s.pos_ned_m
+    clearance = _widening_m(fence, s) + ROUTE_MARGIN_M
+    path = route.plan_path(fence, (p[0], p[1]), (target_ned_m[0], target_ned_m[1]), clearance)
+    if path is not None:
+        return out._replace(path_ne_m=path)
+    return GuidanceState(
+        g.behavior, g.anchor_ned_m, g.yaw_rad, vel_cmd=g.vel_cmd, goto_ned_m=target_ned_m,
+        note=f"GOTO: no route from ({p[0]:.1f}, {p[1]:.1f}) m to ({target_ned_m[0]:.1f}, {target_ned_m[1]:.1f}) m"
+        f" keeps {clearance:.1f} m from the fence's zones; holding where it is",
+    )
 
 
 def with_speed(cfg: TrustedParams, speed_mps: float) -> TrustedParams:

@@ -571,9 +571,12 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
                 g = g._replace(anchor_ned_m=(g.anchor_ned_m[0], g.anchor_ned_m[1], -arb.takeoff_alt_m))
             elif behavior is _MISSION and mission_index < len(cfg.trusted.mission_ned_m):
                 g = g._replace(mission_index=mission_index)  # resumed where it was paused, as PX4 does
-        if arb.target_ned_m is not None and g.anchor_ned_m != arb.target_ned_m and (
+        if arb.target_ned_m is not None and g.goto_ned_m != arb.target_ned_m and (
                 behavior is _HOLD or behavior is _ORBIT):
-            g = guidance.goto(g, arb.target_ned_m)  # GOTO's point, ORBIT's centre (set at the command)
+            g = guidance.goto(g, arb.target_ned_m, s, cfg.fence)  # GOTO's point, ORBIT's centre (at the command)
+            if g.note:  # GOTO has no route inside the range: it holds where it is
+                events.append(Event(now, EventKind.WARNING, reason=Reason(ReasonCode.GEOFENCE, "route", "no_route",
+                                                                          text=g.note)))
         tp = cfg.trusted if not arb.speed_mps else guidance.with_speed(cfg.trusted, arb.speed_mps)
         if behavior is _ORBIT:
             g, g_setpoint = guidance.orbit_step(g, s, tp, dt, arb.orbit_radius_m, arb.orbit_speed_mps)

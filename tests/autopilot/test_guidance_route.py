@@ -214,3 +214,30 @@ def test_rtl_that_stops_in_a_keep_out_leaves_it_first_and_climbs_on_the_way() ->
     # out of the 25 m circle from 10 m inside it: the ~16 m at up to cruise speed, with the acceleration limit
     assert inside_s < 5.0
     assert s.alt_m > 10.0 + 5.0  # climbing meanwhile
+
+
+def test_goto_round_the_inside_corner_follows_a_route() -> None:
+    s = _state(0.0, 0.0, 25.0)
+    g = guidance.enter(Behavior.HOLD, s, CFG, L_FENCE)
+    target = (330.0, 350.0, -25.0)  # the bar's east end: the straight line leaves the L at its corner
+    g = guidance.goto(g, target, s, L_FENCE)
+    assert g.goto_ned_m == target and g.anchor_ned_m == target and len(g.path_ne_m) >= 2 and g.note == ""
+    worst, t = math.inf, 0.0
+    while t < 200.0:
+        g, sp = guidance.step(g, s, CFG, DT)
+        v = tuple(s.vel_ned_mps[i] + DT / TAU_S * (sp.vel_ned_mps[i] - s.vel_ned_mps[i]) for i in range(3))
+        p = tuple(s.pos_ned_m[i] + v[i] * DT for i in range(3))
+        s = replace(s, pos_ned_m=p, vel_ned_mps=v)  # type: ignore[arg-type]
+        worst = min(worst, _hazard_distance(L_FENCE, p[0], p[1]))
+        t += DT
+    assert math.dist(s.pos_ned_m, target) < 0.5
+    assert worst >= WIDENING_M
+
+
+def test_goto_without_a_route_holds_and_says_why() -> None:
+    s = _state(50.0, 0.0, 20.0)
+    g = guidance.enter(Behavior.HOLD, s, CFG, WALLED)
+    target = (200.0, 0.0, -20.0)  # beyond the keep-out strip
+    g2 = guidance.goto(g, target, s, WALLED)
+    assert "GOTO: no route" in g2.note
+    assert g2.anchor_ned_m == g.anchor_ned_m and g2.goto_ned_m == target  # answered: not planned again
