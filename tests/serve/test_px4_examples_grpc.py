@@ -13,11 +13,20 @@ from __future__ import annotations
 import math
 import socket
 import time
+from pathlib import Path
 from typing import Any
 
 import pytest
 
-from tests.serve.conftest import STEP_TIMEOUT_S, ServeProc, gcs_connection, lines_until, wait_for
+from tests.serve.conftest import (
+    STEP_TIMEOUT_S,
+    ServeProc,
+    gcs_connection,
+    lines_until,
+    start_serve,
+    stop,
+    wait_for,
+)
 from tests.serve.px4_examples import PX4_HOME
 
 pytest.importorskip("mavsdk_grpc", reason="the gRPC MAVSDK-Python (pip install mavsdk-grpc) runs the examples")
@@ -133,19 +142,38 @@ def _distance_m(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
     return math.hypot((lat2 - lat1) * k, (lon2 - lon1) * k * math.cos(math.radians(lat1)))
 
 
-def test_goto(serve: ServeProc) -> None:
-    m = gcs_connection(serve.gcs_port)
-    run_example(serve, "goto", 90)
-    target = (47.399386, 8.535245)
+def test_goto(tmp_path: Path) -> None:
+    """The goto example's target is 780 m from home, beyond Merlin's built-in 300 m range: against a range that
+    holds it (PX4 SITL has no fence at all), the unchanged example flies there."""
+    cfg = tmp_path / "range_1500m.yaml"
+    lat, lon, alt = PX4_HOME  # (a configuration file states its home; PX4 SITL's, as serve's default)
+    cfg.write_text(f"home: {{lat_deg: {lat}, lon_deg: {lon}, alt_amsl_m: {alt}}}\n"
+                   "geofence:\n  inclusion_circles: [{name: wide range, center_ne_m: [0, 0], radius_m: 1500}]\n")
+    serve = start_serve(tmp_path, "--config", str(cfg))
+    try:
+        m = gcs_connection(serve.gcs_port)
+        run_example(serve, "goto", 90)
+        target = (47.399386, 8.535245)
 
-    def dist() -> float:
-        pos = wait_for(m, lambda x: x.get_type() == "GLOBAL_POSITION_INT")
-        assert pos is not None
-        return _distance_m(pos.lat / 1e7, pos.lon / 1e7, *target)
+        def dist() -> float:
+            pos = wait_for(m, lambda x: x.get_type() == "GLOBAL_POSITION_INT")
+            assert pos is not None
+            return _distance_m(pos.lat / 1e7, pos.lon / 1e7, *target)
 
-    d0 = dist()
-    time.sleep(15.0)
-    assert dist() < d0 - 30.0, "the vehicle is not flying to the goto target"
+        d0 = dist()
+        time.sleep(15.0)
+        assert dist() < d0 - 30.0, "the vehicle is not flying to the goto target"
+    finally:
+        stop(serve)
+
+
+def test_goto_beyond_the_range_is_denied(serve: ServeProc) -> None:
+    """With the built-in 300 m range the same program's goto_location is denied (Merlin's trusted autopilot
+    never flies out of its fence; section 13 of the ICD): the example stops there with PX4's error."""
+    p = serve.spawn("-m", "tests.serve.px4_examples", "goto", f"udpin://0.0.0.0:{serve.ctl_port}",
+                    str(_free_tcp_port()))
+    out = "\n".join(lines_until(p, "COMMAND_DENIED", 90))
+    assert "goto_location" in out and "COMMAND_DENIED" in out, out[-2000:]
 
 
 def test_do_orbit(serve: ServeProc) -> None:
