@@ -5,10 +5,11 @@ stream a position setpoint a couple of metres up, switch to OFFBOARD, arm; on PX
 vehicle. Merlin grants an experimental controller only in the air and inside the envelope, so it serves the
 flow in four phases (icd/ICD.md section 6.7):
 
-1. ``ACCEPTED``: OFFBOARD asked for on the ground, disarmed, with setpoints streaming (as PX4 requires) is
-   accepted (COMMAND_ACK ACCEPTED), and the controller's link shows what PX4 would show it: HEARTBEAT mode
-   OFFBOARD. Nothing flies yet; a stream that stops (``links.offboard_loss_timeout_s``) cancels it.
-2. ``CLIMBING``: at the arming, Merlin's trusted take-off flies (to ``trusted.takeoff_altitude_m``, PX4's
+1. ``ACCEPTED``: OFFBOARD asked for on the ground with setpoints streaming (as PX4 requires), disarmed (the
+   tutorial) or armed (MAVSDK's offboard examples arm first), is accepted (COMMAND_ACK ACCEPTED), and the
+   controller's link shows what PX4 would show it: HEARTBEAT mode OFFBOARD. Nothing flies while disarmed;
+   a stream that stops (``links.offboard_loss_timeout_s``) cancels it.
+2. ``CLIMBING``: at the arming (at once when armed already), Merlin's trusted take-off flies (to ``trusted.takeoff_altitude_m``, PX4's
    MIS_TAKEOFF_ALT), still shown as OFFBOARD on the controller's link.
 3. ``REQUESTED``: once the vehicle is high enough for the envelope (``altitude_m.min`` plus
    :data:`HANDOVER_MARGIN_M`), or the take-off is done, the request goes to the core, which decides it as any

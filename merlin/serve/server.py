@@ -471,12 +471,13 @@ class Server:
                 " held (IN_PROGRESS) until then")
 
     def _accept_on_ground(self, t: float) -> bool:
-        """Whether an OFFBOARD request starts PX4's offboard take-off flow: on the ground, disarmed, with
-        position or velocity setpoints streaming (merlin.serve.offboard_takeoff)."""
+        """Whether an OFFBOARD request starts PX4's offboard take-off flow: on the ground (disarmed, as PX4's
+        tutorial asks, or armed, as MAVSDK's examples do), with position or velocity setpoints streaming
+        (merlin.serve.offboard_takeoff)."""
         sp = self.pending.setpoint[1] if self.pending.setpoint is not None else None
         kind_ok = isinstance(sp, (i.SetpointIn, i.GlobalSetpointIn)) or (
             sp is None and self.sp is not None and self.sp.kind is not SetpointKind.ATTITUDE)
-        return (not self.loop.armed and bool(self.loop.state.landed) and self._streaming(t) and kind_ok
+        return (bool(self.loop.state.landed) and self._streaming(t) and kind_ok
                 and self.takeoff.phase.value == "idle")
 
     def _handover_alt_m(self) -> float:

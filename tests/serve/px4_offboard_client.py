@@ -115,8 +115,13 @@ def run(args: argparse.Namespace) -> int:
     offboard_seen = False
     while time.monotonic() < end:
         if switch_at is not None and time.monotonic() >= switch_at:
-            c.set_offboard(args.set_mode)
-            c.arm()
+            if args.arm_first:  # MAVSDK's offboard examples: arm, then OFFBOARD on the ground
+                c.arm()
+                time.sleep(0.5)
+                c.set_offboard(args.set_mode)
+            else:
+                c.set_offboard(args.set_mode)
+                c.arm()
             switch_at = None
         msg: Any = c.m.recv_match(blocking=True, timeout=0.05)
         if msg is None:
@@ -157,6 +162,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--height", type=float, default=2.0)
     ap.add_argument("--mask", type=lambda s: int(s, 0), default=MASK_POSITION)
     ap.add_argument("--prestream-s", type=float, default=5.0)
+    ap.add_argument("--arm-first", action="store_true", help="take-off flow: arm, then OFFBOARD")
     ap.add_argument("--fly-s", type=float, default=60.0)
     ap.add_argument("--report-position", action="store_true")
     return run(ap.parse_args(argv))

@@ -143,16 +143,19 @@ def _takeoff_flow(sp: ServeProc, height: str, *extra: str) -> tuple[list[str], o
     return lines_until(ctl, "mode OFFBOARD", timeout_s=30), m
 
 
-@pytest.mark.parametrize("set_mode", ["command", "message"])
+@pytest.mark.parametrize("variant", ["command", "message", "arm-first"])
 def test_px4_tutorial_take_off_in_offboard_is_flown_by_merlin_then_handed_over(serve: ServeProc,
-                                                                             set_mode: str) -> None:
+                                                                             variant: str) -> None:
     # PX4's offboard tutorial (MAVROS offb_node, here pymavlink): on the ground and disarmed, stream a position
-    # setpoint up, switch to OFFBOARD (DO_SET_MODE, or the SET_MODE message MAVROS sends), arm
-    out, m = _takeoff_flow(serve, "5", "--set-mode", set_mode)
+    # setpoint up, switch to OFFBOARD (DO_SET_MODE, or the SET_MODE message MAVROS sends), arm; or arm first
+    # and then switch, as MAVSDK's offboard examples do
+    extra = ("--arm-first",) if variant == "arm-first" else ("--set-mode", variant)
+    out, m = _takeoff_flow(serve, "5", *extra)
     brief = [x for x in out if "position" not in x]
     assert any("ack command=176 result=0" in x for x in out), brief  # accepted on the ground, as PX4 does
     first = next(x for x in out if "mode OFFBOARD" in x)
-    assert "armed=False" in out[out.index(first) - 1], out  # shown OFFBOARD before the arming, as PX4 shows it
+    armed_when_shown = "armed=True" in out[out.index(first) - 1]
+    assert armed_when_shown == (variant == "arm-first"), out  # shown OFFBOARD on the ground, as PX4 shows it
     # the ground station sees the truth meanwhile: Merlin's own take-off (AUTO.TAKEOFF)
     tk = wait_for(m, lambda x: x.get_type() == "HEARTBEAT" and x.get_srcComponent() == 1
                   and x.custom_mode == (4 << 16 | 2 << 24))
