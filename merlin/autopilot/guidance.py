@@ -235,7 +235,9 @@ def _route_velocity(g: GuidanceState, s: VehicleState, cfg: TrustedParams, down_
     :data:`ROUTE_ACCEL_FRACTION` of the braking deceleration to its corner speed."""
     path, i = g.path_ne_m, g.leg
     wp = path[i]
-    prev = path[i - 1] if i > 0 else (g.anchor_ned_m[0], g.anchor_ned_m[1])
+    # the corner's incoming direction: along the leg, or for the first leg from where the vehicle is (the
+    # anchor is the route's end for HOLD, LAND and GOTO, its start only for RTL)
+    prev = path[i - 1] if i > 0 else (s.pos_ned_m[0], s.pos_ned_m[1])
     accel = ROUTE_ACCEL_FRACTION * cfg.max_horizontal_decel_mps2
     v_corner = corner_speed_mps(prev, wp, path[i + 1], accel, cfg.cruise_speed_mps)
     p = s.pos_ned_m
