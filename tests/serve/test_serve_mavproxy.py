@@ -21,9 +21,10 @@ def test_mavproxy_connects_sets_a_param_on_the_ground_arms_and_takes_off(serve: 
     state = tmp_path / "mavproxy"
     state.mkdir()
     # MAVProxy's takeoff altitude is what it sends in MAV_CMD_NAV_TAKEOFF param7: above mean sea level for
-    # a PX4-style vehicle (icd/ICD.md section 2); the default home is 30 m AMSL, so 45 is 15 m above home.
+    # a PX4-style vehicle (icd/ICD.md section 2); the default home is PX4 SITL's, 488 m AMSL, so 503 is 15 m
+    # above home.
     # A parameter set on the ground is accepted; in flight it is refused (MAVProxy retries, then gives up).
-    script = ("sleep 15; echo 'param set ENV_ROLL_MAX 25'; sleep 3; echo 'arm throttle'; sleep 4; echo 'takeoff 45';"
+    script = ("sleep 15; echo 'param set ENV_ROLL_MAX 25'; sleep 3; echo 'arm throttle'; sleep 4; echo 'takeoff 503';"
               " sleep 8; echo 'param set ENV_ROLL_MAX 40'; sleep 5; echo 'param show ENV_ROLL_MAX'; sleep 2")
     for _ in range(600):  # serve is up (its start record written) before MAVProxy's clock starts
         if any(e["type"] == "serve_start" for e in serve.events()):
