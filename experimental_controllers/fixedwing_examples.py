@@ -6,6 +6,8 @@ authority (the grant's precondition), then fly their own law:
 
 * :class:`PullUp` raises the pitch at idle power until the airspeed decays: what the envelope's airspeed
   and angle-of-attack limits are for (a stall is the fixed wing's loss of control).
+* :class:`PullUpPush` pulls up the same way, then pushes the nose down at full power just before the
+  airspeed revocation: what the stall recovery must be bounded against (it starts from any state).
 * :class:`FwFlyaway` flies a fixed course at a set speed and height and never turns: what the
   velocity-projected geofence is for (a fixed wing cannot stop at the boundary; it must turn in time).
 """
@@ -54,6 +56,53 @@ class PullUp(ExperimentalController):
                      math.radians(float(self.params["max_pitch_deg"])))
         thrust = float(self.params["throttle"]) if ramp_s > 0.0 else float(self.params["cruise_throttle"])
         return ControllerOutput(Setpoint(SetpointKind.ATTITUDE, att_rpy_rad=(0.0, target, yaw), thrust=thrust))
+
+
+class PullUpPush(PullUp):
+    """:class:`PullUp` (banked at ``roll_deg`` while it pulls), then, once the airspeed has been below ``push_below_mps`` for ``push_after_s`` (just
+    before the envelope's airspeed revocation: 18.5 m/s for 0.5 s in the Aerosonde preset), the nose pushed
+    down to ``push_pitch_deg`` at ``push_throttle`` and bank ``push_roll_deg``: the aircraft is handed back
+    slow, pitching down hard, at full power and possibly banked, the worst start for a stall recovery."""
+
+    name = "fw_pull_up_push"
+    defaults: ClassVar[dict[str, Any]] = {
+        **PullUp.defaults,
+        "roll_deg": 0.0,
+        "push_below_mps": 18.5,
+        "push_after_s": 0.4,
+        "push_pitch_deg": -20.0,
+        "push_throttle": 1.0,
+        "push_roll_deg": 0.0,
+    }
+
+    def __init__(self, **params: Any) -> None:
+        super().__init__(**params)
+        if not 0.0 <= float(self.params["push_throttle"]) <= 1.0:
+            raise ParamError(f"push_throttle must be in [0, 1], got {self.params['push_throttle']!r}")
+        self.slow_since_s: float | None = None
+
+    def command(self, obs: Observation) -> ControllerOutput:
+        out = super().command(obs)
+        if not self.holds_authority:
+            self.slow_since_s = None
+            return out
+        sp = out.setpoint
+        roll = math.radians(float(self.params["roll_deg"]))
+        if sp is not None and roll != 0.0:
+            out = ControllerOutput(Setpoint(SetpointKind.ATTITUDE, att_rpy_rad=(roll, *sp.att_rpy_rad[1:]),
+                                            thrust=sp.thrust))
+        if obs.state.airspeed_mps >= float(self.params["push_below_mps"]):
+            self.slow_since_s = None
+            return out
+        if self.slow_since_s is None:
+            self.slow_since_s = obs.t_s
+        if obs.t_s - self.slow_since_s < float(self.params["push_after_s"]):
+            return out
+        yaw = obs.state.att_rpy_rad[2]
+        att = (math.radians(float(self.params["push_roll_deg"])), math.radians(float(self.params["push_pitch_deg"])),
+               yaw)
+        return ControllerOutput(Setpoint(SetpointKind.ATTITUDE, att_rpy_rad=att,
+                                         thrust=float(self.params["push_throttle"])))
 
 
 class FwFlyaway(ExperimentalController):

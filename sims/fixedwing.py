@@ -238,6 +238,45 @@ class FixedWingSim:
         self._frame = frame
         self._truth = self._truth._replace(t_s=frame * self.dt_s)
 
+    def set_flight_state(
+        self,
+        *,
+        pos_ned_m: Vec3,
+        heading_rad: float,
+        airspeed_mps: float,
+        alpha_rad: float,
+        pitch_rad: float,
+        roll_rad: float,
+        rates_frd_radps: Vec3,
+        surfaces: SurfaceCommand,
+    ) -> FixedWingTruth:
+        """Restart JSBSim from an arbitrary flight state (no sideslip, still air): the body velocity from the
+        airspeed and the angle of attack, the attitude and body rates as given, the surfaces and throttle
+        already at ``surfaces``. For sweeps over the states a recovery may start from
+        (``benchmarks/bench_fw_recovery.py``); the clock restarts at 0."""
+        if not airspeed_mps > 0.0:
+            raise ValueError(f"airspeed_mps must be positive, got {airspeed_mps}")
+        self._set_wind((0.0, 0.0, 0.0))
+        lat, lon, alt = self.ned_to_geodetic(pos_ned_m)
+        f = self._fdm
+        f["ic/terrain-elevation-ft"] = self.home_alt_amsl_m / FT_M
+        f["ic/lat-geod-deg"] = lat
+        f["ic/long-gc-deg"] = lon
+        f["ic/h-sl-ft"] = alt / FT_M
+        f["ic/vw-mag-fps"] = 0.0
+        f["ic/psi-true-rad"] = heading_rad
+        f["ic/theta-rad"] = pitch_rad
+        f["ic/phi-rad"] = roll_rad
+        f["ic/u-fps"] = airspeed_mps * math.cos(alpha_rad) / FT_M
+        f["ic/v-fps"] = 0.0
+        f["ic/w-fps"] = airspeed_mps * math.sin(alpha_rad) / FT_M
+        f["ic/p-rad_sec"], f["ic/q-rad_sec"], f["ic/r-rad_sec"] = rates_frd_radps
+        self._apply(surfaces)
+        self._run_ic()
+        self._crashed = False
+        self._truth = self._read()
+        return self._truth
+
     def set_wind(self, wind_ned_mps: Vec3) -> None:
         """Change the steady wind (NED, m/s: the direction the air moves towards)."""
         self._set_wind(wind_ned_mps)

@@ -315,7 +315,8 @@ class FixedWingLoop(ClosedLoop):
             self.core_cfg.fence, self.cp, self.gp, mission, self.fw.trim_result.surfaces,
             self.fw.truth().to_vehicle_state(), every, every * dt,
             cp_experimental=None if self.experimental_stall_protection else self.cp_unprotected,
-            escape_turns=self.escape_turns, rtl_routes=self.rtl_routes, notes=self.notes)
+            escape_turns=self.escape_turns, rtl_routes=self.rtl_routes, notes=self.notes,
+            envelope=self.core_cfg.envelope)
 
         self.k = 0
         self.armed = False

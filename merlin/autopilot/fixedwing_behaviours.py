@@ -28,7 +28,11 @@ wing cannot stop:
   the aircraft's position and course; the loiter over home moves off a keep-out if it must.
 
 What the stage did that the core's decision does not say (an escape turn and its side, a route, a LAND
-flown as a loiter) is appended to :attr:`FixedWingBehaviours.notes` as event-like dicts.
+flown as a loiter) is appended to :attr:`FixedWingBehaviours.notes` as event-like dicts. So is every
+excursion of the aircraft outside the envelope the core enforces on others while Merlin flies it
+(``fixed_wing_trusted_excursion``, with the parameter, the value, the limit and the reason, and
+``fixed_wing_trusted_excursion_end`` with its duration and peak): the core does not revoke its own
+behaviours, so a reviewer reads there where they left the envelope and why.
 """
 
 from __future__ import annotations
@@ -43,6 +47,8 @@ from merlin.autopilot import fixedwing_control as fc
 from merlin.autopilot import fixedwing_guidance as fg
 from merlin.autopilot import fixedwing_route as fr
 from merlin.core import geofence
+from merlin.core.config import EnvelopeLimit
+from merlin.core.envelope import envelope_values, outside
 from merlin.core.types import Authority, Behavior, CommandKind, Decision, VehicleState
 
 #: LAND for a fixed wing: loiter over home down to this height above home (or the fence floor plus the
@@ -134,15 +140,21 @@ class FixedWingBehaviours:
     every ``autopilot_every`` ticks (``autopilot_dt_s`` apart), and in the tick the source changes.
     ``cp_experimental`` (default ``cp``) flies the experimental controller's commands: the stall
     counterfactual of the tests bypasses the protections with it; Merlin's own behaviours always fly ``cp``.
-    ``escape_turns`` and ``rtl_routes`` off only show, in the tests, what guidance alone does.
+    ``escape_turns`` and ``rtl_routes`` off only show, in the tests, what guidance alone does. ``envelope``:
+    the core's envelope limits, for the trusted-excursion notes (none: no notes).
     """
 
     def __init__(self, fence: geofence.Fence | None, cp: fc.FixedWingControlParams, gp: fg.GuidanceParams,
                  mission: tuple[fg.Waypoint, ...], surfaces: fc.SurfaceCommand, s0: VehicleState,
                  autopilot_every: int, autopilot_dt_s: float, *,
                  cp_experimental: fc.FixedWingControlParams | None = None, escape_turns: bool = True,
-                 rtl_routes: bool = True, notes: list[dict[str, Any]] | None = None) -> None:
+                 rtl_routes: bool = True, notes: list[dict[str, Any]] | None = None,
+                 envelope: tuple[EnvelopeLimit, ...] = ()) -> None:
         self.fence = fence
+        self.envelope = envelope
+        #: parameter name -> [start time, peak value, limit] of each trusted excursion under way
+        self._excursions: dict[str, list[Any]] = {}
+        self._trusted_since_tick = False  # the previous tick was already flown by a trusted behaviour
         self.cp = cp
         self.cp_experimental = cp if cp_experimental is None else cp_experimental
         self.gp = gp
@@ -183,7 +195,47 @@ class FixedWingBehaviours:
             self.surfaces = out.surfaces
             self._since_autopilot = 0
         self._since_autopilot += 1
+        if self.envelope:
+            self._note_excursions(t, decision, s)
         return self.surfaces
+
+    def _note_excursions(self, t: float, decision: Decision, s: VehicleState) -> None:
+        """Note each envelope parameter that leaves (and comes back within) its limits while a trusted
+        behaviour flies: the core enforces the envelope only on others."""
+        trusted = source_key(decision)[0] == "trusted" and decision.armed
+        handover = trusted and not self._trusted_since_tick
+        self._trusted_since_tick = trusted
+        values = envelope_values(s) if trusted else ()
+        for lim in self.envelope:
+            open_ = self._excursions.get(lim.name)
+            out = trusted and outside(lim, values[lim.index])
+            if out:
+                v = values[lim.index]
+                if open_ is None:
+                    limit = lim.min if v < lim.min else lim.max
+                    self._excursions[lim.name] = [t, v, limit]
+                    self.notes.append({
+                        "t": t, "type": "fixed_wing_trusted_excursion", "parameter": lim.name,
+                        "value": v * lim.display_scale, "limit": limit * lim.display_scale,
+                        "behavior": decision.behavior.name, "reason": self._excursion_reason(decision, handover)})
+                elif abs(v - open_[2]) > abs(open_[1] - open_[2]):
+                    open_[1] = v
+            elif open_ is not None:
+                del self._excursions[lim.name]
+                self.notes.append({"t": t, "type": "fixed_wing_trusted_excursion_end", "parameter": lim.name,
+                                   "duration_s": t - open_[0], "peak": open_[1] * lim.display_scale,
+                                   "limit": open_[2] * lim.display_scale})
+
+    def _excursion_reason(self, decision: Decision, handover: bool) -> str:
+        if decision.behavior is Behavior.TAKEOFF:
+            return "take-off climb-out from the launcher"
+        if handover:
+            return "inherited at the handover: the state the previous authority left"
+        if self.cstate.recovering:
+            return "underspeed recovery: full power, wings level, pitch on the sink up to the angle-of-attack cap"
+        if self.escape_side:
+            return "escape turn at the bank limit (the inner loops' overshoot of their own limits)"
+        return f"{decision.behavior.name} guidance (the inner loops' overshoot of their own limits)"
 
     def _targets(self, t: float, decision: Decision, s: VehicleState, cp: fc.FixedWingControlParams,
                  takeoff_height_m: float) -> fc.FixedWingTargets:
@@ -209,13 +261,17 @@ class FixedWingBehaviours:
         return targets
 
     def _enter(self, t: float, decision: Decision, s: VehicleState, takeoff_height_m: float) -> None:
-        """Start the guidance mode for the core's behaviour, and an escape turn if the fence is tripped."""
+        """Start the guidance mode for the core's behaviour, and an escape turn if the fence is tripped
+        horizontally. A ceiling or floor trip is answered by the behaviour's height: a turn at the bank limit
+        would not change it, and next to the floor it would spend the lift the pull-up needs (a slow
+        aircraft revoked on the floor banked past the envelope's limit in it)."""
         b = decision.behavior
         gs = self.gstate
         self.escape_side = 0.0
         fence = self.fence
         if (self.escape_turns and fence is not None
-                and any(m.name == "geofence" and m.tripped for m in decision.monitors)):
+                and any(m.name == "geofence" and m.tripped and m.reason.parameter in _HORIZONTAL_TRIPS
+                        for m in decision.monitors)):
             self._start_escape(t, fence, s)
         if b is Behavior.RTL:
             gs = self._start_rtl(t, s)

@@ -16,6 +16,20 @@ balance-rate error (feed-forward plus PI). The weights ``w_h + w_v = 2`` are 1 e
 the minimum airspeed the height weight fades to 0 so pitch controls speed alone and the throttle goes to
 full, as in PX4's TECS underspeed protection: a stall is prevented by giving up height, never speed.
 
+Recovery: below the minimum airspeed, sinking faster than the loops' own sink limit allows, or banked
+beyond their bank limit (states their own flight never reaches: an experimental controller or a gust left
+the aircraft there), TECS gives way to a recovery until the airspeed, the sink and the bank are back: pitch
+on the sink alone up to the angle-of-attack cap, and, while slow, full power at once and wings level (the
+order of every stall-recovery procedure: angle of attack, power, wings, then the flight path). Keeping
+TECS's underspeed trade (pitch for speed alone) at a takeover lost up to 11.7 m from a push at full throttle
+just before the stall revocation (``fw_adv_push_before_stall_*``); this law loses under 3 m there.
+``merlin/autopilot/fixedwing_recovery.py`` bounds the height it can cost.
+
+Takeover: :func:`reset_from_state` starts the integrators within ``takeover_integrator_band`` of trim, not
+at the surfaces an adversary left (a full nose-down elevator held in the integrator took seconds to
+unwind), and each surface then moves from the value taken over at :func:`takeover_slew_per_s` until it
+meets the loops' own command: bumpless (no step), without continuing the revoked command.
+
 Attitude: roll and pitch setpoints are slewed at a bounded rate (bumpless and gentle to the airframe),
 tracked by PI + rate damping loops whose proportional and damping gains scale with cruise/airspeed (surface
 effectiveness grows with dynamic pressure). A coordinated turn's body rates are fed forward; the rudder
@@ -86,6 +100,23 @@ class FixedWingControlParams:
     tecs_pitch_p: float = 1.0
     tecs_pitch_i_per_s: float = 0.3
     underspeed_band_mps: float = 1.5  # below airspeed_min, the height weight fades to 0 over this band
+    # Recovery (see control_step): entered below airspeed_min, sinking faster than sink_max_mps plus
+    # recovery_sink_margin_mps, or banked beyond bank_max_rad plus recovery_bank_margin_rad (none of which
+    # the loops' own flight reaches: a descending loiter overshoots its 4 m/s by about 1 m/s); left once the
+    # airspeed is recovery_exit_margin_mps above airspeed_min, the sink is within recovery_exit_sink_mps of
+    # the sink asked for and the wings are within the bank limit.
+    recovery_sink_margin_mps: float = 2.0
+    recovery_bank_margin_rad: float = math.radians(10.0)
+    recovery_exit_margin_mps: float = 4.0
+    # the recovery's pitch per unit sink-rate error (h'/V): 4 pulls 10 deg for a 1 m/s sink at 22 m/s, up to
+    # the angle-of-attack cap (TECS's own 1 eases a 1.5 m/s sink for seconds)
+    recovery_pitch_p: float = 4.0
+    recovery_exit_sink_mps: float = 1.0
+    # A takeover inherits each surface within this of its trim through the integrators (not an adversary's
+    # full deflection), and each moves from the value taken over at most at the loops' own slew
+    # (takeover_slew_per_s) until it meets the loops' own command: no step, and no continuing the revoked
+    # command.
+    takeover_integrator_band: float = 0.2
     # Stall protection without an angle-of-attack vane: alpha ~ theta - gamma (still air), so the pitch
     # target is held below gamma + alpha_protect (the model stalls at 23.5 deg; trim at 18.5 m/s is 16 deg).
     alpha_protect_rad: float = math.radians(17.0)
@@ -148,6 +179,10 @@ class FixedWingControlState:
     speed_rate_mps2: float = 0.0  # low-passed dV/dt
     throttle: float = 0.0  # the last throttle command (slewed)
     initialized: bool = False
+    recovering: bool = False  # the recovery (control_step) is flown
+    # after a takeover: (aileron, elevator, rudder) last commanded, slewed towards the loops' own; None once
+    # all three met it
+    handover: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -162,6 +197,7 @@ class ControlOutput:
     seb_rate_error: float
     height_weight: float  # 1 normal, 0 when underspeed protection gives pitch to speed alone
     underspeed: bool
+    recovering: bool = False
 
 
 def _clip(x: float, lo: float, hi: float) -> float:
@@ -170,6 +206,13 @@ def _clip(x: float, lo: float, hi: float) -> float:
 
 def _slew(current: float, target: float, max_step: float) -> float:
     return current + _clip(target - current, -max_step, max_step)
+
+
+def takeover_slew_per_s(p: FixedWingControlParams) -> float:
+    """How fast the surfaces move from the values taken over towards the loops' own commands:
+    the most one second of the pitch setpoint's slew asks of the elevator (at the largest airspeed scaler),
+    the slower of the two attitude loops' own slews."""
+    return p.scaler_max * min(p.pitch_p * p.pitch_sp_rate_radps, p.roll_p * p.roll_sp_rate_radps)
 
 
 def bank_limit_rad(p: FixedWingControlParams) -> float:
@@ -209,7 +252,8 @@ def _speed_rate(s: VehicleState) -> float:
     return (an * vn + ae * ve + ad * vd) / speed
 
 
-def _energy(p: FixedWingControlParams, s: VehicleState, t: FixedWingTargets, v_rate: float) -> _Energy:
+def _energy(p: FixedWingControlParams, s: VehicleState, t: FixedWingTargets, v_rate: float,
+            recovering: bool = False) -> _Energy:
     v = max(s.airspeed_mps, 3.0)
     h = s.alt_m
     h_rate = -s.vel_ned_mps[2]
@@ -227,9 +271,11 @@ def _energy(p: FixedWingControlParams, s: VehicleState, t: FixedWingTargets, v_r
         (s.airspeed_mps - (p.airspeed_min_mps - p.underspeed_band_mps)) / p.underspeed_band_mps, 0.0, 1.0
     )
     underspeed = w_h < 1.0
-    if underspeed:
+    if underspeed or recovering:
         h_rate_d = min(h_rate_d, 0.0)  # no climbing while slow
-    w_v = 2.0 - w_h
+    if recovering:
+        w_h = 1.0  # the recovery: pitch arrests the sink, the throttle (full) alone brings the speed back
+    w_v = 2.0 - w_h if not recovering else 0.0
     return _Energy(
         ste_d=h_rate_d / v + v_rate_d / G_MPS2,
         ste=h_rate / v + v_rate / G_MPS2,
@@ -238,6 +284,15 @@ def _energy(p: FixedWingControlParams, s: VehicleState, t: FixedWingTargets, v_r
         w_h=w_h,
         underspeed=underspeed,
     )
+
+
+def _sink_asked_mps(p: FixedWingControlParams, s: VehicleState, t: FixedWingTargets) -> float:
+    """The sink rate the targets ask for (0 when they ask for a climb or level flight), as TECS computes it."""
+    if t.height_m is None:
+        h_rate_d = t.climb_rate_mps
+    else:
+        h_rate_d = p.height_gain_per_s * (t.height_m - s.alt_m) + t.climb_rate_mps
+    return max(-_clip(h_rate_d, -p.sink_max_mps, p.climb_max_mps), 0.0)
 
 
 def _scaler(p: FixedWingControlParams, s: VehicleState) -> float:
@@ -278,15 +333,19 @@ def reset_from_state(
     del targets  # the first command equals ``surfaces`` whatever the targets (see the docstring)
     speed = math.sqrt(sum(c * c for c in s.vel_ned_mps))
     gamma = math.asin(_clip(-s.vel_ned_mps[2] / speed, -1.0, 1.0)) if speed > 3.0 else 0.0
+    band = p.takeover_integrator_band
     return FixedWingControlState(
         throttle_integ=0.0,
         pitch_tecs_integ_rad=_clip(theta - gamma, 0.0, 0.5 * p.alpha_protect_rad),
         throttle=surfaces.throttle,
         roll_sp_rad=phi,
         pitch_sp_rad=theta,
-        aileron_integ=surfaces.aileron - k * (-p.roll_d * pr),
-        elevator_integ=surfaces.elevator - k * (p.pitch_d * (qr - q_turn) * -1.0),
-        rudder_integ=surfaces.rudder - k * (-p.yaw_d * (rr - r_turn) - p.sideslip_p * s.accel_frd_mps2[1]),
+        aileron_integ=_clip(surfaces.aileron - k * (-p.roll_d * pr), -band, band),
+        elevator_integ=_clip(surfaces.elevator - k * (p.pitch_d * (qr - q_turn) * -1.0),
+                             p.elevator_trim - band, p.elevator_trim + band),
+        rudder_integ=_clip(surfaces.rudder - k * (-p.yaw_d * (rr - r_turn) - p.sideslip_p * s.accel_frd_mps2[1]),
+                           -band, band),
+        handover=(surfaces.aileron, surfaces.elevator, surfaces.rudder),
         speed_rate_mps2=v_rate,
         initialized=True,
     )
@@ -314,13 +373,36 @@ def control_step(
     v_rate = state.speed_rate_mps2 + dt_s / (p.speed_rate_tau_s + dt_s) * (
         _speed_rate(s) - state.speed_rate_mps2
     )
-    e = _energy(p, s, targets, v_rate)
+    sink_asked = _sink_asked_mps(p, s, targets)
+    recovering = targets.pitch_rad is None and (
+        s.airspeed_mps < p.airspeed_min_mps
+        or s.vel_ned_mps[2] > p.sink_max_mps + p.recovery_sink_margin_mps
+        or abs(phi) > p.bank_max_rad + p.recovery_bank_margin_rad
+        or (state.recovering and not (s.airspeed_mps >= p.airspeed_min_mps + p.recovery_exit_margin_mps
+                                      and s.vel_ned_mps[2] <= sink_asked + p.recovery_exit_sink_mps
+                                      and abs(phi) <= p.bank_max_rad)))
+    e = _energy(p, s, targets, v_rate, recovering)
     ste_err = e.ste_d - e.ste
     seb_err = e.seb_d - e.seb
     if targets.pitch_rad is not None and targets.throttle is not None:
         pitch_target = targets.pitch_rad
         throttle = targets.throttle
         throttle_integ, pitch_integ = state.throttle_integ, state.pitch_tecs_integ_rad
+    elif recovering and s.airspeed_mps < p.airspeed_min_mps + p.recovery_exit_margin_mps:
+        # Full power at once (not slewed: a recovery's first second is worth metres), wings level (below),
+        # pitch on the sink alone up to the angle-of-attack cap; the integrators hold what they learnt.
+        throttle = p.throttle_max
+        throttle_integ, pitch_integ = state.throttle_integ, state.pitch_tecs_integ_rad
+        pitch_target = p.tecs_pitch_ff * e.seb_d + p.recovery_pitch_p * seb_err + pitch_integ
+    elif recovering:
+        # Fast enough (a sink or a bank upset, not a stall): TECS's throttle (slewed: more speed would widen
+        # an escape turn the fence projection planned at the speed of the trip), pitch on the sink alone up to
+        # the angle-of-attack cap.
+        throttle = _clip(p.throttle_trim + p.tecs_throttle_ff * e.ste_d + p.tecs_throttle_p * ste_err
+                         + state.throttle_integ, p.throttle_min, p.throttle_max)
+        throttle = _slew(state.throttle, throttle, p.throttle_slew_per_s * dt_s)
+        throttle_integ, pitch_integ = state.throttle_integ, state.pitch_tecs_integ_rad
+        pitch_target = p.tecs_pitch_ff * e.seb_d + p.recovery_pitch_p * seb_err + pitch_integ
     else:
         throttle_unsat = (
             p.throttle_trim
@@ -347,7 +429,10 @@ def control_step(
             pitch_integ = pitch_integ + p.tecs_pitch_i_per_s * seb_err * dt_s
         # The integrator holds the trim angle of attack: keep it within the reachable pitch range.
         pitch_integ = _clip(pitch_integ, p.pitch_min_rad, p.pitch_max_rad)
-    throttle = _slew(state.throttle, throttle, p.throttle_slew_per_s * dt_s)
+    if not recovering:
+        throttle = _slew(state.throttle, throttle, p.throttle_slew_per_s * dt_s)
+    else:
+        pass  # full power at once, or TECS's slewed above
     pitch_target = _clip(pitch_target, p.pitch_min_rad, p.pitch_max_rad)
     v_ground = math.sqrt(sum(c * c for c in s.vel_ned_mps))
     if v_ground > 3.0:
@@ -357,7 +442,12 @@ def control_step(
     # ---- setpoint slewing (bumpless, and gentle on the airframe)
     # Near the minimum airspeed the bank is reduced (stall speed grows as 1/sqrt(cos bank)): wings level
     # first, then turn, as in a stall recovery.
-    bank = bank_limit_rad(p) * _clip((s.airspeed_mps - p.airspeed_min_mps) / p.bank_full_margin_mps, 0.0, 1.0)
+    # Wings level while recovering slow or from a bank beyond the limit; a recovery from a sink alone keeps
+    # turning (an escape turn must go on: the fence projection assumed it).
+    slow_or_upset = (s.airspeed_mps < p.airspeed_min_mps + p.recovery_exit_margin_mps
+                     or abs(phi) > p.bank_max_rad + p.recovery_bank_margin_rad)
+    bank = 0.0 if recovering and slow_or_upset else bank_limit_rad(p) * _clip(
+        (s.airspeed_mps - p.airspeed_min_mps) / p.bank_full_margin_mps, 0.0, 1.0)
     roll_sp = _slew(state.roll_sp_rad, _clip(targets.roll_rad, -bank, bank), p.roll_sp_rate_radps * dt_s)
     pitch_sp = _slew(state.pitch_sp_rad, pitch_target, p.pitch_sp_rate_radps * dt_s)
 
@@ -373,6 +463,15 @@ def control_step(
     aileron = k * (p.roll_p * roll_err - p.roll_d * pr) + aileron_integ
     elevator = k * (p.pitch_p * pitch_err - p.pitch_d * (qr - q_turn)) + elevator_integ
     rudder = k * (-p.yaw_d * (rr - r_turn) - p.sideslip_p * ay) + rudder_integ
+    handover = state.handover
+    if handover is not None:
+        step = takeover_slew_per_s(p) * dt_s
+        own = (_clip(aileron, -1.0, 1.0), _clip(elevator, -1.0, 1.0), _clip(rudder, -1.0, 1.0))
+        if all(abs(o - h) <= step for o, h in zip(own, handover, strict=True)):
+            handover = None
+        else:
+            aileron, elevator, rudder = (_slew(h, o, step) for h, o in zip(handover, own, strict=True))
+            handover = (aileron, elevator, rudder)
     surfaces = SurfaceCommand(aileron=aileron, elevator=elevator, rudder=rudder, throttle=throttle).clipped()
 
     new_state = FixedWingControlState(
@@ -386,6 +485,8 @@ def control_step(
         speed_rate_mps2=v_rate,
         throttle=throttle,
         initialized=True,
+        recovering=recovering,
+        handover=handover,
     )
     return new_state, ControlOutput(
         surfaces=surfaces,
@@ -396,4 +497,5 @@ def control_step(
         seb_rate_error=seb_err,
         height_weight=e.w_h,
         underspeed=e.underspeed,
+        recovering=recovering,
     )

@@ -79,11 +79,11 @@ def height_loss_after_revocation_m(r: RunResult) -> float:
     return float(h[k] - h[k:].min())
 
 
-def _surface_steps_at_changes(r: RunResult) -> float:
+def _surface_steps_at_changes(r: RunResult, columns: tuple[str, ...] = ("m0", "m1", "m2", "m3")) -> float:
     """Largest step of any surface across a change of authority or behaviour (log at the tick rate)."""
     log = r.log
     change = np.flatnonzero((np.diff(log["authority"]) != 0) | (np.diff(log["behavior"]) != 0)) + 1
-    steps = [max(abs(float(log[c][k] - log[c][k - 1])) for c in ("m0", "m1", "m2", "m3")) for k in change]
+    steps = [max(abs(float(log[c][k] - log[c][k - 1])) for c in columns) for k in change]
     return max(steps, default=0.0)
 
 
@@ -110,8 +110,37 @@ def test_stall_protection_revokes_before_the_stall_and_recovers_within_the_bound
     h = -r.log["truth_d"]
     assert airspeed[-1] == pytest.approx(22.0, abs=1.0)
     assert h[-1] > h[k] - 3.0
-    # bumpless: no surface steps by more than two autopilot ticks of setpoint slew at the switches
-    assert _surface_steps_at_changes(r) < 0.05
+    # bumpless: no control surface steps by more than two autopilot ticks of setpoint slew at the switches;
+    # the throttle does (the underspeed recovery goes to full power at once)
+    assert _surface_steps_at_changes(r, ("m0", "m1", "m2")) < 0.05
+    assert r.log["m3"][k + 1] == pytest.approx(1.0)
+
+
+PUSH_HEIGHTS_M = (38, 45, 60)
+
+
+@pytest.mark.parametrize("height_m", PUSH_HEIGHTS_M)
+def test_a_push_at_full_throttle_before_the_stall_revocation_recovers_above_the_floor(height_m: int) -> None:
+    """The adversary pulls up at idle, then pushes the nose down at full throttle 0.1 s before the airspeed
+    revocation: Merlin takes over a slow aircraft pitching down hard at full power. The recovery (full power,
+    wings level, pitch on the sink) loses far less than the bound and keeps the floor from 38 m up (it lost
+    11.3-11.7 m and went 3.7 m through the floor from 38 m when TECS traded height for speed at the switch)."""
+    r = _run_file(f"fw_adv_push_before_stall_{height_m}m.yaml")
+    _expectations_pass(r)
+    rev = [e for e in r.events if e["type"] == "revoked"]
+    assert rev[0]["reason_detail"]["parameter"] == "airspeed_mps"
+    k = _row(r.log, rev[0]["t"])
+    assert r.log["env_pitch_rate_degps"][k] < -10.0  # handed over pitching down hard ...
+    assert r.log["m3"][k - 1] > 0.3  # ... with the throttle going up
+    loss = height_loss_after_revocation_m(r)
+    assert loss < 4.0, loss
+    h = -r.log["truth_d"]
+    assert h[k:].min() > FENCE_PARAMS.altitude_floor_m + 2.0
+    assert r.log["env_airspeed_mps"][k:].min() > STALL_SPEED_MPS + 2.0
+    assert r.log["env_alpha_deg"][k:].max() < ALPHA_STALL_DEG - 5.0
+    # the airspeed the revoked controller left below the envelope's minimum is noted, with its reason
+    notes = [e for e in r.events if e["type"] == "fixed_wing_trusted_excursion"]
+    assert notes and notes[0]["parameter"] == "airspeed_mps" and notes[0]["reason"].startswith("inherited")
 
 
 # ------------------------------------------------------------------------------------------------ fence
