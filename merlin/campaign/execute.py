@@ -111,11 +111,21 @@ def worker_died_record(spec: RunSpec, exitcodes: list[int], detail: str = "",
             "worker_exit_codes": exitcodes, "wall_s": 0.0}
 
 
+def where_flown() -> dict[str, Any]:
+    """The machine and process that flew a run, kept in its record (``worker``): which node of a cluster
+    flew what is otherwise lost once the campaign is over, and a run that misbehaves on one machine only
+    is found by it. Like the timings, it differs between two flights of the same run."""
+    import os
+    import socket
+
+    return {"host": socket.gethostname(), "pid": os.getpid()}
+
+
 def execute(spec: RunSpec) -> dict[str, Any]:
     """Fly ``spec``; the record for ``results.jsonl``. Reads and writes no file: on a Ray cluster the
     worker's machine need not share the campaign directory (the driver writes the run's YAML)."""
     wall0 = time.perf_counter()
-    rec: dict[str, Any] = {**_identity(spec), "threads": one_thread_per_run()}
+    rec: dict[str, Any] = {**_identity(spec), "threads": one_thread_per_run(), "worker": where_flown()}
     try:
         rec["run_yaml"] = f"runs/{spec.run_id}.yaml"
         p = Path(rec["run_yaml"])

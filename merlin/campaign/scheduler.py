@@ -286,14 +286,25 @@ def fly(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
     (_ray if opts.backend == "ray" else _local)(specs, opts, emit)
 
 
+def execute_on_ray(spec: RunSpec) -> dict[str, Any]:
+    """:func:`execute` as a Ray task: the record also names the Ray node that flew the run
+    (``worker.ray_node_id``; several nodes can share a host name, as on one machine)."""
+    import ray
+
+    rec = execute(spec)
+    rec["worker"]["ray_node_id"] = ray.get_runtime_context().get_node_id()
+    return rec
+
+
 def _ray(specs: list[RunSpec], opts: CampaignOptions, emit: Emit) -> None:
     import ray
 
     started = start_ray(opts)
     try:
-        # max_retries: Ray flies a task again when its worker process or node is lost; after that the
-        # run is stored as an error, as on the local backend (WORKER_ATTEMPTS in all)
-        task = ray.remote(num_cpus=1, max_retries=WORKER_ATTEMPTS - 1)(execute)
+        # max_retries: Ray flies a task again when its worker process or node is lost (a cluster node
+        # killed mid-campaign: tests/campaign/test_ray_cluster.py); after that the run is stored as an
+        # error, as on the local backend (WORKER_ATTEMPTS in all)
+        task = ray.remote(num_cpus=1, max_retries=WORKER_ATTEMPTS - 1)(execute_on_ray)
         window = 4 * opts.n_workers if not opts.address else 4 * int(ray.cluster_resources().get("CPU", 1))  # type: ignore[no-untyped-call]
         todo = list(specs)
         refs: dict[Any, RunSpec] = {}

@@ -28,7 +28,8 @@ ROOT = HERE.parents[1]
 TINY = str(HERE / "tiny.yaml")
 EXPLODING = str(HERE / "exploding.yaml")
 DYING = str(HERE / "dying.yaml")
-TIMING_KEYS = {"wall_s", "run_wall_s"}
+# when and where a run was flown: differs between two flights of the same run, by design
+TIMING_KEYS = {"wall_s", "run_wall_s", "worker"}
 
 
 def _stable(records: dict[str, dict]) -> dict[str, dict]:
