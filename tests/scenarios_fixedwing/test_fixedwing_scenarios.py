@@ -143,6 +143,15 @@ def test_a_push_at_full_throttle_before_the_stall_revocation_recovers_above_the_
     assert notes and notes[0]["parameter"] == "airspeed_mps" and notes[0]["reason"].startswith("inherited")
 
 
+def test_a_head_on_approach_in_a_tailwind_turns_back_inside() -> None:
+    """22 m/s at the east boundary with a 10 m/s tailwind, revoked 0.6 s after the grant: the escape turn rolls
+    in at once (the takeover does not carry the revoked command's integrators) and keeps the widening (it
+    crossed the boundary by 9.2 m when it did)."""
+    r = _run_file("fw_adv_tailwind_fence_22mps.yaml")
+    _expectations_pass(r)
+    assert r.metrics["min_fence_margin_m"] > FENCE_PARAMS.margin_m, r.metrics["min_fence_margin_m"]
+
+
 # ------------------------------------------------------------------------------------------------ fence
 
 CASES = [(str(a), v) for a in ANGLES_DEG for v in SPEEDS_MPS] + [("notch", v) for v in SPEEDS_MPS]
