@@ -120,7 +120,9 @@ def cmd_test(py: Path, extra: list[str]) -> int:
             return rc
     # The arbiter is the heart of the trusted core: every branch of it must be exercised by its tests.
     # Measured on the .py source (MERLIN_USE_SOURCES): coverage cannot see inside the compiled module.
-    rc = _run([py, "-m", "pytest", "-q", "-p", "no:xdist", "tests/core/test_arbiter.py", "--cov=merlin.core.arbiter",
+    # Its unit tests: the rule table, the exchange and commands (test_arbiter.py), GOTO/ORBIT/SPEED (test_goto_orbit.py).
+    rc = _run([py, "-m", "pytest", "-q", "-p", "no:xdist", "tests/core/test_arbiter.py", "tests/core/test_goto_orbit.py",
+               "--cov=merlin.core.arbiter",
                "--cov-branch", "--cov-report=term-missing", "--cov-fail-under=100"],
               env={**env, "MERLIN_USE_SOURCES": "1"})
     if rc != 0:

@@ -20,6 +20,7 @@ from merlin.core.types import (
     AuthorityRequest,
     Behavior,
     EventKind,
+    GcsCommand,
     GcsCommandKind,
     NavMode,
     OperatorInput,
@@ -529,3 +530,34 @@ def test_grace_ends_when_the_condition_clears_then_oversight_applies_again() -> 
     assert h.tick().authority is Authority.OPERATOR  # cleared: grace consumed
     h.state = replace(HOVER_10M, att_rpy_rad=(math.radians(40), 0.0, 0.0))
     assert h.tick().authority is Authority.TRUSTED  # a new violation within the grace window is caught
+
+
+def test_mission_commanded_on_the_ground_takes_off_first_to_the_lower_of_the_take_off_and_first_waypoint() -> None:
+    cfg = MerlinConfig.model_validate({"trusted": {"mission_ned_m": [[20.0, 0.0, -6.0], [20.0, 20.0, -6.0]]}})
+    h = Harness(cfg=cfg)
+    h.command(GcsCommandKind.ARM)
+    d = h.command(GcsCommandKind.MISSION)
+    assert events_of(d, EventKind.COMMAND_ACK)[0].accepted
+    assert d.authority is Authority.TRUSTED and d.behavior is Behavior.TAKEOFF
+    assert h.core.state.arbiter.after_takeoff is Behavior.MISSION
+    assert h.core.state.arbiter.takeoff_alt_m == 6.0  # the first waypoint is lower than the take-off height
+
+
+def test_goto_and_orbit_without_a_finite_target_or_radius_are_refused_as_invalid() -> None:
+    h = Harness()
+    h.airborne()
+    for cmd in (GcsCommand(GcsCommandKind.GOTO, target_ned_m=None),
+                GcsCommand(GcsCommandKind.GOTO, target_ned_m=(math.nan, 0.0, -10.0)),
+                GcsCommand(GcsCommandKind.ORBIT, param=0.0, target_ned_m=(0.0, 10.0, -10.0)),
+                GcsCommand(GcsCommandKind.ORBIT, param=math.inf, target_ned_m=(0.0, 10.0, -10.0))):
+        [ack] = events_of(h.tick(commands=(cmd,)), EventKind.COMMAND_ACK)
+        assert not ack.accepted and ack.reason.code is ReasonCode.INVALID_INPUT
+    assert h.core.state.arbiter.target_ned_m is None
+
+
+def test_goto_with_the_fence_disabled_is_not_judged_against_it() -> None:
+    cfg = MerlinConfig.model_validate({"geofence": {"enabled": False}})
+    h = Harness(cfg=cfg)
+    h.airborne()
+    d = h.tick(commands=(GcsCommand(GcsCommandKind.GOTO, target_ned_m=(900.0, 0.0, -10.0)),))
+    assert events_of(d, EventKind.COMMAND_ACK)[0].accepted and d.behavior is Behavior.HOLD
