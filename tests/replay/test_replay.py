@@ -60,7 +60,8 @@ def test_ulog_replay_grants_once_airborne_and_reports_each_revocation(ulog_repla
 def test_ulog_replay_matches_the_documented_account(instance: int) -> None:
     """docs/campaigns.md: on the seed's triplex SITL logs with the default configuration, requests are
     denied while the vehicle is below the envelope's 3 m minimum altitude, granted at 19.7 s and revoked
-    at 44.2 s by the geofence (the projected path reaches the north field's boundary). The three
+    at 43.1 s by the geofence (the projected path reaches the north field's boundary, with the default's
+    8 m margin; 44.2 s with a 5 m margin, checked below). The three
     instances flew the same mission: each must tell the same story."""
     path = ULOG.with_name(f"instance_{instance}_Communication_fail.ulg")
     if not path.exists():
@@ -78,7 +79,7 @@ def test_ulog_replay_matches_the_documented_account(instance: int) -> None:
     assert decisions[0]["t"] == pytest.approx(r.first_airborne_s, abs=0.03)
     grant, rev = decisions[n_denied], decisions[n_denied + 1]
     assert grant["t"] == pytest.approx(19.7, abs=0.05)
-    assert rev["t"] == pytest.approx(44.2, abs=0.05)
+    assert rev["t"] == pytest.approx(43.1, abs=0.05)
     assert rev["reason"] == "geofence" and rev["reason_detail"]["parameter"] == "inclusion"
     assert rev["reason_detail"]["value"] >= rev["reason_detail"]["limit"]
     assert "inclusion boundary" in rev["reason_detail"]["text"]
@@ -86,6 +87,18 @@ def test_ulog_replay_matches_the_documented_account(instance: int) -> None:
     experimental = [tk for tk, a in zip(t, r.authority, strict=True) if a == 2]
     assert experimental and grant["t"] <= experimental[0] <= grant["t"] + 0.1
     assert rev["t"] - 0.03 <= experimental[-1] < rev["t"]
+
+
+def test_ulog_replay_revokes_later_with_a_smaller_fence_margin() -> None:
+    """The revocation's time follows the fence's margin: with 5 m instead of the default's 8 m the projected
+    path reaches the margin's edge 1.1 s later (44.2 s)."""
+    if not ULOG.exists():
+        pytest.skip(f"seed logs not found at {ULOG} (set MERLIN_SHARED)")
+    cfg = load_config(DEFAULT)
+    cfg = cfg.model_copy(update={"geofence": cfg.geofence.model_copy(update={"margin_m": 5.0})})
+    r = replay(read_log(ULOG), cfg)
+    [rev] = [e for e in r.events if e["type"] == "revoked"]
+    assert rev["reason"] == "geofence" and rev["t"] == pytest.approx(44.2, abs=0.05)
 
 
 def test_replay_cli_writes_json_and_plots(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
