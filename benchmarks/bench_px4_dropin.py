@@ -1,4 +1,4 @@
-"""PX4 drop-in timings of ``merlin serve`` (issue 17, part A), measured end to end on loopback in real time:
+"""PX4 drop-in timings of ``merlin serve``, measured end to end on loopback in real time:
 
 * ``offboard``: a pymavlink client as PX4's docs write one (``tests.serve.px4_offboard_client``, MAVSDK's
   default ground-station HEARTBEAT type) asks for OFFBOARD right after its first setpoint: the time from that

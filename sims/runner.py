@@ -476,7 +476,7 @@ class ClosedLoop:
         self.decision: Decision | None = None
         self.wind_ned: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self.frame: Any = None
-        # --- hardware redundancy (issue 5): nothing is built, and nothing runs per tick, when it is off
+        # --- hardware redundancy: nothing is built, and nothing runs per tick, when it is off
         from sims.lanes import Redundancy
 
         self.redundancy = None
@@ -541,7 +541,7 @@ class ClosedLoop:
         """First half of a tick: read the truth, sample the sensors, form the estimate the core will see."""
         t = self.k * self.dt  # self.t
         self.truth = self.vehicle.truth()
-        # the sensor frame feeds the fusion EKF (issue 4) and the redundancy stage; the stand-in estimator
+        # the sensor frame feeds the fusion EKF and the redundancy stage; the stand-in estimator
         # reads the truth (``sensor_frame_wanted``)
         if self.sensor_frame_wanted:
             self.frame = self.injector.apply(self.sensors.step(self.truth))

@@ -77,7 +77,7 @@ def _check_route(fence: Fence, start: tuple[float, float], route: fr.Route, cent
 
 
 def test_route_around_the_mast_keeps_the_clearance_and_enters_on_the_tangent() -> None:
-    # campaign run 00739's escape-turn end, south-west of the mast: the straight line home crosses it
+    # fw_rtl_keepout_climb's escape-turn end, south-west of the mast: the straight line home crosses it
     start = (-478.9, -586.7)
     assert shapely.intersects(FENCE.exclusion_area, shapely.LineString([start, (0.0, 0.0)]))
     route = fr.plan_route(FENCE, start, (0.0, 0.0), 120.0, C)

@@ -1,4 +1,4 @@
-"""Sensors, faults and the fusion EKF on the JSBSim fixed wing (issue 8: "the same simulator interface as the
+"""Sensors, faults and the fusion EKF on the JSBSim fixed wing ("the same simulator interface as the
 multirotor, so scenarios, sensors, faults, campaigns and ``merlin serve`` work for both").
 
 The fixed wing's sensor frame comes from JSBSim's state through the multirotor's sensor suite (three IMU

@@ -288,8 +288,8 @@ def test_seed_004_lap_two_laps_clockwise_through_the_closed_loop() -> None:
     assert turned > 560.0
 
 
-def test_campaign_run_74_in_wind_escapes_on_the_side_that_stays_inside() -> None:
-    """The fixed-wing fence campaign's run 74 as a scenario (fw_fence_corner_wind.yaml): a 23.8 m/s approach
+def test_corner_approach_in_wind_escapes_on_the_side_that_stays_inside() -> None:
+    """fw_fence_corner_wind.yaml, from the fixed-wing fence campaign: a 23.8 m/s approach
     to the south-west corner in a 2.9 m/s wind. It breached by 50 m when the escape side was chosen by
     free path first; now the left turn is flown and the range holds with a wide margin."""
     r = _run_file("fw_fence_corner_wind.yaml")
@@ -307,8 +307,8 @@ MAST_NE_M, MAST_R_M = (-350.0, -350.0), 60.0  # the campaign range's exclusion c
 
 @pytest.mark.parametrize("name", ["fw_rtl_keepout_climb.yaml", "fw_rtl_keepout_descend.yaml"])
 def test_rtl_routes_around_the_keep_out_and_reaches_home(name: str) -> None:
-    """Campaign runs 00739 and 00072: RTL after the revocation flew L1 straight home through the mast's
-    exclusion circle (56.9 m and 6.85 m deep). The route now passes it with room and joins the loiter."""
+    """Without routing, RTL after the revocation flies L1 straight home through the mast's exclusion circle
+    (56.9 m and 6.85 m deep). The route now passes it with room and joins the loiter."""
     r = _run_file(name)
     _expectations_pass(r)
     assert r.metrics["max_fence_breach_m"] == 0.0

@@ -64,7 +64,7 @@ def test_the_escape_turn_is_the_one_that_stays_off_the_fence_not_the_one_with_mo
     """The campaign's fixed-wing range (examples/campaigns/fixed_wing.yaml), at the trip of a 23.8 m/s
     approach on course 206 deg towards its south-west corner. The right turn crosses the west wall (margin
     = minus the widening) but flies 41 m farther before it meets the widening; the left one only grazes
-    the widening. Choosing by path length first took the crossing turn: campaign run 74 breached by 50 m.
+    the widening. Choosing by path length first takes the crossing turn and breaches by 50 m (fw_fence_corner_wind).
     The escape must take the left turn."""
     fence = geofence.Fence(
         geofence.FenceParams(vehicle="fixed_wing", margin_m=5.0, sigma_k=2.0, altitude_floor_m=30.0,
