@@ -268,7 +268,9 @@ def start_ray(opts: CampaignOptions) -> bool:
     if ray.is_initialized():
         return False
     if opts.address:
-        ray.init(address=opts.address, log_to_driver=False)
+        # the cluster's nodes were started by someone else, with their own environment: the tasks get the
+        # same thread limits as on one machine (a run is one CPU; numpy must not start a thread per core)
+        ray.init(address=opts.address, log_to_driver=False, runtime_env={"env_vars": worker_env()})
     else:
         env = {"PYTHONPATH": os.pathsep.join([str(REPO_ROOT), os.environ.get("PYTHONPATH", "")]),
                **worker_env()}

@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
@@ -155,7 +156,7 @@ def _records(out: Path) -> list[dict]:
 
 
 def test_campaign_on_two_nodes_survives_losing_one(tmp_path: Path) -> None:
-    """A two-node cluster (a head and a second node, one CPU each, on this machine) flies a campaign
+    """A two-node cluster (a head and a second node, one CPU each, on this machine) flies a 12-run campaign
     with ``--address``; runs are flown on both nodes; the second node is killed (SIGKILL to all its
     processes) while runs are still to fly; the campaign completes on the head (Ray flies the lost
     tasks again), and every run's verdict and decision digest equals a local run's with the same seed."""
@@ -164,8 +165,14 @@ def test_campaign_on_two_nodes_survives_losing_one(tmp_path: Path) -> None:
     if not ray_exe.exists():
         pytest.skip("the ray command-line tool is not installed beside this Python")
     port = _free_port()
-    env = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
-    runs = 10
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
+    env |= {"RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
+    runs = 12
+    # tiny.yaml flown for 30 s instead of 5: a run must last long enough (about a second here) that the
+    # second node, whose first worker takes seconds to start, flies some while runs remain to be flown
+    scenario = tmp_path / "two_node.yaml"
+    doc = yaml.safe_load(Path(TINY).read_text())
+    scenario.write_text(yaml.safe_dump({**doc, "name": "two_node", "duration_s": 30}, sort_keys=False))
     head = second = None
     try:
         head = _Node(ray_exe, ["--head", f"--port={port}", "--include-dashboard=false"],
@@ -175,7 +182,8 @@ def test_campaign_on_two_nodes_survives_losing_one(tmp_path: Path) -> None:
         second_id = second.wait_started()
         assert head_id != second_id
 
-        cmd = [sys.executable, "-m", "merlin.cli", "campaign", TINY, "--runs", str(runs), "--seed", "11", "--quiet"]
+        cmd = [sys.executable, "-m", "merlin.cli", "campaign", str(scenario), "--runs", str(runs), "--seed", "11",
+               "--quiet"]
         out = tmp_path / "cluster"
         err = tmp_path / "cluster.err"  # a file, not a pipe: nobody reads a pipe while the campaign runs
         with err.open("wb") as err_f:
@@ -203,6 +211,10 @@ def test_campaign_on_two_nodes_survives_losing_one(tmp_path: Path) -> None:
         assert sorted(r["run_id"] for r in rows) == sorted({r["run_id"] for r in rows}), "a run stored twice"
         got = {r["run_id"]: r for r in rows}
         assert len(got) == runs and all(r["status"] == "ok" for r in rows), rows
+        # the nodes were started without thread limits: the driver gives its tasks the local workers' limits
+        # (Ray itself sets OMP_NUM_THREADS to a task's CPUs; OpenBLAS's limit is Merlin's to give)
+        assert all(r["threads"] == {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "opencv": 1}
+                   for r in rows), [r["threads"] for r in rows]
         nodes = [r["worker"]["ray_node_id"] for r in rows]
         assert set(nodes) == {head_id, second_id}
         # after the loss, every run still to fly (and any lost in flight) is flown by the head
