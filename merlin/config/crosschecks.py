@@ -568,6 +568,36 @@ def _mission_in_range(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
             )
 
 
+@cross_check("XC024", "clamp-above-envelope", Severity.WARNING,
+             "a speed or turn rate Merlin flies an experimental position or yaw setpoint at lies beyond the envelope")
+def _clamp_above_env(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
+    """Merlin's trusted loops choose the speed of a position setpoint (the horizontal cruise speed within the
+    horizontal clamp, the climb and descent clamps) and the rate a yaw setpoint is turned at: if one lies
+    beyond the envelope, a legitimate setpoint is revoked for Merlin's own choice. An explicit velocity
+    setpoint beyond the envelope is the controller's and is revoked as it should be (XC013 is the reverse)."""
+    cfg = inp.cfg
+    if cfg.vehicle.type.value != "multirotor":
+        return
+    env = cfg.envelope.effective()
+    v = cfg.vehicle
+    h = min(v.max_speed_h_mps, cfg.trusted.cruise_speed_mps)
+    hkeys = ("vehicle.max_speed_h_mps", "trusted.cruise_speed_mps")
+    rows: list[tuple[str, float, float, tuple[str, ...], str]] = [
+        ("vel_n_mps", h, min(abs(env["vel_n_mps"].min), env["vel_n_mps"].max), hkeys, "horizontal speed"),
+        ("vel_e_mps", h, min(abs(env["vel_e_mps"].min), env["vel_e_mps"].max), hkeys, "horizontal speed"),
+        ("vel_d_mps", v.max_speed_up_mps, -env["vel_d_mps"].min, ("vehicle.max_speed_up_mps",), "climb rate"),
+        ("vel_d_mps", v.max_speed_down_mps, env["vel_d_mps"].max, ("vehicle.max_speed_down_mps",), "descent rate"),
+        ("yaw_rate_degps", v.max_yaw_rate_degps, min(abs(env["yaw_rate_degps"].min), env["yaw_rate_degps"].max),
+         ("vehicle.max_yaw_rate_degps",), "yaw rate"),
+    ]
+    for p, flown, limit, keys, what in rows:
+        if env[p].enabled and flown > limit + 1e-9:
+            yield c.make((_stage_key(cfg, p), *keys), {"flown": flown, "limit": limit},
+                         f"Merlin flies an experimental setpoint at a {what} of {flown:g} ({', '.join(keys)}), "
+                         f"beyond the envelope's {p} limit {limit:g}: a setpoint the controller may legitimately "
+                         "send is revoked for the speed Merlin chose to fly it at")
+
+
 #: Grid spacing of the range's sample points for XC022, m.
 REACHABILITY_SPACING_M = 10.0
 
@@ -597,6 +627,7 @@ CHECKS: tuple[CrossCheck, ...] = (
     _att_above_clamp,
     _return_path,
     _mission_in_range,
+    _clamp_above_env,
 )
 
 

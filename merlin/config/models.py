@@ -332,12 +332,12 @@ class VehicleLimits(Strict):
         description="experimental horizontal velocity setpoints are clamped to this (PX4 MPC_XY_VEL_MAX)",
     )
     max_speed_up_mps: float = Field(
-        5.0, gt=0.0, le=100.0,
-        description="experimental climb-rate setpoints are clamped to this (PX4 MPC_Z_VEL_MAX_UP)",
+        3.0, gt=0.0, le=100.0,
+        description="experimental climb-rate setpoints are clamped to this (PX4 MPC_Z_VEL_MAX_UP, 3 m/s)",
     )
     max_speed_down_mps: float = Field(
-        3.0, gt=0.0, le=100.0,
-        description="experimental descent-rate setpoints are clamped to this (PX4 MPC_Z_VEL_MAX_DN)",
+        1.5, gt=0.0, le=100.0,
+        description="experimental descent-rate setpoints are clamped to this (PX4 MPC_Z_VEL_MAX_DN, 1.5 m/s)",
     )
     max_tilt_deg: float = Field(
         45.0, gt=0.0, lt=80.0,
@@ -346,7 +346,24 @@ class VehicleLimits(Strict):
     )
     max_vertical_accel_mps2: float = Field(
         4.0, gt=0.0, le=50.0,
-        description="climb or sink acceleration a command can demand during reaction_time_s (PX4 MPC_ACC_UP_MAX)",
+        description="climb or sink acceleration a command can demand during reaction_time_s, and the climb"
+        " acceleration an experimental velocity setpoint is tracked with (PX4 MPC_ACC_UP_MAX, 4 m/s^2)",
+    )
+    # How the trusted inner loops are moved onto a new experimental velocity setpoint, as PX4's multicopter
+    # position control ramps its velocity setpoints: a step the envelope allows is then flown without the
+    # transient that would carry the vehicle beyond it.
+    max_accel_h_mps2: float = Field(
+        3.0, gt=0.0, le=50.0,
+        description="horizontal acceleration an experimental velocity setpoint is tracked with (PX4 MPC_ACC_HOR)",
+    )
+    max_accel_down_mps2: float = Field(
+        3.0, gt=0.0, le=50.0,
+        description="sink acceleration an experimental velocity setpoint is tracked with (PX4 MPC_ACC_DOWN_MAX)",
+    )
+    max_yaw_rate_degps: float = Field(
+        45.0, gt=0.0, le=1000.0,
+        description="experimental yaw setpoints are turned to, and yaw-rate setpoints clamped to, this rate"
+        " (PX4 MPC_YAWRAUTO_MAX)",
     )
 
 

@@ -138,5 +138,9 @@ def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig
             max_speed_up_mps=v.max_speed_up_mps,
             max_speed_down_mps=v.max_speed_down_mps,
             max_tilt_rad=v.max_tilt_deg * _DEG,
+            max_accel_h_mps2=v.max_accel_h_mps2,
+            max_accel_up_mps2=v.max_vertical_accel_mps2,
+            max_accel_down_mps2=v.max_accel_down_mps2,
+            max_yaw_rate_radps=v.max_yaw_rate_degps * _DEG,
         ),
     )

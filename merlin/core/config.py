@@ -137,12 +137,18 @@ class BatteryParams:
 @dataclass(frozen=True, slots=True)
 class SetpointClamp:
     """What an experimental setpoint may command, as PX4 clamps offboard setpoints (MPC_XY_VEL_MAX,
-    MPC_Z_VEL_MAX_UP, MPC_Z_VEL_MAX_DN, MPC_TILTMAX_AIR). SI units and radians."""
+    MPC_Z_VEL_MAX_UP, MPC_Z_VEL_MAX_DN, MPC_TILTMAX_AIR), and how fast the trusted inner loops are moved
+    onto a new velocity setpoint (MPC_ACC_HOR, MPC_ACC_UP_MAX, MPC_ACC_DOWN_MAX, MPC_YAWRAUTO_MAX).
+    SI units and radians."""
 
     max_speed_h_mps: float = 15.0
-    max_speed_up_mps: float = 5.0
-    max_speed_down_mps: float = 3.0
+    max_speed_up_mps: float = 3.0
+    max_speed_down_mps: float = 1.5
     max_tilt_rad: float = 0.7853981633974483  # 45 deg
+    max_accel_h_mps2: float = 3.0
+    max_accel_up_mps2: float = 4.0
+    max_accel_down_mps2: float = 3.0
+    max_yaw_rate_radps: float = 0.7853981633974483  # 45 deg/s
 
 
 @dataclass(frozen=True, slots=True)

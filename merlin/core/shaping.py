@@ -53,12 +53,15 @@ def setpoint_to_command(sp: Setpoint, s: VehicleState, source: Authority, tp: Tr
             thrust=min(max(sp.thrust, 0.0), 1.0),
         )
     if sp.kind is _SP_POSITION:
+        # An experimental position setpoint is a place, not a speed: Merlin flies towards it at its own cruise
+        # speed (the climb and descent clamps follow in clamp_command), so a far target is not turned into a
+        # velocity the envelope revokes (cross-check XC024); the trusted autopilot limits its own setpoints.
         vel = position_to_velocity(
             sp.pos_ned_m,
             s.pos_ned_m,
             sp.vel_ned_mps,
             tp.position_gain_per_s,
-            math.inf,
+            math.inf if source is _TRUSTED else tp.cruise_speed_mps,
             math.inf,
             math.inf,
         )
@@ -113,6 +116,45 @@ def clamp_command(cmd: Command, lim: SetpointClamp) -> Command:
         return cmd
     k = lim.max_speed_h_mps / h if h > lim.max_speed_h_mps else 1.0
     return cmd._replace(vel_ned_mps=(vn * k, ve * k, down))
+
+
+def track_command(cmd: Command, prev: Command | None, s: VehicleState, dt: float, lim: SetpointClamp) -> Command:
+    """An experimental velocity command as the trusted inner loops are asked to follow it: moved from the
+    command actuated last tick (the measured velocity when that was not a velocity command) towards the
+    clamped setpoint at the acceleration limits, and its heading turned at the yaw-rate limit, as PX4's
+    multicopter position control ramps its velocity and yaw setpoints (MPC_ACC_HOR, MPC_ACC_UP_MAX,
+    MPC_ACC_DOWN_MAX, MPC_YAWRAUTO_MAX). Without the ramp the velocity loop answers a step with a transient
+    beyond the step itself (a 2 m/s climb step reached 4.6 m/s), so a setpoint inside the envelope was
+    flown outside it. The ramped command is what the fence projection sees too: it never asks more than
+    the clamped setpoint. Attitude commands pass unchanged."""
+    if cmd.kind is not _CMD_VELOCITY:
+        return cmd
+    if prev is not None and prev.kind is _CMD_VELOCITY:
+        start, prev_yaw = prev.vel_ned_mps, prev.yaw_rad
+    else:
+        start, prev_yaw = s.vel_ned_mps, s.att_rpy_rad[2]
+    if not math.isfinite(start[0] + start[1] + start[2]):
+        start = s.vel_ned_mps
+    tn, te, td = cmd.vel_ned_mps
+    dn, de = tn - start[0], te - start[1]
+    h, step_h = math.hypot(dn, de), lim.max_accel_h_mps2 * dt
+    # within one tick's step the setpoint itself, exactly (a ramp that has arrived passes the setpoint on)
+    vn, ve = (tn, te) if h <= step_h else (start[0] + dn * step_h / h, start[1] + de * step_h / h)
+    # climbing faster is an upward (negative down) acceleration: MPC_ACC_UP_MAX; sinking faster, MPC_ACC_DOWN_MAX
+    vd = min(max(td, start[2] - lim.max_accel_up_mps2 * dt), start[2] + lim.max_accel_down_mps2 * dt)
+    w_max = lim.max_yaw_rate_radps
+    rate = min(max(cmd.yaw_rate_radps, -w_max), w_max) if math.isfinite(cmd.yaw_rate_radps) else 0.0
+    yaw = cmd.yaw_rad
+    if math.isfinite(yaw):
+        if not math.isfinite(prev_yaw):
+            prev_yaw = s.att_rpy_rad[2]
+        step = w_max * dt
+        err = _wrap_pi(yaw - prev_yaw)
+        if abs(err) > step:
+            # turning on the ramp: its rate is the feed-forward, as PX4 feeds the yaw setpoint's rate forward
+            yaw = _wrap_pi(prev_yaw + math.copysign(step, err))
+            rate = math.copysign(w_max, err)
+    return cmd._replace(vel_ned_mps=(vn, ve, vd), yaw_rad=yaw, yaw_rate_radps=rate)
 
 
 def demanded_velocity(cmd: Command | None, s: VehicleState, reaction_time_s: float, gravity_mps2: float) -> Vec3 | None:

@@ -32,6 +32,7 @@ from merlin.core.shaping import (
     operator_command,
     setpoint_to_command,
     shape,
+    track_command,
 )
 from merlin.core.types import (
     NO_REASON,
@@ -612,7 +613,7 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
         # commanded intent counts: what the validator accepts is flown only within the vehicle's limits
         incoming = setpoint_to_command(sp, s, authority, cfg.trusted)
         if cfg.clamp is not None:
-            incoming = clamp_command(incoming, cfg.clamp)
+            incoming = track_command(clamp_command(incoming, cfg.clamp), st.last_command, s, dt, cfg.clamp)
     elif g_setpoint is not None:
         incoming = setpoint_to_command(g_setpoint, s, _TRUSTED, cfg.trusted)
     else:  # unreachable in practice: EXPERIMENTAL without a valid setpoint is revoked this tick

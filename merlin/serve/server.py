@@ -403,6 +403,14 @@ class Server:
                     if self.bridge.is_repeat(m, sender):
                         self._send(ls, self.bridge.hold(self.bridge.held_since_s or rx.t_s))
                         continue
+                    if self._attitude_on_ground(rx.t_s):
+                        why = ("OFFBOARD on the ground needs position or velocity setpoints: a take-off on an"
+                               " attitude setpoint is not supervised (take off first, then start OFFBOARD)")
+                        self._send(ls, command_ack(m, sender, MAV_RESULT_DENIED))
+                        self._send(ls, o.StatusTextOut(o.MAV_SEVERITY_WARNING, f"Merlin: {why}"))
+                        self.events.write({"t": rx.t_s, "type": "offboard_takeoff", "phase": "denied",
+                                           "link": ls.name, "detail": why})
+                        continue
                     if self._accept_on_ground(rx.t_s):
                         self.takeoff.accept()
                         self._takeoff_cmd = (ls, m, sender)
@@ -478,6 +486,18 @@ class Server:
         kind_ok = isinstance(sp, (i.SetpointIn, i.GlobalSetpointIn)) or (
             sp is None and self.sp is not None and self.sp.kind is not SetpointKind.ATTITUDE)
         return (bool(self.loop.state.landed) and self._streaming(t) and kind_ok
+                and self.takeoff.phase.value == "idle")
+
+    def _attitude_on_ground(self, t: float) -> bool:
+        """Whether an OFFBOARD request comes on the ground with attitude setpoints streaming. Such a take-off
+        is refused rather than served by the flow of icd/ICD.md 6.1: an attitude setpoint holds no height
+        and no climb rate, so the hand-over would give an open-loop collective to an unproven controller at
+        the lowest height the envelope allows, and the thrust that hovers differs between vehicles (MAVSDK's
+        offboard_attitude example climbs at PX4 SITL's 0.7 hover thrust from the ground)."""
+        sp = self.pending.setpoint[1] if self.pending.setpoint is not None else None
+        attitude = (sp is None and self.sp is not None and self.sp.kind is SetpointKind.ATTITUDE) or (
+            isinstance(sp, i.AttitudeTargetIn))
+        return (bool(self.loop.state.landed) and self._streaming(t) and attitude
                 and self.takeoff.phase.value == "idle")
 
     def _handover_alt_m(self) -> float:

@@ -94,6 +94,8 @@ CASES: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
                "trusted": {"mission_ned_m": [[100.0, 0.0, -20.0], [100.0, 100.0, -20.0]]}},
      {"geofence": {"exclusion_circles": [_MAST]},
       "trusted": {"mission_ned_m": [[60.0, 0.0, -20.0], [60.0, 100.0, -20.0]]}}),
+    # a position setpoint 10 m up is flown at the climb clamp: 5 m/s against the -3 m/s vel_d limit
+    ("XC024", {"vehicle": {"max_speed_up_mps": 5.0}}, {"vehicle": {"max_speed_up_mps": 3.0}}),
 ]
 
 

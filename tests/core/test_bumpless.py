@@ -30,10 +30,22 @@ def _switch_jump(cfg: MerlinConfig) -> tuple[float, list[float]]:
     return jump, ramp
 
 
+def _naive(cfg: MerlinConfig) -> MerlinConfig:
+    """``cfg`` switching naively: no blend, and the experimental velocity setpoint not ramped either (its
+    acceleration limits opened, shaping.track_command), so the setpoint step reaches the inner loops whole."""
+    opened = cfg.vehicle.model_copy(update={"max_accel_h_mps2": 1.0e9, "max_vertical_accel_mps2": 1.0e9,
+                                            "max_accel_down_mps2": 1.0e9})
+    return cfg.model_copy(update={"handover": NAIVE, "vehicle": opened})
+
+
 def test_grant_is_blended_and_a_naive_switch_jumps() -> None:
     jump, ramp = _switch_jump(MerlinConfig())
-    naive_jump, naive_ramp = _switch_jump(MerlinConfig(handover=NAIVE))
+    naive_jump, naive_ramp = _switch_jump(_naive(MerlinConfig()))
     assert naive_jump > 2.4  # the whole setpoint step lands on one tick
+    # without the blend but with the setpoint's tracking ramp, the step is bounded per tick all the same
+    ramped_jump, ramped = _switch_jump(MerlinConfig(handover=NAIVE))
+    assert ramped_jump <= MerlinConfig().vehicle.max_accel_h_mps2 * DT + 1e-9
+    assert max(b - a for a, b in itertools.pairwise(ramped)) <= MerlinConfig().vehicle.max_accel_h_mps2 * DT + 1e-9
     assert jump <= MerlinConfig().handover.max_accel_mps2 * DT + 1e-9  # at most one tick of the slew limit
     steps = [b - a for a, b in itertools.pairwise(ramp)]
     assert max(steps) <= MerlinConfig().handover.max_accel_mps2 * DT + 1e-9
@@ -64,7 +76,7 @@ def test_closed_loop_motor_commands_stay_smooth_at_the_switch_compared_with_a_na
     ctrl = ControllerSpec(type="tests.core.step_controller:EastStep", params={"request_at_s": 9.0})
     sc = sc.model_copy(update={"duration_s": 12.0, "controller": ctrl})
     blended = run_scenario(sc, cfg)
-    naive = run_scenario(sc, cfg.model_copy(update={"handover": NAIVE}))
+    naive = run_scenario(sc, _naive(cfg))
     assert any(e["type"] == "authority" and e["to"] == "EXPERIMENTAL" for e in blended.events)
     j_blend = blended.metrics["max_authority_change_command_jump_mps"]
     j_naive = naive.metrics["max_authority_change_command_jump_mps"]

@@ -69,8 +69,11 @@ def _wait_behaviour(serve: ServeProc, behaviour: str, timeout_s: float = 10.0) -
 
 
 def _check_offboard_flown(serve: ServeProc) -> None:
+    """Granted, and flown to the example's end without a revocation: its commands are legitimate PX4
+    offboard commands, and Merlin's trusted loops fly them inside the default envelope."""
     assert _types(serve, "granted"), "never granted OFFBOARD"
     assert not _types(serve, "denied"), _types(serve, "denied")
+    assert not _types(serve, "revoked"), _types(serve, "revoked")
 
 
 def test_home_is_px4_sitl_home(serve: ServeProc) -> None:
@@ -105,9 +108,21 @@ def test_offboard_velocity_body(serve: ServeProc) -> None:
     _check_offboard_flown(serve)
 
 
-def test_offboard_attitude(serve: ServeProc) -> None:
-    run_example(serve, "offboard_attitude", 90)
-    _check_offboard_flown(serve)
+def test_offboard_attitude_on_the_ground_is_denied_with_its_reason(serve: ServeProc) -> None:
+    """Merlin's deliberate difference (icd/ICD.md 6.1): MAVSDK's offboard_attitude example arms and starts
+    OFFBOARD on the ground with an attitude setpoint; PX4 lets its thrust lift the vehicle. An attitude
+    setpoint holds no height, so Merlin does not serve that take-off: offboard.start() is COMMAND_DENIED at
+    once with the reason in STATUSTEXT, the example takes its own error path (disarm) to its end, and the
+    vehicle never leaves the ground."""
+    p = serve.spawn("-m", "tests.serve.px4_examples", "offboard_attitude", f"udpin://0.0.0.0:{serve.ctl_port}",
+                    str(_free_tcp_port()))
+    out = "\n".join(lines_until(p, FINISHED, 90))
+    assert FINISHED in out, out[-3000:]
+    assert "Starting offboard mode failed with error code: COMMAND_DENIED" in out, out[-3000:]
+    [denied] = [e for e in _types(serve, "offboard_takeoff") if e["phase"] == "denied"]
+    assert "attitude setpoint is not supervised" in denied["detail"], denied
+    assert not _types(serve, "granted")
+    assert not [e for e in _types(serve, "offboard_takeoff") if e["phase"] != "denied"]
 
 
 def test_offboard_position_velocity_ned(serve: ServeProc) -> None:

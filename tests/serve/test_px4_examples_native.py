@@ -52,3 +52,5 @@ def test_native_offboard_velocity_ned(serve: ServeProc) -> None:
     events = serve.events()
     assert any(e["type"] == "granted" for e in events)
     assert not any(e["type"] == "denied" for e in events)
+    # flown to its end inside the default envelope: no revocation
+    assert not any(e["type"] == "revoked" for e in events), [e for e in events if e["type"] == "revoked"]
