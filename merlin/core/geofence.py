@@ -1291,6 +1291,41 @@ def nearest_boundary_ne(fence: Fence, n: float, e: float) -> tuple[float, float,
     return -d, -dn / d, -de / d
 
 
+def boundary_constraints_ne(fence: Fence, n: float, e: float, radius_m: float) -> list[tuple[float, float, float]]:
+    """Every horizontal hazard edge within ``radius_m``: ``(distance_m, un, ue)`` per edge, the unit direction
+    from the position towards the edge's nearest point (outward), as ArduPilot's AC_Avoid limits a pilot
+    against each fence segment, not only the nearest one: near a corner or a keep-out the nearest edge alone
+    leaves the stick free to fly out through the next one (scenario ``adv_pilot_regrab_ceiling``'s
+    companion property test). Outside the allowed area (or inside a keep-out) the one constraint is
+    :func:`nearest_boundary_ne`'s (negative distance, pointing further out). Empty without horizontal zones,
+    for non-finite input, or with nothing within ``radius_m``.
+
+    The distance to an edge falls no faster than the velocity's component towards its nearest point, so a
+    speed limit on each of these components bounds the approach to every edge at once."""
+    if fence._forbidden is None or not math.isfinite(n + e + radius_m) or max(abs(n), abs(e)) > MAX_ABS_POS_M:
+        return []
+    if not _inside(fence, n, e):
+        near = nearest_boundary_ne(fence, n, e)
+        return [] if near is None else [near]
+    hazard = _local_hazard(fence, n, e, radius_m)
+    if hazard is _NOTHING_NEAR:
+        return []
+    out: list[tuple[float, float, float]] = []
+    for ring in shapely.get_rings(shapely.get_parts(hazard)):
+        xy = shapely.get_coordinates(ring)
+        a, b = xy[:-1], xy[1:]
+        ab = b - a
+        ll = np.einsum("ij,ij->i", ab, ab)
+        t = np.clip(np.einsum("ij,ij->i", np.array((n, e)) - a, ab) / np.where(ll > 0.0, ll, 1.0), 0.0, 1.0)
+        q = a + ab * t[:, None]
+        dq = q - np.array((n, e))
+        d = np.hypot(dq[:, 0], dq[:, 1])
+        for i in np.nonzero((d < radius_m) & (d > 0.0))[0]:
+            di = float(d[i])
+            out.append((di, float(dq[i, 0]) / di, float(dq[i, 1]) / di))
+    return out
+
+
 def signed_margin_m(fence: Fence, pos_ned_m: Sequence[float], *, airborne: bool = False) -> float:
     """Distance to the nearest fence boundary: positive inside, negative outside (metrics and plots).
 

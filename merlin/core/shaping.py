@@ -198,15 +198,18 @@ def operator_command(
     cfg: OperatorParams,
     tp: TrustedParams,
     fence: Fence | None = None,
+    floor_applies: bool = True,
 ) -> tuple[OperatorMemory, Command]:
     """Sticks to a velocity command, as PX4's position mode: deflection commands speed in the heading frame,
     centred sticks hold the position where the vehicle stops.
 
     A pilot who took over during a fence trip (``mem.fenced``, the override grace) is fenced too, as
-    ArduPilot's AC_Avoid limits a pilot's stick at the fence: the velocity towards the nearest boundary is
-    limited to what stops the vehicle at the widening (``margin_m + sigma_k * sigma_h``) after the
-    fence's reaction time at the trusted braking deceleration; inward and along the boundary stay free
-    (scenario ``adv_pilot_regrab_outward``)."""
+    ArduPilot's AC_Avoid limits a pilot's stick at the fence: the velocity towards each boundary edge
+    nearby, up towards the ceiling and down towards the floor (once ``floor_applies``, as the fence's own
+    floor) is limited to what stops the vehicle at the widening (``margin_m + sigma_k * sigma``) after
+    the fence's reaction time at the trusted braking deceleration, wherever the vehicle starts: within the
+    widening nothing outward is left but the braking the acceleration limit gives. Inward and along the
+    boundary stay free (scenarios ``adv_pilot_regrab_outward``, ``adv_pilot_regrab_ceiling``)."""
 
     def dz(x: float) -> float:
         if not math.isfinite(x):
@@ -234,7 +237,7 @@ def operator_command(
     else:
         hold = None
     if mem.fenced and fence is not None:
-        vn, ve = _fence_pilot(fence, s, vn, ve, tp.max_horizontal_decel_mps2)
+        vn, ve, vd = _fence_pilot(fence, s, (vn, ve, vd), tp, floor_applies)
     # Stick steps become acceleration-limited velocity ramps (as PX4's position mode, MPC_ACC_HOR): the
     # human asks for a speed, the trusted inner loops get there without a tilt spike.
     prev = mem.vel_cmd if mem.vel_cmd is not None else s.vel_ned_mps
@@ -253,25 +256,60 @@ def operator_command(
     return OperatorMemory(yaw, hold, (vn, ve, vd), mem.fenced), cmd
 
 
-def _fence_pilot(fence: Fence, s: VehicleState, vn: float, ve: float, decel_mps2: float) -> tuple[float, float]:
-    """The pilot's horizontal velocity command with its outward part limited (see :func:`operator_command`)."""
-    near = geofence.nearest_boundary_ne(fence, s.pos_ned_m[0], s.pos_ned_m[1])
-    if near is None:
-        return vn, ve
-    dist, un, ue = near
+#: Cyclic projections onto the pilot's edge limits before the final scaling (two edges of a corner need one
+#: or two; a narrow passage between facing edges a few more).
+_FENCE_PILOT_PASSES: Final = 8
+
+
+def _stop_speed(room_m: float, reaction_s: float, decel_mps2: float) -> float:
+    """The largest speed ``v`` with ``v t_react + v^2 / (2 a) <= room`` (0 when there is no room): the
+    projection's stop from it lands on the widening."""
+    if not room_m > 0.0:
+        return 0.0
+    return decel_mps2 * (-reaction_s + math.sqrt(reaction_s * reaction_s + 2.0 * room_m / decel_mps2))
+
+
+def _fence_pilot(fence: Fence, s: VehicleState, vel: Vec3, tp: TrustedParams, floor_applies: bool) -> Vec3:
+    """The pilot's velocity command with its outward parts limited (see :func:`operator_command`)."""
+    vn, ve, vd = vel
     prm = fence.params
-    room = dist - (prm.margin_m + prm.sigma_k * s.pos_sigma_h_m)
-    out = vn * un + ve * ue
-    if room <= 0.0:
-        limit = 0.0
-    else:
-        # largest v with v t_react + v^2 / (2 a) <= room: the projection's stop lands on the widening
-        a, tr = decel_mps2, prm.reaction_time_s
-        limit = a * (-tr + math.sqrt(tr * tr + 2.0 * room / a))
-    if out <= limit:
-        return vn, ve
-    k = out - limit
-    return vn - k * un, ve - k * ue
+    if not prm.enabled:
+        return vel
+    tr = prm.reaction_time_s
+    a_h, a_v = tp.max_horizontal_decel_mps2, tp.max_vertical_decel_mps2
+    n, e, d = s.pos_ned_m
+    if not math.isfinite(n + e + d + s.pos_sigma_h_m + s.pos_sigma_v_m):
+        return 0.0, 0.0, 0.0  # nowhere known: nothing outward is safe; the fence's own check trips "invalid"
+    w_h = prm.margin_m + prm.sigma_k * s.pos_sigma_h_m
+    speed = math.hypot(vn, ve)
+    # edges farther than the stop from this speed (and the vehicle's own) leave the command unlimited
+    v_max = max(speed, math.hypot(s.vel_ned_mps[0], s.vel_ned_mps[1])) if all(
+        math.isfinite(x) for x in s.vel_ned_mps) else speed
+    radius = w_h + v_max * tr + v_max * v_max / (2.0 * a_h) + 1.0
+    limits = [(un, ue, _stop_speed(dist - w_h, tr, a_h))
+              for dist, un, ue in geofence.boundary_constraints_ne(fence, n, e, radius)]
+    for _ in range(_FENCE_PILOT_PASSES):
+        clipped = False
+        for un, ue, lim in limits:
+            k = vn * un + ve * ue - lim
+            if k > 1e-12:
+                vn, ve, clipped = vn - k * un, ve - k * ue, True
+        if not clipped:
+            break
+    # every limit holds at zero: whatever the passes left outside, scale back along the command to within
+    scale = 1.0
+    for un, ue, lim in limits:
+        out = vn * un + ve * ue
+        if out > lim:
+            scale = min(scale, lim / out)
+    vn, ve = vn * scale, ve * scale
+    w_v = prm.margin_m + prm.sigma_k * s.pos_sigma_v_m
+    h = -d
+    if prm.altitude_ceiling_m is not None:
+        vd = max(vd, -_stop_speed(prm.altitude_ceiling_m - h - w_v, tr, a_v))
+    if floor_applies and prm.altitude_floor_m is not None:
+        vd = min(vd, _stop_speed(h - prm.altitude_floor_m - w_v, tr, a_v))
+    return vn, ve, vd
 
 
 class Blend(NamedTuple):

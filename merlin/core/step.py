@@ -453,9 +453,15 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     if cfg.fence is not None:
         if cfg.fence.params.vehicle == "fixed_wing":  # a fixed wing's escape turn drifts with the wind
             wind_ne = geofence.wind_triangle_ne(s.vel_ned_mps, s.airspeed_mps, s.att_rpy_rad[2])
-        # the command being flown (the last actuated one) drives the vehicle during the reaction time too
+        # the command being flown (the last actuated one) drives the vehicle during the reaction time too;
+        # an experimental velocity command is a ramp towards its clamped setpoint (track_command) that goes on
+        # during the reaction time: the projection takes the setpoint itself, the commanded intent
+        flown = st.last_command
+        if (flown is not None and flown.source is _EXPERIMENTAL and flown.kind is _CMD_VELOCITY
+                and cfg.clamp is not None and sp is not None and sp_bad is None):
+            flown = clamp_command(setpoint_to_command(sp, s, _EXPERIMENTAL, cfg.trusted), cfg.clamp)
         demand = (None if cfg.fence.params.vehicle == "fixed_wing" else demanded_velocity(
-            st.last_command, s, cfg.fence.params.reaction_time_s, cfg.fence.params.gravity_mps2))
+            flown, s, cfg.fence.params.reaction_time_s, cfg.fence.params.gravity_mps2))
         fence_res = geofence.check(cfg.fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, s.pos_sigma_v_m,
                                    floor_reached, wind_ne, demand)
         if fence_res.tripped:
@@ -608,7 +614,7 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     elif flies_trusted and behavior is _TERMINATE:
         incoming = Command(_CMD_TERMINATE, authority)
     elif authority is _OPERATOR:
-        op_mem, incoming = operator_command(op, s, op_mem, dt, cfg.operator, cfg.trusted, cfg.fence)
+        op_mem, incoming = operator_command(op, s, op_mem, dt, cfg.operator, cfg.trusted, cfg.fence, floor_reached)
     elif authority is _EXPERIMENTAL and sp is not None and sp_bad is None:
         # commanded intent counts: what the validator accepts is flown only within the vehicle's limits
         incoming = setpoint_to_command(sp, s, authority, cfg.trusted)

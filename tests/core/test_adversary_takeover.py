@@ -186,3 +186,99 @@ def test_a_behaviour_change_during_the_takeover_does_not_restart_the_braking() -
     after = [d.command] + [h.tick().command for _ in range(round(0.5 / DT))]
     for a, b in itertools.pairwise(after):
         assert b.vel_ned_mps[0] <= a.vel_ned_mps[0] + 1e-9
+
+
+def _fenced_pilot(pos: tuple[float, float, float], stick: OperatorInput, cfg: MerlinConfig | None = None,
+                  sigma_v: float = 0.0) -> tuple[float, float, float]:
+    """The fenced pilot's velocity command for one stick, at rest at ``pos`` (one long tick: the acceleration
+    limit does not hide the fence's limit)."""
+    core = build_core_config(cfg if cfg is not None else _range_config())
+    assert core.fence is not None
+    s = VehicleState(pos_ned_m=pos, vel_ned_mps=(0.0, 0.0, 0.0), pos_sigma_v_m=sigma_v, armed=True, landed=False)
+    _, c = operator_command(stick, s, OperatorMemory(0.0, None, (0.0, 0.0, 0.0), True), 10.0, core.operator,
+                            core.trusted, core.fence)
+    return c.vel_ned_mps
+
+
+def _stop_speed(room: float, a: float, tr: float = 0.3) -> float:
+    return a * (-tr + math.sqrt(tr * tr + 2.0 * room / a)) if room > 0.0 else 0.0
+
+
+def test_a_fenced_pilot_cannot_climb_through_the_ceiling_nor_sink_through_the_floor() -> None:
+    data = _range_config().model_dump(mode="json")
+    data["geofence"]["altitude_floor_m"] = 20.0
+    cfg = MerlinConfig.model_validate(data)
+    up, down = OperatorInput(throttle=1.0, link_t_s=0.0), OperatorInput(throttle=-1.0, link_t_s=0.0)
+    # 2 m of room beyond the ceiling's 3 m margin (+ 2 x 0.5 m sigma): the climb whose projected stop uses it
+    vd = _fenced_pilot((0.0, 0.0, -(120.0 - 6.0)), up, cfg, sigma_v=0.5)[2]
+    assert -_stop_speed(2.0, 3.0) - 1e-9 <= vd < 0.0
+    # inside the ceiling's margin (the start of adv_pilot_regrab_ceiling): no climb at all; down stays free
+    assert _fenced_pilot((0.0, 0.0, -118.0), up, cfg)[2] >= -1e-9
+    assert _fenced_pilot((0.0, 0.0, -118.0), down, cfg)[2] > 1.0
+    # the floor likewise, mirrored
+    assert _fenced_pilot((0.0, 0.0, -21.0), down, cfg)[2] <= 1e-9
+    assert 0.0 < _fenced_pilot((0.0, 0.0, -(20.0 + 5.0)), down, cfg)[2] <= _stop_speed(2.0, 3.0) + 1e-9
+    assert _fenced_pilot((0.0, 0.0, -21.0), up, cfg)[2] < -1.0
+
+
+def test_a_fenced_pilot_cannot_leave_through_the_other_edge_of_a_corner() -> None:
+    # 5 m from the north edge and 4 m from the east edge: inside both widenings (3 m + 2 x 1 m sigma)
+    stick_ne = OperatorInput(pitch=math.cos(math.radians(45.0)), roll=math.sin(math.radians(45.0)), link_t_s=0.0)
+    core = build_core_config(_range_config())
+    assert core.fence is not None
+    s = VehicleState(pos_ned_m=(HALF - 5.0, HALF - 4.0, -50.0), pos_sigma_h_m=1.0, armed=True, landed=False)
+    _, c = operator_command(stick_ne, s, OperatorMemory(0.0, None, (0.0, 0.0, 0.0), True), 10.0, core.operator,
+                            core.trusted, core.fence)
+    assert c.vel_ned_mps[0] <= 1e-9 and c.vel_ned_mps[1] <= 1e-9  # neither edge: nothing outward is left
+    # 12 m from the north edge, 5.5 m from the east one: north-east stick keeps only what each edge allows
+    s = replace(s, pos_ned_m=(HALF - 12.0, HALF - 5.5, -50.0))
+    _, c = operator_command(stick_ne, s, OperatorMemory(0.0, None, (0.0, 0.0, 0.0), True), 10.0, core.operator,
+                            core.trusted, core.fence)
+    assert 0.0 < c.vel_ned_mps[0] <= _stop_speed(12.0 - 5.0, 4.0) + 1e-9
+    assert 0.0 < c.vel_ned_mps[1] <= _stop_speed(5.5 - 5.0, 4.0) + 1e-9
+
+
+def _floor_range_config() -> MerlinConfig:
+    data = _range_config().model_dump(mode="json")
+    data["geofence"]["altitude_floor_m"] = 20.0
+    return MerlinConfig.model_validate(data)
+
+
+FLOOR_CFG = _floor_range_config()
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+@given(
+    edge_m=st.floats(1.0, 40.0),
+    along_m=st.floats(0.0, 40.0),
+    near_ceiling=st.booleans(),
+    gap_m=st.floats(1.0, 20.0),
+    stick1=st.tuples(st.floats(-180.0, 180.0), st.floats(0.0, 1.0), st.floats(-1.0, 1.0)),
+    stick2=st.tuples(st.floats(-180.0, 180.0), st.floats(0.0, 1.0), st.floats(-1.0, 1.0)),
+    regrab_gap_s=st.floats(0.05, 2.0),
+)
+def test_a_pilot_never_flies_beyond_the_fence_wherever_the_takeover_starts(
+    edge_m: float, along_m: float, near_ceiling: bool, gap_m: float,
+    stick1: tuple[float, float, float], stick2: tuple[float, float, float], regrab_gap_s: float,
+) -> None:
+    """Closed loop: the vehicle hovers ``edge_m`` inside the north edge and ``edge_m + along_m`` inside the
+    east edge (at the corner or along the edge), ``gap_m`` under the ceiling or above the floor (inside the
+    margin or outside it); the pilot grabs with one stick, releases and re-grabs with another (any
+    direction, size and climb): it never leaves."""
+    h0 = 120.0 - gap_m if near_ceiling else 20.0 + gap_m
+
+    def stick(a_deg: float, mag: float, thr: float) -> dict[str, float]:
+        return {"pitch": mag * math.cos(math.radians(a_deg)), "roll": mag * math.sin(math.radians(a_deg)),
+                "throttle": thr}
+
+    t2 = 2.0 + regrab_gap_s
+    sc = Scenario.model_validate({
+        "name": "pilot", "duration_s": t2 + 9.0, "seed": 5, "rc_connected": True,
+        "initial": {"pos_ned_m": [HALF - edge_m, HALF - edge_m - along_m, -h0], "yaw_deg": 0.0},
+        "gcs": [{"t": 0.0, "command": "arm"}, {"t": 0.0, "command": "hold"}],
+        "operator": [{"t": 1.0, "takeover": True, **stick(*stick1)}, {"t": 2.0, "takeover": False},
+                     {"t": t2, "takeover": True, **stick(*stick2)}],
+        "log_rate_hz": 50.0,
+    })
+    r = run_scenario(sc, FLOOR_CFG)
+    assert float(np.nanmin(r.log["fence_margin"])) > 0.0
