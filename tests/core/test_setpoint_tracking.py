@@ -10,9 +10,13 @@ import math
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from merlin.config.models import MerlinConfig
+from merlin.config.runtime import build_core_config
 from merlin.core.config import SetpointClamp
+from merlin.core.geofence import check
 from merlin.core.shaping import track_command
-from merlin.core.types import Authority, Command, CommandKind, VehicleState
+from merlin.core.types import Authority, Command, CommandKind, Setpoint, SetpointKind, VehicleState
+from tests.core.harness import Harness
 
 LIM = SetpointClamp()
 DT = 0.01
@@ -81,3 +85,39 @@ def test_a_step_starts_from_the_last_command_or_the_measured_velocity() -> None:
 def test_attitude_commands_pass_unchanged() -> None:
     att = Command(CommandKind.ATTITUDE, Authority.EXPERIMENTAL, att_rpy_rad=(0.3, -0.2, 1.0), thrust=0.6)
     assert track_command(att, _vel((3.0, 0.0, 0.0)), VehicleState(), DT, LIM) is att
+
+
+def _square_range() -> MerlinConfig:
+    data = MerlinConfig().model_dump(mode="json")
+    data["geofence"].update(
+        margin_m=3.0, sigma_k=2.0, altitude_ceiling_m=120.0, inclusion_circles=[], exclusion_circles=[],
+        exclusion_polygons=[],
+        inclusion_polygons=[{"name": "r", "vertices_ne_m": [[-300, -300], [300, -300], [300, 300], [-300, 300]]}],
+    )
+    data["envelope"]["active_stage"] = "expanded"
+    for k in ("vel_n_mps", "vel_e_mps", "vel_d_mps"):
+        data["envelope"]["stages"]["expanded"][k].update(min=-100.0, max=100.0)
+    return MerlinConfig.model_validate(data)
+
+
+def test_the_fence_projects_the_setpoint_a_ramp_is_heading_for_not_the_ramp() -> None:
+    """The ramp goes on during the reaction time: projecting the ramped command (a fraction of the step so
+    far) would credit the vehicle with a speed it is about to leave behind. Where the clamped setpoint's
+    projection trips and the ramp's would not, the core trips."""
+    cfg = _square_range()
+    fence = build_core_config(cfg).fence
+    assert fence is not None
+    h = Harness(cfg=cfg)
+    h.airborne()
+    h.grant()
+    h.setpoint = Setpoint(SetpointKind.VELOCITY, vel_ned_mps=(15.0, 0.0, 0.0))
+    for _ in range(10):  # the ramp has begun: the command flown is far below the setpoint
+        d = h.tick()
+        assert d.authority is Authority.EXPERIMENTAL
+    assert d.command.vel_ned_mps[0] < 1.0
+    v = (5.0, 0.0, 0.0)
+    north = next(n for n in range(200, 300)
+                 if check(fence, (float(n), 0.0, -10.0), v, 0.0, 0.0, True, (0.0, 0.0), (15.0, 0.0, 0.0)).tripped)
+    assert not check(fence, (float(north), 0.0, -10.0), v, 0.0, 0.0, True, (0.0, 0.0), d.command.vel_ned_mps).tripped
+    d = h.tick(state=VehicleState(pos_ned_m=(float(north), 0.0, -10.0), vel_ned_mps=v, armed=True, landed=False))
+    assert any(m.name == "geofence" and m.tripped for m in d.monitors), d.monitors
