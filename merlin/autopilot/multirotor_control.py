@@ -75,6 +75,9 @@ class MultirotorGains:
     thrust_max: float = 0.90  # keeps 10 % headroom for attitude control
     hover_thrust_min: float = 0.15  # bounds of the vertical integrator (the learned hover thrust)
     hover_thrust_max: float = 0.85
+    # 1/s: while the vertical acceleration limit holds the loop, the hover thrust follows the measured
+    # acceleration error (as PX4's mc_hover_thrust_estimator does from the vertical acceleration)
+    hover_thrust_acc_gain_per_s: float = 4.0
     # attitude loop (mc_att_control style)
     att_p_rp_per_s: float = 7.0
     att_p_yaw_per_s: float = 2.8
@@ -263,10 +266,12 @@ def _velocity_to_thrust(
     dt: float,
     acc_n: float,
     acc_e: float,
+    acc_up: float = math.nan,
 ) -> tuple[float, float, float, tuple[float, float], float, bool, int]:
     """Velocity PID -> normalised thrust vector (NED). ``acc_n/e``: measured horizontal acceleration
-    (the derivative term acts on it, not on the error: no kick when the setpoint steps). Returns (Tn, Te,
-    Td, new xy integrator, new hover estimate, xy saturated, thrust saturation sign)."""
+    (the derivative term acts on it, not on the error: no kick when the setpoint steps); ``acc_up``: measured
+    vertical acceleration, positive up (NaN when unknown). Returns (Tn, Te, Td, new xy integrator, new hover
+    estimate, xy saturated, thrust saturation sign)."""
     vs = cmd.vel_ned_mps
     ve = est.vel_ned_mps
     lim = _ERR_MAX_MPS
@@ -291,17 +296,19 @@ def _velocity_to_thrust(
         sat_xy = True
     # vertical, positive up, in thrust units (thrust per m/s^2 = hover / g)
     a_up = -g.vel_p_z_per_s * ed
-    sat_t = 0  # the acceleration limit counts as saturation for the anti-windup, as the thrust limits do
+    acc_lim = 0  # +1/-1: the acceleration limit holds the loop upward/downward
     if a_up > g.acc_max_up_mps2:
-        a_up, sat_t = g.acc_max_up_mps2, 1
+        a_up, acc_lim = g.acc_max_up_mps2, 1
     elif a_up < -g.acc_max_down_mps2:
-        a_up, sat_t = -g.acc_max_down_mps2, -1
+        a_up, acc_lim = -g.acc_max_down_mps2, -1
+    sat_t = acc_lim
     k_thr = h / GRAVITY_MPS2
     c_up = h + a_up * k_thr
+    thr_lim = False
     if c_up > g.thrust_max:
-        c_up, sat_t = g.thrust_max, 1
+        c_up, sat_t, thr_lim = g.thrust_max, 1, True
     elif c_up < g.thrust_min:
-        c_up, sat_t = g.thrust_min, -1
+        c_up, sat_t, thr_lim = g.thrust_min, -1, True
     tn, te = axn * k_thr, axe * k_thr
     # tilt limit, then the collective limit with vertical priority
     txy = math.hypot(tn, te)
@@ -322,7 +329,20 @@ def _velocity_to_thrust(
             if im > g.vel_i_xy_max_mps2:
                 ix, iy = ix * g.vel_i_xy_max_mps2 / im, iy * g.vel_i_xy_max_mps2 / im
         up_err = -ed
-        if not ((sat_t > 0 or st.sat_thrust > 0) and up_err > 0.0) and not (sat_t < 0 and up_err < 0.0):
+        if acc_lim != 0 and not thr_lim and -_ACC_MAX_MPS2 < acc_up < _ACC_MAX_MPS2:
+            # The acceleration limit, not the actuators, holds the loop: the velocity error then says
+            # nothing about the hover thrust, but freezing it is wrong too. After a long fast climb in fast
+            # forward flight the integrator has learnt the airflow's load on the tilted airframe; when the
+            # climb and the course are reversed at the limit, that load vanishes, the excess cancels the
+            # demanded deceleration and, frozen, the vehicle kept climbing through the ceiling for seconds
+            # (adv_climb_reversal_ceiling). Learn instead from what the limited demand really achieves (the
+            # collective stays within thrust_max by the tilt room above: the actuators are not the limit).
+            h = _clamp(
+                h + g.hover_thrust_acc_gain_per_s * (a_up - acc_up) * k_thr * dt,
+                g.hover_thrust_min,
+                g.hover_thrust_max,
+            )
+        elif not ((sat_t > 0 or st.sat_thrust > 0) and up_err > 0.0) and not (sat_t < 0 and up_err < 0.0):
             # integrate only while the loop is not limited in the direction the error pushes
             h = _clamp(h + g.vel_i_z_per_s2 * up_err * k_thr * dt, g.hover_thrust_min, g.hover_thrust_max)
     return tn, te, -c_up, (ix, iy), h, sat_xy, sat_t
@@ -375,8 +395,9 @@ def control_step(
         yaw_rate_ff = _clamp(_fin(yaw_rate_ff, 0.0), -ymax, ymax)
     if kind is _VELOCITY:
         acc_n = acc_e = 0.0
-        if att_ok and g.vel_d_xy != 0.0:
-            # kinematic acceleration = R f + g from the specific force; only its horizontal part is used
+        acc_up = math.nan
+        if att_ok:
+            # kinematic acceleration = R f + g from the specific force
             fx, fy, fz = est.accel_frd_mps2
             if (
                 -_ACC_MAX_MPS2 < fx < _ACC_MAX_MPS2
@@ -393,7 +414,15 @@ def control_step(
                     + (1.0 - 2.0 * (qx * qx + qz * qz)) * fy
                     + 2.0 * (qy * qz - qw * qx) * fz
                 )
-        tn, te, td, ixy, h, sat_xy, sat_t = _velocity_to_thrust(cmd, est, st, g, dt, acc_n, acc_e)
+                acc_up = -(
+                    2.0 * (qx * qz - qw * qy) * fx
+                    + 2.0 * (qy * qz + qw * qx) * fy
+                    + (1.0 - 2.0 * (qx * qx + qy * qy)) * fz
+                    + GRAVITY_MPS2
+                )
+                if g.vel_d_xy == 0.0:
+                    acc_n = acc_e = 0.0
+        tn, te, td, ixy, h, sat_xy, sat_t = _velocity_to_thrust(cmd, est, st, g, dt, acc_n, acc_e, acc_up)
         collective = math.sqrt(tn * tn + te * te + td * td)
         yaw_sp = _fin(cmd.yaw_rad, ya if att_ok else 0.0)
         qd = _quat_from_body_z(-tn / collective, -te / collective, -td / collective, yaw_sp)

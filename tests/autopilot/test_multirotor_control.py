@@ -104,6 +104,30 @@ def test_climb_and_descent_rates_are_tracked() -> None:
     assert vd.max() < 1.5 * 1.15
 
 
+@settings(max_examples=12, deadline=None)
+@given(climb_mps=st.floats(2.0, 5.0), excess=st.floats(0.0, 0.2))
+def test_climb_reversal_brakes_whatever_the_learned_hover_thrust(climb_mps: float, excess: float) -> None:
+    """A hover thrust learnt too high (as after a long fast climb in forward flight, whose drag it absorbed)
+    must not cancel the braking: reversed to a 1.6 m/s descent, the climb stops within the distance the
+    ceiling projection assumes (0.3 s reaction, 3 m/s^2, the default vehicle) plus 1 m. Frozen by the
+    acceleration limit, the excess held the vehicle climbing (adv_climb_reversal_ceiling)."""
+    m = Multirotor(PARAMS, np.random.default_rng(0), pos_ned_m=(0.0, 0.0, -50.0))
+    s = reset_from_state(truth_vehicle_state(m.truth()), PARAMS.hover_thrust)
+    for _ in range(round(4.0 / DT)):  # a steady climb first: the loops and the vehicle settle
+        u, s = control_step(vel((0.0, 0.0, -climb_mps)), truth_vehicle_state(m.truth()), s, DEFAULT_GAINS, DT)
+        m.step(u, (0.0, 0.0, 0.0))
+    v0 = -m.vel_ned_mps[2]
+    s = s._replace(hover_thrust_est=min(s.hover_thrust_est + excess, DEFAULT_GAINS.hover_thrust_max))
+    d0, d_min = m.pos_ned_m[2], m.pos_ned_m[2]
+    for _ in range(round(5.0 / DT)):
+        u, s = control_step(vel((0.0, 0.0, 1.6)), truth_vehicle_state(m.truth()), s, DEFAULT_GAINS, DT)
+        m.step(u, (0.0, 0.0, 0.0))
+        d_min = min(d_min, m.pos_ned_m[2])
+    projected_m = 0.3 * v0 + v0 * v0 / (2.0 * 3.0)
+    assert d0 - d_min <= projected_m + 1.0
+    assert m.vel_ned_mps[2] > 1.0  # and the descent is under way
+
+
 def test_attitude_step_response_time() -> None:
     step = math.radians(20.0)
     log, _, _ = fly(lambda t: att(step if t >= 0.2 else 0.0, 0.0), 1.0)
