@@ -32,13 +32,28 @@ def _run(path: str, log_rate_hz: float | None = None) -> RunResult:
     return run_scenario(sc, cfg, source=path)
 
 
+# Open findings, each an expectation type of one scenario that is known to fail now; the scenario's other
+# expectations are held as strictly as any scenario's, and the test fails as soon as the finding's
+# expectation passes (remove the entry then). docs/redundancy.md, "What remains", says what each one is.
+KNOWN_OPEN: dict[str, str] = {
+    # after the correct isolations the EKF excludes GPS (26.2 s) and authority is revoked; the scenario's subject,
+    # which lane is isolated, passes
+    "redundancy_duplex_instant_declaration": "never_revoked",
+}
+
+
 @pytest.mark.parametrize("path", OTHERS, ids=[p.stem for p in OTHERS])
 def test_scenario_meets_its_expectations(path: Path) -> None:
     r = _run(str(path))
     verdicts = evaluate_all(r.scenario.expectations, r.events, r.log, r.metrics)
     assert r.scenario.expectations, "a shipped scenario must state expectations"
-    failed = [v.to_dict() for v in verdicts if not v.passed]
+    known = KNOWN_OPEN.get(path.stem)
+    pairs = list(zip(r.scenario.expectations, verdicts, strict=True))
+    failed = [v.to_dict() for x, v in pairs if not v.passed and x.type != known]
     assert not failed, failed
+    if known is not None:
+        assert any(not v.passed for x, v in pairs if x.type == known), (
+            f"{path.stem}: the open finding's expectation {known!r} passes now: remove it from KNOWN_OPEN")
 
 
 def test_figure4_projection_never_breaches_and_position_only_breach_grows_with_speed() -> None:
