@@ -22,7 +22,10 @@ wing cannot stop:
   turns, :func:`merlin.core.geofence.turn_clearances`), until the monitor clears and the aircraft heads
   towards home, and only then hands over to the behaviour's guidance. Guidance alone turns the short way
   towards its goal, which next to a re-entrant corner can be the blocked side. A horizontal trip while a
-  trusted behaviour already flies (nothing to revoke) starts the same escape turn, once per trip.
+  trusted behaviour already flies (nothing to revoke) starts the same escape turn, once per trip. RTL and
+  LAND start with it too whenever one of the projection's two turns is blocked, whatever took authority
+  back (a floor trip, a watchdog). The turn ends once both projected turns are clear and the aircraft
+  heads home, or at the half turn.
 * RTL and LAND route around the fence's keep-out zones and inclusion boundary
   (:mod:`merlin.autopilot.fixedwing_route`): planned when they start, or when the escape turn ends, from
   the aircraft's position and course; the loiter over home moves off a keep-out if it must.
@@ -112,6 +115,22 @@ def escape_side(fence: geofence.Fence, s: VehicleState, home_ne: tuple[float, fl
     if not close(right.free_path_m, left.free_path_m):
         return 1.0 if right.free_path_m > left.free_path_m else -1.0
     return _side_towards(s, home_ne)
+
+
+def _horizontal_trip(decision: Decision) -> bool:
+    """Whether the core's geofence monitor is tripped by a horizontal boundary (not the floor or ceiling)."""
+    return any(m.name == "geofence" and m.tripped and m.reason.parameter in _HORIZONTAL_TRIPS
+               for m in decision.monitors)
+
+
+def _turn_blocked(fence: geofence.Fence, s: VehicleState) -> bool:
+    """Whether either of the fence projection's two turns from this state comes within the widening of a
+    horizontal hazard: the short way guidance would take is then not known to be clear, and the side must
+    be chosen on the fence's own measure (:func:`escape_side`), as at a horizontal trip."""
+    if not fr.has_zones(fence) or math.hypot(s.vel_ned_mps[0], s.vel_ned_mps[1]) < 1.0:
+        return False
+    right, left = turn_clearances_m(fence, s)
+    return not (right > 0.0 and left > 0.0)
 
 
 def _side_towards(s: VehicleState, target_ne: tuple[float, float]) -> float:
@@ -262,16 +281,19 @@ class FixedWingBehaviours:
 
     def _enter(self, t: float, decision: Decision, s: VehicleState, takeoff_height_m: float) -> None:
         """Start the guidance mode for the core's behaviour, and an escape turn if the fence is tripped
-        horizontally. A ceiling or floor trip is answered by the behaviour's height: a turn at the bank limit
-        would not change it, and next to the floor it would spend the lift the pull-up needs (a slow
-        aircraft revoked on the floor banked past the envelope's limit in it)."""
+        horizontally, or if a horizontal boundary is within reach of one of the two turns (:func:`_turn_blocked`)
+        whatever took authority back (a floor or ceiling trip, a watchdog, an envelope limit): guidance alone
+        turns the short way towards its goal, which next to an edge can be the turn that leaves the range
+        (scenario ``fw_adv_floor_trip_south_edge``: a floor revocation 113 m from the south edge in a
+        tailwind, where RTL's short way turned through south and left the range by 67 m). The height is still
+        the behaviour's (a floor trip is answered by the RTL's climb); the loops hold the wings level while the aircraft is slow, so the turn does not spend the lift the
+        pull-up needs."""
         b = decision.behavior
         gs = self.gstate
         self.escape_side = 0.0
         fence = self.fence
-        if (self.escape_turns and fence is not None
-                and any(m.name == "geofence" and m.tripped and m.reason.parameter in _HORIZONTAL_TRIPS
-                        for m in decision.monitors)):
+        if self.escape_turns and fence is not None and (
+                _horizontal_trip(decision) or (b in (Behavior.RTL, Behavior.LAND) and _turn_blocked(fence, s))):
             self._start_escape(t, fence, s)
         if b is Behavior.RTL:
             gs = self._start_rtl(t, s)
@@ -405,7 +427,9 @@ class FixedWingBehaviours:
                 self.notes.append({"t": t, "type": "fixed_wing_rtl_at_home",
                                    "center_ne_m": list(gs.loiter.center_ne_m), "radius_m": gs.loiter.radius_m})
             return targets
-        fence_tripped = any(m.name == "geofence" and m.tripped for m in decision.monitors)
+        # a floor or ceiling trip is the height's business (the behaviour climbs or descends): only a
+        # horizontal trip keeps the turn going
+        fence_tripped = _horizontal_trip(decision)
         vn, ve = s.vel_ned_mps[0], s.vel_ned_mps[1]
         homeward = vn * -s.pos_ned_m[0] + ve * -s.pos_ned_m[1] > 0.0
         # The projection that chose the side covered a half turn, no more: turning on past it while the
@@ -416,7 +440,11 @@ class FixedWingBehaviours:
         self._escape_course = course
         self._escape_turned_rad += step * self.escape_side
         half_turn_done = self._escape_turned_rad >= math.pi
-        if (not fence_tripped and homeward) or half_turn_done:
+        # Ends when a turn either way from here is clear (the projection's two turns: guidance may then
+        # take its short way) and the aircraft heads home, or at the half turn. The monitor alone clearing
+        # is not enough: it flickers at its threshold, and the first tick after the trip would hand the
+        # aircraft to guidance's short way through the blocked side (scenario ``fw_adv_notch_west_wall``).
+        if (not fence_tripped and homeward and (self.fence is None or not _turn_blocked(self.fence, s))) or half_turn_done:
             self.notes.append({"t": t, "type": "fixed_wing_escape_turn_end",
                                "turned_deg": math.degrees(self._escape_turned_rad),
                                "fence_tripped": fence_tripped})
