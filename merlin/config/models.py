@@ -63,7 +63,6 @@ class ExceedanceBudget(Strict):
     @model_validator(mode="after")
     def _shorter_than_window(self) -> ExceedanceBudget:
         """`outside_s` must be shorter than `window_s`."""
-        """`outside_s` must be shorter than `window_s`."""
         if self.outside_s >= self.window_s:
             raise ValueError(f"outside_s ({self.outside_s}) must be shorter than window_s ({self.window_s}):"
                              " a budget as long as its window can never be spent before the duration trips")
