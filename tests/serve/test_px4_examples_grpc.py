@@ -163,6 +163,9 @@ def _distance_m(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
     return math.hypot((lat2 - lat1) * k, (lon2 - lon1) * k * math.cos(math.radians(lat1)))
 
 
+@pytest.mark.xfail(strict=True, reason="open: goto_location sent 1 s after takeoff() is accepted as HOLD while the "
+                   "vehicle is 0.1 m up, and Merlin's GOTO neither climbs to the goto altitude nor flies there "
+                   "(PX4 does); strict, so the test fails once it is fixed")
 def test_goto(tmp_path: Path) -> None:
     """The goto example's target is 780 m from home, beyond Merlin's built-in 300 m range: against a range that
     holds it (PX4 SITL has no fence at all), the unchanged example flies there."""
