@@ -55,6 +55,21 @@ def envelope_limits(cfg: MerlinConfig, stage: str | None = None) -> tuple[Envelo
     return tuple(out)
 
 
+def min_grant_height_m(cfg: MerlinConfig) -> float | None:
+    """The height above home below which the arbiter refuses a grant: the configuration's
+    ``handover.min_grant_height_m``, else, for a fixed wing, the height from which its stall recovery keeps
+    the floor (:func:`merlin.autopilot.fixedwing_recovery.min_grant_height_m`), else none."""
+    if cfg.handover.min_grant_height_m is not None:
+        return float(cfg.handover.min_grant_height_m)
+    if cfg.vehicle.type.value != "fixed_wing":
+        return None
+    # the autopilot's recovery law and the aircraft model (the config layer may read the autopilot; the core
+    # only receives the number)
+    from merlin.autopilot import fixedwing_recovery
+
+    return fixedwing_recovery.min_grant_height_m(cfg)
+
+
 def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig:
     h, o, t, v = cfg.handover, cfg.operator, cfg.trusted, cfg.vehicle
     rules = tuple(
@@ -92,6 +107,7 @@ def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig
             max_accel_mps2=h.max_accel_mps2,
             max_attitude_rate_radps=h.max_attitude_rate_degps * _DEG,
             max_thrust_rate_per_s=h.max_thrust_rate_per_s,
+            min_grant_height_m=min_grant_height_m(cfg),
         ),
         operator=OperatorParams(
             oversight_envelope=o.oversight_envelope,

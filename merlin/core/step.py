@@ -534,6 +534,8 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
         if fl is not None and cfg.fence.params.enabled:  # the floor does not protect a vehicle below it yet
             grant_block = Reason(ReasonCode.PRECONDITION, "geofence", "altitude_m", s.alt_m, fl, 0.0,
                                  f"refused: {s.alt_m:.1f} m is not yet clear of the fence floor {fl:g} m")
+    if grant_block is None and need_block:  # below it a revocation would not recover above the floor
+        grant_block = arbiter.grant_height_block(cfg.handover, s.alt_m)
     shadow_block = _grant_block(cfg, s, inputs, tripped, hb_since, now, True) if need_block else None
     arm_block = _arm_block(cfg, s, tripped) if inputs.gcs_commands else None
 
