@@ -74,7 +74,8 @@ from merlin.link.tlog import TlogWriter
 
 log = logging.getLogger("merlin.guard")
 HEARTBEAT_PERIOD_S = 1.0
-STATUSTEXT_REPEAT_S = 1.0  # one STATUSTEXT per denial reason per second at most
+STATUSTEXT_REPEAT_S = 1.0
+SWITCH_TIMEOUT_S = 2.0  # after a grant, the autopilot must show its offboard mode within this  # one STATUSTEXT per denial reason per second at most
 
 
 class GuardRefused(RuntimeError):
@@ -146,6 +147,7 @@ class Guard:
         self.commands: list[GcsCommand] = []
         self.held: _Held | None = None
         self.supervising = False  # a grant happened and the autopilot has been in the offboard mode since
+        self.switch_deadline: float | None = None  # after a grant: until when the autopilot may take to switch
         self.trusted_since: float | None = None
         self.fallback_sent_t: float | None = None
         self.intervals_us: dict[int, float] = {}
@@ -284,7 +286,9 @@ class Guard:
             if fence is not None:
                 refusal = f"outside the fence ({fence.reason.describe()})"
         assert self.modes is not None
-        return GateContext(self.modes, experimental, self._trusted_flying(), state.landed, refusal, self.intervals_us)
+        offboard = self.ap_mode is not None and self.modes.is_offboard(self.ap_mode)
+        return GateContext(self.modes, experimental, offboard, self._trusted_flying(), state.landed, refusal,
+                           self.intervals_us)
 
     def _trusted_flying(self) -> bool:
         d = self.decision
@@ -354,7 +358,10 @@ class Guard:
         m = self.modes
         in_offboard = m is not None and self.ap_mode is not None and m.is_offboard(self.ap_mode)
         d0 = self.decision
-        if self.supervising and not in_offboard and self.fallback_sent_t is None:
+        if in_offboard:
+            self.switch_deadline = None
+        switching = self.switch_deadline is not None and t < self.switch_deadline
+        if self.supervising and not in_offboard and self.fallback_sent_t is None and not switching:
             # someone else (the ground station, the RC switch, the autopilot's own failsafe) took the vehicle
             # out of the offboard mode: the guard stops flying it, and the controller loses authority
             self.supervising = False
@@ -390,6 +397,7 @@ class Guard:
             # the standard flow has no ACK message: the controller's mode command is its acknowledgement
             self.requests.append(AuthorityRequest(RequestKind.ACK, seq=e.seq, t_s=t))
             self.supervising = True
+            self.switch_deadline = t + SWITCH_TIMEOUT_S
             self.trusted_since = None
             self.fallback_sent_t = None
             if self.held is not None:
