@@ -67,6 +67,7 @@ from merlin.guard.dialects import Autopilot, Dialect, ModeTable, detect, mode_ta
 from merlin.guard.endpoints import EndpointSpec, open_transport
 from merlin.guard.failsafe_params import ParamReader, Refusal, check, requirements
 from merlin.guard.gate import GateContext, Route, classify
+from merlin.guard.response import BrakeMeter
 from merlin.guard.telemetry import TelemetryState, stream_requests
 from merlin.guard.trusted import TrustedOutput, trusted_output
 from merlin.link.frames import Frame
@@ -151,6 +152,8 @@ class Guard:
         self.trusted_since: float | None = None
         self.fallback_sent_t: float | None = None
         self.intervals_us: dict[int, float] = {}
+        v = cfg.vehicle
+        self.brake = BrakeMeter(v.reaction_time_s, v.max_horizontal_decel_mps2)
         self.counts: Counter[str] = Counter()
         self._denied_t: dict[str, float] = {}
         self._next_hb_t = 0.0
@@ -385,6 +388,17 @@ class Guard:
         if d0 is not None and d0.authority is Authority.EXPERIMENTAL and d.authority is not Authority.EXPERIMENTAL:
             self.trusted_since = t
             self.fallback_sent_t = None
+            self.brake.start(t, state.vel_ned_mps)
+        measured = self.brake.update(t, state.vel_ned_mps)
+        if measured is not None:
+            ok = measured.reaction_ok and measured.decel_ok
+            self.event({"t": t, "type": "guard_brake_measured", "ok": ok, "speed0_mps": measured.speed0_mps,
+                        "reaction_s": measured.reaction_s, "decel_mps2": measured.decel_mps2,
+                        "detail": measured.text()})
+            if not ok:
+                text = "Merlin: autopilot brakes worse than configured (see events)"
+                for link in (self.ctl_link, self.gcs_link):
+                    self._send(link, self.enc.statustext(w.MAV_SEVERITY_WARNING, text))
         if (self._trusted_flying() and in_offboard) or (self.fallback_sent_t is not None and self.supervising):
             self._fly_trusted(d, t)
         if t >= self._next_hb_t:

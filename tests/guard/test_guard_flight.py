@@ -9,6 +9,7 @@ ArduPilot Copter (tests/guard/sim_autopilot.py): the issue's evidence, scenario 
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import signal
@@ -136,6 +137,11 @@ def test_offboard_flight_passes_then_a_flyaway_is_revoked_and_the_return_stays_i
     assert any("revoked" in txt for txt in c.texts)
     events = (rig.guard.out_dir / "events.jsonl").read_text()  # type: ignore[operator]
     assert '"type": "revoked"' in events
+    # the revocation measured the autopilot's braking: the simulated autopilot holds 3 m/s^2, weaker than
+    # the configuration's 4 m/s^2 the fence projection assumes, so the guard flags it
+    brake = [json.loads(x) for x in events.splitlines() if '"guard_brake_measured"' in x]
+    assert len(brake) == 1 and not brake[0]["ok"], brake
+    assert 2.5 < brake[0]["decel_mps2"] < 3.3 and brake[0]["reaction_s"] < 0.3, brake
 
 
 def _spawn_guard(ap_port: int, ctl_port: int, config: Path, out: Path) -> subprocess.Popen[str]:
