@@ -461,7 +461,8 @@ class Guard:
             except (OSError, ValueError):
                 ready = list(fds)
                 time.sleep(min(remaining, 0.001))
-            for fd in ready:
+            # the controller's frames first: a setpoint waiting behind a burst of telemetry is added latency
+            for fd in sorted(ready, key=lambda f: fds[f] is not self.ctl_link):
                 link = fds[fd]
                 for fr in self._read(link, 0.0):
                     now = self.t()
