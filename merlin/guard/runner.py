@@ -261,8 +261,9 @@ class Guard:
                 self._send(self.ctl_link, self._heartbeat_for_controller(rec, raw))
                 return
         elif isinstance(rec, w.ParamValue):
-            if self._reader is not None:
-                self._reader.on_value(rec.param_id, rec.value)
+            if self._reader is not None and self.autopilot is not None:
+                bytewise = self.autopilot.dialect is Dialect.PX4
+                self._reader.on_value(rec.param_id, w.param_number(rec, bytewise))
         elif rec is not None and fr.system_id == self.target[0]:
             self.telemetry.on(t, rec)
         self._send(self.ctl_link, fr.raw)
