@@ -46,7 +46,7 @@ def load(path: str | None) -> tuple[Any, Any]:
     from merlin.guard.config import GuardConfig
 
     if path is None:
-        return MerlinConfig(), GuardConfig()
+        return MerlinConfig(), GuardConfig.model_validate({})
     data, lines = read_yaml_file(path)
     data = dict(data or {})
     guard_data = data.pop("guard", None)

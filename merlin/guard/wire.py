@@ -341,7 +341,7 @@ class Decoder:
             return None
         try:
             m = self._mav.decode(bytearray(fr.raw))
-            return conv(m)
+            return conv(m)  # type: ignore[no-untyped-call]
         except Exception as exc:  # a frame with a good CRC but a bad payload: never crash the router
             self.errors[type(exc).__name__] += 1
             return None
@@ -401,4 +401,5 @@ def message_name(msg_id: int) -> str:
 
 def dialect_module() -> ModuleType:
     """The generated ardupilotmega bindings (tests compare the mode tables against their enums)."""
-    return ardupilotmega
+    module: ModuleType = ardupilotmega
+    return module
