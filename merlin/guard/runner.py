@@ -24,8 +24,10 @@ controller's setpoints and streams the trusted command instead; the controller s
 HEARTBEAT with the mode of Merlin's behaviour (PX4 AUTO.LOITER/AUTO.RTL/AUTO.LAND, Copter BRAKE/RTL/LAND)
 in place of OFFBOARD/GUIDED, so standard tools see the revocation as the mode change they know.
 
-Logs in ``out_dir``: ``guard.tlog`` (every frame in and out on every link, pymavlink's tlog format) and
-``events.jsonl`` (the core's events and the guard's own: start, refusals, denials, stop).
+Logs in ``out_dir`` (pymavlink's tlog format): ``guard.tlog``, every frame received on every link once
+and every frame the guard originates (forwarded copies are not repeated); ``autopilot.tlog``, the
+autopilot's frames alone, which ``merlin replay`` reads as a flight log; ``events.jsonl``, the core's
+events and the guard's own (start check, requests, denials, revocations, braking, stop).
 """
 
 from __future__ import annotations
@@ -162,10 +164,13 @@ class Guard:
         self._stop = False
         self.out_dir = out_dir
         self.tlog: TlogWriter | None = None
+        self.ap_tlog: TlogWriter | None = None
         self._events_fd: int | None = None
         if out_dir is not None:
             out_dir.mkdir(parents=True, exist_ok=True)
             self.tlog = TlogWriter(out_dir / "guard.tlog", fsync_interval_s=None)
+            # the autopilot's own frames alone: the vehicle's telemetry as merlin replay reads a .tlog
+            self.ap_tlog = TlogWriter(out_dir / "autopilot.tlog", fsync_interval_s=None)
             self._events_fd = os.open(out_dir / "events.jsonl", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
         self.on_forward: Callable[[str, Frame], None] | None = None  # benchmark hook: a frame forwarded
 
@@ -178,12 +183,14 @@ class Guard:
         if self._events_fd is not None:
             os.write(self._events_fd, (json.dumps(record, default=str) + "\n").encode())
 
-    def _send(self, link: _Link | None, raw: bytes) -> None:
+    def _send(self, link: _Link | None, raw: bytes, originated: bool = True) -> None:
+        """Write ``raw`` to ``link``; the tlog records what the guard originates (a forwarded frame is in it
+        once already, from its arrival)."""
         if link is None:
             return
         link.transport.write(raw)
         link.frames_out += 1
-        if self.tlog is not None:
+        if originated and self.tlog is not None:
             self.tlog.write(raw, time.time())
 
     @property
@@ -199,8 +206,11 @@ class Guard:
                 link.transport.remote = addr  # answer whoever sent valid MAVLink (udpin)
             for fr in frames:
                 link.frames_in += 1
+                now_unix = time.time()
                 if self.tlog is not None:
-                    self.tlog.write(fr.raw, time.time())
+                    self.tlog.write(fr.raw, now_unix)
+                if link is self.ap_link and self.ap_tlog is not None:
+                    self.ap_tlog.write(fr.raw, now_unix)
             out.extend(frames)
         return out
 
@@ -257,8 +267,9 @@ class Guard:
                 self.telemetry.on(t, rec)
                 raw = fr.raw
                 if self.gcs_link is not None:
-                    self._send(self.gcs_link, raw)
-                self._send(self.ctl_link, self._heartbeat_for_controller(rec, raw))
+                    self._send(self.gcs_link, raw, originated=False)
+                shown = self._heartbeat_for_controller(rec, raw)
+                self._send(self.ctl_link, shown, originated=shown is not raw)
                 return
         elif isinstance(rec, w.ParamValue):
             if self._reader is not None and self.autopilot is not None:
@@ -266,9 +277,9 @@ class Guard:
                 self._reader.on_value(rec.param_id, w.param_number(rec, bytewise))
         elif rec is not None and fr.system_id == self.target[0]:
             self.telemetry.on(t, rec)
-        self._send(self.ctl_link, fr.raw)
+        self._send(self.ctl_link, fr.raw, originated=False)
         if self.gcs_link is not None:
-            self._send(self.gcs_link, fr.raw)
+            self._send(self.gcs_link, fr.raw, originated=False)
 
     def _heartbeat_for_controller(self, hb: w.Heartbeat, raw: bytes) -> bytes:
         d, m = self.decision, self.modes
@@ -327,7 +338,7 @@ class Guard:
             self._forward_to_autopilot(fr)
 
     def _forward_to_autopilot(self, fr: Frame) -> None:
-        self._send(self.ap_link, fr.raw)
+        self._send(self.ap_link, fr.raw, originated=False)
         if self.on_forward is not None:
             self.on_forward("controller", fr)
 
@@ -344,7 +355,7 @@ class Guard:
     def _on_gcs(self, fr: Frame, t: float) -> None:
         if fr.msg_id == w.HEARTBEAT:
             self.gcs_t = t
-        self._send(self.ap_link, fr.raw)  # the operator's link is trusted: everything passes
+        self._send(self.ap_link, fr.raw, originated=False)  # the operator's link is trusted: everything passes
 
     # ---------------------------------------------------------------------------------------- tick
 
@@ -416,7 +427,7 @@ class Guard:
             self.trusted_since = None
             self.fallback_sent_t = None
             if self.held is not None:
-                self._send(self.ap_link, self.held.raw)
+                self._send(self.ap_link, self.held.raw, originated=False)
                 self.held = None
         elif kind is EventKind.DENIED and self.held is not None:
             reason = e.reason.describe()
@@ -495,8 +506,9 @@ class Guard:
         self.event({"t": self.t(), "type": "guard_stopped", "counts": dict(self.counts)})
         for link in self.links:
             link.transport.close()
-        if self.tlog is not None:
-            self.tlog.close()
+        for tl in (self.tlog, self.ap_tlog):
+            if tl is not None:
+                tl.close()
         if self._events_fd is not None:
             os.close(self._events_fd)
             self._events_fd = None

@@ -28,6 +28,8 @@ from merlin.commands.guard import load
 from merlin.guard.dialects import CopterMode, Dialect
 from merlin.guard.endpoints import parse_endpoint
 from merlin.guard.runner import Guard
+from merlin.replay.core_replay import home_frame, replay
+from merlin.replay.flightlog import read_log
 from tests.guard.controller import Controller
 from tests.guard.sim_autopilot import SimAutopilot
 
@@ -142,6 +144,11 @@ def test_offboard_flight_passes_then_a_flyaway_is_revoked_and_the_return_stays_i
     brake = [json.loads(x) for x in events.splitlines() if '"guard_brake_measured"' in x]
     assert len(brake) == 1 and not brake[0]["ok"], brake
     assert 2.5 < brake[0]["decel_mps2"] < 3.3 and brake[0]["reaction_s"] < 0.3, brake
+    # merlin replay reads the autopilot's side of the session (autopilot.tlog) as a flight log: a controller
+    # flying that trajectory is revoked by the same fence
+    log, _ = home_frame(read_log(rig.guard.out_dir / "autopilot.tlog"), rig.guard.cfg)  # type: ignore[operator]
+    replayed = replay(log, rig.guard.cfg)
+    assert any(e.get("reason") == "geofence" for e in replayed.revocations), replayed.revocations
 
 
 def _spawn_guard(ap_port: int, ctl_port: int, config: Path, out: Path) -> subprocess.Popen[str]:
