@@ -63,6 +63,7 @@ from merlin.core.types import (
     SetpointKind,
 )
 from merlin.geodesy import LocalFrame
+from merlin.guard import inputs_log
 from merlin.guard import wire as w
 from merlin.guard.config import GuardConfig
 from merlin.guard.dialects import Autopilot, Dialect, ModeTable, detect, mode_table
@@ -76,6 +77,16 @@ from merlin.link.frames import Frame
 from merlin.link.tlog import TlogWriter
 
 log = logging.getLogger("merlin.guard")
+EFFECTIVE_CONFIG = "effective_config.yaml"
+
+
+def write_effective_config(out_dir: Path, cfg: MerlinConfig, gcfg: GuardConfig) -> None:
+    """What the session ran with, beside its logs: the Merlin configuration and the guard: section."""
+    import yaml
+
+    data = cfg.model_dump(mode="json")
+    data["guard"] = gcfg.model_dump(mode="json")
+    (out_dir / EFFECTIVE_CONFIG).write_text(yaml.safe_dump(data, sort_keys=False))
 HEARTBEAT_PERIOD_S = 1.0
 STATUSTEXT_REPEAT_S = 1.0
 SWITCH_TIMEOUT_S = 2.0  # after a grant, the autopilot must show its offboard mode within this  # one STATUSTEXT per denial reason per second at most
@@ -166,12 +177,16 @@ class Guard:
         self.tlog: TlogWriter | None = None
         self.ap_tlog: TlogWriter | None = None
         self._events_fd: int | None = None
+        self._inputs_fd: int | None = None
         if out_dir is not None:
             out_dir.mkdir(parents=True, exist_ok=True)
             self.tlog = TlogWriter(out_dir / "guard.tlog", fsync_interval_s=None)
             # the autopilot's own frames alone: the vehicle's telemetry as merlin replay reads a .tlog
             self.ap_tlog = TlogWriter(out_dir / "autopilot.tlog", fsync_interval_s=None)
             self._events_fd = os.open(out_dir / "events.jsonl", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+            # the core's inputs, a line per tick: the session's decisions re-run exactly (inputs_log)
+            self._inputs_fd = os.open(out_dir / "core_inputs.jsonl", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+            write_effective_config(out_dir, cfg, gcfg)
         self.on_forward: Callable[[str, Frame], None] | None = None  # benchmark hook: a frame forwarded
 
     # ------------------------------------------------------------------------------------------ basics
@@ -392,6 +407,8 @@ class Guard:
         )
         self.requests.clear()
         self.commands.clear()
+        if self._inputs_fd is not None:
+            os.write(self._inputs_fd, inputs_log.encode(t, inputs).encode())
         d = self.core.step(t, inputs)
         self.decision = d
         for e in d.events:
@@ -509,9 +526,10 @@ class Guard:
         for tl in (self.tlog, self.ap_tlog):
             if tl is not None:
                 tl.close()
-        if self._events_fd is not None:
-            os.close(self._events_fd)
-            self._events_fd = None
+        for fd in (self._events_fd, self._inputs_fd):
+            if fd is not None:
+                os.close(fd)
+        self._events_fd = self._inputs_fd = None
 
 
 def _core_setpoint(rec: object | None) -> Setpoint:

@@ -24,7 +24,7 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from merlin.commands.guard import load
+from merlin.commands.guard import load, replay_session
 from merlin.guard.dialects import CopterMode, Dialect
 from merlin.guard.endpoints import parse_endpoint
 from merlin.guard.runner import Guard
@@ -143,12 +143,20 @@ def test_offboard_flight_passes_then_a_flyaway_is_revoked_and_the_return_stays_i
     # the configuration's 4 m/s^2 the fence projection assumes, so the guard flags it
     brake = [json.loads(x) for x in events.splitlines() if '"guard_brake_measured"' in x]
     assert len(brake) == 1 and not brake[0]["ok"], brake
-    assert 2.5 < brake[0]["decel_mps2"] < 3.3 and brake[0]["reaction_s"] < 0.3, brake
+    # (the reaction time is the loaded machine's scheduling as much as the autopilot's: only its presence is
+    # asserted; the deceleration is the simulated autopilot's own limit)
+    assert 2.5 < brake[0]["decel_mps2"] < 3.3 and brake[0]["reaction_s"] > 0.0, brake
     # merlin replay reads the autopilot's side of the session (autopilot.tlog) as a flight log: a controller
     # flying that trajectory is revoked by the same fence
     log, _ = home_frame(read_log(rig.guard.out_dir / "autopilot.tlog"), rig.guard.cfg)  # type: ignore[operator]
     replayed = replay(log, rig.guard.cfg)
     assert any(e.get("reason") == "geofence" for e in replayed.revocations), replayed.revocations
+    # and the session's own decisions re-run exactly from the core's logged inputs (the guard stopped first,
+    # so the input log and the events end at the same tick)
+    rig.guard.stop()
+    rig.thread.join(timeout=5)
+    same, detail = replay_session(rig.guard.out_dir)  # type: ignore[arg-type]
+    assert same and "identical" in detail, detail
 
 
 def _spawn_guard(ap_port: int, ctl_port: int, config: Path, out: Path) -> subprocess.Popen[str]:
