@@ -1,7 +1,7 @@
 """``merlin guard``: supervise an experimental controller on a real PX4 or ArduPilot autopilot from a
 companion computer (docs/guard.md).
 
-    merlin guard --autopilot serial:///dev/ttyAMA0:921600 --controller udpin:127.0.0.1:14540 \\
+    merlin guard --autopilot serial:///dev/ttyAMA0:921600 --controller udpout:127.0.0.1:14540 \\
                  [--gcs udpout:10.0.0.2:14550] --config guard.yaml [--out DIR]
 
 ``--config`` is a Merlin configuration file (limits, fence, rules) with an optional ``guard:`` section
@@ -28,8 +28,8 @@ def register(sub: Any) -> None:
                    help="the autopilot's link: serial:///dev/ttyX:BAUD, /dev/ttyX,BAUD, udpin:HOST:PORT, "
                         "udpout:HOST:PORT, tcp:HOST:PORT, tcpin:HOST:PORT")
     p.add_argument("--controller", required=True, metavar="URL",
-                   help="the experimental controller's link (e.g. udpin:127.0.0.1:14540, where MAVSDK's "
-                        "udp://:14540 connects as udpout:127.0.0.1:14540)")
+                   help="the experimental controller's link (e.g. udpout:127.0.0.1:14540 for a controller "
+                        "listening where PX4 SITL sends, as MAVSDK's udp://:14540 does)")
     p.add_argument("--gcs", default=None, metavar="URL", help="the ground station's link (optional)")
     p.add_argument("--config", default=None, help="Merlin configuration YAML with an optional guard: section")
     p.add_argument("--out", default=None, help="directory for guard.tlog and events.jsonl "

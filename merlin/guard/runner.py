@@ -261,8 +261,9 @@ class Guard:
                 self._send(self.ctl_link, self._heartbeat_for_controller(rec, raw))
                 return
         elif isinstance(rec, w.ParamValue):
-            if self._reader is not None:
-                self._reader.on_value(rec.param_id, rec.value)
+            if self._reader is not None and self.autopilot is not None:
+                bytewise = self.autopilot.dialect is Dialect.PX4
+                self._reader.on_value(rec.param_id, w.param_number(rec, bytewise))
         elif rec is not None and fr.system_id == self.target[0]:
             self.telemetry.on(t, rec)
         self._send(self.ctl_link, fr.raw)
@@ -461,7 +462,8 @@ class Guard:
             except (OSError, ValueError):
                 ready = list(fds)
                 time.sleep(min(remaining, 0.001))
-            for fd in ready:
+            # the controller's frames first: a setpoint waiting behind a burst of telemetry is added latency
+            for fd in sorted(ready, key=lambda f: fds[f] is not self.ctl_link):
                 link = fds[fd]
                 for fr in self._read(link, 0.0):
                     now = self.t()
