@@ -415,6 +415,10 @@ def _goto_or_orbit(st: ArbiterState, view: TickView, cfg: CoreConfig, cmd: GcsCo
             math.isfinite(radius) and radius != 0.0)):
         _ack(now, cmd, False, _simple(ReasonCode.INVALID_INPUT, "refused: no finite target or radius"), events)
         return st
+    if target[2] > 0.0:  # below home: the trusted autopilot would fly into the ground (PX4 flies it)
+        _ack(now, cmd, False, _simple(ReasonCode.INVALID_INPUT, f"refused: the target is {target[2]:.1f} m below"
+                                      " home"), events)
+        return st
     block = _target_block(cfg, target, radius)
     if block is not None:
         _ack(now, cmd, False, block, events)

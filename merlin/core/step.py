@@ -674,7 +674,15 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     source = (authority, behavior)
     if source != st.last_source and authority is _OPERATOR:
         # a takeover during a fence trip (its override grace) fences the pilot for the rest of the session
-        op_mem = OperatorMemory(s.att_rpy_rad[2], None, None, "geofence" in arb.grace_monitors)
+        fenced = "geofence" in arb.grace_monitors
+        # A fenced pilot's stick ramps on from the command Merlin was braking with, not from the measured
+        # velocity: that lags the braking command, and restarting from it undid the braking the fence
+        # counted on (adv_pilot_regrab_keepout: a re-grab 0.45 s into the trusted braking stopped 2 m
+        # inside the keep-out's margin).
+        last = st.last_command
+        ramp_from = (last.vel_ned_mps if fenced and last is not None and last.kind is _CMD_VELOCITY
+                     and math.isfinite(last.vel_ned_mps[0] + last.vel_ned_mps[1] + last.vel_ned_mps[2]) else None)
+        op_mem = OperatorMemory(s.att_rpy_rad[2], None, ramp_from, fenced)
     if not arb.armed or (flies_trusted and behavior is _IDLE):
         incoming = Command(_CMD_IDLE, authority)
     elif flies_trusted and behavior is _TERMINATE:
