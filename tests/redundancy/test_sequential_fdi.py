@@ -3,17 +3,22 @@ statistic, then the state graph with the real filters on seed 003's faults."""
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from merlin.redundancy.duplex_fdi import FDI_PRESETS, MERLIN, SEQUENTIAL, TABLE2, DuplexImuFdi, FdiConfig, FdiState
+from merlin.redundancy.duplex_fdi import (
+    FDI_PRESETS,
+    MERLIN,
+    SEQUENTIAL,
+    TABLE2,
+    DuplexImuFdi,
+    FdiConfig,
+    FdiState,
+)
 from merlin.redundancy.duplex_scenarios import inject, metrics, nominal_flight, run_fdi
 from merlin.redundancy.events import FaultKind
-from merlin.redundancy.particle_filter import ParticleFilterConfig
 from merlin.redundancy.sequential_fdi import SequentialImuFdi, build_fdi
 from merlin.redundancy.sequential_tests import (
     N_AXES,
