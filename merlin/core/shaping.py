@@ -14,10 +14,10 @@ from __future__ import annotations
 import math
 from typing import Final, NamedTuple
 
-from merlin.autopilot.guidance import limit_velocity_change, position_to_velocity, stopping_point
 from merlin.core import geofence
 from merlin.core.config import HandoverParams, OperatorParams, SetpointClamp, TrustedParams
 from merlin.core.geofence import Fence
+from merlin.core.kinematics import limit_velocity_change, position_to_velocity, stopping_point
 from merlin.core.types import (
     ZERO3,
     Authority,
