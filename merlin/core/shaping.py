@@ -65,7 +65,7 @@ def setpoint_to_command(sp: Setpoint, s: VehicleState, source: Authority, tp: Tr
             math.inf,
             math.inf,
         )
-        # positional, in Command's field order (every tick: keywords cost twice as much)
+        # positional, in Command's field order (built every tick)
         return Command(
             _CMD_VELOCITY,  # kind
             source,  # source
