@@ -163,12 +163,11 @@ def _distance_m(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
     return math.hypot((lat2 - lat1) * k, (lon2 - lon1) * k * math.cos(math.radians(lat1)))
 
 
-@pytest.mark.xfail(strict=True, reason="open: goto_location sent 1 s after takeoff() is accepted as HOLD while the "
-                   "vehicle is 0.1 m up, and Merlin's GOTO neither climbs to the goto altitude nor flies there "
-                   "(PX4 does); strict, so the test fails once it is fixed")
 def test_goto(tmp_path: Path) -> None:
     """The goto example's target is 780 m from home, beyond Merlin's built-in 300 m range: against a range that
-    holds it (PX4 SITL has no fence at all), the unchanged example flies there."""
+    holds it (PX4 SITL has no fence at all), the unchanged example flies there. Its goto_location comes 1 s
+    after takeoff(), 0.1 m up: as on PX4 (the DO_REPOSITION switches to AUTO.LOITER, whose hold point is the
+    target), the vehicle climbs to the goto altitude (20 m above home) and flies towards the target."""
     cfg = tmp_path / "range_1500m.yaml"
     lat, lon, alt = PX4_HOME  # (a configuration file states its home; PX4 SITL's, as serve's default)
     cfg.write_text(f"home: {{lat_deg: {lat}, lon_deg: {lon}, alt_amsl_m: {alt}}}\n"
@@ -178,15 +177,19 @@ def test_goto(tmp_path: Path) -> None:
         m = gcs_connection(serve.gcs_port)
         run_example(serve, "goto", 90)
         target = (47.399386, 8.535245)
-
-        def dist() -> float:
-            pos = wait_for(m, lambda x: x.get_type() == "GLOBAL_POSITION_INT")
+        # followed as it flies: every position report read as it arrives (a reading taken after a sleep would
+        # be the oldest report waiting in the socket's buffer, not the vehicle's position)
+        track: list[tuple[float, float]] = []
+        t_end = time.monotonic() + 20.0
+        while time.monotonic() < t_end:
+            pos = wait_for(m, lambda x: x.get_type() == "GLOBAL_POSITION_INT", timeout_s=STEP_TIMEOUT_S)
             assert pos is not None
-            return _distance_m(pos.lat / 1e7, pos.lon / 1e7, *target)
-
-        d0 = dist()
-        time.sleep(15.0)
-        assert dist() < d0 - 30.0, "the vehicle is not flying to the goto target"
+            track.append((_distance_m(pos.lat / 1e7, pos.lon / 1e7, *target), pos.relative_alt / 1e3))
+        assert track[-1][0] < track[0][0] - 60.0, (track[0], track[-1])
+        assert max(h for _, h in track) == pytest.approx(20.0, abs=1.5), max(h for _, h in track)
+        assert [b for b in _behaviours(serve) if b != "TAKEOFF"][:1] == ["HOLD"], _behaviours(serve)
+        [goto] = [e for e in _types(serve, "command_ack") if e["command"] == "GOTO"]
+        assert goto["accepted"], goto
     finally:
         stop(serve)
 
