@@ -780,30 +780,30 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     flies_trusted = (authority is _TRUSTED or authority is _SHADOW) and arb.armed
     blend, command = _bumpless(cfg, st, source, flies_trusted, now, dt, checked.s, incoming)
     statuses, reported = _statuses(cfg, st, now, authority, report, events)
+    # positional, in field order (built every tick); the names are CoreState's
     new_state = CoreState(
-        t_s=now,
-        arbiter=arb,
-        env_since=report.env.since,
-        shadow_env_since=report.shadow_env_since,
-        hb_alive_since_s=report.hb_alive_since_s,
-        reported=reported,
-        guidance=trusted.memory,
-        operator=op_mem,
-        blend=blend,
-        last_command=command,
-        last_source=source,
-        last_valid_state=checked.s,
-        clear_statuses=st.clear_statuses,
-        checked_setpoint=checked.setpoint,
-        checked_setpoint_bad=checked.setpoint_bad,
-        # nav_inertial_timeout stays due while navigation stays inertial-only (an invalid state changes nothing)
-        inertial_land_due=(_M_NAV_INERTIAL_TIMEOUT in report.tripped if checked.state_bad is None
-                           else st.inertial_land_due),
-        mission_index=trusted.mission_index,
-        env_budget=report.env.budget,
-        env_budget_authority=report.budget_authority,
-        floor_reached=report.floor_reached,
-        completed=trusted.completed,
+        now,  # t_s
+        arb,  # arbiter
+        report.env.since,  # env_since
+        report.shadow_env_since,  # shadow_env_since
+        report.hb_alive_since_s,  # hb_alive_since_s
+        reported,  # reported
+        trusted.memory,  # guidance
+        op_mem,  # operator
+        blend,  # blend
+        command,  # last_command
+        source,  # last_source
+        checked.s,  # last_valid_state
+        st.clear_statuses,  # clear_statuses
+        checked.setpoint,  # checked_setpoint
+        checked.setpoint_bad,  # checked_setpoint_bad
+        # inertial_land_due: stays due while navigation stays inertial-only (an invalid state changes nothing)
+        _M_NAV_INERTIAL_TIMEOUT in report.tripped if checked.state_bad is None else st.inertial_land_due,
+        trusted.mission_index,  # mission_index
+        report.env.budget,  # env_budget
+        report.budget_authority,  # env_budget_authority
+        report.floor_reached,  # floor_reached
+        trusted.completed,  # completed
     )
     decision = Decision(now, authority, behavior, command, statuses, (*arb_events, *events), arb.armed,
                         arb.pending.seq if arb.pending is not None else 0, arb.revocations)
