@@ -9,13 +9,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from merlin.core.geofence import Fence
+from merlin.core.guidance_policy import GuidancePolicy
 from merlin.core.types import Action, Behavior, MonitorId
-
-if TYPE_CHECKING:  # the policy's protocol names TrustedParams: imported for the annotation only
-    from merlin.core.guidance_policy import GuidancePolicy
 
 
 class Clear(StrEnum):

@@ -14,11 +14,13 @@ same result.
 
 from __future__ import annotations
 
-from typing import Protocol, TypeVar
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
-from merlin.core.config import TrustedParams
 from merlin.core.geofence import Fence
 from merlin.core.types import Behavior, Setpoint, Vec3, VehicleState
+
+if TYPE_CHECKING:  # the configuration holds the policy: its parameters are named for the annotations only
+    from merlin.core.config import TrustedParams
 
 
 class GuidanceMemory(Protocol):
