@@ -516,9 +516,13 @@ class MultirotorGuidance:
             g = g._replace(vel_cmd=prev.vel_cmd)
         if behavior is _TAKEOFF:
             g = g._replace(anchor_ned_m=(g.anchor_ned_m[0], g.anchor_ned_m[1], -takeoff_alt_m))
-        elif behavior is _MISSION and mission_index < len(tp.mission_ned_m):
-            g = g._replace(mission_index=mission_index)  # resumed where it was paused, as PX4 does
+        elif behavior is _MISSION and mission_index <= len(tp.mission_ned_m):
+            # resumed where it was paused, as PX4 does (at its length: a MISSION_CURRENT set the end item)
+            g = g._replace(mission_index=mission_index)
         return g
+
+    def mission_jump(self, g: GuidanceState, mission_index: int) -> GuidanceState:
+        return g._replace(mission_index=mission_index, done=False)
 
     def goto(self, g: GuidanceState, target_ned_m: Vec3, s: VehicleState, fence: Fence | None) -> GuidanceState:
         return goto(g, target_ned_m, s, fence)

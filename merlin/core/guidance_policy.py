@@ -70,6 +70,11 @@ class GuidancePolicy(Protocol[M]):
         the waypoint MISSION resumes at."""
         ...
 
+    def mission_jump(self, g: M, mission_index: int) -> M:
+        """MISSION, while flown, sent on to waypoint ``mission_index`` (MISSION_SET_CURRENT; the mission's
+        length: its end)."""
+        ...
+
     def goto(self, g: M, target_ned_m: Vec3, s: VehicleState, fence: Fence | None) -> M:
         """HOLD or ORBIT re-aimed at a commanded point (GOTO's hold point, ORBIT's centre)."""
         ...

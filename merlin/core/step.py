@@ -39,6 +39,7 @@ from merlin.core.types import (
     NO_REASON,
     Action,
     Authority,
+    AuthorityRequest,
     Behavior,
     Command,
     CommandKind,
@@ -53,6 +54,7 @@ from merlin.core.types import (
     Reason,
     ReasonCode,
     RedundancyReport,
+    RequestKind,
     Setpoint,
     SetpointKind,
     VehicleState,
@@ -137,6 +139,10 @@ class CoreState(NamedTuple):
     # judged at once), not while on the ground, and after a take-off once the vehicle has climbed clear of it,
     # so that the take-off passes through it (scenario adv_floor_takeoff)
     floor_reached: bool = True
+    # a controller asking for, or holding, authority granted on the ground flies its own take-off (PX4's
+    # offboard flows): the altitude floors are deferred for it until the vehicle is above them; the time it
+    # left the ground (None: no such take-off). See _ground_takeoff.
+    ground_takeoff_since_s: float | None = None
     # the trusted behaviour that completed on this tick (TAKEOFF at its height, MISSION flown): the next tick's
     # arbiter hands over to what follows it
     completed: Behavior | None = None
@@ -353,7 +359,7 @@ def _grant_block(
         r = tripped.get(row.monitor)
         if r is not None and row.experimental >= Action.HOLD:
             return r
-    env = envelope.all_inside(cfg.envelope, envelope.envelope_values(s))
+    env = envelope.all_inside(cfg.envelope, report.env_values)  # as the monitor judged them this tick
     if env is not None:
         return env
     nav = cfg.nav
@@ -368,13 +374,13 @@ def _grant_block(
     if cmd_env is not None:
         return replace(cmd_env, text=f"refused: the setpoint commands {cmd_env.parameter}={cmd_env.value:.4g}"
                        f" outside [{cmd_env.limit:.4g}]")
-    return _setpoint_consistency(sp, s, cfg) or _floor_block(cfg, s, report.floor_reached)
+    return _setpoint_consistency(sp, s, cfg) or _floor_block(cfg, s, report)
 
 
-def _floor_block(cfg: CoreConfig, s: VehicleState, floor_reached: bool) -> Reason | None:
+def _floor_block(cfg: CoreConfig, s: VehicleState, report: MonitorReport) -> Reason | None:
     """The fence floor does not protect a vehicle below it yet (scenario adv_floor_takeoff): no grant until
-    the vehicle has climbed clear of it."""
-    if floor_reached or cfg.fence is None:
+    the vehicle has climbed clear of it, unless the controller flies its own take-off (_ground_takeoff)."""
+    if report.floor_reached or report.ground_takeoff_since_s is not None or cfg.fence is None:
         return None
     fl = cfg.fence.params.altitude_floor_m
     if fl is None or not cfg.fence.params.enabled:
@@ -438,6 +444,52 @@ def _arm_block(cfg: CoreConfig, s: VehicleState, tripped: Mapping[MonitorId, Rea
     return None
 
 
+def _ground_takeoff(cfg: CoreConfig, st: CoreState, s: VehicleState, now: float,
+                    requests: tuple[AuthorityRequest, ...], floor_reached: bool, alt_m: float) -> float | None:
+    """When the vehicle left the ground under a take-off flown by the experimental controller (PX4's offboard
+    flows: OFFBOARD granted on the ground, the controller's setpoints lift the vehicle), or None when there is
+    none and the altitude floors apply as usual.
+
+    Such a take-off starts on the ground, armed, with a request or an exchange under way or authority already
+    granted there; while the vehicle is on the ground its clock restarts. It ends, and the floors (the
+    envelope's altitude minimum, the fence floor) apply from then on, once the vehicle is above both, once the
+    authority is no longer the controller's, at the disarm, and ``handover.ground_takeoff_s`` after it left the
+    ground whatever its height: a controller may climb through the floors, not stay below them. Every other
+    limit (speeds, attitude, rates, ceiling, fence walls, watchdogs) judges it from the first tick."""
+    arb = st.arbiter
+    controller = arb.authority is _EXPERIMENTAL or arb.authority is _SHADOW
+    exchange = arb.pending is not None or arb.switch is not None
+    if arb.armed and s.landed and (controller or exchange or any(
+            r.kind is RequestKind.REQUEST or r.kind is RequestKind.REQUEST_SHADOW for r in requests)):
+        return now
+    since = st.ground_takeoff_since_s
+    if since is None or not arb.armed or not (controller or exchange):
+        return None
+    low = _altitude_floor_m(cfg)
+    above = alt_m >= low and (cfg.fence is None or floor_reached)  # (a NaN height is never above)
+    if above or now - since > cfg.handover.ground_takeoff_s:
+        return None
+    return since
+
+
+def _altitude_floor_m(cfg: CoreConfig) -> float:
+    for lim in cfg.envelope:
+        if lim.index == envelope.PARAMETER_INDEX["altitude_m"]:
+            return lim.min
+    return -math.inf
+
+
+def _floor_deferred(cfg: CoreConfig, values: tuple[float, ...]) -> tuple[float, ...]:
+    """The envelope's values with the altitude held at the envelope's minimum while below it (a deferred floor
+    judges nothing; its maximum still does)."""
+    k = envelope.PARAMETER_INDEX["altitude_m"]
+    alt = values[k]
+    low = _altitude_floor_m(cfg)
+    if not alt < low:  # (NaN stays: never inside)
+        return values
+    return (*values[:k], low, *values[k + 1:])
+
+
 # ------------------------------------------------------------------------------------------ the stages
 
 
@@ -473,9 +525,11 @@ class MonitorReport(NamedTuple):
     tripped: dict[MonitorId, Reason]  # the monitors tripped on the vehicle's state, with their reasons
     shadow_tripped: dict[MonitorId, Reason]  # under SHADOW: those tripped on what the controller commands
     env: envelope.EnvelopeResult  # the envelope's timers, exceedance budget and offending parameters
+    env_values: tuple[float, ...]  # the envelope's values as judged (the altitude held while a floor is deferred)
     shadow_env_since: tuple[float | None, ...]  # the envelope's timers on the SHADOW controller's commands
     budget_authority: Authority  # the authority the exceedance budget is charged to
     floor_reached: bool  # the fence floor applies (the vehicle has climbed clear of it since it took off)
+    ground_takeoff_since_s: float | None  # a take-off the controller flies: the floors deferred (_ground_takeoff)
     hb_alive_since_s: float | None  # the controller's heartbeat unbroken since
     rc_lost: bool  # the RC link has timed out
 
@@ -490,13 +544,17 @@ def monitor(cfg: CoreConfig, st: CoreState, now: float, dt: float, inputs: Input
     # a new authority starts from an empty budget (its own time outside only).
     budget_auth = st.arbiter.authority
     budget = st.env_budget if budget_auth is st.env_budget_authority else (envelope.EMPTY_RING,) * len(cfg.envelope)
-    env = envelope.update(cfg.envelope, st.env_since, envelope.envelope_values(inputs.state), now, False, budget, dt)
-    if env.reason is not None:
-        tripped[_M_ENVELOPE] = env.reason
     # The floor applies unless the vehicle has been on the ground and not yet climbed clear of it since (a NaN
     # height compares False: never clear), so the trusted take-off climbs through it instead of tripping it.
     floor_reached = not s.landed and cfg.fence is not None and (
         st.floor_reached or geofence.clear_of_floor(cfg.fence, s.pos_ned_m, s.pos_sigma_v_m))
+    env_values = envelope.envelope_values(inputs.state)
+    ground_takeoff = _ground_takeoff(cfg, st, s, now, inputs.experimental.requests, floor_reached, env_values[1])
+    if ground_takeoff is not None:
+        env_values = _floor_deferred(cfg, env_values)
+    env = envelope.update(cfg.envelope, st.env_since, env_values, now, False, budget, dt)
+    if env.reason is not None:
+        tripped[_M_ENVELOPE] = env.reason
     wind_ne = (0.0, 0.0)
     if cfg.fence is not None:
         if cfg.fence.params.vehicle == "fixed_wing":  # a fixed wing's escape turn drifts with the wind
@@ -517,7 +575,8 @@ def monitor(cfg: CoreConfig, st: CoreState, now: float, dt: float, inputs: Input
     if st.arbiter.authority is _SHADOW:
         shadow_tripped, shadow_since = _shadow_monitors(cfg, st.shadow_env_since, now, c, tripped, floor_reached,
                                                         wind_ne)
-    return MonitorReport(tripped, shadow_tripped, env, shadow_since, budget_auth, floor_reached, hb_since, rc_lost)
+    return MonitorReport(tripped, shadow_tripped, env, env_values, shadow_since, budget_auth, floor_reached,
+                         ground_takeoff, hb_since, rc_lost)
 
 
 def _fence_monitor(cfg: CoreConfig, fence: geofence.Fence, last: Command | None, c: Checked, floor_reached: bool,
@@ -633,15 +692,22 @@ class TrustedStep(NamedTuple):
 def _fly_trusted(cfg: CoreConfig, st: CoreState, arb: ArbiterState, behavior: Behavior, now: float, dt: float,
                  s: VehicleState, events: list[Event]) -> TrustedStep:
     """Merlin's own behaviour, flown by the vehicle's guidance policy while it holds authority (or SHADOW)."""
-    mission_index = st.mission_index if arb.armed else 0  # a new flight starts the mission from its start
+    policy, g, before = cfg.guidance, st.guidance, st.arbiter
+    # a new flight starts the mission from its start (the index is reset at the disarm), unless a
+    # MISSION_CURRENT sets where it goes on from (in flight or on the ground, as PX4's MISSION_SET_CURRENT)
+    mission_index = st.mission_index if arb.armed or not before.armed else 0
+    jumped = arb.mission_jump_seq != before.mission_jump_seq
+    if jumped:
+        mission_index = arb.mission_jump_index
     if not (arb.authority in (_TRUSTED, _SHADOW) and arb.armed) or behavior is _IDLE or behavior is _TERMINATE:
         return TrustedStep(None, None, mission_index, None)
-    policy, g, before = cfg.guidance, st.guidance, st.arbiter
     if g is None or g.behavior is not behavior or arb.target_seq != before.target_seq or (
             arb.target_ned_m is None and before.target_ned_m is not None):  # new behaviour, GOTO/ORBIT, or target dropped
         g = policy.enter(behavior, s, cfg.trusted, cfg.fence, g, arb.takeoff_alt_m, mission_index)
         if g.note:  # the behaviour cannot fly as asked inside the range (no route home, a moved hold point)
             _route_warning(events, now, "no_route" if g.fallback else "safe_point", g.note)
+    elif jumped and behavior is _MISSION:
+        g = policy.mission_jump(g, mission_index)  # flying the mission: on to the new waypoint
     if arb.target_ned_m is not None and g.goto_ned_m != arb.target_ned_m and (behavior is _HOLD or behavior is _ORBIT):
         g = policy.goto(g, arb.target_ned_m, s, cfg.fence)  # GOTO's point, ORBIT's centre (at the command)
         if g.note:  # GOTO has no route inside the range: it holds where it is
@@ -673,8 +739,7 @@ def _incoming(cfg: CoreConfig, st: CoreState, arb: ArbiterState, source: tuple[A
     s, sp = c.s, c.setpoint
     op_mem = st.operator
     if source != st.last_source and authority is _OPERATOR:
-        # a takeover during a fence trip (its override grace) fences the pilot for the rest of the session
-        op_mem = OperatorMemory(s.att_rpy_rad[2], None, None, _M_GEOFENCE in arb.grace_monitors)
+        op_mem = _operator_memory(st, s, _M_GEOFENCE in arb.grace_monitors)
     flies_trusted = (authority is _TRUSTED or authority is _SHADOW) and arb.armed
     if not arb.armed or (flies_trusted and behavior is _IDLE):
         return op_mem, Command(_CMD_IDLE, authority)
@@ -694,6 +759,17 @@ def _incoming(cfg: CoreConfig, st: CoreState, arb: ArbiterState, source: tuple[A
     return op_mem, Command(_CMD_VELOCITY, _TRUSTED, yaw_rad=s.att_rpy_rad[2])
 
 
+def _operator_memory(st: CoreState, s: VehicleState, fenced: bool) -> OperatorMemory:
+    """The operator's memory at a takeover. A takeover during a fence trip (its override grace) fences the pilot
+    for the rest of the session, and the fenced pilot's stick ramps on from the command Merlin was braking with,
+    not from the measured velocity: that lags the braking command, and restarting from it undid the braking the
+    fence counted on (scenario adv_pilot_regrab_keepout)."""
+    last = st.last_command
+    ramp_from = (last.vel_ned_mps if fenced and last is not None and last.kind is _CMD_VELOCITY
+                 and math.isfinite(last.vel_ned_mps[0] + last.vel_ned_mps[1] + last.vel_ned_mps[2]) else None)
+    return OperatorMemory(s.att_rpy_rad[2], None, ramp_from, fenced)
+
+
 def _bumpless(cfg: CoreConfig, st: CoreState, source: tuple[Authority, Behavior], flies_trusted: bool,
               now: float, dt: float, s: VehicleState, incoming: Command) -> tuple[Blend | None, Command]:
     """Command shaping: a change of source blends from the last actuated command (see merlin.core.shaping)."""
@@ -709,7 +785,9 @@ def _bumpless(cfg: CoreConfig, st: CoreState, source: tuple[Authority, Behavior]
     blend = st.blend
     last_cmd = st.last_command
     if source != st.last_source or (last_cmd is not None and last_cmd.kind is not incoming.kind):
-        blend = Blend(now, blend_start(last_cmd, incoming, s, cfg.trusted.hover_thrust))
+        # (on the ground the collective a transfer starts from is none: a controller granted there, which flies
+        # its own take-off, starts from motors at rest, not from a hover thrust that nearly lifts off)
+        blend = Blend(now, blend_start(last_cmd, incoming, s, 0.0 if s.landed else cfg.trusted.hover_thrust))
         last = blend.start
     else:
         last = last_cmd if last_cmd is not None else incoming
@@ -803,6 +881,7 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
         report.env.budget,  # env_budget
         report.budget_authority,  # env_budget_authority
         report.floor_reached,  # floor_reached
+        report.ground_takeoff_since_s,  # ground_takeoff_since_s
         trusted.completed,  # completed
     )
     decision = Decision(now, authority, behavior, command, statuses, (*arb_events, *events), arb.armed,

@@ -5,8 +5,13 @@ classified here into a :class:`Route`. The rules follow the ICD's controller-lin
 sections 6 and 13, "what PX4 does and what Merlin does"), applied to a real autopilot's dialect:
 
 - **Setpoints** (SET_POSITION_TARGET_LOCAL_NED / _GLOBAL_INT, SET_ATTITUDE_TARGET,
-  SET_ACTUATOR_CONTROL_TARGET) reach the autopilot only while the controller holds EXPERIMENTAL authority;
-  otherwise they are dropped (they still count as the controller's liveness for the core).
+  SET_ACTUATOR_CONTROL_TARGET) fly the vehicle only while the controller holds EXPERIMENTAL authority.
+  They also pass while the autopilot is *not* in its offboard mode and Merlin is not flying it: both
+  autopilots ignore setpoints outside OFFBOARD/GUIDED, and PX4 accepts OFFBOARD only after the setpoint
+  stream has run for a while (its offboard "proof of life"), so a controller written for PX4 must be able
+  to stream before its request, as it would without Merlin. The moment the autopilot is in its offboard
+  mode without a grant (someone else switched it), or Merlin flies its trusted behaviour, they are
+  dropped (they still count as the controller's liveness for the core).
 - **The dialect's offboard mode** (PX4 OFFBOARD, ArduPilot GUIDED; by SET_MODE or MAV_CMD_DO_SET_MODE) is
   an authority REQUEST: held until the trusted core decides, forwarded on a grant, denied with the reason
   otherwise.
@@ -67,6 +72,7 @@ class Verdict:
 class GateContext:
     modes: ModeTable
     experimental: bool  # the controller holds EXPERIMENTAL authority now
+    autopilot_offboard: bool  # the autopilot's HEARTBEAT shows its offboard mode
     trusted_flying: bool  # Merlin's trusted autopilot flies the vehicle (after a revocation)
     landed: bool
     arm_refusal: str | None  # why the core would not arm now (None: it would)
@@ -135,7 +141,9 @@ def classify(msg_id: int, rec: object | None, ctx: GateContext) -> Verdict:
     """Where a frame from the controller goes. ``rec`` is the typed record for COMMAND_LONG/INT and SET_MODE
     (:mod:`merlin.guard.wire`); for those, None means it could not be decoded, and it is dropped."""
     if msg_id in w.SETPOINT_IDS:
-        return FORWARD if ctx.experimental else Verdict(Route.DROP, "setpoint without authority")
+        if ctx.experimental or not (ctx.autopilot_offboard or ctx.trusted_flying):
+            return FORWARD
+        return Verdict(Route.DROP, "setpoint without authority")
     if msg_id in OPERATOR_IDS:
         return Verdict(Route.DROP, f"{OPERATOR_IDS[msg_id]}: operator input comes from the ground station's link")
     if msg_id in REWRITING_IDS:

@@ -24,8 +24,10 @@ controller's setpoints and streams the trusted command instead; the controller s
 HEARTBEAT with the mode of Merlin's behaviour (PX4 AUTO.LOITER/AUTO.RTL/AUTO.LAND, Copter BRAKE/RTL/LAND)
 in place of OFFBOARD/GUIDED, so standard tools see the revocation as the mode change they know.
 
-Logs in ``out_dir``: ``guard.tlog`` (every frame in and out on every link, pymavlink's tlog format) and
-``events.jsonl`` (the core's events and the guard's own: start, refusals, denials, stop).
+Logs in ``out_dir`` (pymavlink's tlog format): ``guard.tlog``, every frame received on every link once
+and every frame the guard originates (forwarded copies are not repeated); ``autopilot.tlog``, the
+autopilot's frames alone, which ``merlin replay`` reads as a flight log; ``events.jsonl``, the core's
+events and the guard's own (start check, requests, denials, revocations, braking, stop).
 """
 
 from __future__ import annotations
@@ -61,20 +63,33 @@ from merlin.core.types import (
     SetpointKind,
 )
 from merlin.geodesy import LocalFrame
+from merlin.guard import inputs_log
 from merlin.guard import wire as w
 from merlin.guard.config import GuardConfig
 from merlin.guard.dialects import Autopilot, Dialect, ModeTable, detect, mode_table
 from merlin.guard.endpoints import EndpointSpec, open_transport
 from merlin.guard.failsafe_params import ParamReader, Refusal, check, requirements
 from merlin.guard.gate import GateContext, Route, classify
+from merlin.guard.response import BrakeMeter
 from merlin.guard.telemetry import TelemetryState, stream_requests
 from merlin.guard.trusted import TrustedOutput, trusted_output
 from merlin.link.frames import Frame
 from merlin.link.tlog import TlogWriter
 
 log = logging.getLogger("merlin.guard")
+EFFECTIVE_CONFIG = "effective_config.yaml"
+
+
+def write_effective_config(out_dir: Path, cfg: MerlinConfig, gcfg: GuardConfig) -> None:
+    """What the session ran with, beside its logs: the Merlin configuration and the guard: section."""
+    import yaml
+
+    data = cfg.model_dump(mode="json")
+    data["guard"] = gcfg.model_dump(mode="json")
+    (out_dir / EFFECTIVE_CONFIG).write_text(yaml.safe_dump(data, sort_keys=False))
 HEARTBEAT_PERIOD_S = 1.0
-STATUSTEXT_REPEAT_S = 1.0  # one STATUSTEXT per denial reason per second at most
+STATUSTEXT_REPEAT_S = 1.0
+SWITCH_TIMEOUT_S = 2.0  # after a grant, the autopilot must show its offboard mode within this  # one STATUSTEXT per denial reason per second at most
 
 
 class GuardRefused(RuntimeError):
@@ -146,9 +161,12 @@ class Guard:
         self.commands: list[GcsCommand] = []
         self.held: _Held | None = None
         self.supervising = False  # a grant happened and the autopilot has been in the offboard mode since
+        self.switch_deadline: float | None = None  # after a grant: until when the autopilot may take to switch
         self.trusted_since: float | None = None
         self.fallback_sent_t: float | None = None
         self.intervals_us: dict[int, float] = {}
+        v = cfg.vehicle
+        self.brake = BrakeMeter(v.reaction_time_s, v.max_horizontal_decel_mps2)
         self.counts: Counter[str] = Counter()
         self._denied_t: dict[str, float] = {}
         self._next_hb_t = 0.0
@@ -157,11 +175,18 @@ class Guard:
         self._stop = False
         self.out_dir = out_dir
         self.tlog: TlogWriter | None = None
+        self.ap_tlog: TlogWriter | None = None
         self._events_fd: int | None = None
+        self._inputs_fd: int | None = None
         if out_dir is not None:
             out_dir.mkdir(parents=True, exist_ok=True)
             self.tlog = TlogWriter(out_dir / "guard.tlog", fsync_interval_s=None)
+            # the autopilot's own frames alone: the vehicle's telemetry as merlin replay reads a .tlog
+            self.ap_tlog = TlogWriter(out_dir / "autopilot.tlog", fsync_interval_s=None)
             self._events_fd = os.open(out_dir / "events.jsonl", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+            # the core's inputs, a line per tick: the session's decisions re-run exactly (inputs_log)
+            self._inputs_fd = os.open(out_dir / "core_inputs.jsonl", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+            write_effective_config(out_dir, cfg, gcfg)
         self.on_forward: Callable[[str, Frame], None] | None = None  # benchmark hook: a frame forwarded
 
     # ------------------------------------------------------------------------------------------ basics
@@ -173,12 +198,14 @@ class Guard:
         if self._events_fd is not None:
             os.write(self._events_fd, (json.dumps(record, default=str) + "\n").encode())
 
-    def _send(self, link: _Link | None, raw: bytes) -> None:
+    def _send(self, link: _Link | None, raw: bytes, originated: bool = True) -> None:
+        """Write ``raw`` to ``link``; the tlog records what the guard originates (a forwarded frame is in it
+        once already, from its arrival)."""
         if link is None:
             return
         link.transport.write(raw)
         link.frames_out += 1
-        if self.tlog is not None:
+        if originated and self.tlog is not None:
             self.tlog.write(raw, time.time())
 
     @property
@@ -194,8 +221,11 @@ class Guard:
                 link.transport.remote = addr  # answer whoever sent valid MAVLink (udpin)
             for fr in frames:
                 link.frames_in += 1
+                now_unix = time.time()
                 if self.tlog is not None:
-                    self.tlog.write(fr.raw, time.time())
+                    self.tlog.write(fr.raw, now_unix)
+                if link is self.ap_link and self.ap_tlog is not None:
+                    self.ap_tlog.write(fr.raw, now_unix)
             out.extend(frames)
         return out
 
@@ -252,17 +282,19 @@ class Guard:
                 self.telemetry.on(t, rec)
                 raw = fr.raw
                 if self.gcs_link is not None:
-                    self._send(self.gcs_link, raw)
-                self._send(self.ctl_link, self._heartbeat_for_controller(rec, raw))
+                    self._send(self.gcs_link, raw, originated=False)
+                shown = self._heartbeat_for_controller(rec, raw)
+                self._send(self.ctl_link, shown, originated=shown is not raw)
                 return
         elif isinstance(rec, w.ParamValue):
-            if self._reader is not None:
-                self._reader.on_value(rec.param_id, rec.value)
+            if self._reader is not None and self.autopilot is not None:
+                bytewise = self.autopilot.dialect is Dialect.PX4
+                self._reader.on_value(rec.param_id, w.param_number(rec, bytewise))
         elif rec is not None and fr.system_id == self.target[0]:
             self.telemetry.on(t, rec)
-        self._send(self.ctl_link, fr.raw)
+        self._send(self.ctl_link, fr.raw, originated=False)
         if self.gcs_link is not None:
-            self._send(self.gcs_link, fr.raw)
+            self._send(self.gcs_link, fr.raw, originated=False)
 
     def _heartbeat_for_controller(self, hb: w.Heartbeat, raw: bytes) -> bytes:
         d, m = self.decision, self.modes
@@ -284,7 +316,9 @@ class Guard:
             if fence is not None:
                 refusal = f"outside the fence ({fence.reason.describe()})"
         assert self.modes is not None
-        return GateContext(self.modes, experimental, self._trusted_flying(), state.landed, refusal, self.intervals_us)
+        offboard = self.ap_mode is not None and self.modes.is_offboard(self.ap_mode)
+        return GateContext(self.modes, experimental, offboard, self._trusted_flying(), state.landed, refusal,
+                           self.intervals_us)
 
     def _trusted_flying(self) -> bool:
         d = self.decision
@@ -319,7 +353,7 @@ class Guard:
             self._forward_to_autopilot(fr)
 
     def _forward_to_autopilot(self, fr: Frame) -> None:
-        self._send(self.ap_link, fr.raw)
+        self._send(self.ap_link, fr.raw, originated=False)
         if self.on_forward is not None:
             self.on_forward("controller", fr)
 
@@ -336,7 +370,7 @@ class Guard:
     def _on_gcs(self, fr: Frame, t: float) -> None:
         if fr.msg_id == w.HEARTBEAT:
             self.gcs_t = t
-        self._send(self.ap_link, fr.raw)  # the operator's link is trusted: everything passes
+        self._send(self.ap_link, fr.raw, originated=False)  # the operator's link is trusted: everything passes
 
     # ---------------------------------------------------------------------------------------- tick
 
@@ -354,7 +388,10 @@ class Guard:
         m = self.modes
         in_offboard = m is not None and self.ap_mode is not None and m.is_offboard(self.ap_mode)
         d0 = self.decision
-        if self.supervising and not in_offboard and self.fallback_sent_t is None:
+        if in_offboard:
+            self.switch_deadline = None
+        switching = self.switch_deadline is not None and t < self.switch_deadline
+        if self.supervising and not in_offboard and self.fallback_sent_t is None and not switching:
             # someone else (the ground station, the RC switch, the autopilot's own failsafe) took the vehicle
             # out of the offboard mode: the guard stops flying it, and the controller loses authority
             self.supervising = False
@@ -370,6 +407,8 @@ class Guard:
         )
         self.requests.clear()
         self.commands.clear()
+        if self._inputs_fd is not None:
+            os.write(self._inputs_fd, inputs_log.encode(t, inputs).encode())
         d = self.core.step(t, inputs)
         self.decision = d
         for e in d.events:
@@ -378,6 +417,17 @@ class Guard:
         if d0 is not None and d0.authority is Authority.EXPERIMENTAL and d.authority is not Authority.EXPERIMENTAL:
             self.trusted_since = t
             self.fallback_sent_t = None
+            self.brake.start(t, state.vel_ned_mps)
+        measured = self.brake.update(t, state.vel_ned_mps)
+        if measured is not None:
+            ok = measured.reaction_ok and measured.decel_ok
+            self.event({"t": t, "type": "guard_brake_measured", "ok": ok, "speed0_mps": measured.speed0_mps,
+                        "reaction_s": measured.reaction_s, "decel_mps2": measured.decel_mps2,
+                        "detail": measured.text()})
+            if not ok:
+                text = "Merlin: autopilot brakes worse than configured (see events)"
+                for link in (self.ctl_link, self.gcs_link):
+                    self._send(link, self.enc.statustext(w.MAV_SEVERITY_WARNING, text))
         if (self._trusted_flying() and in_offboard) or (self.fallback_sent_t is not None and self.supervising):
             self._fly_trusted(d, t)
         if t >= self._next_hb_t:
@@ -390,10 +440,11 @@ class Guard:
             # the standard flow has no ACK message: the controller's mode command is its acknowledgement
             self.requests.append(AuthorityRequest(RequestKind.ACK, seq=e.seq, t_s=t))
             self.supervising = True
+            self.switch_deadline = t + SWITCH_TIMEOUT_S
             self.trusted_since = None
             self.fallback_sent_t = None
             if self.held is not None:
-                self._send(self.ap_link, self.held.raw)
+                self._send(self.ap_link, self.held.raw, originated=False)
                 self.held = None
         elif kind is EventKind.DENIED and self.held is not None:
             reason = e.reason.describe()
@@ -439,7 +490,8 @@ class Guard:
             except (OSError, ValueError):
                 ready = list(fds)
                 time.sleep(min(remaining, 0.001))
-            for fd in ready:
+            # the controller's frames first: a setpoint waiting behind a burst of telemetry is added latency
+            for fd in sorted(ready, key=lambda f: fds[f] is not self.ctl_link):
                 link = fds[fd]
                 for fr in self._read(link, 0.0):
                     now = self.t()
@@ -471,11 +523,13 @@ class Guard:
         self.event({"t": self.t(), "type": "guard_stopped", "counts": dict(self.counts)})
         for link in self.links:
             link.transport.close()
-        if self.tlog is not None:
-            self.tlog.close()
-        if self._events_fd is not None:
-            os.close(self._events_fd)
-            self._events_fd = None
+        for tl in (self.tlog, self.ap_tlog):
+            if tl is not None:
+                tl.close()
+        for fd in (self._events_fd, self._inputs_fd):
+            if fd is not None:
+                os.close(fd)
+        self._events_fd = self._inputs_fd = None
 
 
 def _core_setpoint(rec: object | None) -> Setpoint:

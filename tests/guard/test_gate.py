@@ -16,8 +16,10 @@ PX4 = mode_table(detect(MAV_AUTOPILOT_PX4, 2, 1, 1))  # type: ignore[arg-type]
 COPTER = mode_table(detect(MAV_AUTOPILOT_ARDUPILOTMEGA, 2, 1, 1))  # type: ignore[arg-type]
 
 
-def ctx(modes=PX4, experimental=False, trusted=False, landed=False, refusal=None) -> GateContext:  # type: ignore[no-untyped-def]
-    return GateContext(modes, experimental, trusted, landed, refusal, {w.ATTITUDE: 20_000.0})
+def ctx(modes=PX4, experimental=False, trusted=False, landed=False, refusal=None,  # type: ignore[no-untyped-def]
+        offboard=None) -> GateContext:
+    offboard = experimental or trusted if offboard is None else offboard
+    return GateContext(modes, experimental, offboard, trusted, landed, refusal, {w.ATTITUDE: 20_000.0})
 
 
 def cmd(command: int, *p: float) -> w.CommandIn:
@@ -25,10 +27,14 @@ def cmd(command: int, *p: float) -> w.CommandIn:
     return w.CommandIn(command, params, 1, 1, False)  # type: ignore[arg-type]
 
 
-def test_setpoints_pass_only_with_authority() -> None:
+def test_setpoints_fly_only_with_authority() -> None:
     assert classify(w.SET_POSITION_TARGET_LOCAL_NED, None, ctx(experimental=True)).route is Route.FORWARD
-    assert classify(w.SET_POSITION_TARGET_LOCAL_NED, None, ctx()).route is Route.DROP
+    # the autopilot in its offboard mode without a grant (someone else switched it): dropped
+    assert classify(w.SET_POSITION_TARGET_LOCAL_NED, None, ctx(offboard=True)).route is Route.DROP
     assert classify(w.SET_ATTITUDE_TARGET, None, ctx(trusted=True)).route is Route.DROP
+    assert classify(w.SET_ATTITUDE_TARGET, None, ctx(trusted=True, offboard=False)).route is Route.DROP
+    # outside the offboard mode the autopilot ignores them: they pass as PX4's proof of life
+    assert classify(w.SET_POSITION_TARGET_LOCAL_NED, None, ctx(offboard=False)).route is Route.FORWARD
 
 
 def test_offboard_and_guided_are_requests() -> None:
