@@ -1,4 +1,4 @@
-"""The IMU degradation chain: triplex vote -> duplex PF FDI -> simplex (issue item 2).
+"""The IMU degradation chain: triplex vote -> duplex PF FDI -> simplex.
 
 Three IMU lanes are voted by mid-value select (:mod:`merlin.redundancy.sensor_voter`). Once one lane is
 isolated, two remain and a majority no longer exists: the two survivors (with their magnetometer
