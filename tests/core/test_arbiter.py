@@ -543,6 +543,35 @@ def test_mission_commanded_on_the_ground_takes_off_first_to_the_lower_of_the_tak
     assert h.core.state.arbiter.takeoff_alt_m == 6.0  # the first waypoint is lower than the take-off height
 
 
+def test_mission_current_sets_the_waypoint_flown_next_on_the_ground_and_in_the_mission() -> None:
+    """MISSION_SET_CURRENT as PX4 takes it: on the ground, disarmed, it sets where a later start flies from; in
+    the mission it flies on to that waypoint at once; outside the mission's range it is refused."""
+    wps = [[20.0, 0.0, -6.0], [20.0, 20.0, -6.0], [0.0, 20.0, -6.0]]
+    h = Harness(cfg=MerlinConfig.model_validate({"trusted": {"mission_ned_m": wps}}))
+    h.state = replace(HOVER_10M, pos_ned_m=(0.0, 0.0, 0.0), landed=True, armed=False)
+    [ack] = events_of(h.command(GcsCommandKind.MISSION_CURRENT, 1.0), EventKind.COMMAND_ACK)
+    assert ack.accepted and h.core.state.mission_index == 1  # disarmed: kept for the flight to come
+    for bad in (3.5, -1.0, math.nan, 4.0):
+        [ack] = events_of(h.command(GcsCommandKind.MISSION_CURRENT, bad), EventKind.COMMAND_ACK)
+        assert not ack.accepted and ack.reason.code is ReasonCode.INVALID_INPUT, bad
+    h.command(GcsCommandKind.ARM)
+    h.command(GcsCommandKind.TAKEOFF, 6.0)
+    h.state = replace(HOVER_10M, pos_ned_m=(0.0, 0.0, -6.0))
+    h.run(0.5)
+    assert h.command(GcsCommandKind.MISSION).behavior is Behavior.MISSION
+    assert h.core.state.guidance.mission_index == 1  # started at the waypoint set on the ground
+    [ack] = events_of(h.command(GcsCommandKind.MISSION_CURRENT, 2.0), EventKind.COMMAND_ACK)
+    assert ack.accepted and h.core.state.guidance.mission_index == 2
+    h.command(GcsCommandKind.MISSION_CURRENT, 3.0)  # the end: the mission is done, its end behaviour follows
+    assert h.core.state.guidance.done or h.core.state.guidance.behavior is not Behavior.MISSION
+
+
+def test_mission_current_without_a_mission_is_refused() -> None:
+    h = Harness()
+    [ack] = events_of(h.command(GcsCommandKind.MISSION_CURRENT, 0.0), EventKind.COMMAND_ACK)
+    assert not ack.accepted and "the mission has 0" in ack.reason.text
+
+
 def test_goto_and_orbit_without_a_finite_target_or_radius_are_refused_as_invalid() -> None:
     h = Harness()
     h.airborne()
@@ -590,3 +619,18 @@ def test_the_grant_height_precondition_refuses_a_height_that_is_not_a_number() -
     assert arbiter.grant_height_block(limited, 50.0) is None
     assert arbiter.grant_height_block(limited, 49.9) is not None
     assert arbiter.grant_height_block(limited, math.nan) is not None
+def test_a_behaviour_completed_on_the_previous_tick_hands_over_to_what_follows_it() -> None:
+    """Take-off completion reaches the next tick's arbiter as data: TAKEOFF hands over to what it was started
+    for; a flown MISSION to ``trusted.mission_end``, and with HOLD there it stays MISSION (holding at its last
+    waypoint)."""
+    cfg = Harness().core.cfg
+    view = TickView(1.0, {}, {}, frozenset(), None, None, None, False, False, completed=Behavior.TAKEOFF)
+    st, events = arbiter.update(ArbiterState(armed=True, base=Behavior.TAKEOFF, after_takeoff=Behavior.MISSION),
+                                view, cfg)
+    assert (st.base, st.after_takeoff, events) == (Behavior.MISSION, Behavior.HOLD, [])
+    flown = view._replace(completed=Behavior.MISSION)
+    in_mission = ArbiterState(armed=True, base=Behavior.MISSION)
+    assert arbiter.update(in_mission, flown, cfg)[0].base is Behavior.MISSION
+    to_rtl = replace(cfg, trusted=replace(cfg.trusted, mission_end=Behavior.RTL))
+    assert arbiter.update(in_mission, flown, to_rtl)[0].base is Behavior.RTL
+    assert arbiter.update(in_mission, view._replace(completed=None), to_rtl)[0].base is Behavior.MISSION
