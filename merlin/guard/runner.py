@@ -57,6 +57,7 @@ from merlin.core.types import (
     GcsCommand,
     GcsCommandKind,
     Inputs,
+    MonitorId,
     NavMode,
     OperatorInput,
     RequestKind,
@@ -320,7 +321,7 @@ class Guard:
         if state.nav_mode is NavMode.LOST:
             refusal = "navigation: " + "; ".join(self.telemetry.faults(self.t()))
         elif d is not None:
-            fence = next((m for m in d.monitors if m.name == "geofence" and m.tripped), None)
+            fence = next((m for m in d.monitors if m.name == MonitorId.GEOFENCE and m.tripped), None)
             if fence is not None:
                 refusal = f"outside the fence ({fence.reason.describe()})"
         assert self.modes is not None
