@@ -53,7 +53,7 @@ from merlin.autopilot import fixedwing_route as fr
 from merlin.core import geofence
 from merlin.core.config import EnvelopeLimit
 from merlin.core.envelope import envelope_values, outside
-from merlin.core.types import Authority, Behavior, CommandKind, Decision, VehicleState
+from merlin.core.types import Authority, Behavior, CommandKind, Decision, MonitorId, VehicleState
 
 #: LAND for a fixed wing: loiter over home down to this height above home (or the fence floor plus the
 #: fence margin, if higher). Low enough to be a landing approach, high enough to stay clear of the terrain
@@ -120,7 +120,7 @@ def escape_side(fence: geofence.Fence, s: VehicleState, home_ne: tuple[float, fl
 
 def _horizontal_trip(decision: Decision) -> bool:
     """Whether the core's geofence monitor is tripped by a horizontal boundary (not the floor or ceiling)."""
-    return any(m.name == "geofence" and m.tripped and m.reason.parameter in _HORIZONTAL_TRIPS
+    return any(m.name == MonitorId.GEOFENCE and m.tripped and m.reason.parameter in _HORIZONTAL_TRIPS
                for m in decision.monitors)
 
 
@@ -340,7 +340,7 @@ class FixedWingBehaviours:
         when it ends."""
         fence = self.fence
         assert fence is not None
-        trip = next((m for m in decision.monitors if m.name == "geofence" and m.tripped), None)
+        trip = next((m for m in decision.monitors if m.name == MonitorId.GEOFENCE and m.tripped), None)
         if trip is None:
             if self._trip_clear_since is None:
                 self._trip_clear_since = t
