@@ -400,6 +400,15 @@ class Server:
         acked = False
         for intent in intents:
             if isinstance(intent, GcsCommand):
+                if intent.kind is GcsCommandKind.HOLD and ls.role is LinkRole.CONTROLLER and self.loop.state.landed:
+                    # MAVSDK's offboard.stop() (AUTO.LOITER) after Merlin took authority back and landed: PX4
+                    # accepts Hold on the ground and the vehicle stays there; so does Merlin, without asking the
+                    # core for a HOLD it refuses on the ground (the RELEASE before it went to the core as usual)
+                    self._send(ls, command_ack(m, sender, MAV_RESULT_ACCEPTED))
+                    self.events.write({"t": rx.t_s, "type": "hold_on_ground", "link": ls.name,
+                                       "detail": "HOLD on the ground from the controller link: accepted, nothing flies"})
+                    acked = True
+                    continue
                 intent, refused = self._fixed_wing_loiter(intent)
                 if refused is None:
                     refused = self._mission_start_refused(intent)
