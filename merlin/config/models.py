@@ -512,6 +512,13 @@ class HandoverConfig(Strict):
     )
     max_attitude_rate_degps: float = Field(90.0, gt=0.0, description="attitude command slew limit")
     max_thrust_rate_per_s: float = Field(1.0, gt=0.0, description="collective slew limit, 1/s")
+    # PX4's offboard flows let the controller's own setpoints lift the vehicle (MAVSDK's offboard_attitude
+    # example): the altitude floors cannot judge a vehicle still below them, so they are deferred for such a
+    # take-off, and this bounds it: a controller may climb through the floors, not stay below them
+    ground_takeoff_s: float = Field(
+        10.0, gt=0.0, le=60.0, description="a controller granted on the ground flies its own take-off: the"
+        " envelope's altitude minimum and the fence floor apply once the vehicle is above them, or this long"
+        " after it left the ground, whichever comes first (icd/ICD.md 6.1)")
 
 
 class OperatorConfig(Strict):

@@ -71,6 +71,7 @@ from merlin.link.commands import (
     MAVLINK_MSG_ID_AUTOPILOT_VERSION,
     MAVLINK_MSG_ID_HOME_POSITION,
     LinkRole,
+    MissionCurrent,
     OffboardModeBridge,
     Refused,
     RequestMessage,
@@ -84,8 +85,10 @@ from merlin.link.mission_protocol import (
     MissionEnd,
     MissionPlan,
     MissionProtocol,
+    check_jump_against_fence,
     check_legs_against_fence,
     plan_from_config,
+    waypoint_at_or_after,
 )
 from merlin.link.mission_transfer import MAV_MISSION_ACCEPTED, MAV_MISSION_TYPE_ALL, MAV_MISSION_TYPE_MISSION
 from merlin.link.params import ParamProtocol, ParamWrite, int32_params, published_params, with_param
@@ -249,6 +252,7 @@ class Server:
         self._mission_reached = -1  # the highest item sequence reported with MISSION_ITEM_REACHED this flight
         self._mission_current = -1  # the last MISSION_CURRENT seq sent
         self._mission_complete = False  # flown to its end this flight (its end item reported on landing)
+        self._mission_jumps: dict[int, int] = {}  # MISSION_CURRENT commands awaiting the core: seq -> waypoint
         self._was_armed = False
         self.limits = self.cfg.envelope.resolve(self.cfg.envelope.active_stage)
         self.cfg_sha256 = config_sha256(self.cfg)
@@ -375,6 +379,9 @@ class Server:
             for dest in (self.links if changed else [ls]):
                 dest.bulk.extend(outs)
             return
+        if isinstance(m, i.MissionSetCurrentIn):
+            self._on_mission_current(ls, rx.t_s, m.seq, None, sender)
+            return
         if hasattr(m, "mission_type"):
             self._on_mission_protocol(ls, rx, m, sender)
 
@@ -404,14 +411,13 @@ class Server:
                         self._send(ls, self.bridge.hold(self.bridge.held_since_s or rx.t_s))
                         continue
                     if self._attitude_on_ground(rx.t_s):
-                        why = ("OFFBOARD on the ground needs position or velocity setpoints: a take-off on an"
-                               " attitude setpoint is not supervised (take off first, then start OFFBOARD)")
-                        self._send(ls, command_ack(m, sender, MAV_RESULT_DENIED))
-                        self._send(ls, o.StatusTextOut(o.MAV_SEVERITY_WARNING, f"Merlin: {why}"))
-                        self.events.write({"t": rx.t_s, "type": "offboard_takeoff", "phase": "denied",
-                                           "link": ls.name, "detail": why})
-                        continue
-                    if self._accept_on_ground(rx.t_s):
+                        # the controller flies its own take-off, as on PX4; the core judges the request as any
+                        # other and defers the altitude floors for that take-off alone (icd/ICD.md 6.1)
+                        self.events.write({"t": rx.t_s, "type": "offboard_takeoff", "phase": "attitude",
+                                           "link": ls.name, "detail": "OFFBOARD on the ground on attitude"
+                                           " setpoints: the controller's take-off, supervised; the floors apply"
+                                           " once above them"})
+                    elif self._accept_on_ground(rx.t_s):
                         self.takeoff.accept()
                         self._takeoff_cmd = (ls, m, sender)
                         self._send(ls, command_ack(m, sender, MAV_RESULT_ACCEPTED))
@@ -439,6 +445,9 @@ class Server:
                     self._send(ls, command_ack(m, sender, MAV_RESULT_UNSUPPORTED))
                     self.events.write({"t": rx.t_s, "type": "command_refused", "link": ls.name,
                                        "command": m.command, "detail": f"message {intent.message_id} not provided"})
+                acked = True
+            elif isinstance(intent, MissionCurrent):
+                self._on_mission_current(ls, rx.t_s, intent.seq, m, sender)
                 acked = True
             elif isinstance(intent, SetMessageInterval):
                 self._set_interval(ls, m, sender, intent)
@@ -489,11 +498,11 @@ class Server:
                 and self.takeoff.phase.value == "idle")
 
     def _attitude_on_ground(self, t: float) -> bool:
-        """Whether an OFFBOARD request comes on the ground with attitude setpoints streaming. Such a take-off
-        is refused rather than served by the flow of icd/ICD.md 6.1: an attitude setpoint holds no height
-        and no climb rate, so the hand-over would give an open-loop collective to an unproven controller at
-        the lowest height the envelope allows, and the thrust that hovers differs between vehicles (MAVSDK's
-        offboard_attitude example climbs at PX4 SITL's 0.7 hover thrust from the ground)."""
+        """Whether an OFFBOARD request comes on the ground with attitude setpoints streaming. Such a request
+        is not served by Merlin's take-off (icd/ICD.md 6.1): an attitude setpoint holds no height, so a
+        hand-over after Merlin's climb would give an open-loop collective to the controller at the lowest
+        height the envelope allows. It goes to the core as PX4 takes it, and the controller's thrust flies
+        the take-off, supervised from the first tick (the altitude floors once the vehicle is above them)."""
         sp = self.pending.setpoint[1] if self.pending.setpoint is not None else None
         attitude = (sp is None and self.sp is not None and self.sp.kind is SetpointKind.ATTITUDE) or (
             isinstance(sp, i.AttitudeTargetIn))
@@ -651,8 +660,57 @@ class Server:
                                  {"source": "mission upload", "items": len(res.plan.items)})
             self._hand_mission_to_fixed_wing(res.plan)
             self._mission_reached, self._mission_current, self._mission_complete = -1, -1, False
+            if self.loop.core.state.mission_index != 0 and not res.plan.empty:  # a new mission starts at its start
+                self._cmd_seq += 1
+                self.pending.commands.append(GcsCommand(GcsCommandKind.MISSION_CURRENT, param=0.0, seq=self._cmd_seq))
             self.events.write({"t": self.t, "type": "mission_applied", "items": len(res.plan.items),
                                "waypoints": len(res.plan.waypoints), "end": res.plan.end.value})
+
+    def _on_mission_current(self, ls: _LinkState, t: float, seq: int, cmd: i.CommandIn | None,
+                            sender: tuple[int, int]) -> None:
+        """MISSION_SET_CURRENT (``cmd`` None) or MAV_CMD_DO_SET_MISSION_CURRENT: the item to fly next, as PX4
+        takes it (in the mission the vehicle flies on to it at once; otherwise a later start or resume flies
+        from it). The straight leg to it, which the upload's check never saw, is checked against the fence
+        first; a refusal is answered DENIED (the command) and in STATUSTEXT naming the item."""
+        plan = self.mission.plan
+        why: str | None = None
+        idx = 0
+        if plan.empty:
+            why = "no mission uploaded"
+        elif seq == -1:  # "leave the current item": nothing to do
+            if cmd is not None:
+                self._send(ls, command_ack(cmd, sender, MAV_RESULT_ACCEPTED))
+            return
+        elif not 0 <= seq < len(plan.items):
+            why = f"item {seq}: the mission has items 0 to {len(plan.items) - 1}"
+        else:
+            idx = waypoint_at_or_after(plan, seq)
+            s = self.loop.state
+            from_ne = (0.0, 0.0) if s.landed else (float(s.pos_ned_m[0]), float(s.pos_ned_m[1]))
+            geo = self.cfg.geofence
+            why = check_jump_against_fence(plan, idx, from_ne, self.loop.core_cfg.fence if geo.enabled else None,
+                                           geo.margin_m)
+        if why is not None:
+            if cmd is not None:
+                self._send(ls, command_ack(cmd, sender, MAV_RESULT_DENIED))
+            else:  # the sender sees the item in force, unchanged
+                self._send(ls, self._mission_current_message(self.decision))
+            self._send(ls, o.StatusTextOut(o.MAV_SEVERITY_WARNING, f"Merlin: mission item not set: {why}"))
+            self.events.write({"t": t, "type": "command_refused", "link": ls.name, "command": "MISSION_SET_CURRENT",
+                               "detail": why})
+            return
+        self._cmd_seq += 1
+        self.pending.commands.append(GcsCommand(GcsCommandKind.MISSION_CURRENT, param=float(idx), seq=self._cmd_seq))
+        self._mission_jumps[self._cmd_seq] = idx
+        if cmd is not None:
+            self._cmd_waiting[self._cmd_seq] = (ls, cmd, sender)
+
+    def _mission_jumped(self, idx: int) -> None:
+        """The core took a MISSION_CURRENT: items skipped are not reported reached, items flown again are
+        reported again, and MISSION_CURRENT goes out at once with the new item."""
+        self._mission_reached = self.mission.plan.seq_of(idx) - 1
+        self._mission_complete = False
+        self._mission_current = -1
 
     def _mission_start_refused(self, cmd: GcsCommand) -> str | None:
         """Why a MISSION command must be refused now: the uploaded mission no longer fits the fence in force
@@ -678,8 +736,10 @@ class Server:
         item being flown changes; the end item (RTL, LAND) is reported reached once the vehicle has landed
         and disarmed, as MAVSDK counts a mission finished by it."""
         plan = self.mission.plan
-        if d.armed and not self._was_armed:  # a new flight flies the mission from its start
-            self._mission_reached, self._mission_complete = -1, False
+        if d.armed and not self._was_armed:  # a new flight flies the mission from its start (or the item set)
+            start = self.loop.core.state.mission_index
+            self._mission_reached = plan.seq_of(start) - 1 if start > 0 and not plan.empty else -1
+            self._mission_complete = False
         self._was_armed = d.armed
         if plan.empty:
             return
@@ -981,6 +1041,9 @@ class Server:
             if not released:
                 self._revoke_repeats += [(self.t + dt, rv) for dt in REVOKE_REPEATS_S]
         elif e.kind is EventKind.COMMAND_ACK:
+            jump = self._mission_jumps.pop(e.seq, None)
+            if jump is not None and e.accepted:
+                self._mission_jumped(jump)
             waiting = self._cmd_waiting.pop(e.seq, None)
             if waiting is not None:
                 ls, cmd, sender = waiting

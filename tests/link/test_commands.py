@@ -30,6 +30,7 @@ from merlin.link.commands import (
     MAV_RESULT_TEMPORARILY_REJECTED,
     MAV_RESULT_UNSUPPORTED,
     LinkRole,
+    MissionCurrent,
     OffboardModeBridge,
     Refused,
     RequestMessage,
@@ -250,3 +251,12 @@ def test_a_request_answered_already_gets_no_second_command_ack() -> None:
     b.requested(_set_mode(6), (245, 191), answered=True)  # the take-off in OFFBOARD accepted it on the ground
     assert b.on_event(Event(1.0, EventKind.GRANTED, seq=3)) == []
     assert b.on_setpoint(1.1) == AuthorityRequest(RequestKind.ACK, seq=3, t_s=1.1)
+
+
+def test_set_mission_current_is_the_item_or_unchanged_and_a_non_item_is_denied() -> None:
+    g = LinkRole.GCS
+    assert interpret_command(_cmd(224, 2), g, 0) == (MissionCurrent(2),)
+    assert interpret_command(_cmd(224, -1, 1), LinkRole.CONTROLLER, 0) == (MissionCurrent(-1),)
+    for bad in (2.5, -2.0, NAN, 70000.0):
+        (r,) = interpret_command(_cmd(224, bad), g, 0)
+        assert isinstance(r, Refused) and r.result == MAV_RESULT_DENIED and "DO_SET_MISSION_CURRENT" in r.detail
