@@ -24,7 +24,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
      ("merlin.autopilot", "merlin.nav", "merlin.redundancy", "merlin.vision", "merlin.config", "merlin.link",
       "merlin.ulog", "experimental_controllers")),
     ("the tick pipeline", ("merlin.pipeline",)),
-    ("drivers", ("sims", "merlin.serve", "merlin.replay")),
+    ("drivers", ("sims", "merlin.serve", "merlin.replay", "merlin.guard")),
     ("commands", ("merlin.commands", "merlin.cli", "merlin.campaign", "merlin.falsify")),
 )
 #: What the trusted core may import from the project besides itself: plain data and the package root.
