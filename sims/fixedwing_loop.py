@@ -22,9 +22,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from merlin.autopilot import fixedwing_control as fc
-from merlin.autopilot import fixedwing_guidance as fg
-from merlin.autopilot.fixedwing_behaviours import FixedWingBehaviours
+from merlin.autopilot.fixedwing_behaviours import behaviours_from_config
 from merlin.config.loader import ConfigError
 from merlin.config.models import MerlinConfig
 from merlin.config.runtime import build_core_config
@@ -51,10 +49,6 @@ G_MPS2 = 9.80665
 DEFAULT_AIRSPEED_MPS = 22.0
 #: Lowest start height above home: a fixed-wing scenario starts airborne (no take-off in this simulator).
 MIN_START_HEIGHT_M = 10.0
-#: Rate of the fixed-wing guidance and inner loops (as in tests/fixedwing: the gains were tuned there at
-#: 100 Hz; PX4 runs its fixed-wing position controller at 50 Hz). The surfaces are held in between; a
-#: change of source re-initialises and runs the loops in the tick it happens.
-AUTOPILOT_HZ = 100.0
 #: The catapult (a scenario or ``merlin serve`` starting on the ground, ``initial.pos_ned_m`` down >= 0): the
 #: aircraft rests on the launcher, motor off, until the trusted core flies TAKEOFF (armed on the ground, then
 #: a takeoff command); the launch releases it at this height above the ground, level, trimmed, at the start
@@ -197,7 +191,7 @@ class FixedWingLoop(SimulatedVehicle):
     ``actuators`` are (aileron, elevator, rudder, throttle) in the pilot's conventions
     (:class:`sims.fixedwing.SurfaceCommand`). ``notes`` lists what the stage did that the core's decision
     does not say (an escape turn and its side, a LAND flown as a loiter, the launch), as event-like dicts.
-    ``stage`` is Merlin's fixed-wing actuator stage (:class:`FixedWingBehaviours`).
+    ``stage`` is Merlin's fixed-wing actuator stage (:class:`merlin.autopilot.fixedwing_behaviours.FixedWingBehaviours`).
     """
 
     #: Fly the escape turn before a trusted behaviour when the fence is tripped (off only to show, in the
@@ -292,29 +286,20 @@ class FixedWingLoop(SimulatedVehicle):
         self.reports_redundancy = bool(red_cfg is not None and core_src.redundancy.enabled
                                        and self.redundancy is not None)
 
-        # ---- the fixed-wing actuator stage: parameters from the configuration where it has them
-        trusted = cfg.trusted
-        cp0 = fc.FixedWingControlParams()
-        cruise = min(max(trusted.cruise_speed_mps, cp0.airspeed_min_mps), cp0.airspeed_max_mps)
-        # The autopilot banks up to its own 35 deg; the configuration's vehicle.bank_limit_deg is the bank the
-        # fence projection assumes, which should be what the autopilot holds in a sustained turn (less).
-        self.cp = replace(cp0, airspeed_cruise_mps=cruise)
-        # the experimental controller's attitude without the stall protections (experimental_stall_protection)
-        self.cp_unprotected = replace(self.cp, pitch_max_rad=math.radians(UNPROTECTED_PITCH_MAX_DEG),
-                                      alpha_protect_rad=math.radians(90.0))
-        self.gp = fg.GuidanceParams(rtl_height_m=trusted.rtl_altitude_m, rtl_airspeed_mps=cruise)
-        mission = tuple(fg.Waypoint(float(n), float(e), -float(d), cruise) for n, e, d in trusted.mission_ned_m)
-        every = max(1, round(1.0 / (AUTOPILOT_HZ * dt)))
+        # ---- the fixed-wing actuator stage (Merlin's, built from the configuration)
         #: what the stage did that the core's decision does not say, and the launch (one list, in order)
         self.notes: list[dict[str, Any]] = []
         self._launched_now = False
         assert self.fw.trim_result is not None
-        self.stage = FixedWingBehaviours(
-            self.core_cfg.fence, self.cp, self.gp, mission, self.fw.trim_result.surfaces,
-            self.fw.truth().to_vehicle_state(), every, every * dt,
-            cp_experimental=None if self.experimental_stall_protection else self.cp_unprotected,
-            escape_turns=self.escape_turns, rtl_routes=self.rtl_routes, notes=self.notes,
-            envelope=self.core_cfg.envelope)
+        self.stage = behaviours_from_config(cfg.trusted, self.core_cfg, self.fw.trim_result.surfaces,
+                                            self.fw.truth().to_vehicle_state(), dt, escape_turns=self.escape_turns,
+                                            rtl_routes=self.rtl_routes, notes=self.notes)
+        self.cp, self.gp = self.stage.cp, self.stage.gp
+        # the experimental controller's attitude without the stall protections (experimental_stall_protection)
+        self.cp_unprotected = replace(self.cp, pitch_max_rad=math.radians(UNPROTECTED_PITCH_MAX_DEG),
+                                      alpha_protect_rad=math.radians(90.0))
+        if not self.experimental_stall_protection:
+            self.stage.cp_experimental = self.cp_unprotected
 
         self.k = 0
         self.armed = False
