@@ -1,4 +1,4 @@
-"""Hardware redundancy inside the closed loop (sims/lanes.py wired into sims/runner.py): the IMU voter
+"""Hardware redundancy inside the closed loop (merlin/redundancy/lanes.py in the vehicle's tick): the IMU voter
 before the EKF, the degradation chain, three autopilot lanes with the bumpless switch."""
 
 from __future__ import annotations
