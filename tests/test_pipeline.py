@@ -156,3 +156,20 @@ def test_the_simulated_loops_offer_the_report_only_when_the_core_monitors_it() -
     voted = ClosedLoop(Scenario.model_validate({**base, "redundancy": {"sensor_voter": True}}), MerlinConfig())
     voted.sense()
     assert voted.redundancy_report(0.0) == RedundancyReport()
+
+
+@pytest.mark.parametrize("vehicle", ["quadrotor_default", "aerosonde"])
+def test_both_simulated_loops_are_vehicle_loops(vehicle: str) -> None:
+    """What drivers use of a vehicle side (merlin.pipeline.VehicleLoop) is there on either vehicle, and one
+    tick of it runs through the protocol alone."""
+    from merlin.pipeline import VehicleLoop
+    from sims.runner import make_loop
+
+    init = {"pos_ned_m": [0.0, 0.0, -100.0]} if vehicle == "aerosonde" else {}
+    loop = make_loop(Scenario.model_validate({"name": "protocol", "duration_s": 1.0, "vehicle": vehicle,
+                                              "initial": init}), MerlinConfig())
+    names = [n for n in VehicleLoop.__annotations__] + ["t", "sense", "act", "redundancy_report"]
+    assert [n for n in names if not hasattr(loop, n)] == []
+    state = loop.sense()
+    d = loop.act(InputBuilder().build(state, (), loop.redundancy_report(loop.t)))
+    assert loop.k == 1 and loop.decision is d and loop.state is state
