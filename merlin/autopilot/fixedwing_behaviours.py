@@ -48,12 +48,13 @@ import numpy as np
 
 from merlin.autopilot import fixedwing_control as fc
 from merlin.autopilot import fixedwing_guidance as fg
+from merlin.autopilot import fixedwing_mission
 from merlin.autopilot import fixedwing_route as fr
 from merlin.config.models import TrustedConfig
 from merlin.core import geofence
 from merlin.core.config import CoreConfig, EnvelopeLimit
 from merlin.core.envelope import envelope_values, outside
-from merlin.core.types import Authority, Behavior, CommandKind, Decision, VehicleState
+from merlin.core.types import Authority, Behavior, CommandKind, Decision, MonitorId, VehicleState
 
 #: LAND for a fixed wing: loiter over home down to this height above home (or the fence floor plus the
 #: fence margin, if higher). Low enough to be a landing approach, high enough to stay clear of the terrain
@@ -120,7 +121,7 @@ def escape_side(fence: geofence.Fence, s: VehicleState, home_ne: tuple[float, fl
 
 def _horizontal_trip(decision: Decision) -> bool:
     """Whether the core's geofence monitor is tripped by a horizontal boundary (not the floor or ceiling)."""
-    return any(m.name == "geofence" and m.tripped and m.reason.parameter in _HORIZONTAL_TRIPS
+    return any(m.name == MonitorId.GEOFENCE and m.tripped and m.reason.parameter in _HORIZONTAL_TRIPS
                for m in decision.monitors)
 
 
@@ -179,6 +180,7 @@ class FixedWingBehaviours:
         self.cp_experimental = cp if cp_experimental is None else cp_experimental
         self.gp = gp
         self.mission = mission
+        self.fw_mission: fixedwing_mission.FixedWingMission | None = None  # set by a driver that needs it
         self.escape_turns = escape_turns
         self.rtl_routes = rtl_routes
         self.land_height_m = land_height_m(fence)
@@ -304,7 +306,7 @@ class FixedWingBehaviours:
                                          " the fixed wing cannot land in this simulator"})
             gs = self._start_rtl(t, s, self.land_height_m)
         elif b is Behavior.MISSION and self.mission:
-            gs = fg.start_mission(gs, s, self.mission, loop=False)
+            gs = fixedwing_mission.start_mission(self, gs, s)  # from where it paused (fixedwing_mission)
         elif b is Behavior.TAKEOFF:
             # launched from the catapult (the core accepts TAKEOFF only on the ground): climb out along the
             # launch heading to the core's takeoff height; the core then makes it HOLD
@@ -313,8 +315,9 @@ class FixedWingBehaviours:
             n, e = s.pos_ned_m[0], s.pos_ned_m[1]
             gs = fg.start_mission(gs, s, (fg.Waypoint(n + LAUNCH_LINE_M * c, e + LAUNCH_LINE_M * sn, h,
                                                       self.cp.airspeed_cruise_mps),), loop=False)
-        else:  # HOLD, TAKEOFF (airborne already), MISSION without waypoints
-            gs = fg.start_hold(self.gp, self.cp, gs, s, clockwise=self._hold_clockwise(s))
+        else:  # HOLD (a GOTO's loiter, fixedwing_mission), ORBIT, TAKEOFF (airborne already), MISSION without waypoints
+            gs = fixedwing_mission.reposition(self, gs, b) or fg.start_hold(
+                self.gp, self.cp, gs, s, clockwise=self._hold_clockwise(s))
         self.gstate = gs
 
     def _start_escape(self, t: float, fence: geofence.Fence, s: VehicleState) -> None:
@@ -338,7 +341,7 @@ class FixedWingBehaviours:
         when it ends."""
         fence = self.fence
         assert fence is not None
-        trip = next((m for m in decision.monitors if m.name == "geofence" and m.tripped), None)
+        trip = next((m for m in decision.monitors if m.name == MonitorId.GEOFENCE and m.tripped), None)
         if trip is None:
             if self._trip_clear_since is None:
                 self._trip_clear_since = t

@@ -235,7 +235,7 @@ def options_from_args(args: argparse.Namespace) -> Any:
     if problems:
         raise ConfigError("command line", problems)
     cfg, config_dir = _load(args.config)
-    cfg = _vehicle_config(args.vehicle, args.config, cfg)  # issue 8: the fixed wing
+    cfg = _vehicle_config(args.vehicle, args.config, cfg)  # the fixed wing's aircraft and limits
     cfg = sitl_home(cfg, args.config, os.environ)
     overrides = LinkOverrides(
         key_file=Path(args.signing_key) if args.signing_key else None,

@@ -75,7 +75,9 @@ def test_flying_commands_need_authority_and_stream_rates_the_guard_needs_are_kep
     assert classify(w.COMMAND_INT, repos, ctx()).route is Route.DENY
     assert classify(w.COMMAND_INT, repos, ctx(experimental=True)).route is Route.FORWARD
     slow = cmd(w.MAV_CMD_SET_MESSAGE_INTERVAL, w.ATTITUDE, 1e6)
-    assert classify(w.COMMAND_LONG, slow, ctx()).route is Route.DENY
+    assert classify(w.COMMAND_LONG, slow, ctx()).route is Route.ACCEPT  # met by the guard's faster stream
+    off = cmd(w.MAV_CMD_SET_MESSAGE_INTERVAL, w.ATTITUDE, -1)
+    assert classify(w.COMMAND_LONG, off, ctx()).route is Route.DENY
     fast = cmd(w.MAV_CMD_SET_MESSAGE_INTERVAL, w.ATTITUDE, 10_000)
     assert classify(w.COMMAND_LONG, fast, ctx()).route is Route.FORWARD
     other = cmd(w.MAV_CMD_SET_MESSAGE_INTERVAL, 147, -1)  # BATTERY_STATUS off: not the guard's
