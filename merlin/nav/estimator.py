@@ -763,17 +763,18 @@ class NavEstimator:
         heading, strength = _mag_heading(mag.field_frd_gauss, roll, pitch, cfg.mag_declination_rad)
         if strength < cfg.mag_min_horizontal_gauss:
             return None
-        H = np.zeros((1, N_ERR))
         if cfg.mag_fusion == "tilt_coupled":
+            H = np.zeros((1, N_ERR))
             H[0, 6:9] = mag_heading_jacobian(quat_rotate(self._q, mag.field_frd_gauss))
         elif cfg.mag_fusion == "euler_yaw":
+            H = np.zeros((1, N_ERR))
             H[0, 6:9] = yaw_jacobian_global(quat_to_dcm(self._q))
         else:
-            H[0, 8] = 1.0
-        z = np.array([heading])
-        hx = np.array([yaw])
+            H = _H_HEADING
         r = np.array((cfg.mag_heading_sigma_rad**2,))
-        y = self._residual(z, hx, angle=True)
+        if self._every_n > 1:  # applied at the filter's time
+            self._predict_covariance()
+        y = np.array((wrap_pi(heading - yaw),))  # z − h(x̂), h(x̂) = ψ̂, wrapped
         nis = self._nis(H, r, y)
         fused = nis <= cfg.mag_gate
         if fused:
@@ -1039,6 +1040,9 @@ _H_VEL[:, 3:6] = np.eye(3)
 _H_BARO = np.zeros((1, N_ERR))
 _H_BARO[0, 2] = -1.0
 _H_BARO[0, BBARO] = 1.0
+_H_HEADING = np.zeros((1, N_ERR))
+_H_HEADING[0, 8] = 1.0  # a rotation of the global error about the NED down axis is a heading change
+_H_HEADING.setflags(write=False)
 _H_GPS.setflags(write=False)
 _H_VEL.setflags(write=False)
 _H_BARO.setflags(write=False)
