@@ -105,6 +105,57 @@ def bench_steps(runs: int) -> dict[str, list[float]]:
     return out
 
 
+def bench_hot(runs: int, n: int = 2000) -> dict[str, list[float]]:
+    """µs per call of each update repeated on one mid-flight state with the same sample (caches warm, as
+    filterpy's reference is timed); ``predict`` on the flight's next IMU samples."""
+    from merlin.nav.config import NavConfig
+    from merlin.nav.estimator import NavEstimator, NavInit
+    from merlin.nav.quaternion import quat_to_euler
+    from merlin.nav.synthetic import synthesize, waypoint_trajectory
+
+    traj = waypoint_trajectory(
+        [(150.0, 0.0, -30.0), (150.0, 150.0, -30.0), (0.0, 150.0, -30.0)], speed_mps=10.0, imu_rate_hz=400.0
+    )
+    samples = synthesize(traj, np.random.default_rng(0))
+    half = len(samples) // 2
+    tt = time.thread_time
+    out: dict[str, list[float]] = {}
+    for _ in range(runs):
+        est = NavEstimator(
+            NavConfig(),
+            NavInit(
+                t_s=float(traj.t_s[0]),
+                pos_ned_m=tuple(traj.pos_ned_m[0]),
+                att_rpy_rad=quat_to_euler(tuple(traj.quat[0])),
+            ),
+        )
+        calls = {
+            "ImuSample": est.predict,
+            "GpsSample": est.update_gps,
+            "VoSample": est.update_vo,
+            "MagSample": est.update_mag,
+            "BaroSample": est.update_baro,
+        }
+        last: dict[str, Any] = {}
+        for s in samples[:half]:
+            calls[type(s).__name__](s)
+            last[type(s).__name__] = s
+        imus = [s for s in samples[half:] if type(s).__name__ == "ImuSample"][:n]
+        t0 = tt()
+        for s in imus:
+            est.predict(s)
+        out.setdefault("predict", []).append(1e6 * (tt() - t0) / len(imus))
+        for k, s in last.items():
+            if k == "ImuSample":
+                continue
+            f = calls[k]
+            t0 = tt()
+            for _i in range(n):
+                f(s)
+            out.setdefault(STEP_NAMES[k], []).append(1e6 * (tt() - t0) / n)
+    return out
+
+
 def bench_filterpy(runs: int, n: int = 2000) -> dict[str, list[float]]:
     """µs per call of filterpy's reference for the matrix part of each step (19 states)."""
     from filterpy.kalman import ExtendedKalmanFilter
@@ -174,7 +225,12 @@ LOOP_CASES = (
     "three_lanes_ekf",
     "fixed_wing_ekf",
 )
-LOOP_TARGETS = {"nominal_ekf": 60.0, "nominal_ekf_camera": 25.0, "three_lanes_ekf": 25.0, "fixed_wing_ekf": 50.0}
+LOOP_TARGETS = {
+    "nominal_ekf": 60.0,
+    "nominal_ekf_camera": 25.0,
+    "three_lanes_ekf": 25.0,
+    "fixed_wing_ekf": 50.0,
+}
 
 
 def _loop_scenario(case: str) -> tuple[Any, Any]:
@@ -250,6 +306,9 @@ def main() -> None:
     a = ap.parse_args()
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})  # one core
+    if a.child == "steps":
+        print(json.dumps(bench_steps(a.runs)))
+        return
     if a.child:
         print(json.dumps(loop_once(a.child)))
         return
@@ -258,15 +317,31 @@ def main() -> None:
     print(f"load average {os.getloadavg()}; numba kernels compiled: {kernels.JIT}")
     if a.part in ("steps", "all"):
         mine = bench_steps(a.runs)
+        hot = bench_hot(a.runs)
         ref = bench_filterpy(a.runs)
-        print("| step | Merlin µs, median | spread | filterpy reference µs, median | spread | target |")
-        print("|---|---|---|---|---|---|")
+        old: dict[str, list[float]] = {}
+        if a.baseline_tree is not None:
+            env = dict(os.environ, PYTHONPATH=str(a.baseline_tree), MERLIN_USE_SOURCES="1")
+            cmd = [sys.executable, str(Path(__file__).resolve()), "--child", "steps", "--runs", str(a.runs)]
+            res = subprocess.run(
+                cmd, env=env, cwd=str(a.baseline_tree), capture_output=True, text=True, check=True
+            )
+            old = json.loads(res.stdout.strip().splitlines()[-1])
+        print(
+            "| step | Merlin in flight µs, median | spread | baseline tree in flight µs, median | spread |"
+            " Merlin repeated µs, median | spread | filterpy reference repeated µs, median | spread | target |"
+        )
+        print("|---|---|---|---|---|---|---|---|---|---|")
         for k, v in mine.items():
-            r = ref.get(k, [])
-            rs = f"{statistics.median(r):.1f} | {min(r):.1f}–{max(r):.1f}" if r else "— | —"
+            cells = []
+            for src in (old.get(k, []), hot.get(k, []), ref.get(k, [])):
+                cells.append(
+                    f"{statistics.median(src):.1f} | {min(src):.1f}–{max(src):.1f}" if src else "— | —"
+                )
             t = TARGET_US.get(k)
             print(
-                f"| {k} | {statistics.median(v):.2f} | {min(v):.2f}–{max(v):.2f} | {rs} |"
+                f"| {k} | {statistics.median(v):.2f} | {min(v):.2f}–{max(v):.2f} | {cells[0]} | {cells[1]} |"
+                f" {cells[2]} |"
                 f" {f'≤ {t:g}' if t else '—'} |"
             )
     if a.part in ("loop", "all"):

@@ -375,9 +375,7 @@ class NavEstimator:
             return None
         self._gps_seen_usable_t = t
         self._follow_receiver(gps)
-        y, r, lag, a_n = self._gps_innovation(gps)
-        nis_p = self._nis(_H_GPS, r, y, 0, 3)
-        nis_v = self._nis(_H_GPS, r, y, 3, 6)
+        y, r, nis_p, nis_v, lag, a_n = self._gps_innovation(gps)
         s_vo = self._vo_velocity_statistic(gps, a_n)
         if status is GpsStatus.EXCLUDED:
             self._gps_readmission(t, nis_p, nis_v, s_vo)
@@ -410,44 +408,49 @@ class NavEstimator:
 
     def _gps_innovation(
         self, gps: GpsSample
-    ) -> tuple[np.ndarray, np.ndarray, float, tuple[float, float, float]]:
-        """y = z − h(x̂) with h(x̂) = [p̂ + b̂_gps, v̂] (H = ``_H_GPS``) and R's diagonal; also the lag and the
-        NED acceleration used to carry the epoch forward.
+    ) -> tuple[np.ndarray, np.ndarray, float, float, float, tuple[float, float, float]]:
+        """y = z − h(x̂) with h(x̂) = [p̂ + b̂_gps, v̂] (H = ``_H_GPS``), R's diagonal, the position and
+        velocity NIS, the lag and the NED acceleration used to carry the epoch forward.
 
         A receiver's sample is valid at its t_s and arrives later (~0.1 s): it is carried forward to the
-        filter's time with the filter's velocity and acceleration (a first-order stand-in for a delayed
-        filter horizon), z_p += v̂ lag + a lag²/2, z_v += a lag, and R grows by the variance that carrying
-        costs. The white part of the receiver's error is in R; the slowly wandering part is the bias
-        state."""
+        filter's time with the filter's velocity and acceleration a = R(q̂)(f − b̂_a) + g (a first-order
+        stand-in for a delayed filter horizon): z_p += v̂ lag + a lag²/2, z_v += a lag. R grows by what
+        carrying costs: max(P_vv) lag² on the position, (σ_a²/lag + 1 m²/s⁴) lag² on the velocity (1 m/s²
+        of jerk margin). The white part of the receiver's error, gps_white_fraction of its eph and epv, is
+        in R; the slowly wandering part is the bias state. Evaluated in one kernel
+        (``kernels.gps_innovation``)."""
         cfg = self.cfg
         lag = min(max(0.0, self._t - gps.t_s), cfg.gps_max_lag_s)
-        sv = self._s.tolist()
-        la = self._last_accel
-        fx, fy, fz = quat_rotate(
-            (sv[6], sv[7], sv[8], sv[9]), (la[0] - sv[17], la[1] - sv[18], la[2] - sv[19])
-        )
-        a_n = (fx, fy, fz + cfg.gravity_mps2)
-        pn, pe, pd = gps.pos_ned_m
-        vn, ve, vd = gps.vel_ned_mps
-        y = np.array(
-            (
-                (pn + (sv[3] * lag + 0.5 * a_n[0] * lag * lag)) - (sv[0] + sv[20]),
-                (pe + (sv[4] * lag + 0.5 * a_n[1] * lag * lag)) - (sv[1] + sv[21]),
-                (pd + (sv[5] * lag + 0.5 * a_n[2] * lag * lag)) - (sv[2] + sv[22]),
-                (vn + a_n[0] * lag) - sv[3],
-                (ve + a_n[1] * lag) - sv[4],
-                (vd + a_n[2] * lag) - sv[5],
-            )
-        )
-        P = self.kf.P
-        lag_var_p = float(max(P[3, 3], P[4, 4], P[5, 5])) * lag * lag
-        lag_var_v = (cfg.accel_noise_mps2_rthz**2 / max(lag, 1e-3) + 1.0) * lag * lag  # 1 m/s² of jerk margin
         sig_h = max(gps.eph_m * cfg.gps_white_fraction, cfg.gps_pos_sigma_floor_m)
         sig_v = max(gps.epv_m * cfg.gps_white_fraction, cfg.gps_pos_sigma_floor_m)
-        r_h = sig_h**2 + lag_var_p
-        r_v = cfg.gps_vel_sigma_mps**2 + lag_var_v
-        r = np.array((r_h, r_h, sig_v**2 + lag_var_p, r_v, r_v, r_v))
-        return y, r, lag, a_n
+        lag_var_v = (cfg.accel_noise_mps2_rthz**2 / max(lag, 1e-3) + 1.0) * lag * lag
+        pn, pe, pd = gps.pos_ned_m
+        vn, ve, vd = gps.vel_ned_mps
+        la = self._last_accel
+        y = np.empty(6)
+        r = np.empty(6)
+        nis_p, nis_v, an, ae, ad = kernels.gps_innovation(
+            self._s,
+            self.kf.P,
+            _H_GPS,
+            float(pn),
+            float(pe),
+            float(pd),
+            float(vn),
+            float(ve),
+            float(vd),
+            float(lag),
+            float(la[0]),
+            float(la[1]),
+            float(la[2]),
+            cfg.gravity_mps2,
+            sig_h**2,
+            sig_v**2,
+            cfg.gps_vel_sigma_mps**2 + lag_var_v,
+            y,
+            r,
+        )
+        return y, r, float(nis_p), float(nis_v), lag, (an, ae, ad)
 
     def _gps_readmission(self, t: float, nis_p: float, nis_v: float, s_vo: float) -> None:
         """An excluded receiver is readmitted once its epochs have passed the readmission gates (and agreed
@@ -928,14 +931,14 @@ class NavEstimator:
         return P
 
     def state(self) -> VehicleState:
-        p, v, bg, ba = self._p, self._v, self._bg, self._ba
+        s = self._s.tolist()  # one conversion: the state is read every tick
         g, a = self._last_gyro, self._last_accel
         return VehicleState(
-            pos_ned_m=(float(p[0]), float(p[1]), float(p[2])),
-            vel_ned_mps=(float(v[0]), float(v[1]), float(v[2])),
-            att_rpy_rad=quat_to_euler(self._q),
-            rates_frd_radps=(g[0] - float(bg[0]), g[1] - float(bg[1]), g[2] - float(bg[2])),
-            accel_frd_mps2=(a[0] - float(ba[0]), a[1] - float(ba[1]), a[2] - float(ba[2])),
+            pos_ned_m=(s[0], s[1], s[2]),
+            vel_ned_mps=(s[3], s[4], s[5]),
+            att_rpy_rad=quat_to_euler((s[6], s[7], s[8], s[9])),
+            rates_frd_radps=(g[0] - s[14], g[1] - s[15], g[2] - s[16]),
+            accel_frd_mps2=(a[0] - s[17], a[1] - s[18], a[2] - s[19]),
             pos_sigma_h_m=self.pos_sigma_h_m,
             pos_sigma_v_m=self.pos_sigma_v_m,
             nav_mode=self._mode,

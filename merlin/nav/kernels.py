@@ -568,3 +568,49 @@ def vo_jacobian_into(s: np.ndarray, H: np.ndarray, coupling: bool) -> None:
         H[1, 9] = h * (1 - 2 * (y * y + z * z))
         H[1, 10] = h * (2 * (x * y - w * z))
         H[1, 11] = h * (2 * (x * z + w * y))
+
+
+@_njit
+def gps_innovation(
+    s: np.ndarray,
+    P: np.ndarray,
+    H: np.ndarray,
+    pn: float,
+    pe: float,
+    pd: float,
+    vn: float,
+    ve: float,
+    vd: float,
+    lag: float,
+    ax_b: float,
+    ay_b: float,
+    az_b: float,
+    grav: float,
+    sig_h2: float,
+    sig_v2: float,
+    vel_var: float,
+    y: np.ndarray,
+    r: np.ndarray,
+) -> tuple[float, float, float, float, float]:
+    """The GPS epoch carried forward by ``lag`` and its innovation (``NavEstimator._gps_innovation`` gives
+    the equations): fills y = z − h(x̂) and R's diagonal r, returns the position and velocity NIS and the
+    NED acceleration used to carry the epoch."""
+    fbx, fby, fbz = ax_b - s[17], ay_b - s[18], az_b - s[19]
+    qw, qx, qy, qz = s[6], s[7], s[8], s[9]
+    tx = 2.0 * (qy * fbz - qz * fby)
+    ty = 2.0 * (qz * fbx - qx * fbz)
+    tz = 2.0 * (qx * fby - qy * fbx)
+    an = fbx + qw * tx + (qy * tz - qz * ty)
+    ae = fby + qw * ty + (qz * tx - qx * tz)
+    ad = fbz + qw * tz + (qx * ty - qy * tx) + grav
+    y[0] = (pn + (s[3] * lag + 0.5 * an * lag * lag)) - (s[0] + s[20])
+    y[1] = (pe + (s[4] * lag + 0.5 * ae * lag * lag)) - (s[1] + s[21])
+    y[2] = (pd + (s[5] * lag + 0.5 * ad * lag * lag)) - (s[2] + s[22])
+    y[3] = (vn + an * lag) - s[3]
+    y[4] = (ve + ae * lag) - s[4]
+    y[5] = (vd + ad * lag) - s[5]
+    lag_var_p = max(P[3, 3], P[4, 4], P[5, 5]) * lag * lag
+    r[0] = r[1] = sig_h2 + lag_var_p
+    r[2] = sig_v2 + lag_var_p
+    r[3] = r[4] = r[5] = vel_var
+    return nis(H, P, r, y, 0, 3), nis(H, P, r, y, 3, 6), an, ae, ad
