@@ -48,6 +48,7 @@ import numpy as np
 
 from merlin.autopilot import fixedwing_control as fc
 from merlin.autopilot import fixedwing_guidance as fg
+from merlin.autopilot import fixedwing_mission
 from merlin.autopilot import fixedwing_route as fr
 from merlin.core import geofence
 from merlin.core.config import EnvelopeLimit
@@ -178,6 +179,7 @@ class FixedWingBehaviours:
         self.cp_experimental = cp if cp_experimental is None else cp_experimental
         self.gp = gp
         self.mission = mission
+        self.fw_mission: fixedwing_mission.FixedWingMission | None = None  # set by a driver that needs it
         self.escape_turns = escape_turns
         self.rtl_routes = rtl_routes
         self.land_height_m = land_height_m(fence)
@@ -303,7 +305,7 @@ class FixedWingBehaviours:
                                          " the fixed wing cannot land in this simulator"})
             gs = self._start_rtl(t, s, self.land_height_m)
         elif b is Behavior.MISSION and self.mission:
-            gs = fg.start_mission(gs, s, self.mission, loop=False)
+            gs = fixedwing_mission.start_mission(self, gs, s)  # from where it paused (fixedwing_mission)
         elif b is Behavior.TAKEOFF:
             # launched from the catapult (the core accepts TAKEOFF only on the ground): climb out along the
             # launch heading to the core's takeoff height; the core then makes it HOLD
@@ -312,8 +314,9 @@ class FixedWingBehaviours:
             n, e = s.pos_ned_m[0], s.pos_ned_m[1]
             gs = fg.start_mission(gs, s, (fg.Waypoint(n + LAUNCH_LINE_M * c, e + LAUNCH_LINE_M * sn, h,
                                                       self.cp.airspeed_cruise_mps),), loop=False)
-        else:  # HOLD, TAKEOFF (airborne already), MISSION without waypoints
-            gs = fg.start_hold(self.gp, self.cp, gs, s, clockwise=self._hold_clockwise(s))
+        else:  # HOLD (a GOTO's loiter, fixedwing_mission), ORBIT, TAKEOFF (airborne already), MISSION without waypoints
+            gs = fixedwing_mission.reposition(self, gs, b) or fg.start_hold(
+                self.gp, self.cp, gs, s, clockwise=self._hold_clockwise(s))
         self.gstate = gs
 
     def _start_escape(self, t: float, fence: geofence.Fence, s: VehicleState) -> None:

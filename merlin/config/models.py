@@ -512,6 +512,13 @@ class HandoverConfig(Strict):
     )
     max_attitude_rate_degps: float = Field(90.0, gt=0.0, description="attitude command slew limit")
     max_thrust_rate_per_s: float = Field(1.0, gt=0.0, description="collective slew limit, 1/s")
+    # PX4's offboard flows let the controller's own setpoints lift the vehicle (MAVSDK's offboard_attitude
+    # example): the altitude floors cannot judge a vehicle still below them, so they are deferred for such a
+    # take-off, and this bounds it: a controller may climb through the floors, not stay below them
+    ground_takeoff_s: float = Field(
+        10.0, gt=0.0, le=60.0, description="a controller granted on the ground flies its own take-off: the"
+        " envelope's altitude minimum and the fence floor apply once the vehicle is above them, or this long"
+        " after it left the ground, whichever comes first (icd/ICD.md 6.1)")
 
 
 class OperatorConfig(Strict):
@@ -956,12 +963,14 @@ class RedundancyConfig(Strict):
         " down to this level: simplex = one lane left (no fault can be detected any more); duplex = already"
         " when one of three is lost. Its action is arbiter.rules.nav_redundancy (default warn)",
     )
-    fdi_preset: Literal["merlin", "table2"] = Field(
+    fdi_preset: Literal["merlin", "table2", "sequential"] = Field(
         "merlin",
-        description="duplex IMU particle-filter FDI (seed 003). Both use every number of the paper's Table 2"
-        " (4096 particles, nu, tau_a/g/m, Omega); table2 isolates with the residual exactly as printed, merlin"
-        " with each residual component divided by its noise scale and averaged since the alert (the printed"
-        " one flagged the healthy IMU on F4)",
+        description="duplex IMU particle-filter FDI (seed 003). All use the paper's particle filters with every"
+        " number of its Table 2 (4096 particles, nu); table2 and merlin its decision logic (tau_a/g/m, Omega):"
+        " table2 isolates with the residual exactly as printed, merlin with each residual component divided by"
+        " its noise scale and averaged since the alert (the printed one flagged the healthy IMU on F4);"
+        " sequential decides with Merlin's sequential tests instead (CUSUM detection, a jump and kinematic"
+        " isolation likelihood ratio, a recovery test of its own; merlin.redundancy.sequential_tests)",
     )
     lane_preset: Literal["fast", "thesis", "thesis_sitl"] = Field(
         "fast",

@@ -92,6 +92,7 @@ def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig
             max_accel_mps2=h.max_accel_mps2,
             max_attitude_rate_radps=h.max_attitude_rate_degps * _DEG,
             max_thrust_rate_per_s=h.max_thrust_rate_per_s,
+            ground_takeoff_s=h.ground_takeoff_s,
         ),
         operator=OperatorParams(
             oversight_envelope=o.oversight_envelope,

@@ -106,6 +106,8 @@ class ArbiterState(NamedTuple):
     speed_mps: float = 0.0  # DO_CHANGE_SPEED: the trusted autopilot's horizontal speed from now on; 0: cruise
     after_takeoff: Behavior = Behavior.HOLD  # what TAKEOFF hands over to at its height (MISSION: a mission
     # started on the ground)
+    mission_jump_seq: int = 0  # counts accepted MISSION_CURRENT commands: a new one moves the mission's index
+    mission_jump_index: int = 0  # the waypoint the last one set (len(mission): its end)
 
     @property
     def behavior(self) -> Behavior:
@@ -299,6 +301,11 @@ def _commands(st: ArbiterState, view: TickView, cfg: CoreConfig, events: list[Ev
                 st = _disarm(st, now, _simple(ReasonCode.DISARMED, "disarmed by ground station"), events)
                 _ack(now, cmd, True, ok, events)
             continue
+        if k is GcsCommandKind.MISSION_CURRENT:
+            # as PX4's MISSION_SET_CURRENT: armed or not, in the mission or not (the index a later start or
+            # resume flies from); the end (the mission's length) is the end item, RTL or LAND
+            st = _mission_current(st, cfg, cmd, now, events)
+            continue
         if not st.armed:
             _ack(now, cmd, False, _simple(ReasonCode.NOT_ARMED, "refused: vehicle is not armed"), events)
             continue
@@ -357,6 +364,18 @@ def _commands(st: ArbiterState, view: TickView, cfg: CoreConfig, events: list[Ev
     return st
 
 
+def _mission_current(st: ArbiterState, cfg: CoreConfig, cmd: GcsCommand, now: float,
+                     events: list[Event]) -> ArbiterState:
+    n = len(cfg.trusted.mission_ned_m)
+    k = cmd.param
+    if not (n and math.isfinite(k) and k == int(k) and 0 <= k <= n):
+        _ack(now, cmd, False, _simple(ReasonCode.INVALID_INPUT, f"refused: mission waypoint {k:g} (the mission has"
+                                      f" {n})"), events)
+        return st
+    _ack(now, cmd, True, Reason(ReasonCode.NONE), events)
+    return st._replace(mission_jump_seq=st.mission_jump_seq + 1, mission_jump_index=int(k))
+
+
 #: Points checked on an orbit's circle against the fence (a chord of a 50 m circle is ~10 m).
 ORBIT_FENCE_POINTS = 32
 
@@ -395,6 +414,10 @@ def _goto_or_orbit(st: ArbiterState, view: TickView, cfg: CoreConfig, cmd: GcsCo
     if target is None or not all(math.isfinite(x) for x in target) or (orbit and not (
             math.isfinite(radius) and radius != 0.0)):
         _ack(now, cmd, False, _simple(ReasonCode.INVALID_INPUT, "refused: no finite target or radius"), events)
+        return st
+    if target[2] > 0.0:  # below home: the trusted autopilot would fly into the ground (PX4 flies it)
+        _ack(now, cmd, False, _simple(ReasonCode.INVALID_INPUT, f"refused: the target is {target[2]:.1f} m below"
+                                      " home"), events)
         return st
     block = _target_block(cfg, target, radius)
     if block is not None:

@@ -80,6 +80,7 @@ class HandoverParams:
     max_accel_mps2: float = 6.0
     max_attitude_rate_radps: float = 1.5708
     max_thrust_rate_per_s: float = 1.0
+    ground_takeoff_s: float = 10.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -208,8 +208,10 @@ def operator_command(
     nearby, up towards the ceiling and down towards the floor (once ``floor_applies``, as the fence's own
     floor) is limited to what stops the vehicle at the widening (``margin_m + sigma_k * sigma``) after
     the fence's reaction time at the trusted braking deceleration, wherever the vehicle starts: within the
-    widening nothing outward is left but the braking the acceleration limit gives. Inward and along the
-    boundary stay free (scenarios ``adv_pilot_regrab_outward``, ``adv_pilot_regrab_ceiling``)."""
+    widening nothing outward is left but the braking the acceleration limit gives. While the vehicle's own
+    velocity still projects a stop beyond the widening (it lags the command), the outward part of the
+    command keeps braking at that deceleration and never rises again. Inward and along the boundary stay
+    free (scenarios ``adv_pilot_regrab_outward``, ``adv_pilot_regrab_ceiling``, ``adv_pilot_regrab_keepout``)."""
 
     def dz(x: float) -> float:
         if not math.isfinite(x):
@@ -236,15 +238,19 @@ def operator_command(
         )
     else:
         hold = None
+    prev = mem.vel_cmd if mem.vel_cmd is not None else s.vel_ned_mps
     if mem.fenced and fence is not None:
-        vn, ve, vd = _fence_pilot(fence, s, (vn, ve, vd), tp, floor_applies)
+        vn, ve, vd = _fence_pilot(fence, s, (vn, ve, vd), tp, floor_applies, prev, dt)
     # Stick steps become acceleration-limited velocity ramps (as PX4's position mode, MPC_ACC_HOR): the
     # human asks for a speed, the trusted inner loops get there without a tilt spike.
-    prev = mem.vel_cmd if mem.vel_cmd is not None else s.vel_ned_mps
     if all(math.isfinite(x) for x in prev):
         vn, ve, vd = limit_velocity_change(
             prev, (vn, ve, vd), tp.max_horizontal_decel_mps2 * dt, tp.max_vertical_decel_mps2 * dt
         )
+        if mem.fenced and fence is not None:
+            # the ramp shares its step between the braking and the free motion along the edge; the flown
+            # command keeps the braking whole (a stick along a curved keep-out turned the ramp sideways)
+            vn, ve, vd = _fence_pilot(fence, s, (vn, ve, vd), tp, floor_applies, prev, dt)
     cmd = Command(
         CommandKind.VELOCITY,
         Authority.OPERATOR,
@@ -269,9 +275,29 @@ def _stop_speed(room_m: float, reaction_s: float, decel_mps2: float) -> float:
     return decel_mps2 * (-reaction_s + math.sqrt(reaction_s * reaction_s + 2.0 * room_m / decel_mps2))
 
 
-def _fence_pilot(fence: Fence, s: VehicleState, vel: Vec3, tp: TrustedParams, floor_applies: bool) -> Vec3:
-    """The pilot's velocity command with its outward parts limited (see :func:`operator_command`)."""
+def _braking_limit(lim: float, room_m: float, v_out: float, prev_out: float, reaction_s: float,
+                   decel_mps2: float, dt: float) -> float:
+    """One edge's outward speed limit, tightened while the vehicle itself is too fast for the room left.
+
+    ``lim`` (the stop speed of the room) is what a command may ask for when the vehicle follows it; the
+    vehicle lags a braking command (its velocity loop), so a command on that curve left a vehicle that was
+    faster than it 1-2 m deeper than the projection (adv_pilot_regrab_keepout, found by ``merlin falsify``
+    on the L-shaped range). While the vehicle's own outward speed ``v_out`` projects its stop beyond the
+    room, the command's outward part instead goes on braking from ``prev_out`` at the trusted deceleration,
+    as Merlin's own braking would (never below zero: the limit caps outward motion, it does not push back)."""
+    if v_out > 0.0 and v_out * reaction_s + v_out * v_out / (2.0 * decel_mps2) > room_m:
+        return max(0.0, min(lim, prev_out - decel_mps2 * dt))
+    return lim
+
+
+def _fence_pilot(fence: Fence, s: VehicleState, vel: Vec3, tp: TrustedParams, floor_applies: bool,
+                 prev: Vec3 | None = None, dt: float = 0.0) -> Vec3:
+    """The pilot's velocity command with its outward parts limited (see :func:`operator_command`); ``prev``
+    is the command of the tick before (the ramp's start) and ``dt`` the tick."""
     vn, ve, vd = vel
+    v = s.vel_ned_mps
+    lag_known = prev is not None and math.isfinite(prev[0] + prev[1] + prev[2] + v[0] + v[1] + v[2] + dt)
+    pn, pe, pd = prev if prev is not None and lag_known else (0.0, 0.0, 0.0)
     prm = fence.params
     if not prm.enabled:
         return vel
@@ -286,8 +312,12 @@ def _fence_pilot(fence: Fence, s: VehicleState, vel: Vec3, tp: TrustedParams, fl
     v_max = max(speed, math.hypot(s.vel_ned_mps[0], s.vel_ned_mps[1])) if all(
         math.isfinite(x) for x in s.vel_ned_mps) else speed
     radius = w_h + v_max * tr + v_max * v_max / (2.0 * a_h) + 1.0
-    limits = [(un, ue, _stop_speed(dist - w_h, tr, a_h))
-              for dist, un, ue in geofence.boundary_constraints_ne(fence, n, e, radius)]
+    limits = []
+    for dist, un, ue in geofence.boundary_constraints_ne(fence, n, e, radius):
+        lim = _stop_speed(dist - w_h, tr, a_h)
+        if lag_known:
+            lim = _braking_limit(lim, dist - w_h, v[0] * un + v[1] * ue, pn * un + pe * ue, tr, a_h, dt)
+        limits.append((un, ue, lim))
     for _ in range(_FENCE_PILOT_PASSES):
         clipped = False
         for un, ue, lim in limits:
@@ -306,9 +336,17 @@ def _fence_pilot(fence: Fence, s: VehicleState, vel: Vec3, tp: TrustedParams, fl
     w_v = prm.margin_m + prm.sigma_k * s.pos_sigma_v_m
     h = -d
     if prm.altitude_ceiling_m is not None:
-        vd = max(vd, -_stop_speed(prm.altitude_ceiling_m - h - w_v, tr, a_v))
+        room = prm.altitude_ceiling_m - h - w_v
+        lim = _stop_speed(room, tr, a_v)
+        if lag_known:
+            lim = _braking_limit(lim, room, -v[2], -pd, tr, a_v, dt)
+        vd = max(vd, -lim)
     if floor_applies and prm.altitude_floor_m is not None:
-        vd = min(vd, _stop_speed(h - prm.altitude_floor_m - w_v, tr, a_v))
+        room = h - prm.altitude_floor_m - w_v
+        lim = _stop_speed(room, tr, a_v)
+        if lag_known:
+            lim = _braking_limit(lim, room, v[2], pd, tr, a_v, dt)
+        vd = min(vd, lim)
     return vn, ve, vd
 
 

@@ -38,6 +38,7 @@ from merlin.core.types import (
     NO_REASON,
     Action,
     Authority,
+    AuthorityRequest,
     Behavior,
     Command,
     CommandKind,
@@ -50,6 +51,7 @@ from merlin.core.types import (
     Reason,
     ReasonCode,
     RedundancyReport,
+    RequestKind,
     Setpoint,
     SetpointKind,
     VehicleState,
@@ -119,6 +121,10 @@ class CoreState(NamedTuple):
     # judged at once), not while on the ground, and after a take-off once the vehicle has climbed clear of it,
     # so that the take-off passes through it (scenario adv_floor_takeoff)
     floor_reached: bool = True
+    # a controller asking for, or holding, authority granted on the ground flies its own take-off (PX4's
+    # offboard flows): the altitude floors are deferred for it until the vehicle is above them; the time it
+    # left the ground (None: no such take-off). See _ground_takeoff.
+    ground_takeoff_since_s: float | None = None
 
 
 def initial_state(cfg: CoreConfig) -> CoreState:
@@ -311,8 +317,10 @@ def _grant_block(
     hb_alive_since: float | None,
     now: float,
     shadow: bool,
+    env_values: tuple[float, ...] | None = None,
 ) -> Reason | None:
-    """The first precondition for a grant that does not hold now (None: all hold)."""
+    """The first precondition for a grant that does not hold now (None: all hold). ``env_values``: the
+    envelope's values as the monitor judges them this tick (the state's, unless a floor is deferred)."""
     for name in ("state_invalid", "controller_heartbeat", "setpoint_stale", "setpoint_invalid"):
         r = tripped.get(name)
         if r is not None:
@@ -331,7 +339,7 @@ def _grant_block(
         r = tripped.get(row.monitor)
         if r is not None and row.experimental >= Action.HOLD:
             return r
-    env = envelope.all_inside(cfg.envelope, envelope.envelope_values(s))
+    env = envelope.all_inside(cfg.envelope, env_values if env_values is not None else envelope.envelope_values(s))
     if env is not None:
         return env
     nav = cfg.nav
@@ -404,6 +412,52 @@ def _arm_block(cfg: CoreConfig, s: VehicleState, tripped: dict[str, Reason]) -> 
     return None
 
 
+def _ground_takeoff(cfg: CoreConfig, st: CoreState, s: VehicleState, now: float,
+                    requests: tuple[AuthorityRequest, ...], floor_reached: bool, alt_m: float) -> float | None:
+    """When the vehicle left the ground under a take-off flown by the experimental controller (PX4's offboard
+    flows: OFFBOARD granted on the ground, the controller's setpoints lift the vehicle), or None when there is
+    none and the altitude floors apply as usual.
+
+    Such a take-off starts on the ground, armed, with a request or an exchange under way or authority already
+    granted there; while the vehicle is on the ground its clock restarts. It ends, and the floors (the
+    envelope's altitude minimum, the fence floor) apply from then on, once the vehicle is above both, once the
+    authority is no longer the controller's, at the disarm, and ``handover.ground_takeoff_s`` after it left the
+    ground whatever its height: a controller may climb through the floors, not stay below them. Every other
+    limit (speeds, attitude, rates, ceiling, fence walls, watchdogs) judges it from the first tick."""
+    arb = st.arbiter
+    controller = arb.authority is _EXPERIMENTAL or arb.authority is _SHADOW
+    exchange = arb.pending is not None or arb.switch is not None
+    if arb.armed and s.landed and (controller or exchange or any(
+            r.kind is RequestKind.REQUEST or r.kind is RequestKind.REQUEST_SHADOW for r in requests)):
+        return now
+    since = st.ground_takeoff_since_s
+    if since is None or not arb.armed or not (controller or exchange):
+        return None
+    low = _altitude_floor_m(cfg)
+    above = alt_m >= low and (cfg.fence is None or floor_reached)  # (a NaN height is never above)
+    if above or now - since > cfg.handover.ground_takeoff_s:
+        return None
+    return since
+
+
+def _altitude_floor_m(cfg: CoreConfig) -> float:
+    for lim in cfg.envelope:
+        if lim.index == envelope.PARAMETER_INDEX["altitude_m"]:
+            return lim.min
+    return -math.inf
+
+
+def _floor_deferred(cfg: CoreConfig, values: tuple[float, ...]) -> tuple[float, ...]:
+    """The envelope's values with the altitude held at the envelope's minimum while below it (a deferred floor
+    judges nothing; its maximum still does)."""
+    k = envelope.PARAMETER_INDEX["altitude_m"]
+    alt = values[k]
+    low = _altitude_floor_m(cfg)
+    if not alt < low:  # (NaN stays: never inside)
+        return values
+    return (*values[:k], low, *values[k + 1:])
+
+
 # -------------------------------------------------------------------------------------------------- step
 
 
@@ -441,15 +495,19 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     # a new authority starts from an empty budget (its own time outside only).
     budget_auth = st.arbiter.authority
     budget = st.env_budget if budget_auth is st.env_budget_authority else (envelope.EMPTY_RING,) * len(cfg.envelope)
-    env = envelope.update(cfg.envelope, st.env_since, envelope.envelope_values(raw), now, False, budget, dt)
-    if env.reason is not None:
-        tripped["envelope"] = env.reason
-    fence_res = None
-    wind_ne = (0.0, 0.0)
     # The floor applies unless the vehicle has been on the ground and not yet climbed clear of it since (a NaN
     # height compares False: never clear), so the trusted take-off climbs through it instead of tripping it.
     floor_reached = not s.landed and cfg.fence is not None and (
         st.floor_reached or geofence.clear_of_floor(cfg.fence, s.pos_ned_m, s.pos_sigma_v_m))
+    env_values = envelope.envelope_values(raw)
+    ground_takeoff = _ground_takeoff(cfg, st, s, now, exp.requests, floor_reached, env_values[1])
+    if ground_takeoff is not None:
+        env_values = _floor_deferred(cfg, env_values)
+    env = envelope.update(cfg.envelope, st.env_since, env_values, now, False, budget, dt)
+    if env.reason is not None:
+        tripped["envelope"] = env.reason
+    fence_res = None
+    wind_ne = (0.0, 0.0)
     if cfg.fence is not None:
         if cfg.fence.params.vehicle == "fixed_wing":  # a fixed wing's escape turn drifts with the wind
             wind_ne = geofence.wind_triangle_ne(s.vel_ned_mps, s.airspeed_mps, s.att_rpy_rad[2])
@@ -528,13 +586,13 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
 
     # -- preconditions (only computed when an exchange needs them)
     need_block = bool(exp.requests) or arb.switch is not None
-    grant_block = _grant_block(cfg, s, inputs, tripped, hb_since, now, False) if need_block else None
-    if grant_block is None and need_block and not floor_reached and cfg.fence is not None:
+    grant_block = _grant_block(cfg, s, inputs, tripped, hb_since, now, False, env_values) if need_block else None
+    if grant_block is None and need_block and not floor_reached and ground_takeoff is None and cfg.fence is not None:
         fl = cfg.fence.params.altitude_floor_m
         if fl is not None and cfg.fence.params.enabled:  # the floor does not protect a vehicle below it yet
             grant_block = Reason(ReasonCode.PRECONDITION, "geofence", "altitude_m", s.alt_m, fl, 0.0,
                                  f"refused: {s.alt_m:.1f} m is not yet clear of the fence floor {fl:g} m")
-    shadow_block = _grant_block(cfg, s, inputs, tripped, hb_since, now, True) if need_block else None
+    shadow_block = _grant_block(cfg, s, inputs, tripped, hb_since, now, True, env_values) if need_block else None
     arm_block = _arm_block(cfg, s, tripped) if inputs.gcs_commands else None
 
     newly = frozenset(k for k in tripped if k not in st.reported) if tripped else _NO_MONITORS
@@ -559,7 +617,12 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     authority = arb.authority
     g = st.guidance
     flies_trusted = authority in (_TRUSTED, _SHADOW) and arb.armed
-    mission_index = st.mission_index if arb.armed else 0  # a new flight starts the mission from its start
+    # a new flight starts the mission from its start (the index is reset at the disarm), unless a
+    # MISSION_CURRENT sets where it goes on from (in flight or on the ground, as PX4's MISSION_SET_CURRENT)
+    mission_index = st.mission_index if arb.armed or not st.arbiter.armed else 0
+    jumped = arb.mission_jump_seq != st.arbiter.mission_jump_seq
+    if jumped:
+        mission_index = arb.mission_jump_index
     g_setpoint: Setpoint | None = None
     if flies_trusted and behavior not in (_IDLE, _TERMINATE):
         if g is None or g.behavior is not behavior or arb.target_seq != st.arbiter.target_seq or (
@@ -576,8 +639,11 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
                 g = g._replace(vel_cmd=prev_g.vel_cmd)
             if behavior is _TAKEOFF:
                 g = g._replace(anchor_ned_m=(g.anchor_ned_m[0], g.anchor_ned_m[1], -arb.takeoff_alt_m))
-            elif behavior is _MISSION and mission_index < len(cfg.trusted.mission_ned_m):
-                g = g._replace(mission_index=mission_index)  # resumed where it was paused, as PX4 does
+            elif behavior is _MISSION and mission_index <= len(cfg.trusted.mission_ned_m):
+                # resumed where it was paused, as PX4 does (at its length: a MISSION_CURRENT set the end item)
+                g = g._replace(mission_index=mission_index)
+        elif jumped and behavior is _MISSION:
+            g = g._replace(mission_index=mission_index, done=False)  # flying the mission: on to the new waypoint
         if arb.target_ned_m is not None and g.goto_ned_m != arb.target_ned_m and (
                 behavior is _HOLD or behavior is _ORBIT):
             g = guidance.goto(g, arb.target_ned_m, s, cfg.fence)  # GOTO's point, ORBIT's centre (at the command)
@@ -608,7 +674,15 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     source = (authority, behavior)
     if source != st.last_source and authority is _OPERATOR:
         # a takeover during a fence trip (its override grace) fences the pilot for the rest of the session
-        op_mem = OperatorMemory(s.att_rpy_rad[2], None, None, "geofence" in arb.grace_monitors)
+        fenced = "geofence" in arb.grace_monitors
+        # A fenced pilot's stick ramps on from the command Merlin was braking with, not from the measured
+        # velocity: that lags the braking command, and restarting from it undid the braking the fence
+        # counted on (adv_pilot_regrab_keepout: a re-grab 0.45 s into the trusted braking stopped 2 m
+        # inside the keep-out's margin).
+        last = st.last_command
+        ramp_from = (last.vel_ned_mps if fenced and last is not None and last.kind is _CMD_VELOCITY
+                     and math.isfinite(last.vel_ned_mps[0] + last.vel_ned_mps[1] + last.vel_ned_mps[2]) else None)
+        op_mem = OperatorMemory(s.att_rpy_rad[2], None, ramp_from, fenced)
     if not arb.armed or (flies_trusted and behavior is _IDLE):
         incoming = Command(_CMD_IDLE, authority)
     elif flies_trusted and behavior is _TERMINATE:
@@ -636,7 +710,9 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
         blend, command = None, incoming
     else:
         if source != st.last_source or (st.last_command is not None and st.last_command.kind is not incoming.kind):
-            blend = Blend(now, blend_start(st.last_command, incoming, s, cfg.trusted.hover_thrust))
+            # (on the ground the collective a transfer starts from is none: a controller granted there, which
+            # flies its own take-off, starts from motors at rest, not from a hover thrust that nearly lifts off)
+            blend = Blend(now, blend_start(st.last_command, incoming, s, 0.0 if s.landed else cfg.trusted.hover_thrust))
             last = blend.start
         else:
             last = st.last_command if st.last_command is not None else incoming
@@ -694,6 +770,7 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
         env.budget,  # env_budget
         budget_auth,  # env_budget_authority
         floor_reached,  # floor_reached
+        ground_takeoff,  # ground_takeoff_since_s
     )
     all_events = (*arb_events, *events)
     # positional, as CoreState above; the names are Decision's

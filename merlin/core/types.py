@@ -111,6 +111,7 @@ class GcsCommandKind(IntEnum):
     GOTO = 8  # hold at a target position (MAV_CMD_DO_REPOSITION; PX4 flies it in AUTO.LOITER)
     ORBIT = 9  # circle a centre (MAV_CMD_DO_ORBIT)
     SPEED = 10  # the trusted autopilot's horizontal speed from now on (MAV_CMD_DO_CHANGE_SPEED)
+    MISSION_CURRENT = 11  # the mission waypoint to fly next (MISSION_SET_CURRENT; param: its index)
 
 
 class ReasonCode(IntEnum):

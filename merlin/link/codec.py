@@ -403,6 +403,10 @@ def _mission_clear_all(m: Any, mod: ModuleType) -> i.InMessage | Rejected:
     return i.MissionClearAllIn(m.target_system, m.target_component, _mission_type(m))
 
 
+def _mission_set_current(m: Any, mod: ModuleType) -> i.InMessage | Rejected:
+    return i.MissionSetCurrentIn(m.target_system, m.target_component, m.seq)
+
+
 def _param_request_list(m: Any, mod: ModuleType) -> i.InMessage | Rejected:
     return i.ParamRequestListIn(m.target_system, m.target_component)
 
@@ -444,6 +448,7 @@ _DECODERS: dict[str, _Decoder] = {
     "MISSION_ACK": _mission_ack,
     "MISSION_REQUEST_LIST": _mission_request_list,
     "MISSION_CLEAR_ALL": _mission_clear_all,
+    "MISSION_SET_CURRENT": _mission_set_current,
     "PARAM_REQUEST_LIST": _param_request_list,
     "PARAM_REQUEST_READ": _param_request_read,
     "PARAM_SET": _param_set,
@@ -478,6 +483,7 @@ _CLASS_BY_NAME = {
     "MISSION_ITEM_INT": MessageClass.MISSION_WRITE,
     "MISSION_ITEM": MessageClass.MISSION_WRITE,
     "MISSION_CLEAR_ALL": MessageClass.MISSION_WRITE,
+    "MISSION_SET_CURRENT": MessageClass.COMMAND,  # it changes what the vehicle flies next, as a command does
     "PARAM_SET": MessageClass.PARAM_WRITE,
     "SETUP_SIGNING": MessageClass.SIGNING_SETUP,
     "HEARTBEAT": MessageClass.HEARTBEAT,

@@ -39,6 +39,7 @@ MAV_CMD_DO_ORBIT = 34
 MAV_CMD_DO_SET_MODE = 176
 MAV_CMD_DO_CHANGE_SPEED = 178
 MAV_CMD_DO_REPOSITION = 192
+MAV_CMD_DO_SET_MISSION_CURRENT = 224
 MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN = 246
 MAV_CMD_DO_FLIGHTTERMINATION = 185
 MAV_CMD_MISSION_START = 300
@@ -47,6 +48,8 @@ MAV_CMD_GET_HOME_POSITION = 410
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_REQUEST_MESSAGE = 512
 MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES = 520
+
+MAX_MISSION_SEQ = 65535  # mission item numbers are uint16 on the wire
 
 MAV_RESULT_ACCEPTED = 0
 MAV_RESULT_TEMPORARILY_REJECTED = 1
@@ -90,7 +93,15 @@ class Refused:
     detail: str
 
 
-Intent = GcsCommand | AuthorityRequest | RequestMessage | SetMessageInterval | Refused
+@dataclass(frozen=True, slots=True)
+class MissionCurrent:
+    """Fly the mission from item ``seq`` next (MAV_CMD_DO_SET_MISSION_CURRENT, or the MISSION_SET_CURRENT
+    message); -1 leaves the current item as it is. The serve process maps the item to Merlin's waypoint."""
+
+    seq: int
+
+
+Intent = GcsCommand | AuthorityRequest | RequestMessage | SetMessageInterval | Refused | MissionCurrent
 
 
 def interpret_command(
@@ -131,6 +142,12 @@ def interpret_command(
     }
     if c in simple:
         return _behaviour(simple[c], role, t_s)
+    if c == MAV_CMD_DO_SET_MISSION_CURRENT:
+        # param1 the item (-1: unchanged); param2 "reset the mission" (PX4: as the item is set again) changes
+        # nothing more here: Merlin's mission keeps no per-item state to reset
+        if not (math.isfinite(p[0]) and p[0] == int(p[0]) and -1 <= p[0] <= MAX_MISSION_SEQ):
+            return (Refused(MAV_RESULT_DENIED, f"DO_SET_MISSION_CURRENT item {p[0]:g}: an item number, or -1"),)
+        return (MissionCurrent(int(p[0])),)
     if c == MAV_CMD_DO_FLIGHTTERMINATION:
         if p[0] >= 0.5:
             return (GcsCommand(GcsCommandKind.TERMINATE),)
@@ -163,12 +180,13 @@ def _guided(cmd: i.CommandIn, role: LinkRole, t_s: float, frame: LocalFrame | No
     """MAVSDK Action's goto_location (DO_REPOSITION), do_orbit (DO_ORBIT) and set_current_speed
     (DO_CHANGE_SPEED), as the trusted autopilot's GOTO, ORBIT and SPEED; positions as PX4 reads them
     (latitude/longitude, altitude above mean sea level, in any global frame of COMMAND_INT or in
-    COMMAND_LONG), NaN for "where the vehicle is"."""
+    COMMAND_LONG), NaN for "where the vehicle is". A fixed wing flies GOTO and ORBIT as loiter circles
+    (merlin.autopilot.fixedwing_mission) and refuses DO_CHANGE_SPEED."""
     p, c = cmd.params, cmd.command
     name = {MAV_CMD_DO_REPOSITION: "DO_REPOSITION", MAV_CMD_DO_ORBIT: "DO_ORBIT"}.get(c, "DO_CHANGE_SPEED")
-    if fixed_wing:
-        return (Refused(MAV_RESULT_UNSUPPORTED, f"{name} is not flown by the fixed wing's trusted autopilot"),)
     if c == MAV_CMD_DO_CHANGE_SPEED:
+        if fixed_wing:  # (its trusted autopilot flies its own cruise airspeed)
+            return (Refused(MAV_RESULT_UNSUPPORTED, f"{name} is not flown by the fixed wing's trusted autopilot"),)
         if int(p[0]) not in SPEED_TYPES_HORIZONTAL or not math.isfinite(p[0]):
             return (Refused(MAV_RESULT_UNSUPPORTED, f"DO_CHANGE_SPEED speed type {p[0]:g}: only 0 (air) or 1"
                                                     " (ground) speed"),)

@@ -286,6 +286,15 @@ class MissionClearAllIn:
 
 
 @dataclass(frozen=True, slots=True)
+class MissionSetCurrentIn:
+    """MISSION_SET_CURRENT: the mission item to fly next (MAVSDK's ``mission.set_current_mission_item``)."""
+
+    target_system: int
+    target_component: int
+    seq: int
+
+
+@dataclass(frozen=True, slots=True)
 class ParamRequestListIn:
     target_system: int
     target_component: int
@@ -333,6 +342,7 @@ InMessage = (
     | MissionAckIn
     | MissionRequestListIn
     | MissionClearAllIn
+    | MissionSetCurrentIn
     | ParamRequestListIn
     | ParamRequestReadIn
     | ParamSetIn

@@ -271,6 +271,44 @@ def check_legs_against_fence(
     return None
 
 
+def waypoint_at_or_after(plan: MissionPlan, seq: int) -> int:
+    """The waypoint Merlin flies for item ``seq``: the first waypoint at or after it (an item between
+    waypoints, DO_CHANGE_SPEED say, leads to the next one); past the last waypoint, the end (its length)."""
+    for k, w in enumerate(plan.waypoints):
+        if w.seq >= seq:
+            return k
+    return len(plan.waypoints)
+
+
+def check_jump_against_fence(
+    plan: MissionPlan, index: int, from_ne: tuple[float, float], fence: Any, margin_m: float
+) -> str | None:
+    """Why flying from ``from_ne`` straight to waypoint ``index`` of ``plan`` (MISSION_SET_CURRENT: a leg the
+    upload check never saw) must be refused against ``fence``, or None. The end (``index`` past the last
+    waypoint) is checked as the leg home for RTL; a LAND or HOLD end is flown where the vehicle is."""
+    if fence is None or plan.empty:
+        return None
+    if index < len(plan.waypoints):
+        w = plan.waypoints[index]
+        to, seq = (w.pos_ned_m[0], w.pos_ned_m[1]), w.seq
+    elif plan.end is MissionEnd.RTL:
+        to, seq = (0.0, 0.0), plan.end_seq
+    else:
+        return None
+    leg = shapely.LineString([from_ne, to]) if tuple(from_ne) != to else shapely.Point(to)
+    name = _name(plan.items[seq].command) if 0 <= seq < len(plan.items) else "leg"
+    where = f"item {seq} ({name}): the leg from ({from_ne[0]:.1f}, {from_ne[1]:.1f}) m"
+    excl = fence.exclusion_area
+    if excl is not None and (shapely.dwithin(excl, leg, margin_m) or shapely.intersects(excl, leg)):
+        return f"{where} enters a keep-out zone (or passes within {margin_m:g} m of one)"
+    allowed = fence.allowed_area if fence.has_inclusion else None
+    if allowed is not None:
+        inner = shapely.buffer(allowed, -margin_m) if margin_m > 0.0 else allowed
+        if not shapely.covers(inner, leg):
+            return f"{where} leaves the fence (or passes within its {margin_m:g} m margin)"
+    return None
+
+
 @dataclass(frozen=True, slots=True)
 class MissionTransferResult:
     """How the latest transfer ended: ``result`` is a MAV_MISSION_RESULT, ``detail`` names the item at fault;

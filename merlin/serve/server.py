@@ -41,6 +41,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from merlin.autopilot import fixedwing_mission
 from merlin.config.loader import config_sha256
 from merlin.config.models import MerlinConfig
 from merlin.config.runtime import build_core_config
@@ -73,6 +74,7 @@ from merlin.link.commands import (
     MAVLINK_MSG_ID_AUTOPILOT_VERSION,
     MAVLINK_MSG_ID_HOME_POSITION,
     LinkRole,
+    MissionCurrent,
     OffboardModeBridge,
     Refused,
     RequestMessage,
@@ -86,8 +88,10 @@ from merlin.link.mission_protocol import (
     MissionEnd,
     MissionPlan,
     MissionProtocol,
+    check_jump_against_fence,
     check_legs_against_fence,
     plan_from_config,
+    waypoint_at_or_after,
 )
 from merlin.link.mission_transfer import MAV_MISSION_ACCEPTED, MAV_MISSION_TYPE_ALL, MAV_MISSION_TYPE_MISSION
 from merlin.link.params import ParamProtocol, ParamWrite, int32_params, published_params, with_param
@@ -250,6 +254,14 @@ class Server:
         self._mission_reached = -1  # the highest item sequence reported with MISSION_ITEM_REACHED this flight
         self._mission_current = -1  # the last MISSION_CURRENT seq sent
         self._mission_complete = False  # flown to its end this flight (its end item reported on landing)
+        self._mission_jumps: dict[int, int] = {}  # MISSION_CURRENT commands awaiting the core: seq -> waypoint
+        # the fixed wing's mission and GOTO/ORBIT loiters (merlin.autopilot.fixedwing_mission): what its stage
+        # reads beyond the core's decision
+        stage = self._fw_stage()
+        if stage is not None:
+            stage.fw_mission = fixedwing_mission.FixedWingMission(arbiter=lambda: self.loop.core.state.arbiter)
+        self._fw_target_seq = 0  # the core's GOTO/ORBIT count the stage flies
+        self._fw_mission_done = False  # the fixed wing flew its mission to the end (its end item commanded)
         self._was_armed = False
         self.limits = self.cfg.envelope.resolve(self.cfg.envelope.active_stage)
         self.cfg_sha256 = config_sha256(self.cfg)
@@ -375,6 +387,9 @@ class Server:
             for dest in (self.links if changed else [ls]):
                 dest.bulk.extend(outs)
             return
+        if isinstance(m, i.MissionSetCurrentIn):
+            self._on_mission_current(ls, rx.t_s, m.seq, None, sender)
+            return
         if hasattr(m, "mission_type"):
             self._on_mission_protocol(ls, rx, m, sender)
 
@@ -385,12 +400,15 @@ class Server:
         acked = False
         for intent in intents:
             if isinstance(intent, GcsCommand):
-                refused = self._mission_start_refused(intent)
+                intent, refused = self._fixed_wing_loiter(intent)
+                if refused is None:
+                    refused = self._mission_start_refused(intent)
+                    refused = None if refused is None else f"mission not started: {refused}"
                 if refused is not None:  # as PX4's mission feasibility check at start, with Merlin's leg check
                     self._send(ls, command_ack(m, sender, MAV_RESULT_DENIED))
-                    self._broadcast(o.StatusTextOut(o.MAV_SEVERITY_WARNING, f"Merlin: mission not started: {refused}"))
+                    self._broadcast(o.StatusTextOut(o.MAV_SEVERITY_WARNING, f"Merlin: {refused}"))
                     self.events.write({"t": rx.t_s, "type": "command_refused", "link": ls.name,
-                                       "command": m.command, "detail": f"mission: {refused}"})
+                                       "command": m.command, "detail": refused})
                     acked = True
                     continue
                 self._cmd_seq += 1
@@ -404,14 +422,13 @@ class Server:
                         self._send(ls, self.bridge.hold(self.bridge.held_since_s or rx.t_s))
                         continue
                     if self._attitude_on_ground(rx.t_s):
-                        why = ("OFFBOARD on the ground needs position or velocity setpoints: a take-off on an"
-                               " attitude setpoint is not supervised (take off first, then start OFFBOARD)")
-                        self._send(ls, command_ack(m, sender, MAV_RESULT_DENIED))
-                        self._send(ls, o.StatusTextOut(o.MAV_SEVERITY_WARNING, f"Merlin: {why}"))
-                        self.events.write({"t": rx.t_s, "type": "offboard_takeoff", "phase": "denied",
-                                           "link": ls.name, "detail": why})
-                        continue
-                    if self._accept_on_ground(rx.t_s):
+                        # the controller flies its own take-off, as on PX4; the core judges the request as any
+                        # other and defers the altitude floors for that take-off alone (icd/ICD.md 6.1)
+                        self.events.write({"t": rx.t_s, "type": "offboard_takeoff", "phase": "attitude",
+                                           "link": ls.name, "detail": "OFFBOARD on the ground on attitude"
+                                           " setpoints: the controller's take-off, supervised; the floors apply"
+                                           " once above them"})
+                    elif self._accept_on_ground(rx.t_s):
                         self.takeoff.accept()
                         self._takeoff_cmd = (ls, m, sender)
                         self._send(ls, command_ack(m, sender, MAV_RESULT_ACCEPTED))
@@ -439,6 +456,9 @@ class Server:
                     self._send(ls, command_ack(m, sender, MAV_RESULT_UNSUPPORTED))
                     self.events.write({"t": rx.t_s, "type": "command_refused", "link": ls.name,
                                        "command": m.command, "detail": f"message {intent.message_id} not provided"})
+                acked = True
+            elif isinstance(intent, MissionCurrent):
+                self._on_mission_current(ls, rx.t_s, intent.seq, m, sender)
                 acked = True
             elif isinstance(intent, SetMessageInterval):
                 self._set_interval(ls, m, sender, intent)
@@ -489,11 +509,11 @@ class Server:
                 and self.takeoff.phase.value == "idle")
 
     def _attitude_on_ground(self, t: float) -> bool:
-        """Whether an OFFBOARD request comes on the ground with attitude setpoints streaming. Such a take-off
-        is refused rather than served by the flow of icd/ICD.md 6.1: an attitude setpoint holds no height
-        and no climb rate, so the hand-over would give an open-loop collective to an unproven controller at
-        the lowest height the envelope allows, and the thrust that hovers differs between vehicles (MAVSDK's
-        offboard_attitude example climbs at PX4 SITL's 0.7 hover thrust from the ground)."""
+        """Whether an OFFBOARD request comes on the ground with attitude setpoints streaming. Such a request
+        is not served by Merlin's take-off (icd/ICD.md 6.1): an attitude setpoint holds no height, so a
+        hand-over after Merlin's climb would give an open-loop collective to the controller at the lowest
+        height the envelope allows. It goes to the core as PX4 takes it, and the controller's thrust flies
+        the take-off, supervised from the first tick (the altitude floors once the vehicle is above them)."""
         sp = self.pending.setpoint[1] if self.pending.setpoint is not None else None
         attitude = (sp is None and self.sp is not None and self.sp.kind is SetpointKind.ATTITUDE) or (
             isinstance(sp, i.AttitudeTargetIn))
@@ -651,8 +671,87 @@ class Server:
                                  {"source": "mission upload", "items": len(res.plan.items)})
             self._hand_mission_to_fixed_wing(res.plan)
             self._mission_reached, self._mission_current, self._mission_complete = -1, -1, False
+            if self.loop.core.state.mission_index != 0 and not res.plan.empty:  # a new mission starts at its start
+                self._cmd_seq += 1
+                self.pending.commands.append(GcsCommand(GcsCommandKind.MISSION_CURRENT, param=0.0, seq=self._cmd_seq))
             self.events.write({"t": self.t, "type": "mission_applied", "items": len(res.plan.items),
                                "waypoints": len(res.plan.waypoints), "end": res.plan.end.value})
+
+    def _on_mission_current(self, ls: _LinkState, t: float, seq: int, cmd: i.CommandIn | None,
+                            sender: tuple[int, int]) -> None:
+        """MISSION_SET_CURRENT (``cmd`` None) or MAV_CMD_DO_SET_MISSION_CURRENT: the item to fly next, as PX4
+        takes it (in the mission the vehicle flies on to it at once; otherwise a later start or resume flies
+        from it). The straight leg to it, which the upload's check never saw, is checked against the fence
+        first; a refusal is answered DENIED (the command) and in STATUSTEXT naming the item."""
+        plan = self.mission.plan
+        why: str | None = None
+        idx = 0
+        if plan.empty:
+            why = "no mission uploaded"
+        elif seq == -1:  # "leave the current item": nothing to do
+            if cmd is not None:
+                self._send(ls, command_ack(cmd, sender, MAV_RESULT_ACCEPTED))
+            return
+        elif not 0 <= seq < len(plan.items):
+            why = f"item {seq}: the mission has items 0 to {len(plan.items) - 1}"
+        else:
+            idx = waypoint_at_or_after(plan, seq)
+            s = self.loop.state
+            from_ne = (0.0, 0.0) if s.landed else (float(s.pos_ned_m[0]), float(s.pos_ned_m[1]))
+            geo = self.cfg.geofence
+            why = check_jump_against_fence(plan, idx, from_ne, self.loop.core_cfg.fence if geo.enabled else None,
+                                           geo.margin_m)
+        if why is not None:
+            if cmd is not None:
+                self._send(ls, command_ack(cmd, sender, MAV_RESULT_DENIED))
+            else:  # the sender sees the item in force, unchanged
+                self._send(ls, self._mission_current_message(self.decision))
+            self._send(ls, o.StatusTextOut(o.MAV_SEVERITY_WARNING, f"Merlin: mission item not set: {why}"))
+            self.events.write({"t": t, "type": "command_refused", "link": ls.name, "command": "MISSION_SET_CURRENT",
+                               "detail": why})
+            return
+        self._cmd_seq += 1
+        self.pending.commands.append(GcsCommand(GcsCommandKind.MISSION_CURRENT, param=float(idx), seq=self._cmd_seq))
+        self._mission_jumps[self._cmd_seq] = idx
+        if cmd is not None:
+            self._cmd_waiting[self._cmd_seq] = (ls, cmd, sender)
+
+    def _mission_jumped(self, idx: int) -> None:
+        """The core took a MISSION_CURRENT: items skipped are not reported reached, items flown again are
+        reported again, and MISSION_CURRENT goes out at once with the new item."""
+        self._mission_reached = self.mission.plan.seq_of(idx) - 1
+        self._mission_complete = False
+        self._mission_current = -1
+        stage, fm = self._fw_stage(), self._fw_mission()
+        if stage is not None and fm is not None:  # the fixed wing's stage flies its own mission: moved there too
+            flying = self.decision is not None and self.decision.behavior is Behavior.MISSION
+            if idx >= len(stage.mission):
+                fm.resume_index = 0
+                if flying:
+                    self._fw_mission_done = True
+                    self._command_mission_end(self.t)
+            else:
+                fm.resume_index = idx
+                if flying:
+                    stage.mode_key = None  # re-entered from the new waypoint on the next tick
+
+    def _fixed_wing_loiter(self, cmd: GcsCommand) -> tuple[GcsCommand, str | None]:
+        """A fixed wing's GOTO or ORBIT is a loiter circle (merlin.autopilot.fixedwing_mission): an orbit's
+        radius is never tighter than the stage's loiter radius (the core then checks the circle flown), and a
+        GOTO's circle, which the core's check of the point alone does not see, is checked against the fence
+        here. Returns the command to pass on and why it is refused (None: it is not)."""
+        stage = self._fw_stage()
+        if stage is None or cmd.kind not in (GcsCommandKind.GOTO, GcsCommandKind.ORBIT) or cmd.target_ned_m is None:
+            return cmd, None
+        low = stage.land_height_m  # the height its LAND loiter keeps from the terrain
+        if -cmd.target_ned_m[2] < low:
+            return cmd, (f"{cmd.kind.name} refused: the fixed wing's loiter at {-cmd.target_ned_m[2]:.1f} m above home"
+                         f" is below {low:g} m, the lowest it loiters")
+        if cmd.kind is GcsCommandKind.ORBIT:
+            return replace(cmd, param=fixedwing_mission.orbit_radius_m(stage, cmd.param)), None
+        fence = self.loop.core_cfg.fence if self.cfg.geofence.enabled else None
+        why = fixedwing_mission.circle_block(fence, cmd.target_ned_m, stage.gp.loiter_radius_m)
+        return cmd, (None if why is None else f"GOTO refused: {why}")
 
     def _mission_start_refused(self, cmd: GcsCommand) -> str | None:
         """Why a MISSION command must be refused now: the uploaded mission no longer fits the fence in force
@@ -672,22 +771,24 @@ class Server:
 
         airspeed = stage.gp.rtl_airspeed_mps  # the stage's cruise airspeed
         stage.mission = tuple(Waypoint(n, e, -d, airspeed) for n, e, d in (w.pos_ned_m for w in plan.waypoints))
+        if stage.fw_mission is not None:
+            stage.fw_mission.resume_index = 0
 
     def _mission_progress(self, d: Decision) -> None:
         """MISSION_ITEM_REACHED for each item passed while flying the mission, and MISSION_CURRENT when the
         item being flown changes; the end item (RTL, LAND) is reported reached once the vehicle has landed
         and disarmed, as MAVSDK counts a mission finished by it."""
         plan = self.mission.plan
-        if d.armed and not self._was_armed:  # a new flight flies the mission from its start
-            self._mission_reached, self._mission_complete = -1, False
+        if d.armed and not self._was_armed:  # a new flight flies the mission from its start (or the item set)
+            start = self.loop.core.state.mission_index
+            self._mission_reached = plan.seq_of(start) - 1 if start > 0 and not plan.empty else -1
+            self._mission_complete = False
         self._was_armed = d.armed
         if plan.empty:
             return
-        st = self.loop.core.state
-        g = st.guidance
         outs: list[o.OutMessage] = []
-        if d.behavior is Behavior.MISSION and g is not None and g.behavior is Behavior.MISSION:
-            idx = g.mission_index
+        idx = self._index_flown(d)
+        if idx is not None:
             if idx >= len(plan.waypoints):
                 self._mission_complete = True
                 upto = plan.end_seq - 1 if plan.end_seq >= 0 else len(plan.items) - 1
@@ -695,7 +796,10 @@ class Server:
                 upto = plan.seq_of(idx) - 1
             outs += [o.MissionItemReachedOut(k) for k in range(self._mission_reached + 1, upto + 1)]
             self._mission_reached = max(self._mission_reached, upto)
-        if (self._mission_complete and plan.end_seq > self._mission_reached and not d.armed
+        # the end item: once landed and disarmed (a fixed wing, which does not land here: once its RTL or LAND
+        # loiter begins)
+        ended = not d.armed or (self._fw_stage() is not None and d.behavior in (Behavior.RTL, Behavior.LAND))
+        if (self._mission_complete and plan.end_seq > self._mission_reached and ended
                 and plan.end is not MissionEnd.HOLD):
             outs.append(o.MissionItemReachedOut(plan.end_seq))
             self._mission_reached = plan.end_seq
@@ -706,14 +810,64 @@ class Server:
         for msg in outs:
             self._broadcast(msg)
 
+    def _fw_stage(self) -> Any:
+        """The fixed wing's actuator stage (None for a multirotor)."""
+        return getattr(self.loop, "stage", None) if self.mav_type == o.MAV_TYPE_FIXED_WING else None
+
+    def _fw_mission(self) -> fixedwing_mission.FixedWingMission | None:
+        stage = self._fw_stage()
+        return None if stage is None else stage.fw_mission
+
+    def _fixed_wing_tick(self, d: Decision) -> None:
+        """After a fixed wing's tick: a new GOTO/ORBIT target re-enters the stage's behaviour (its loiter moves
+        there); the mission's resume point follows the stage's L1 mission; flown to its end, the mission's end
+        item (RTL, LAND) is commanded to the core, as the multirotor's core does itself."""
+        stage, fm = self._fw_stage(), self._fw_mission()
+        if stage is None or fm is None:
+            return
+        arb = self.loop.core.state.arbiter
+        if arb.target_seq != self._fw_target_seq:
+            self._fw_target_seq = arb.target_seq
+            stage.mode_key = None
+        if d.behavior is not Behavior.MISSION or d.authority is not Authority.TRUSTED or not stage.mission:
+            return
+        idx, finished = fixedwing_mission.progress(stage)
+        if not finished:
+            fm.resume_index, self._fw_mission_done = idx, False
+        elif not self._fw_mission_done:
+            self._fw_mission_done = True
+            fm.resume_index = 0  # a later start flies it again from the first waypoint
+            self._command_mission_end(d.t_s)
+
+    def _command_mission_end(self, t: float) -> None:
+        end = self.mission.plan.end
+        kind = {MissionEnd.RTL: GcsCommandKind.RTL, MissionEnd.LAND: GcsCommandKind.LAND}.get(end)
+        if kind is None:
+            return
+        self._cmd_seq += 1
+        self.pending.commands.append(GcsCommand(kind, seq=self._cmd_seq))
+        self.events.write({"t": t, "type": "fixed_wing_mission_end", "end": end.value})
+
+    def _index_flown(self, d: Decision) -> int | None:
+        """The waypoint being flown while the trusted MISSION flies (its length past the last), else None: the
+        core's guidance's for a multirotor, the fixed-wing stage's own L1 mission for a fixed wing."""
+        if d.behavior is not Behavior.MISSION:
+            return None
+        stage = self._fw_stage()
+        if stage is not None:
+            return fixedwing_mission.progress(stage)[0] if stage.mission else None
+        g = self.loop.core.state.guidance
+        return g.mission_index if g is not None and g.behavior is Behavior.MISSION else None
+
     def _mission_current_message(self, d: Decision | None) -> o.MissionCurrentOut:
         plan = self.mission.plan
         if plan.empty:
             return o.MissionCurrentOut(0, 0, o.MISSION_STATE_NO_MISSION, 2)
-        st = self.loop.core.state
-        g = st.guidance
         flying = d is not None and d.behavior is Behavior.MISSION
-        idx = g.mission_index if flying and g is not None and g.behavior is Behavior.MISSION else st.mission_index
+        idx = self._index_flown(d) if flying and d is not None else None
+        if idx is None:
+            fm = self._fw_mission()
+            idx = fm.resume_index if fm is not None else self.loop.core.state.mission_index
         if self._mission_complete:
             state, seq = o.MISSION_STATE_COMPLETE, plan.seq_of(len(plan.waypoints))
         else:
@@ -835,6 +989,7 @@ class Server:
         if sp_arrival_ns:
             self.stats.record_setpoint_latency(time.monotonic_ns() - sp_arrival_ns)
         self.decision = d
+        self._fixed_wing_tick(d)
         self.ulog.record(t, state, d, self.sp, self.loop)
         for e in d.events:
             self._on_event(e, d)
@@ -978,6 +1133,9 @@ class Server:
             if not released:
                 self._revoke_repeats += [(self.t + dt, rv) for dt in REVOKE_REPEATS_S]
         elif e.kind is EventKind.COMMAND_ACK:
+            jump = self._mission_jumps.pop(e.seq, None)
+            if jump is not None and e.accepted:
+                self._mission_jumped(jump)
             waiting = self._cmd_waiting.pop(e.seq, None)
             if waiting is not None:
                 ls, cmd, sender = waiting

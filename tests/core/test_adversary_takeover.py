@@ -8,11 +8,13 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
+from merlin.config.loader import load_config
 from merlin.config.models import MerlinConfig
 from merlin.config.runtime import build_core_config
 from merlin.core.config import SetpointClamp
@@ -282,3 +284,51 @@ def test_a_pilot_never_flies_beyond_the_fence_wherever_the_takeover_starts(
     })
     r = run_scenario(sc, FLOOR_CFG)
     assert float(np.nanmin(r.log["fence_margin"])) > 0.0
+
+
+L_RANGE = load_config(Path(__file__).parents[2] / "examples" / "configs" / "l_range.yaml")
+
+
+def _keepout_approach(offset_m: float, speed_frac: float, operator: list[dict[str, float | bool]],
+                      duration_s: float) -> tuple[list[dict], np.ndarray]:
+    """The pilot flies north at the L-shaped range's antenna keep-out (a 25 m circle at (150, 30)) from
+    75 m south of its centre, ``offset_m`` east of the centre line, with ``speed_frac`` of full stick."""
+    sc = Scenario.model_validate({
+        "name": "pilot_keepout", "duration_s": duration_s, "seed": 5, "rc_connected": True,
+        "initial": {"pos_ned_m": [75.0, 30.0 + offset_m, -30.0], "yaw_deg": 0.0},
+        "gcs": [{"t": 0.0, "command": "arm"}, {"t": 0.0, "command": "hold"}],
+        "operator": [{"t": 1.0, "takeover": True, "pitch": speed_frac}, *operator],
+        "log_rate_hz": 50.0,
+    })
+    r = run_scenario(sc, L_RANGE)
+    return r.events, r.log["fence_margin"]
+
+
+@settings(max_examples=5, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+@example(offset_m=0.0, speed_frac=0.8, regrab_gap_s=0.45, stick_deg=0.0, stick_mag=1.0)  # 3.8 m before
+@given(
+    offset_m=st.floats(-15.0, 15.0),
+    speed_frac=st.floats(0.5, 0.8),
+    regrab_gap_s=st.floats(0.05, 1.0),
+    stick_deg=st.floats(-60.0, 60.0),
+    stick_mag=st.floats(0.5, 1.0),
+)
+def test_a_pilot_who_regrabs_during_the_braking_stops_at_the_margin(
+    offset_m: float, speed_frac: float, regrab_gap_s: float, stick_deg: float, stick_mag: float,
+) -> None:
+    """Closed loop on the L-shaped range: the fence revokes a pilot flying at the antenna keep-out (4-6.4
+    m/s, any line) and he re-grabs during Merlin's braking with the stick towards it (any direction within
+    60 deg of north, any size): the override grace lets him fly, and the vehicle stops no deeper than the
+    fence's margin (adv_pilot_regrab_keepout; before, the re-grab restarted the braking from the lagging
+    measured velocity and stopped up to 2 m inside the margin)."""
+    events, _ = _keepout_approach(offset_m, speed_frac, [], 20.0)
+    rev = next(e["t"] for e in events if e["type"] == "revoked" and e["reason"] == "geofence")
+    t2 = rev + regrab_gap_s
+    a = math.radians(stick_deg)
+    events, margin = _keepout_approach(offset_m, speed_frac, [
+        {"t": rev, "takeover": False},
+        {"t": t2, "takeover": True, "pitch": stick_mag * math.cos(a), "roll": stick_mag * math.sin(a)},
+    ], t2 + 6.0)
+    # the re-grab is the pilot's, under the grace (not refused nor revoked at once)
+    assert any(e["type"] == "authority" and e["to"] == "OPERATOR" and abs(e["t"] - t2) < 0.01 for e in events)
+    assert float(np.nanmin(margin)) >= L_RANGE.geofence.margin_m

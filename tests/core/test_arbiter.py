@@ -543,6 +543,35 @@ def test_mission_commanded_on_the_ground_takes_off_first_to_the_lower_of_the_tak
     assert h.core.state.arbiter.takeoff_alt_m == 6.0  # the first waypoint is lower than the take-off height
 
 
+def test_mission_current_sets_the_waypoint_flown_next_on_the_ground_and_in_the_mission() -> None:
+    """MISSION_SET_CURRENT as PX4 takes it: on the ground, disarmed, it sets where a later start flies from; in
+    the mission it flies on to that waypoint at once; outside the mission's range it is refused."""
+    wps = [[20.0, 0.0, -6.0], [20.0, 20.0, -6.0], [0.0, 20.0, -6.0]]
+    h = Harness(cfg=MerlinConfig.model_validate({"trusted": {"mission_ned_m": wps}}))
+    h.state = replace(HOVER_10M, pos_ned_m=(0.0, 0.0, 0.0), landed=True, armed=False)
+    [ack] = events_of(h.command(GcsCommandKind.MISSION_CURRENT, 1.0), EventKind.COMMAND_ACK)
+    assert ack.accepted and h.core.state.mission_index == 1  # disarmed: kept for the flight to come
+    for bad in (3.5, -1.0, math.nan, 4.0):
+        [ack] = events_of(h.command(GcsCommandKind.MISSION_CURRENT, bad), EventKind.COMMAND_ACK)
+        assert not ack.accepted and ack.reason.code is ReasonCode.INVALID_INPUT, bad
+    h.command(GcsCommandKind.ARM)
+    h.command(GcsCommandKind.TAKEOFF, 6.0)
+    h.state = replace(HOVER_10M, pos_ned_m=(0.0, 0.0, -6.0))
+    h.run(0.5)
+    assert h.command(GcsCommandKind.MISSION).behavior is Behavior.MISSION
+    assert h.core.state.guidance.mission_index == 1  # started at the waypoint set on the ground
+    [ack] = events_of(h.command(GcsCommandKind.MISSION_CURRENT, 2.0), EventKind.COMMAND_ACK)
+    assert ack.accepted and h.core.state.guidance.mission_index == 2
+    h.command(GcsCommandKind.MISSION_CURRENT, 3.0)  # the end: the mission is done, its end behaviour follows
+    assert h.core.state.guidance.done or h.core.state.guidance.behavior is not Behavior.MISSION
+
+
+def test_mission_current_without_a_mission_is_refused() -> None:
+    h = Harness()
+    [ack] = events_of(h.command(GcsCommandKind.MISSION_CURRENT, 0.0), EventKind.COMMAND_ACK)
+    assert not ack.accepted and "the mission has 0" in ack.reason.text
+
+
 def test_goto_and_orbit_without_a_finite_target_or_radius_are_refused_as_invalid() -> None:
     h = Harness()
     h.airborne()

@@ -199,6 +199,7 @@ def test_inbound_missions_params_signing(M: Any) -> None:
     assert _in(p.frame(M.MAVLink_mission_ack_message(1, 1, 0, 1))) == i.MissionAckIn(1, 1, 0, 1)
     assert _in(p.frame(M.MAVLink_mission_request_list_message(1, 1, 1))) == i.MissionRequestListIn(1, 1, 1)
     assert _in(p.frame(M.MAVLink_mission_clear_all_message(1, 1, 1))) == i.MissionClearAllIn(1, 1, 1)
+    assert _in(p.frame(M.MAVLink_mission_set_current_message(1, 1, 3))) == i.MissionSetCurrentIn(1, 1, 3)
     assert _in(p.frame(M.MAVLink_param_request_list_message(1, 1))) == i.ParamRequestListIn(1, 1)
     assert _in(p.frame(M.MAVLink_param_request_read_message(1, 1, b"ENV_ROLL_MAX", -1))) == i.ParamRequestReadIn(
         1, 1, "ENV_ROLL_MAX", -1)

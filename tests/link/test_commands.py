@@ -30,6 +30,7 @@ from merlin.link.commands import (
     MAV_RESULT_TEMPORARILY_REJECTED,
     MAV_RESULT_UNSUPPORTED,
     LinkRole,
+    MissionCurrent,
     OffboardModeBridge,
     Refused,
     RequestMessage,
@@ -211,7 +212,7 @@ def test_refusals_say_why_terrain_frames_fixed_wing_zero_radius_reboot() -> None
     for cmd, kw, result in (
         (_cmd_int(192, 10, -1, 1, 0, NAN, 47.0, 8.0, 10.0), {}, MAV_RESULT_UNSUPPORTED),  # terrain frame
         (_cmd_int(34, 5, 0.0, 2, 0, 0, 47.0, 8.0, NAN), {}, MAV_RESULT_DENIED),  # zero radius
-        (_cmd_int(192, 5, -1, 1, 0, NAN, 47.0, 8.0, 410.0), {"fixed_wing": True}, MAV_RESULT_UNSUPPORTED),
+        (_cmd(178, 1, 20.0), {"fixed_wing": True}, MAV_RESULT_UNSUPPORTED),  # its own cruise airspeed
         (_cmd(178, 2, 1.0), {}, MAV_RESULT_UNSUPPORTED),  # climb speed
         (_cmd(178, 1, -1.0), {}, MAV_RESULT_DENIED),
         (_cmd(246, 1), {}, MAV_RESULT_UNSUPPORTED),  # reboot
@@ -220,6 +221,10 @@ def test_refusals_say_why_terrain_frames_fixed_wing_zero_radius_reboot() -> None
         assert isinstance(r, Refused) and r.result == result and r.detail, (cmd, r)
     [s] = interpret_command(_cmd(178, 1, 2.5, -1), LinkRole.GCS, 400.0)
     assert s == GcsCommand(GcsCommandKind.SPEED, param=2.5)
+    # a fixed wing flies a reposition and an orbit as loiter circles (merlin.autopilot.fixedwing_mission)
+    [g] = interpret_command(_cmd_int(192, 5, -1, 1, 0, NAN, 47.0, 8.0, 410.0), LinkRole.GCS, 400.0, frame=f,
+                            pos_ned_m=(0.0, 0.0, -5.0), fixed_wing=True)
+    assert isinstance(g, GcsCommand) and g.kind is GcsCommandKind.GOTO and g.target_ned_m == (0.0, 0.0, -10.0)
 
 
 def test_a_held_request_answers_in_progress_repeats_and_can_be_cancelled() -> None:
@@ -250,3 +255,12 @@ def test_a_request_answered_already_gets_no_second_command_ack() -> None:
     b.requested(_set_mode(6), (245, 191), answered=True)  # the take-off in OFFBOARD accepted it on the ground
     assert b.on_event(Event(1.0, EventKind.GRANTED, seq=3)) == []
     assert b.on_setpoint(1.1) == AuthorityRequest(RequestKind.ACK, seq=3, t_s=1.1)
+
+
+def test_set_mission_current_is_the_item_or_unchanged_and_a_non_item_is_denied() -> None:
+    g = LinkRole.GCS
+    assert interpret_command(_cmd(224, 2), g, 0) == (MissionCurrent(2),)
+    assert interpret_command(_cmd(224, -1, 1), LinkRole.CONTROLLER, 0) == (MissionCurrent(-1),)
+    for bad in (2.5, -2.0, NAN, 70000.0):
+        (r,) = interpret_command(_cmd(224, bad), g, 0)
+        assert isinstance(r, Refused) and r.result == MAV_RESULT_DENIED and "DO_SET_MISSION_CURRENT" in r.detail

@@ -25,9 +25,11 @@ from merlin.link.mission_protocol import (
     MissionEnd,
     MissionPlan,
     MissionProtocol,
+    check_jump_against_fence,
     check_legs_against_fence,
     decode_mission,
     plan_from_config,
+    waypoint_at_or_after,
 )
 from merlin.link.mission_transfer import (
     MAV_MISSION_ACCEPTED,
@@ -261,3 +263,24 @@ def test_every_point_of_an_accepted_mission_is_inside_the_fence(points: list[tup
             n, e = an + f * (bn - an), ae + f * (be - ae)
             assert geofence.contains(_FENCE, (n, e, -20.0)), (n, e)
             assert math.hypot(n - 30.0, e - 30.0) > 15.0
+
+
+def test_the_item_set_current_maps_to_the_waypoint_at_or_after_it() -> None:
+    plan = decode_mission(MAVSDK_EXAMPLE, HOME)  # waypoints at items 0, 2, 4; speeds 1, 3, 5; RTL 6
+    assert isinstance(plan, MissionPlan)
+    assert [waypoint_at_or_after(plan, k) for k in range(7)] == [0, 1, 1, 2, 2, 3, 3]
+
+
+def test_a_jump_whose_straight_leg_crosses_a_keep_out_is_refused_naming_the_item() -> None:
+    """MISSION_SET_CURRENT makes a leg the upload never checked: from where the vehicle is to the item set."""
+    fence = _fence(200.0, keep_out=(40.0, 0.0, 10.0))
+    plan = _plan((80, 40, -20), (80, 0, -20), (0, 40, -20), end=MissionEnd.RTL)
+    assert check_legs_against_fence(plan, fence, 5.0, 120.0) is None  # the uploaded legs are clear
+    assert check_jump_against_fence(plan, 1, (80.0, 40.0), fence, 5.0) is None
+    why = check_jump_against_fence(plan, 1, (0.0, 0.0), fence, 5.0)  # home straight to (80, 0): through it
+    assert why is not None and "item 1 (NAV_WAYPOINT)" in why and "keep-out" in why
+    why = check_jump_against_fence(plan, 3, (80.0, 0.0), fence, 5.0)  # the end: RTL's leg home
+    assert why is not None and "NAV_RETURN_TO_LAUNCH" in why
+    assert check_jump_against_fence(plan, 1, (150.0, 150.0), _fence(100.0), 5.0) is not None  # outside
+    assert check_jump_against_fence(plan, 1, (0.0, 0.0), None, 5.0) is None
+    assert check_jump_against_fence(_plan((10, 0, -20)), 1, (0.0, 0.0), fence, 5.0) is None  # HOLD end

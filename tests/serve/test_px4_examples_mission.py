@@ -149,6 +149,40 @@ def test_mission_upload_download_start_pause_resume_land_clear(serve: ServeProc)
     assert _download(m) == []
 
 
+def test_set_current_item_on_the_ground_and_in_flight(serve: ServeProc) -> None:
+    """MISSION_SET_CURRENT (MAVSDK's mission.set_current_mission_item) and MAV_CMD_DO_SET_MISSION_CURRENT as PX4
+    takes them: on the ground it sets where the mission starts (MISSION_CURRENT answers with the item at once);
+    in the mission the vehicle flies on to the item set; an item the mission does not have is refused, naming
+    it; the end item (RTL) set in flight returns; skipped items are never reported reached."""
+    m = gcs_connection(serve.gcs_port)
+    frame = _home(m)
+    items = [_item(frame, 0, 16, 20.0, 0.0, 8.0), _item(frame, 1, 16, 20.0, 20.0, 8.0),
+             _item(frame, 2, 16, 0.0, 20.0, 8.0), _item(frame, 3, 20, mav_frame=2)]  # ... NAV_RETURN_TO_LAUNCH
+    assert _upload(m, items).type == 0
+    m.mav.mission_set_current_send(1, 1, 1)
+    cur = wait_for(m, lambda x: x.get_type() == "MISSION_CURRENT" and x.seq == 1, timeout_s=5)
+    assert cur is not None, "MISSION_SET_CURRENT on the ground not answered with the item"
+    assert command(m, 224, 9.0).result == 2  # DO_SET_MISSION_CURRENT to an item the mission lacks: DENIED
+    text = _statustext(m, "mission item not set")
+    assert text is not None and "item 9" in text, text
+
+    assert command(m, 400, 1.0).result == 0
+    assert command(m, 300, 0.0, 0.0).result == 0  # take off, then the mission from item 1
+    reached = wait_for(m, lambda x: x.get_type() == "MISSION_ITEM_REACHED", timeout_s=60)
+    assert reached is not None and reached.seq == 1, reached  # item 0 was skipped: never reported
+    assert command(m, 224, 0.0).result == 0  # in flight, back to item 0
+    cur = wait_for(m, lambda x: x.get_type() == "MISSION_CURRENT" and x.seq == 0 and x.mission_state == 3)
+    assert cur is not None
+    assert wait_for(m, lambda x: x.get_type() == "MISSION_ITEM_REACHED" and x.seq == 0, timeout_s=60) is not None
+    m.mav.mission_set_current_send(1, 1, 3)  # the RTL item
+    rtl = wait_for(m, lambda x: x.get_type() == "HEARTBEAT" and x.type != 6 and _px4_mode(x) == (PX4_AUTO, 5))
+    assert rtl is not None, "setting the RTL item current did not return"
+    events = serve.events()
+    jumps = [e for e in events if e["type"] == "command_ack" and e["command"] == "MISSION_CURRENT"]
+    assert [j["accepted"] for j in jumps] == [True, True, True], jumps
+    assert "RTL" in [e["behavior"] for e in events if e["type"] == "behavior"]
+
+
 def test_a_mission_that_no_longer_fits_a_later_fence_is_not_started(serve: ServeProc) -> None:
     """A fence uploaded after the mission, smaller than its legs: MISSION_START is DENIED with a STATUSTEXT
     naming the item (PX4 checks a mission's feasibility when it starts, too)."""

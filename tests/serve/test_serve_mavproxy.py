@@ -60,3 +60,49 @@ def test_mavproxy_connects_sets_a_param_on_the_ground_arms_and_takes_off(serve: 
     while (hb := log.recv_match(type="HEARTBEAT")) is not None:
         autopilots.add((hb.get_srcSystem(), hb.autopilot))
     assert (1, 12) in autopilots  # Merlin's, as MAV_AUTOPILOT_PX4 (MAVProxy logs its own too)
+
+
+def test_mavproxy_session_wp_load_list_mode_arm_takeoff_mission_rtl(serve: ServeProc, tmp_path: Path) -> None:
+    """A MAVProxy session as a PX4 user types it, non-interactively: load a waypoint file (QGC WPL 110) and
+    list it back, arm, then PX4's modes AUTO.TAKEOFF, AUTO.MISSION and AUTO.RTL, each a DO_SET_MODE with PX4's
+    custom main and sub modes (MAVProxy's ``long DO_SET_MODE 1 4 <sub>``: its ``mode NAME`` passes pymavlink's
+    PX4 mode tuple where a number is expected and fails before sending, against PX4 SITL as here), and
+    Merlin's trusted autopilot flies them."""
+    pytest.importorskip("MAVProxy")
+    from merlin.geodesy import LocalFrame
+    from tests.serve.px4_examples import PX4_HOME
+
+    state = tmp_path / "mavproxy"
+    state.mkdir()
+    home = LocalFrame(*PX4_HOME)
+    rows = ["QGC WPL 110"]
+    for seq, (cmd, n, e) in enumerate([(16, 0.0, 0.0), (16, 20.0, 0.0), (16, 20.0, 20.0), (20, 0.0, 0.0)]):
+        lat, lon, _ = home.to_geodetic(n, e) if cmd == 16 else (0.0, 0.0, 0.0)
+        height = 10.0 if cmd == 16 else 0.0  # frame 3: above home
+        rows.append(f"{seq}\t{int(seq == 0)}\t3\t{cmd}\t0\t0\t0\t0\t{lat:.7f}\t{lon:.7f}\t{height}\t1")
+    (state / "mission.txt").write_text("\n".join(rows) + "\n")
+    script = ("sleep 12; echo 'wp load mission.txt'; sleep 5; echo 'wp list'; sleep 5; echo 'arm throttle'; sleep 3;"
+              " echo 'long DO_SET_MODE 1 4 2'; sleep 8; echo 'long DO_SET_MODE 1 4 4'; sleep 14; echo 'long DO_SET_MODE 1 4 5';"
+              " sleep 4")
+    for _ in range(600):
+        if any(e["type"] == "serve_start" for e in serve.events()):
+            break
+        time.sleep(0.1)
+    cmd = f"({script}) | {sys.executable} -m MAVProxy.mavproxy --master=udpin:127.0.0.1:{serve.gcs_port} " \
+          f"--logfile={state / 'mavproxy.tlog'} --state-basedir={state}"
+    try:
+        res = subprocess.run(["bash", "-c", cmd], cwd=state, capture_output=True, text=True, timeout=120,
+                             env={**os.environ, "PYTHONPATH": str(ROOT)})
+        out = res.stdout + res.stderr
+    except subprocess.TimeoutExpired as exc:
+        out = (exc.stdout or b"").decode() if isinstance(exc.stdout, bytes) else (exc.stdout or "")
+    assert "Detected vehicle 1:1" in out, out[-3000:]
+    events = serve.events()
+    [applied] = [e for e in events if e["type"] == "mission_applied"]
+    assert applied["waypoints"] == 3 and applied["end"] == "rtl", applied
+    assert re.search(r"Saved 4 waypoints", out), out[-3000:]  # wp list: the four items read back
+    assert out.count("DO_SET_MODE: ACCEPTED") >= 3, out[-3000:]
+    behaviours = [e["behavior"] for e in events if e["type"] == "behavior"]
+    assert behaviours[:3] == ["TAKEOFF", "HOLD", "MISSION"] and "RTL" in behaviours, behaviours
+    reached = [e for e in events if e["type"] == "command_ack" and e["command"] in ("TAKEOFF", "MISSION", "RTL")]
+    assert all(e["accepted"] for e in reached), reached

@@ -1,0 +1,542 @@
+"""The guard's loop: the imperative shell around the trusted core on a companion computer.
+
+One thread. Frames are routed as they arrive (so a controller's setpoint reaches the autopilot within
+the time it takes to read, classify and write it, not at the next tick); the core runs at
+``guard.rate_hz`` on the autopilot's telemetry and decides authority; its decision opens or closes the
+gate and, after a revocation, its trusted command is streamed to the autopilot in the dialect
+(:mod:`merlin.guard.trusted`).
+
+Start-up (:meth:`Guard.start`), before anything from the controller reaches the autopilot:
+
+1. wait for the autopilot's HEARTBEAT and recognise the dialect and vehicle
+   (:func:`merlin.guard.dialects.detect`);
+2. read the failsafe parameters and refuse to start if the autopilot would not catch a dead guard
+   (:mod:`merlin.guard.failsafe_params`): :class:`GuardRefused` carries every refusal;
+3. request the telemetry streams (MAV_CMD_SET_MESSAGE_INTERVAL).
+
+Authority follows the ICD's standard flow for controllers that do not speak Merlin's dialect: the
+controller's request for the dialect's offboard mode (PX4 OFFBOARD, ArduPilot GUIDED) is the REQUEST; the
+guard holds the mode command until the core decides; on a grant the guard acknowledges the grant for the
+controller (the mode command itself is the controller's intent, and its setpoints already stream) and
+forwards the command, so the autopilot's own COMMAND_ACK answers the controller; on a denial the guard
+answers COMMAND_ACK DENIED and a STATUSTEXT with the reason. On a revocation the guard stops passing the
+controller's setpoints and streams the trusted command instead; the controller sees the autopilot's
+HEARTBEAT with the mode of Merlin's behaviour (PX4 AUTO.LOITER/AUTO.RTL/AUTO.LAND, Copter BRAKE/RTL/LAND)
+in place of OFFBOARD/GUIDED, so standard tools see the revocation as the mode change they know.
+
+Logs in ``out_dir`` (pymavlink's tlog format): ``guard.tlog``, every frame received on every link once
+and every frame the guard originates (forwarded copies are not repeated); ``autopilot.tlog``, the
+autopilot's frames alone, which ``merlin replay`` reads as a flight log; ``events.jsonl``, the core's
+events and the guard's own (start check, requests, denials, revocations, braking, stop).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import select
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from merlin.config.models import MerlinConfig
+from merlin.config.runtime import build_core_config
+from merlin.core.step import TrustedCore
+from merlin.core.types import (
+    Authority,
+    AuthorityRequest,
+    Decision,
+    EventKind,
+    ExperimentalInput,
+    GcsCommand,
+    GcsCommandKind,
+    Inputs,
+    NavMode,
+    OperatorInput,
+    RequestKind,
+    Setpoint,
+    SetpointKind,
+)
+from merlin.geodesy import LocalFrame
+from merlin.guard import inputs_log
+from merlin.guard import wire as w
+from merlin.guard.config import GuardConfig
+from merlin.guard.dialects import Autopilot, Dialect, ModeTable, detect, mode_table
+from merlin.guard.endpoints import EndpointSpec, open_transport
+from merlin.guard.failsafe_params import ParamReader, Refusal, check, requirements
+from merlin.guard.gate import GateContext, Route, classify
+from merlin.guard.response import BrakeMeter
+from merlin.guard.telemetry import TelemetryState, stream_requests
+from merlin.guard.trusted import TrustedOutput, trusted_output
+from merlin.link.frames import Frame
+from merlin.link.tlog import TlogWriter
+
+log = logging.getLogger("merlin.guard")
+EFFECTIVE_CONFIG = "effective_config.yaml"
+
+
+def write_effective_config(out_dir: Path, cfg: MerlinConfig, gcfg: GuardConfig) -> None:
+    """What the session ran with, beside its logs: the Merlin configuration and the guard: section."""
+    import yaml
+
+    data = cfg.model_dump(mode="json")
+    data["guard"] = gcfg.model_dump(mode="json")
+    (out_dir / EFFECTIVE_CONFIG).write_text(yaml.safe_dump(data, sort_keys=False))
+HEARTBEAT_PERIOD_S = 1.0
+STATUSTEXT_REPEAT_S = 1.0
+SWITCH_TIMEOUT_S = 2.0  # after a grant, the autopilot must show its offboard mode within this  # one STATUSTEXT per denial reason per second at most
+
+
+class GuardRefused(RuntimeError):
+    def __init__(self, autopilot: Autopilot | None, refusals: list[Refusal], detail: str = "") -> None:
+        self.autopilot = autopilot
+        self.refusals = refusals
+        lines = [r.text() for r in refusals] or [detail]
+        who = autopilot.describe() if autopilot else "the autopilot"
+        super().__init__(f"merlin guard refuses to start on {who}:\n  " + "\n  ".join(lines))
+
+
+@dataclass
+class _Link:
+    name: str
+    transport: Any
+    splitter: Any = field(default_factory=w.frame_splitter)
+    frames_in: int = 0
+    frames_out: int = 0
+
+    def fileno(self) -> int:
+        t = self.transport
+        if hasattr(t, "sock") and t.sock is not None and hasattr(t.sock, "fileno"):
+            return int(t.sock.fileno())
+        if hasattr(t, "fileno"):
+            return int(t.fileno())
+        if hasattr(t, "port"):
+            return int(t.port.fileno())
+        return -1
+
+
+@dataclass
+class _Held:
+    """An offboard-mode request held until the core decides."""
+
+    raw: bytes
+    command: int | None  # the MAV_CMD to answer (None: SET_MODE, which has no COMMAND_ACK)
+    sender: tuple[int, int]
+    t_s: float
+
+
+class Guard:
+    def __init__(self, cfg: MerlinConfig, gcfg: GuardConfig, autopilot: EndpointSpec, controller: EndpointSpec,
+                 gcs: EndpointSpec | None = None, out_dir: Path | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.cfg = cfg
+        self.gcfg = gcfg
+        self._clock = clock
+        self._t0 = clock()
+        self.ap_link = _Link("autopilot", open_transport(autopilot))
+        self.ctl_link = _Link("controller", open_transport(controller))
+        self.gcs_link = _Link("gcs", open_transport(gcs)) if gcs is not None else None
+        self.links = [x for x in (self.ap_link, self.ctl_link, self.gcs_link) if x is not None]
+        self.decoder = w.Decoder()
+        self.enc = w.Encoder(gcfg.system_id, gcfg.component_id)
+        h = cfg.home
+        self.telemetry = TelemetryState(LocalFrame(h.lat_deg, h.lon_deg, h.alt_amsl_m), gcfg.telemetry_stale_s)
+        self.core = TrustedCore(build_core_config(cfg))
+        self.autopilot: Autopilot | None = None
+        self.modes: ModeTable | None = None
+        self.ap_mode: int | None = None
+        self.params: dict[str, float] = {}
+        self._reader: ParamReader | None = None
+        self.decision: Decision | None = None
+        self.hb_t: float | None = None
+        self.sp: Setpoint | None = None
+        self.sp_t: float | None = None
+        self.gcs_t: float | None = None
+        self.requests: list[AuthorityRequest] = []
+        self.commands: list[GcsCommand] = []
+        self.held: _Held | None = None
+        self.supervising = False  # a grant happened and the autopilot has been in the offboard mode since
+        self.switch_deadline: float | None = None  # after a grant: until when the autopilot may take to switch
+        self.trusted_since: float | None = None
+        self.fallback_sent_t: float | None = None
+        self.intervals_us: dict[int, float] = {}
+        v = cfg.vehicle
+        self.brake = BrakeMeter(v.reaction_time_s, v.max_horizontal_decel_mps2)
+        self.counts: Counter[str] = Counter()
+        self._denied_t: dict[str, float] = {}
+        self._next_hb_t = 0.0
+        self._next_tick_t = 0.0
+        self._ap_seq = 0
+        self._stop = False
+        self.out_dir = out_dir
+        self.tlog: TlogWriter | None = None
+        self.ap_tlog: TlogWriter | None = None
+        self._events_fd: int | None = None
+        self._inputs_fd: int | None = None
+        if out_dir is not None:
+            out_dir.mkdir(parents=True, exist_ok=True)
+            self.tlog = TlogWriter(out_dir / "guard.tlog", fsync_interval_s=None)
+            # the autopilot's own frames alone: the vehicle's telemetry as merlin replay reads a .tlog
+            self.ap_tlog = TlogWriter(out_dir / "autopilot.tlog", fsync_interval_s=None)
+            self._events_fd = os.open(out_dir / "events.jsonl", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+            # the core's inputs, a line per tick: the session's decisions re-run exactly (inputs_log)
+            self._inputs_fd = os.open(out_dir / "core_inputs.jsonl", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+            write_effective_config(out_dir, cfg, gcfg)
+        self.on_forward: Callable[[str, Frame], None] | None = None  # benchmark hook: a frame forwarded
+
+    # ------------------------------------------------------------------------------------------ basics
+
+    def t(self) -> float:
+        return self._clock() - self._t0
+
+    def event(self, record: dict[str, Any]) -> None:
+        if self._events_fd is not None:
+            os.write(self._events_fd, (json.dumps(record, default=str) + "\n").encode())
+
+    def _send(self, link: _Link | None, raw: bytes, originated: bool = True) -> None:
+        """Write ``raw`` to ``link``; the tlog records what the guard originates (a forwarded frame is in it
+        once already, from its arrival)."""
+        if link is None:
+            return
+        link.transport.write(raw)
+        link.frames_out += 1
+        if originated and self.tlog is not None:
+            self.tlog.write(raw, time.time())
+
+    @property
+    def target(self) -> tuple[int, int]:
+        ap = self.autopilot
+        return (ap.system_id, ap.component_id) if ap is not None else (1, 1)
+
+    def _read(self, link: _Link, timeout_s: float) -> list[Frame]:
+        out: list[Frame] = []
+        for data, addr in link.transport.read(timeout_s):
+            frames, _errors = link.splitter.feed(data, final=link.transport.datagram)
+            if frames and addr is not None and link.transport.datagram:
+                link.transport.remote = addr  # answer whoever sent valid MAVLink (udpin)
+            for fr in frames:
+                link.frames_in += 1
+                now_unix = time.time()
+                if self.tlog is not None:
+                    self.tlog.write(fr.raw, now_unix)
+                if link is self.ap_link and self.ap_tlog is not None:
+                    self.ap_tlog.write(fr.raw, now_unix)
+            out.extend(frames)
+        return out
+
+    # ------------------------------------------------------------------------------------ start-up
+
+    def start(self) -> Autopilot:
+        """Detect the autopilot, check its failsafe parameters, request telemetry. Raises GuardRefused."""
+        deadline = self.t() + self.gcfg.heartbeat_timeout_s
+        while self.autopilot is None:
+            if self.t() > deadline:
+                raise GuardRefused(None, [], f"no autopilot HEARTBEAT on the autopilot link within "
+                                             f"{self.gcfg.heartbeat_timeout_s:g} s (guard.heartbeat_timeout_s)")
+            self._send(self.ap_link, self.enc.heartbeat())
+            for fr in self._read(self.ap_link, 0.2):
+                self._on_autopilot(fr, self.t())
+        ap = self.autopilot
+        req = requirements(ap)
+        self._reader = ParamReader(req.required, req.optional + req.gcs_sysid, self.gcfg.param_timeout_s)
+        while not self._reader.done(self.t()):
+            for name in self._reader.due(self.t()):
+                self._send(self.ap_link, self.enc.param_request_read(self.target, name))
+            for fr in self._read(self.ap_link, 0.05):
+                self._on_autopilot(fr, self.t())
+        self.params = dict(self._reader.values)
+        self._reader = None
+        refusals = check(ap, self.params, self.gcfg)
+        self.event({"t": self.t(), "type": "guard_start_check", "autopilot": ap.describe(), "params": self.params,
+                    "refusals": [r.text() for r in refusals]})
+        if refusals:
+            raise GuardRefused(ap, refusals)
+        gcs_sysid = next((self.params[n] for n in req.gcs_sysid if n in self.params), None)
+        if ap.dialect is Dialect.ARDUPILOT and gcs_sysid is not None:
+            # ArduPilot's GCS failsafe watches heartbeats from this system: the guard is that heartbeat
+            self.enc = w.Encoder(int(gcs_sysid), self.gcfg.component_id)
+        for s in stream_requests(ap.dialect, self.gcfg.telemetry_rate_hz):
+            self.intervals_us[s.message_id] = s.interval_us
+            self._send(self.ap_link, self.enc.command_long(self.target, w.MAV_CMD_SET_MESSAGE_INTERVAL,
+                                                           (float(s.message_id), s.interval_us)))
+        self.event({"t": self.t(), "type": "guard_started", "autopilot": ap.describe()})
+        return ap
+
+    # ------------------------------------------------------------------------------------- routing
+
+    def _on_autopilot(self, fr: Frame, t: float) -> None:
+        rec = self.decoder.typed(fr) if fr.msg_id in w.TYPED_IDS else None
+        if isinstance(rec, w.Heartbeat):
+            if self.autopilot is None:
+                found = detect(rec.autopilot, rec.mav_type, fr.system_id, fr.component_id)
+                if found is not None:
+                    self.autopilot, self.modes = found, mode_table(found)
+            if self.autopilot is not None and (fr.system_id, fr.component_id) == self.target:
+                self.ap_mode = rec.custom_mode
+                self._ap_seq = fr.seq
+                self.telemetry.on(t, rec)
+                raw = fr.raw
+                if self.gcs_link is not None:
+                    self._send(self.gcs_link, raw, originated=False)
+                shown = self._heartbeat_for_controller(rec, raw)
+                self._send(self.ctl_link, shown, originated=shown is not raw)
+                return
+        elif isinstance(rec, w.ParamValue):
+            if self._reader is not None and self.autopilot is not None:
+                bytewise = self.autopilot.dialect is Dialect.PX4
+                self._reader.on_value(rec.param_id, w.param_number(rec, bytewise))
+        elif rec is not None and fr.system_id == self.target[0]:
+            self.telemetry.on(t, rec)
+        self._send(self.ctl_link, fr.raw, originated=False)
+        if self.gcs_link is not None:
+            self._send(self.gcs_link, fr.raw, originated=False)
+
+    def _heartbeat_for_controller(self, hb: w.Heartbeat, raw: bytes) -> bytes:
+        d, m = self.decision, self.modes
+        if (d is None or m is None or not self.supervising or d.authority is Authority.EXPERIMENTAL
+                or not m.is_offboard(hb.custom_mode)):
+            return raw
+        shown = m.behaviour_modes.get(d.behavior, m.fallback[next(iter(m.fallback))])
+        return self.enc.heartbeat_as(hb, shown, self.target, self._ap_seq)
+
+    def _gate_context(self) -> GateContext:
+        d = self.decision
+        experimental = d is not None and d.authority is Authority.EXPERIMENTAL
+        state = self.telemetry._last_state
+        refusal = None
+        if state.nav_mode is NavMode.LOST:
+            refusal = "navigation: " + "; ".join(self.telemetry.faults(self.t()))
+        elif d is not None:
+            fence = next((m for m in d.monitors if m.name == "geofence" and m.tripped), None)
+            if fence is not None:
+                refusal = f"outside the fence ({fence.reason.describe()})"
+        assert self.modes is not None
+        offboard = self.ap_mode is not None and self.modes.is_offboard(self.ap_mode)
+        return GateContext(self.modes, experimental, offboard, self._trusted_flying(), state.landed, refusal,
+                           self.intervals_us)
+
+    def _trusted_flying(self) -> bool:
+        d = self.decision
+        return self.supervising and d is not None and d.authority is not Authority.EXPERIMENTAL
+
+    def _on_controller(self, fr: Frame, t: float) -> None:
+        if self.modes is None:
+            return  # nothing reaches an autopilot the guard has not recognised and checked
+        rec = self.decoder.typed(fr) if fr.msg_id in w.TYPED_IDS else None
+        if fr.msg_id == w.HEARTBEAT:
+            self.hb_t = t
+        elif fr.msg_id in w.SETPOINT_IDS:
+            # a setpoint stream is the controller's liveness, as PX4's offboard loss timeout counts it
+            self.hb_t = t
+            self.sp_t = t
+            self.sp = _core_setpoint(rec)
+        v = classify(fr.msg_id, rec, self._gate_context())
+        if v.route is Route.FORWARD:
+            self._forward_to_autopilot(fr)
+        elif v.route is Route.DROP:
+            self.counts[f"dropped: {v.reason}"] += 1
+        elif v.route is Route.DENY:
+            self._deny(fr, rec, v.reason, t)
+        elif v.route is Route.REQUEST:
+            cmd = rec.command if isinstance(rec, w.CommandIn) else None
+            self.held = _Held(fr.raw, cmd, (fr.system_id, fr.component_id), t)
+            self.requests.append(AuthorityRequest(RequestKind.REQUEST, t_s=t))
+            self.event({"t": t, "type": "guard_request", "detail": v.reason})
+        elif v.route is Route.RELEASE:
+            self.requests.append(AuthorityRequest(RequestKind.RELEASE, t_s=t))
+            self.event({"t": t, "type": "guard_release", "detail": v.reason})
+            self._forward_to_autopilot(fr)
+
+    def _forward_to_autopilot(self, fr: Frame) -> None:
+        self._send(self.ap_link, fr.raw, originated=False)
+        if self.on_forward is not None:
+            self.on_forward("controller", fr)
+
+    def _deny(self, fr: Frame, rec: object | None, reason: str, t: float) -> None:
+        self.counts[f"denied: {reason}"] += 1
+        if isinstance(rec, w.CommandIn):
+            self._send(self.ctl_link, w.Encoder(*self.target).command_ack(
+                (fr.system_id, fr.component_id), rec.command, w.MAV_RESULT_DENIED))
+        if t - self._denied_t.get(reason, -math.inf) >= STATUSTEXT_REPEAT_S:
+            self._denied_t[reason] = t
+            self._send(self.ctl_link, self.enc.statustext(w.MAV_SEVERITY_WARNING, f"Merlin: {reason}"))
+            self.event({"t": t, "type": "guard_denied", "detail": reason})
+
+    def _on_gcs(self, fr: Frame, t: float) -> None:
+        if fr.msg_id == w.HEARTBEAT:
+            self.gcs_t = t
+        self._send(self.ap_link, fr.raw, originated=False)  # the operator's link is trusted: everything passes
+
+    # ---------------------------------------------------------------------------------------- tick
+
+    def _arm_sync(self, armed: bool) -> None:
+        d = self.decision
+        core_armed = d.armed if d is not None else False
+        if armed != core_armed:
+            # the autopilot arms and disarms; the core follows it (forced: the autopilot ran its own checks)
+            self.commands.append(GcsCommand(GcsCommandKind.ARM if armed else GcsCommandKind.DISARM, force=True))
+
+    def tick(self) -> Decision:
+        t = self.t()
+        state = self.telemetry.vehicle_state(t)
+        self._arm_sync(state.armed)
+        m = self.modes
+        in_offboard = m is not None and self.ap_mode is not None and m.is_offboard(self.ap_mode)
+        d0 = self.decision
+        if in_offboard:
+            self.switch_deadline = None
+        switching = self.switch_deadline is not None and t < self.switch_deadline
+        if self.supervising and not in_offboard and self.fallback_sent_t is None and not switching:
+            # someone else (the ground station, the RC switch, the autopilot's own failsafe) took the vehicle
+            # out of the offboard mode: the guard stops flying it, and the controller loses authority
+            self.supervising = False
+            if d0 is not None and d0.authority is Authority.EXPERIMENTAL:
+                self.requests.append(AuthorityRequest(RequestKind.RELEASE, t_s=t))
+            self.event({"t": t, "type": "guard_standby", "detail": f"autopilot in {m.name(self.ap_mode or 0) if m else '?'}"})
+        inputs = Inputs(
+            state=state,
+            experimental=ExperimentalInput(self.hb_t, self.sp, self.sp_t, tuple(self.requests)),
+            operator=OperatorInput(),
+            gcs_link_t_s=self.gcs_t if self.gcs_link is not None else t,
+            gcs_commands=tuple(self.commands),
+        )
+        self.requests.clear()
+        self.commands.clear()
+        if self._inputs_fd is not None:
+            os.write(self._inputs_fd, inputs_log.encode(t, inputs).encode())
+        d = self.core.step(t, inputs)
+        self.decision = d
+        for e in d.events:
+            self.event(e.to_dict())
+            self._on_core_event(e.kind, e, t)
+        if d0 is not None and d0.authority is Authority.EXPERIMENTAL and d.authority is not Authority.EXPERIMENTAL:
+            self.trusted_since = t
+            self.fallback_sent_t = None
+            self.brake.start(t, state.vel_ned_mps)
+        measured = self.brake.update(t, state.vel_ned_mps)
+        if measured is not None:
+            ok = measured.reaction_ok and measured.decel_ok
+            self.event({"t": t, "type": "guard_brake_measured", "ok": ok, "speed0_mps": measured.speed0_mps,
+                        "reaction_s": measured.reaction_s, "decel_mps2": measured.decel_mps2,
+                        "detail": measured.text()})
+            if not ok:
+                text = "Merlin: autopilot brakes worse than configured (see events)"
+                for link in (self.ctl_link, self.gcs_link):
+                    self._send(link, self.enc.statustext(w.MAV_SEVERITY_WARNING, text))
+        if (self._trusted_flying() and in_offboard) or (self.fallback_sent_t is not None and self.supervising):
+            self._fly_trusted(d, t)
+        if t >= self._next_hb_t:
+            self._next_hb_t = t + HEARTBEAT_PERIOD_S
+            self._send(self.ap_link, self.enc.heartbeat())
+        return d
+
+    def _on_core_event(self, kind: EventKind, e: Any, t: float) -> None:
+        if kind is EventKind.GRANTED:
+            # the standard flow has no ACK message: the controller's mode command is its acknowledgement
+            self.requests.append(AuthorityRequest(RequestKind.ACK, seq=e.seq, t_s=t))
+            self.supervising = True
+            self.switch_deadline = t + SWITCH_TIMEOUT_S
+            self.trusted_since = None
+            self.fallback_sent_t = None
+            if self.held is not None:
+                self._send(self.ap_link, self.held.raw, originated=False)
+                self.held = None
+        elif kind is EventKind.DENIED and self.held is not None:
+            reason = e.reason.describe()
+            if self.held.command is not None:
+                self._send(self.ctl_link, w.Encoder(*self.target).command_ack(
+                    self.held.sender, self.held.command, w.MAV_RESULT_DENIED))
+            self._send(self.ctl_link, self.enc.statustext(w.MAV_SEVERITY_WARNING, f"Merlin: denied: {reason}"))
+            self.held = None
+        elif kind is EventKind.REVOKED:
+            text = f"Merlin: revoked: {e.reason.describe()}"
+            self._send(self.ctl_link, self.enc.statustext(w.MAV_SEVERITY_WARNING, text))
+            if self.gcs_link is not None:
+                self._send(self.gcs_link, self.enc.statustext(w.MAV_SEVERITY_WARNING, text))
+
+    def _fly_trusted(self, d: Decision, t: float) -> None:
+        assert self.modes is not None
+        since = self.trusted_since if self.trusted_since is not None else t
+        out: TrustedOutput = trusted_output(d, self.modes, self.gcfg, t - since, self.telemetry._last_state)
+        if out.mode is not None:
+            if self.ap_mode == out.mode:
+                return
+            if self.fallback_sent_t is None or t - self.fallback_sent_t >= 0.5:
+                self.fallback_sent_t = t
+                self._send(self.ap_link, self.enc.command_long(
+                    self.target, w.MAV_CMD_DO_SET_MODE, self.modes.set_mode_params(out.mode)))
+                self.event({"t": t, "type": "guard_fallback_mode", "mode": self.modes.name(out.mode)})
+            return
+        if out.vel_ned_mps is not None:
+            self._send(self.ap_link, self.enc.velocity_setpoint(int(t * 1000), self.target, out.vel_ned_mps,
+                                                                out.yaw_rad))
+
+    # ---------------------------------------------------------------------------------------- loop
+
+    def poll(self, until_t: float) -> None:
+        """Route whatever arrives until ``until_t`` (guard clock)."""
+        fds = {x.fileno(): x for x in self.links if x.fileno() >= 0}
+        while True:
+            remaining = until_t - self.t()
+            if remaining <= 0:
+                break
+            try:
+                ready, _, _ = select.select(list(fds), [], [], remaining)
+            except (OSError, ValueError):
+                ready = list(fds)
+                time.sleep(min(remaining, 0.001))
+            # the controller's frames first: a setpoint waiting behind a burst of telemetry is added latency
+            for fd in sorted(ready, key=lambda f: fds[f] is not self.ctl_link):
+                link = fds[fd]
+                for fr in self._read(link, 0.0):
+                    now = self.t()
+                    if link is self.ap_link:
+                        self._on_autopilot(fr, now)
+                    elif link is self.ctl_link:
+                        self._on_controller(fr, now)
+                    else:
+                        self._on_gcs(fr, now)
+            if not ready:
+                break
+
+    def run(self, duration_s: float | None = None) -> None:
+        period = 1.0 / self.gcfg.rate_hz
+        end = None if duration_s is None else self.t() + duration_s
+        self._next_tick_t = self.t()
+        while not self._stop and (end is None or self.t() < end):
+            self.poll(self._next_tick_t)
+            if self.t() >= self._next_tick_t:
+                self.tick()
+                self._next_tick_t += period
+                if self.t() - self._next_tick_t > 10 * period:
+                    self._next_tick_t = self.t() + period  # far behind (a stall): re-anchor, do not burst
+
+    def stop(self) -> None:
+        self._stop = True
+
+    def close(self) -> None:
+        self.event({"t": self.t(), "type": "guard_stopped", "counts": dict(self.counts)})
+        for link in self.links:
+            link.transport.close()
+        for tl in (self.tlog, self.ap_tlog):
+            if tl is not None:
+                tl.close()
+        for fd in (self._events_fd, self._inputs_fd):
+            if fd is not None:
+                os.close(fd)
+        self._events_fd = self._inputs_fd = None
+
+
+def _core_setpoint(rec: object | None) -> Setpoint:
+    if isinstance(rec, w.SetpointLocal):
+        pos = tuple(0.0 if not math.isfinite(v) else v for v in rec.pos_ned_m)
+        vel = tuple(0.0 if not math.isfinite(v) else v for v in rec.vel_ned_mps)
+        yaw = rec.yaw_rad if math.isfinite(rec.yaw_rad) else 0.0
+        kind = SetpointKind.POSITION if rec.uses_position else SetpointKind.VELOCITY
+        return Setpoint(kind, pos, vel, yaw)  # type: ignore[arg-type]
+    return Setpoint(SetpointKind.VELOCITY)

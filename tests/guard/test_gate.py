@@ -1,0 +1,82 @@
+"""What the controller link may send, per authority state (the ICD's controller-link rules)."""
+
+from __future__ import annotations
+
+from merlin.guard import wire as w
+from merlin.guard.dialects import (
+    MAV_AUTOPILOT_ARDUPILOTMEGA,
+    MAV_AUTOPILOT_PX4,
+    CopterMode,
+    detect,
+    mode_table,
+)
+from merlin.guard.gate import GateContext, Route, classify
+
+PX4 = mode_table(detect(MAV_AUTOPILOT_PX4, 2, 1, 1))  # type: ignore[arg-type]
+COPTER = mode_table(detect(MAV_AUTOPILOT_ARDUPILOTMEGA, 2, 1, 1))  # type: ignore[arg-type]
+
+
+def ctx(modes=PX4, experimental=False, trusted=False, landed=False, refusal=None,  # type: ignore[no-untyped-def]
+        offboard=None) -> GateContext:
+    offboard = experimental or trusted if offboard is None else offboard
+    return GateContext(modes, experimental, offboard, trusted, landed, refusal, {w.ATTITUDE: 20_000.0})
+
+
+def cmd(command: int, *p: float) -> w.CommandIn:
+    params = tuple(p) + (0.0,) * (7 - len(p))
+    return w.CommandIn(command, params, 1, 1, False)  # type: ignore[arg-type]
+
+
+def test_setpoints_fly_only_with_authority() -> None:
+    assert classify(w.SET_POSITION_TARGET_LOCAL_NED, None, ctx(experimental=True)).route is Route.FORWARD
+    # the autopilot in its offboard mode without a grant (someone else switched it): dropped
+    assert classify(w.SET_POSITION_TARGET_LOCAL_NED, None, ctx(offboard=True)).route is Route.DROP
+    assert classify(w.SET_ATTITUDE_TARGET, None, ctx(trusted=True)).route is Route.DROP
+    assert classify(w.SET_ATTITUDE_TARGET, None, ctx(trusted=True, offboard=False)).route is Route.DROP
+    # outside the offboard mode the autopilot ignores them: they pass as PX4's proof of life
+    assert classify(w.SET_POSITION_TARGET_LOCAL_NED, None, ctx(offboard=False)).route is Route.FORWARD
+
+
+def test_offboard_and_guided_are_requests() -> None:
+    assert classify(w.COMMAND_LONG, cmd(w.MAV_CMD_DO_SET_MODE, 1, 6), ctx()).route is Route.REQUEST
+    sm = w.SetModeIn(1, int(CopterMode.GUIDED), 1)
+    assert classify(w.SET_MODE, sm, ctx(COPTER)).route is Route.REQUEST
+
+
+def test_leaving_for_a_safe_mode_releases_and_manual_modes_are_denied() -> None:
+    hold = cmd(w.MAV_CMD_DO_SET_MODE, 1, 4, 3)  # PX4 AUTO.LOITER
+    assert classify(w.COMMAND_LONG, hold, ctx(experimental=True)).route is Route.RELEASE
+    assert classify(w.COMMAND_LONG, hold, ctx(trusted=True)).route is Route.DENY  # Merlin is flying
+    posctl = cmd(w.MAV_CMD_DO_SET_MODE, 1, 3)
+    v = classify(w.COMMAND_LONG, posctl, ctx(experimental=True))
+    assert v.route is Route.DENY and "POSCTL" in v.reason
+    stab = w.SetModeIn(1, int(CopterMode.STABILIZE), 1)
+    assert classify(w.SET_MODE, stab, ctx(COPTER, experimental=True)).route is Route.DENY
+
+
+def test_arming_follows_the_cores_pre_arm_and_kill_passes() -> None:
+    arm = cmd(w.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    assert classify(w.COMMAND_LONG, arm, ctx(landed=True)).route is Route.FORWARD
+    v = classify(w.COMMAND_LONG, arm, ctx(landed=True, refusal="outside the fence"))
+    assert v.route is Route.DENY and "fence" in v.reason
+    assert classify(w.COMMAND_LONG, cmd(w.MAV_CMD_COMPONENT_ARM_DISARM, 0), ctx()).route is Route.DENY
+    assert classify(w.COMMAND_LONG, cmd(w.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196), ctx()).route is Route.FORWARD
+
+
+def test_the_controller_never_rewrites_the_autopilot() -> None:
+    for mid in (w.PARAM_SET, w.MISSION_COUNT, w.MISSION_ITEM_INT):
+        assert classify(mid, None, ctx(experimental=True)).route is Route.DENY
+    assert classify(w.COMMAND_LONG, cmd(w.MAV_CMD_DO_SET_PARAMETER), ctx(experimental=True)).route is Route.DENY
+    assert classify(w.MANUAL_CONTROL, None, ctx(experimental=True)).route is Route.DROP
+
+
+def test_flying_commands_need_authority_and_stream_rates_the_guard_needs_are_kept() -> None:
+    repos = cmd(w.MAV_CMD_DO_REPOSITION)
+    assert classify(w.COMMAND_INT, repos, ctx()).route is Route.DENY
+    assert classify(w.COMMAND_INT, repos, ctx(experimental=True)).route is Route.FORWARD
+    slow = cmd(w.MAV_CMD_SET_MESSAGE_INTERVAL, w.ATTITUDE, 1e6)
+    assert classify(w.COMMAND_LONG, slow, ctx()).route is Route.DENY
+    fast = cmd(w.MAV_CMD_SET_MESSAGE_INTERVAL, w.ATTITUDE, 10_000)
+    assert classify(w.COMMAND_LONG, fast, ctx()).route is Route.FORWARD
+    other = cmd(w.MAV_CMD_SET_MESSAGE_INTERVAL, 147, -1)  # BATTERY_STATUS off: not the guard's
+    assert classify(w.COMMAND_LONG, other, ctx()).route is Route.FORWARD
