@@ -40,17 +40,22 @@ import numpy as np
 
 try:  # numba is optional: the filter runs (slower) without it
     import numba
+except ImportError:  # pragma: no cover - a machine without numba
+    numba = None  # type: ignore[assignment]
 
-    JIT: bool = not numba.config.DISABLE_JIT and os.environ.get("NUMBA_DISABLE_JIT", "0") in ("", "0")
-except ImportError:  # pragma: no cover - exercised by the no-numba CI leg, if any
-    numba = None
-    JIT = False
+#: True when the kernels are compiled: numba importable and not disabled (NUMBA_DISABLE_JIT=1).
+JIT: bool = (
+    numba is not None
+    and not getattr(numba.config, "DISABLE_JIT", False)
+    and os.environ.get("NUMBA_DISABLE_JIT", "0") in ("", "0")
+)
 
 
 def _njit(fn: Callable[..., Any]) -> Callable[..., Any]:
     if numba is None:
         return fn
-    return numba.njit(cache=True, fastmath=False, nogil=True)(fn)  # type: ignore[no-any-return]
+    compiled: Callable[..., Any] = numba.njit(cache=True, fastmath=False, nogil=True)(fn)
+    return compiled
 
 
 # ---- the nominal state vector ``s``
