@@ -1013,18 +1013,19 @@ def vo_noise_scale(quality: VoQuality, cfg: NavConfig) -> float | None:
     repetition score (whichever is worst)."""
     if vo_quality_problem(quality, cfg) is not None:
         return None
-
-    def badness(value: float, worst: float, good: float) -> float:
-        if good <= worst:
-            return 0.0
-        return min(1.0, max(0.0, (good - value) / (good - worst)))
-
     b = max(
-        badness(quality.features, cfg.vo_min_features, cfg.vo_good_features),
-        badness(quality.inlier_ratio, cfg.vo_min_inlier_ratio, cfg.vo_good_inlier_ratio),
-        badness(-quality.repetition, -cfg.vo_max_repetition, -cfg.vo_good_repetition),
+        _badness(quality.features, cfg.vo_min_features, cfg.vo_good_features),
+        _badness(quality.inlier_ratio, cfg.vo_min_inlier_ratio, cfg.vo_good_inlier_ratio),
+        _badness(-quality.repetition, -cfg.vo_max_repetition, -cfg.vo_good_repetition),
     )
     return 1.0 + b * (cfg.vo_max_noise_scale - 1.0)
+
+
+def _badness(value: float, worst: float, good: float) -> float:
+    """0 at "good", 1 at the acceptance limit "worst", linear between (vo_noise_scale)."""
+    if good <= worst:
+        return 0.0
+    return min(1.0, max(0.0, (good - value) / (good - worst)))
 
 
 def _angle_residual(a: np.ndarray, b: np.ndarray) -> np.ndarray:
