@@ -17,7 +17,8 @@ Start-up (:meth:`Guard.start`), before anything from the controller reaches the 
 Authority follows the ICD's standard flow for controllers that do not speak Merlin's dialect: the
 controller's request for the dialect's offboard mode (PX4 OFFBOARD, ArduPilot GUIDED) is the REQUEST; the
 guard holds the mode command until the core decides; on a grant the guard acknowledges the grant for the
-controller (the mode command itself is the controller's intent, and its setpoints already stream) and
+controller (the mode command itself is the controller's intent, and its setpoints already stream), and
+once the core has handed authority over (its check of the first setpoint against the vehicle passed) it
 forwards the command, so the autopilot's own COMMAND_ACK answers the controller; on a denial the guard
 answers COMMAND_ACK DENIED and a STATUSTEXT with the reason. On a revocation the guard stops passing the
 controller's setpoints and streams the trusted command instead; the controller sees the autopilot's
@@ -56,6 +57,7 @@ from merlin.core.types import (
     GcsCommand,
     GcsCommandKind,
     Inputs,
+    MonitorId,
     NavMode,
     OperatorInput,
     RequestKind,
@@ -319,7 +321,7 @@ class Guard:
         if state.nav_mode is NavMode.LOST:
             refusal = "navigation: " + "; ".join(self.telemetry.faults(self.t()))
         elif d is not None:
-            fence = next((m for m in d.monitors if m.name == "geofence" and m.tripped), None)
+            fence = next((m for m in d.monitors if m.name == MonitorId.GEOFENCE and m.tripped), None)
             if fence is not None:
                 refusal = f"outside the fence ({fence.reason.describe()})"
         assert self.modes is not None
@@ -370,7 +372,7 @@ class Guard:
         cmd = rec.command if isinstance(rec, w.CommandIn) else None
         sender = (fr.system_id, fr.component_id)
         h = self.held
-        if h is not None and h.release_t is not None and h.sender == sender and h.command == cmd:
+        if h is not None and h.sender == sender and h.command == cmd:
             self._in_progress(h, t)  # a retransmission (MAVSDK resends after 0.5 s): the same request
             return
         alive = 0.0 if self.alive_since is None else t - self.alive_since
@@ -443,11 +445,14 @@ class Guard:
         state = self.telemetry.vehicle_state(t)
         self._arm_sync(state.armed)
         m = self.modes
-        in_offboard = m is not None and self.ap_mode is not None and m.is_offboard(self.ap_mode)
-        d0 = self.decision
-        if in_offboard:
-            self.switch_deadline = None
+        # the autopilot's HEARTBEAT comes at 1 Hz: while a mode command the guard forwarded is on its way, the
+        # vehicle is taken to be in the offboard mode already, so that trusted setpoints stream from the first
+        # tick Merlin needs them (PX4 leaves OFFBOARD after COM_OF_LOSS_T without them)
         switching = self.switch_deadline is not None and t < self.switch_deadline
+        in_offboard = m is not None and ((self.ap_mode is not None and m.is_offboard(self.ap_mode)) or switching)
+        d0 = self.decision
+        if m is not None and self.ap_mode is not None and m.is_offboard(self.ap_mode):
+            self.switch_deadline = None
         if self.supervising and not in_offboard and self.fallback_sent_t is None and not switching:
             # someone else (the ground station, the RC switch, the autopilot's own failsafe) took the vehicle
             # out of the offboard mode: the guard stops flying it, and the controller loses authority
@@ -497,6 +502,10 @@ class Guard:
         if kind is EventKind.GRANTED:
             # the standard flow has no ACK message: the controller's mode command is its acknowledgement
             self.requests.append(AuthorityRequest(RequestKind.ACK, seq=e.seq, t_s=t))
+        elif kind is EventKind.AUTHORITY and e.to is Authority.EXPERIMENTAL:
+            # the transfer is done (the core checked the first setpoint against the vehicle): only now does the
+            # autopilot get the mode command, so it never flies the controller's setpoints before the core
+            # has handed over
             self.supervising = True
             self.switch_deadline = t + SWITCH_TIMEOUT_S
             self.trusted_since = None
@@ -519,7 +528,9 @@ class Guard:
 
     def _fly_trusted(self, d: Decision, t: float) -> None:
         assert self.modes is not None
-        since = self.trusted_since if self.trusted_since is not None else t
+        if self.trusted_since is None:
+            self.trusted_since = t
+        since = self.trusted_since
         out: TrustedOutput = trusted_output(d, self.modes, self.gcfg, t - since, self.telemetry._last_state)
         if out.mode is not None:
             if self.ap_mode == out.mode:

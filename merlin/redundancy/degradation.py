@@ -243,7 +243,7 @@ class ImuDegradationChain:
         """Once the voter is down to two lanes, the output switches between the pair's mean and one lane
         (the lane fed during an alert or an attribution, the survivor after an isolation). Each lane's
         biases are its own, so a switch is a step in what the estimator integrates; it is returned so that
-        the estimator can widen its bias uncertainty by it (sims/runner.py)."""
+        the estimator can widen its bias uncertainty by it (merlin.nav.fusion_stage)."""
         used = tuple(out.lanes_used) if out.valid else None
         prev, self._fed = self._fed, used
         if used is None or prev is None or set(prev) == set(used) or out.level is RedundancyLevel.TRIPLEX:
