@@ -949,12 +949,14 @@ class RedundancyConfig(Strict):
         " down to this level: simplex = one lane left (no fault can be detected any more); duplex = already"
         " when one of three is lost. Its action is arbiter.rules.nav_redundancy (default warn)",
     )
-    fdi_preset: Literal["merlin", "table2"] = Field(
+    fdi_preset: Literal["merlin", "table2", "sequential"] = Field(
         "merlin",
-        description="duplex IMU particle-filter FDI (seed 003). Both use every number of the paper's Table 2"
-        " (4096 particles, nu, tau_a/g/m, Omega); table2 isolates with the residual exactly as printed, merlin"
-        " with each residual component divided by its noise scale and averaged since the alert (the printed"
-        " one flagged the healthy IMU on F4)",
+        description="duplex IMU particle-filter FDI (seed 003). All use the paper's particle filters with every"
+        " number of its Table 2 (4096 particles, nu); table2 and merlin its decision logic (tau_a/g/m, Omega):"
+        " table2 isolates with the residual exactly as printed, merlin with each residual component divided by"
+        " its noise scale and averaged since the alert (the printed one flagged the healthy IMU on F4);"
+        " sequential decides with Merlin's sequential tests instead (CUSUM detection, a jump and kinematic"
+        " isolation likelihood ratio, a recovery test of its own; merlin.redundancy.sequential_tests)",
     )
     lane_preset: Literal["fast", "thesis", "thesis_sitl"] = Field(
         "fast",

@@ -29,9 +29,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from merlin.redundancy.duplex_fdi import G0_MPS2, DuplexImuFdi, FdiConfig, FdiState
+from merlin.redundancy.duplex_fdi import G0_MPS2, FdiConfig, FdiState
 from merlin.redundancy.events import FaultReport
 from merlin.redundancy.particle_filter import dcm_body_to_ned, euler_from_quat, quat_from_euler
+from merlin.redundancy.sequential_fdi import build_fdi
 
 DT_S = 0.01  # 100 Hz, seed 003 §2
 
@@ -145,7 +146,7 @@ class FdiRun:
 
 
 def run_fdi(data: DuplexData, config: FdiConfig, rng: np.random.Generator) -> FdiRun:
-    fdi = DuplexImuFdi(config, rng)
+    fdi = build_fdi(config, rng)
     n = data.t_s.size
     states = np.empty(n, dtype=object)
     faulty = np.full(n, -1)
