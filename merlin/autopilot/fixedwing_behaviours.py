@@ -50,10 +50,11 @@ from merlin.autopilot import fixedwing_control as fc
 from merlin.autopilot import fixedwing_guidance as fg
 from merlin.autopilot import fixedwing_mission
 from merlin.autopilot import fixedwing_route as fr
+from merlin.config.models import TrustedConfig
 from merlin.core import geofence
-from merlin.core.config import EnvelopeLimit
+from merlin.core.config import CoreConfig, EnvelopeLimit
 from merlin.core.envelope import envelope_values, outside
-from merlin.core.types import Authority, Behavior, CommandKind, Decision, VehicleState
+from merlin.core.types import Authority, Behavior, CommandKind, Decision, MonitorId, VehicleState
 
 #: LAND for a fixed wing: loiter over home down to this height above home (or the fence floor plus the
 #: fence margin, if higher). Low enough to be a landing approach, high enough to stay clear of the terrain
@@ -120,7 +121,7 @@ def escape_side(fence: geofence.Fence, s: VehicleState, home_ne: tuple[float, fl
 
 def _horizontal_trip(decision: Decision) -> bool:
     """Whether the core's geofence monitor is tripped by a horizontal boundary (not the floor or ceiling)."""
-    return any(m.name == "geofence" and m.tripped and m.reason.parameter in _HORIZONTAL_TRIPS
+    return any(m.name == MonitorId.GEOFENCE and m.tripped and m.reason.parameter in _HORIZONTAL_TRIPS
                for m in decision.monitors)
 
 
@@ -340,7 +341,7 @@ class FixedWingBehaviours:
         when it ends."""
         fence = self.fence
         assert fence is not None
-        trip = next((m for m in decision.monitors if m.name == "geofence" and m.tripped), None)
+        trip = next((m for m in decision.monitors if m.name == MonitorId.GEOFENCE and m.tripped), None)
         if trip is None:
             if self._trip_clear_since is None:
                 self._trip_clear_since = t
@@ -466,3 +467,29 @@ class FixedWingBehaviours:
             self.escape_side = 0.0
             return targets
         return replace(targets, roll_rad=self.escape_side * fc.bank_limit_rad(self.cp))
+
+
+#: Rate of the fixed-wing guidance and inner loops (the gains were tuned at 100 Hz in tests/fixedwing; PX4
+#: runs its fixed-wing position controller at 50 Hz). The surfaces are held in between; a change of source
+#: re-initialises and runs the loops in the tick it happens.
+AUTOPILOT_HZ = 100.0
+
+
+def behaviours_from_config(trusted: TrustedConfig, core_cfg: CoreConfig, surfaces: fc.SurfaceCommand,
+                           s0: VehicleState, dt_s: float, *, escape_turns: bool = True, rtl_routes: bool = True,
+                           notes: list[dict[str, Any]] | None = None) -> FixedWingBehaviours:
+    """The fixed wing's actuator stage for a tick of ``dt_s``, its parameters from the configuration where it
+    has them: the cruise airspeed (clamped to the inner loops' range) for RTL and the trusted mission, the
+    RTL height, the mission's waypoints; the core's fence and envelope. ``surfaces`` is the trim the loops
+    start from, ``s0`` the state at the start."""
+    cp0 = fc.FixedWingControlParams()
+    cruise = min(max(trusted.cruise_speed_mps, cp0.airspeed_min_mps), cp0.airspeed_max_mps)
+    # The autopilot banks up to its own 35 deg; the configuration's vehicle.bank_limit_deg is the bank the
+    # fence projection assumes, which should be what the autopilot holds in a sustained turn (less).
+    cp = replace(cp0, airspeed_cruise_mps=cruise)
+    gp = fg.GuidanceParams(rtl_height_m=trusted.rtl_altitude_m, rtl_airspeed_mps=cruise)
+    mission = tuple(fg.Waypoint(float(n), float(e), -float(d), cruise) for n, e, d in trusted.mission_ned_m)
+    every = max(1, round(1.0 / (AUTOPILOT_HZ * dt_s)))
+    return FixedWingBehaviours(core_cfg.fence, cp, gp, mission, surfaces, s0, every, every * dt_s,
+                               escape_turns=escape_turns, rtl_routes=rtl_routes, notes=notes,
+                               envelope=core_cfg.envelope)

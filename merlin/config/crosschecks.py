@@ -21,7 +21,7 @@ checks that ids and slugs are unique and every check is documented in ``docs/cro
 check a unit test with a configuration that trips it and one that does not.
 
 The vehicle's capability (:class:`VehicleCapability`) comes from the simulator's vehicle file when one is
-known (:func:`vehicle_capability`): the deceleration the fence projection assumes must not exceed what the
+known (``sims.runner.vehicle_capability``): the deceleration the fence projection assumes must not exceed what the
 thrust, the mass and the tilt limit can hold.
 """
 
@@ -31,7 +31,6 @@ import math
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
-from pathlib import Path
 from typing import Any
 
 import shapely
@@ -158,26 +157,6 @@ def multirotor_capability(mass_kg: float, max_thrust_n: float, motor_time_consta
                   f"motor {motor_time_constant_s:g} s + attitude 1/{k.att_p_rp_per_s:g} s + the braking tilt at "
                   f"{math.degrees(k.rate_max_rp_radps):.0f} deg/s")
     return VehicleCapability(source, a_h, a_v, math.degrees(tilt), lag, k.rate_max_rp_radps, derivation)
-
-
-def vehicle_capability(vehicle: str | Path | None) -> VehicleCapability | None:
-    """The capability of a simulator vehicle: a file in ``sims/vehicles`` (name without ``.yaml``) or a path
-    to one; None for the fixed wing (its limits are the airframe's, checked elsewhere) or no vehicle."""
-    if vehicle is None:
-        return None
-    from sims.runner import FIXED_WING_VEHICLES, vehicle_params_path
-
-    name = str(vehicle)
-    if name in FIXED_WING_VEHICLES:
-        return None
-    from sims.multirotor import load_multirotor_params
-
-    path = vehicle_params_path(name)
-    if not path.is_file():
-        raise ConfigError("command line", [f"--vehicle {name!r}: no such vehicle file ({path.name}); allowed: a "
-                                           "file in sims/vehicles (without .yaml) or a path to one"])
-    p = load_multirotor_params(path)
-    return multirotor_capability(p.mass_kg, p.max_thrust_n, p.motor_time_constant_s, name)
 
 
 # ------------------------------------------------------------------------------------------- the checks

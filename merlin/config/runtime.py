@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+from merlin.autopilot.guidance import MultirotorGuidance
 from merlin.config.fence_build import build_fence
 from merlin.config.loader import config_sha256
 from merlin.config.models import ENVELOPE_PARAMETERS, MerlinConfig
@@ -16,11 +17,12 @@ from merlin.core.config import (
     OperatorParams,
     RuleRow,
     SetpointClamp,
+    Takeover,
     TrustedParams,
     WatchdogTimeouts,
 )
 from merlin.core.envelope import PARAMETER_INDEX
-from merlin.core.types import Action, Behavior
+from merlin.core.types import Action, Behavior, MonitorId
 
 _DEG = math.pi / 180.0
 _ANGLE_PARAMS = {
@@ -55,25 +57,38 @@ def envelope_limits(cfg: MerlinConfig, stage: str | None = None) -> tuple[Envelo
     return tuple(out)
 
 
+def _takeover(monitor: MonitorId, oversight_envelope: bool, oversight_geofence: bool) -> Takeover:
+    """The table's takeover column: a pilot who takes over during an envelope or geofence trip is given the
+    override grace to fly out of it (or is not judged by it at all when its oversight is switched off);
+    every other monitor judges the pilot at once."""
+    if monitor is MonitorId.ENVELOPE:
+        return Takeover.GRACE if oversight_envelope else Takeover.EXEMPT
+    if monitor is MonitorId.GEOFENCE:
+        return Takeover.GRACE if oversight_geofence else Takeover.EXEMPT
+    return Takeover.JUDGED
+
+
 def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig:
     h, o, t, v = cfg.handover, cfg.operator, cfg.trusted, cfg.vehicle
     rules = tuple(
         RuleRow(
-            monitor=name,
+            monitor=MonitorId(name),
             experimental=Action[r.experimental.name],
             operator=Action[r.operator.name],
             trusted=Action[r.trusted.name],
-            clear=r.clear.value,
+            clear=r.clear,
+            takeover=_takeover(MonitorId(name), o.oversight_envelope, o.oversight_geofence),
         )
         for name, r in cfg.arbiter.rules.items()
         # nav_redundancy exists only on a vehicle that reports its redundancy (redundancy.enabled)
-        if name != "nav_redundancy" or cfg.redundancy.enabled
+        if name != MonitorId.NAV_REDUNDANCY or cfg.redundancy.enabled
     )
     fence = build_fence(cfg.geofence, cfg.home, cfg.vehicle, source=source) if cfg.geofence.enabled else None
     return CoreConfig(
         envelope=envelope_limits(cfg),
         rules=rules,
         fence=fence,
+        guidance=MultirotorGuidance(),
         watchdogs=WatchdogTimeouts(
             controller_heartbeat_s=cfg.watchdogs.controller_heartbeat.timeout_s,
             setpoint_stale_s=cfg.watchdogs.setpoint_stale.timeout_s,

@@ -519,16 +519,9 @@ _CLEAR_POSITION_ONLY = FenceResult(False, "", 0.0, _NAN)
 # ----------------------------------------------------------------------------------------------- check
 
 
-def check(
-    fence: Fence,
-    pos_ned_m: Sequence[float],
-    vel_ned_mps: Sequence[float],
-    sigma_h_m: float,
-    sigma_v_m: float,
-    airborne: bool,
-    wind_ne_mps: tuple[float, float] = (0.0, 0.0),
-    demand_vel_ned_mps: Sequence[float] | None = None,
-) -> FenceResult:
+def check(fence: Fence, pos_ned_m: Sequence[float], vel_ned_mps: Sequence[float], sigma_h_m: float,
+          sigma_v_m: float, airborne: bool, wind_ne_mps: tuple[float, float] = (0.0, 0.0),
+          demand_vel_ned_mps: Sequence[float] | None = None) -> FenceResult:
     """The fence verdict for one tick. Pure; never raises on non-finite numbers (they trip "invalid").
 
     ``demand_vel_ned_mps`` (multirotor): the velocity the command being flown drives towards (for an
@@ -543,55 +536,25 @@ def check(
 
     ``wind_ne_mps`` (fixed wing only): the horizontal wind. A fixed wing turns at its bank limit in the
     *air*: over the reaction leg and the half turn the wind carries it ``wind * t`` downwind, so the ground
-    path is the air path plus that drift (a trochoid), not a circle (:func:`_turn_path`). Ignoring it let
-    a campaign run at 24 m/s in a 2.9 m/s wind breach the range by 50 m (docs/fixed-wing.md, "Wind").
-    A non-finite wind is treated as none would be unsafe, so it trips "invalid" like any broken input."""
+    path is the air path plus that drift (a trochoid), not a circle (:func:`_turn_path`; scenario
+    ``fw_adv_tailwind_fence_22mps``, docs/fixed-wing.md, "Wind"). A non-finite wind trips "invalid" like any
+    broken input: treating it as none would be unsafe."""
     prm = fence.params
     if not prm.enabled:
         return _DISABLED
     n, e, dn = pos_ned_m
     vn, ve, vd = vel_ned_mps
     wn, we = wind_ne_mps
-    # One sum catches any NaN or infinity (and sums overflowing to inf, which the bounds would reject).
-    if not math.isfinite(n + e + dn + vn + ve + vd + sigma_h_m + sigma_v_m + wn + we):
+    if _broken(n, e, dn, vn, ve, vd, sigma_h_m, sigma_v_m, wn, we):
         return _INVALID
-    if (
-        abs(n) > MAX_ABS_POS_M
-        or abs(e) > MAX_ABS_POS_M
-        or abs(dn) > MAX_ABS_POS_M
-        or abs(vd) > MAX_SPEED_MPS
-        or not (0.0 <= sigma_h_m <= MAX_SIGMA_M)
-        or not (0.0 <= sigma_v_m <= MAX_SIGMA_M)
-    ):
-        return _INVALID
-    # Physically zero, but GEOS's arithmetic on such numbers underflows and raises floating-point flags.
-    if -_TINY < n < _TINY:
-        n = 0.0
-    if -_TINY < e < _TINY:
-        e = 0.0
-    if -_TINY < vn < _TINY:
-        vn = 0.0
-    if -_TINY < ve < _TINY:
-        ve = 0.0
+    n, e, vn, ve = _flush_tiny(n, e, vn, ve)
     v = math.hypot(vn, ve)
     if v > MAX_SPEED_MPS:
         return _INVALID
     h = -dn
-    ceiling = prm.altitude_ceiling_m
-    floor = prm.altitude_floor_m
 
     if prm.mode == "position_only":
-        if (
-            fence._forbidden is not None
-            and not (_lower_bound(fence, n, e) > 0.0)
-            and not _inside(fence, n, e)
-        ):
-            return FenceResult(True, "outside", 0.0, _signed_h(fence, n, e))
-        if ceiling is not None and h >= ceiling:
-            return FenceResult(True, "ceiling", 0.0, ceiling - h)
-        if airborne and floor is not None and h <= floor:
-            return FenceResult(True, "floor", 0.0, h - floor)
-        return _CLEAR_POSITION_ONLY
+        return _check_position_only(fence, n, e, h, airborne)
 
     tr = prm.reaction_time_s
     w = prm.margin_m + prm.sigma_k * sigma_h_m
@@ -629,6 +592,56 @@ def check(
             if demand is not None:
                 return _check_demand(fence, n, e, h, vd, -dvd, sigma_v_m, airborne, w, demand)
 
+    return _verdict(fence, n, e, h, vn, ve, vd, v, d, leg, radius, w, sag, reach, fixed_wing, wind, drift,
+                    sigma_v_m, airborne)
+
+
+def _flush_tiny(n: float, e: float, vn: float, ve: float) -> tuple[float, float, float, float]:
+    """Values within :data:`_TINY` of zero as zero: physically zero, but GEOS's arithmetic on such numbers
+    underflows and raises floating-point flags."""
+    return (0.0 if -_TINY < n < _TINY else n, 0.0 if -_TINY < e < _TINY else e,
+            0.0 if -_TINY < vn < _TINY else vn, 0.0 if -_TINY < ve < _TINY else ve)
+
+
+def _broken(n: float, e: float, dn: float, vn: float, ve: float, vd: float, sigma_h_m: float, sigma_v_m: float,
+            wn: float, we: float) -> bool:
+    """Inputs that are not a vehicle state but a broken estimate (the check trips "invalid")."""
+    # One sum catches any NaN or infinity (and sums overflowing to inf, which the bounds would reject).
+    if not math.isfinite(n + e + dn + vn + ve + vd + sigma_h_m + sigma_v_m + wn + we):
+        return True
+    return (
+        abs(n) > MAX_ABS_POS_M
+        or abs(e) > MAX_ABS_POS_M
+        or abs(dn) > MAX_ABS_POS_M
+        or abs(vd) > MAX_SPEED_MPS
+        or not (0.0 <= sigma_h_m <= MAX_SIGMA_M)
+        or not (0.0 <= sigma_v_m <= MAX_SIGMA_M)
+    )
+
+
+def _check_position_only(fence: Fence, n: float, e: float, h: float, airborne: bool) -> FenceResult:
+    """The position-only fence (the paper's baseline): the position itself against the boundaries."""
+    prm = fence.params
+    ceiling, floor = prm.altitude_ceiling_m, prm.altitude_floor_m
+    if fence._forbidden is not None and not (_lower_bound(fence, n, e) > 0.0) and not _inside(fence, n, e):
+        return FenceResult(True, "outside", 0.0, _signed_h(fence, n, e))
+    if ceiling is not None and h >= ceiling:
+        return FenceResult(True, "ceiling", 0.0, ceiling - h)
+    if airborne and floor is not None and h <= floor:
+        return FenceResult(True, "floor", 0.0, h - floor)
+    return _CLEAR_POSITION_ONLY
+
+
+def _verdict(
+    fence: Fence, n: float, e: float, h: float, vn: float, ve: float, vd: float, v: float, d: float, leg: float,
+    radius: float, w: float, sag: float, reach: float, fixed_wing: bool, wind: tuple[float, float], drift: float,
+    sigma_v_m: float, airborne: bool,
+) -> FenceResult:
+    """The projected path (horizontal, then ceiling and floor) against the fence, and the tripped kind with its
+    clearance (computed only on a trip: it is the costly part)."""
+    prm = fence.params
+    tr = prm.reaction_time_s
+    ceiling, floor = prm.altitude_ceiling_m, prm.altitude_floor_m
     trip_h = False
     if fence._forbidden is not None:
         lb = _lower_bound(fence, n, e)

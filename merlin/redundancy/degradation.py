@@ -1,4 +1,4 @@
-"""The IMU degradation chain: triplex vote -> duplex PF FDI -> simplex (issue item 2).
+"""The IMU degradation chain: triplex vote -> duplex PF FDI -> simplex.
 
 Three IMU lanes are voted by mid-value select (:mod:`merlin.redundancy.sensor_voter`). Once one lane is
 isolated, two remain and a majority no longer exists: the two survivors (with their magnetometer
@@ -243,7 +243,7 @@ class ImuDegradationChain:
         """Once the voter is down to two lanes, the output switches between the pair's mean and one lane
         (the lane fed during an alert or an attribution, the survivor after an isolation). Each lane's
         biases are its own, so a switch is a step in what the estimator integrates; it is returned so that
-        the estimator can widen its bias uncertainty by it (sims/runner.py)."""
+        the estimator can widen its bias uncertainty by it (merlin.nav.fusion_stage)."""
         used = tuple(out.lanes_used) if out.valid else None
         prev, self._fed = self._fed, used
         if used is None or prev is None or set(prev) == set(used) or out.level is RedundancyLevel.TRIPLEX:

@@ -20,7 +20,7 @@ pitch manoeuvres" before 28 s).
 Metrics (§6.2): T_0 the fault samples, T_f the samples where the faulty IMU is flagged;
 CD = |T_f n T_0| / |T_0|, WD = |T_f \\ T_0| / |T_0|, DT = min T_f - min T_0, RT = max T_f - max T_0
 (negative DT and RT are shown as 0.00, as in the paper's tables). Samples where the *healthy* IMU is
-flagged are counted separately: the issue requires zero.
+flagged are counted separately: there must be none.
 """
 
 from __future__ import annotations

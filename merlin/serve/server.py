@@ -53,10 +53,8 @@ from merlin.core.types import (
     Decision,
     Event,
     EventKind,
-    ExperimentalInput,
     GcsCommand,
     GcsCommandKind,
-    Inputs,
     NavMode,
     OperatorInput,
     ReasonCode,
@@ -99,6 +97,7 @@ from merlin.link.px4_modes import OFFBOARD
 from merlin.link.security import LinkPolicy
 from merlin.link.signing import write_key_file
 from merlin.link.tlog import TlogWriter
+from merlin.pipeline import InputBuilder
 from merlin.serve.link_security import LinkSetup, describe
 from merlin.serve.offboard_takeoff import HANDOVER_MARGIN_M, Facts, OffboardTakeoff
 from merlin.serve.records import EventLog, TickStats, write_effective_config
@@ -271,6 +270,7 @@ class Server:
         self.effective_config = opts.out_dir / EFFECTIVE_CONFIG
         self._write_effective_config()
         self.pending = _Pending()
+        self.inputs = InputBuilder()  # the core's inputs from what the links delivered (_tick)
         self.hb_t: float | None = None
         self.gcs_t: float | None = None
         self.rc_t: float | None = None
@@ -400,6 +400,15 @@ class Server:
         acked = False
         for intent in intents:
             if isinstance(intent, GcsCommand):
+                if intent.kind is GcsCommandKind.HOLD and ls.role is LinkRole.CONTROLLER and self.loop.state.landed:
+                    # MAVSDK's offboard.stop() (AUTO.LOITER) after Merlin took authority back and landed: PX4
+                    # accepts Hold on the ground and the vehicle stays there; so does Merlin, without asking the
+                    # core for a HOLD it refuses on the ground (the RELEASE before it went to the core as usual)
+                    self._send(ls, command_ack(m, sender, MAV_RESULT_ACCEPTED))
+                    self.events.write({"t": rx.t_s, "type": "hold_on_ground", "link": ls.name,
+                                       "detail": "HOLD on the ground from the controller link: accepted, nothing flies"})
+                    acked = True
+                    continue
                 intent, refused = self._fixed_wing_loiter(intent)
                 if refused is None:
                     refused = self._mission_start_refused(intent)
@@ -977,13 +986,16 @@ class Server:
             else:
                 self.sp = m.to_setpoint()
             self.sp_t = sp_t
-        inputs = Inputs(
-            state=state,
-            experimental=ExperimentalInput(self.hb_t, self.sp, self.sp_t, tuple(p.requests)),
-            operator=replace(self.op, link_t_s=self.rc_t) if self.rc_t is not None else OperatorInput(),
-            gcs_link_t_s=self.gcs_t,
-            gcs_commands=tuple(p.commands),
-        )
+        # the core's inputs, built as merlin sim builds them (merlin.pipeline.InputBuilder), with the
+        # vehicle's redundancy report
+        b = self.inputs
+        b.controller_heartbeat(self.hb_t)
+        b.setpoint(self.sp, self.sp_t)
+        b.request(tuple(p.requests))
+        b.gcs_heartbeat(self.gcs_t)
+        b.rc_frame(self.rc_t)
+        b.operator(self.op)
+        inputs = b.build(state, tuple(p.commands), self.loop.redundancy_report(t))
         prev = self.decision
         d = self.loop.act(inputs)
         if sp_arrival_ns:

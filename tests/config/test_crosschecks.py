@@ -20,10 +20,10 @@ from merlin.config.crosschecks import (
     gate,
     parse_accept,
     run_checks,
-    vehicle_capability,
 )
 from merlin.config.loader import ConfigError, load_config
 from merlin.config.models import MerlinConfig
+from sims.runner import vehicle_capability
 from tests.config.paths import EXAMPLE_FILES
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -590,3 +590,20 @@ def test_goto_with_the_fence_disabled_is_not_judged_against_it() -> None:
     h.airborne()
     d = h.tick(commands=(GcsCommand(GcsCommandKind.GOTO, target_ned_m=(900.0, 0.0, -10.0)),))
     assert events_of(d, EventKind.COMMAND_ACK)[0].accepted and d.behavior is Behavior.HOLD
+
+
+def test_a_behaviour_completed_on_the_previous_tick_hands_over_to_what_follows_it() -> None:
+    """Take-off completion reaches the next tick's arbiter as data: TAKEOFF hands over to what it was started
+    for; a flown MISSION to ``trusted.mission_end``, and with HOLD there it stays MISSION (holding at its last
+    waypoint)."""
+    cfg = Harness().core.cfg
+    view = TickView(1.0, {}, {}, frozenset(), None, None, None, False, False, completed=Behavior.TAKEOFF)
+    st, events = arbiter.update(ArbiterState(armed=True, base=Behavior.TAKEOFF, after_takeoff=Behavior.MISSION),
+                                view, cfg)
+    assert (st.base, st.after_takeoff, events) == (Behavior.MISSION, Behavior.HOLD, [])
+    flown = view._replace(completed=Behavior.MISSION)
+    in_mission = ArbiterState(armed=True, base=Behavior.MISSION)
+    assert arbiter.update(in_mission, flown, cfg)[0].base is Behavior.MISSION
+    to_rtl = replace(cfg, trusted=replace(cfg.trusted, mission_end=Behavior.RTL))
+    assert arbiter.update(in_mission, flown, to_rtl)[0].base is Behavior.RTL
+    assert arbiter.update(in_mission, view._replace(completed=None), to_rtl)[0].base is Behavior.MISSION

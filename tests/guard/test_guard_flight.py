@@ -102,7 +102,13 @@ class Rig:
         c.streaming = True
         time.sleep(1.5)  # PX4: setpoints stream before OFFBOARD; Merlin: the controller's liveness is established
         c.set_mode(*(PX4_OFFBOARD if self.dialect is Dialect.PX4 else COPTER_GUIDED))
-        wait_for(lambda: s.mode == s.offboard, 5, "the offboard mode granted and forwarded")
+        # the autopilot's ACCEPTED reaches the controller once the guard forwarded the mode command, which it
+        # does when the core has handed authority over (ArduPilot's take-off already flies in GUIDED, so the
+        # mode alone says nothing there)
+        wait_for(lambda: (176, 0) in c.acks, 10, "the offboard mode granted and forwarded")
+        wait_for(lambda: s.mode == s.offboard, 5, "the autopilot in its offboard mode")
+        if hasattr(self, "guard"):  # in-process guard: its authority, as the forwarded mode says
+            assert self.guard.decision is not None and self.guard.decision.authority.name == "EXPERIMENTAL"
 
 
 @pytest.fixture(params=[Dialect.PX4, Dialect.ARDUPILOT], ids=["px4", "ardupilot"])
@@ -243,3 +249,27 @@ def test_px4_offboard_tutorial_takes_off_in_offboard_through_the_guard(config_fi
 def rig_authority(r: Rig) -> str:
     d = r.guard.decision
     return d.authority.name if d is not None else "none"
+
+
+@pytest.mark.parametrize(("dialect", "fallback", "mode_name"), [
+    (Dialect.PX4, "rtl", "AUTO_RTL"), (Dialect.ARDUPILOT, "brake", "BRAKE")], ids=["px4-rtl", "ardupilot-brake"])
+def test_fallback_mode_brakes_then_hands_the_vehicle_to_the_autopilots_mode(
+        dialect: Dialect, fallback: str, mode_name: str, tmp_path: Path) -> None:
+    cfg = tmp_path / "guard.yaml"
+    cfg.write_text(CONFIG + f"  fallback_mode: {fallback}\n  brake_s: 1.0\n")
+    r = Rig(dialect, cfg, tmp_path / "out")
+    try:
+        c, s = r.ctl, r.sim
+        r.take_off_and_request()
+        c.vel = (0.0, 8.0, 0.0)
+        wait_for(lambda: r.guard.decision is not None and r.guard.decision.authority.name != "EXPERIMENTAL", 20,
+                 "Merlin's revocation of the flyaway")
+        assert s.mode == s.offboard  # braking first, in the offboard mode, with the guard's zero-velocity setpoint
+        wait_for(lambda: s.mode_name() == mode_name, 5, f"the autopilot's own {mode_name} after guard.brake_s")
+        time.sleep(3.0)
+        assert max(math.hypot(p[0], p[1]) for p in s.track.pos) < FENCE_RADIUS_M
+        assert s.mode_name() in (mode_name, "LAND", "AUTO_LAND")  # the guard does not fight the autopilot's mode
+        events = (tmp_path / "out" / "events.jsonl").read_text()
+        assert '"guard_fallback_mode"' in events and '"guard_standby"' not in events
+    finally:
+        r.close()
