@@ -203,39 +203,46 @@ def _home_inside_keep_out(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
                      f"home is {d:.1f} m inside a keep-out zone: arming is refused there and RTL lands in it")
 
 
+def _multirotor_capability(inp: CheckInput) -> VehicleCapability | None:
+    """The vehicle's derived capability where the capability checks apply: a multirotor whose airframe is
+    known (the capability model is a multirotor's: thrust, mass, tilt limit)."""
+    return inp.vehicle if inp.vehicle is not None and inp.cfg.vehicle.type.value == "multirotor" else None
+
+
+def _decel_beyond(c: CrossCheck, cap: VehicleCapability, axis: str, configured: float, capable: float,
+                  assumes: str, consequence: str = "") -> Iterator[Finding]:
+    """The finding of a configured braking (``vehicle.max_<axis>_decel_mps2``) above what the vehicle holds."""
+    if configured > capable + 1e-9:
+        yield c.make((f"vehicle.max_{axis}_decel_mps2",), {"configured_mps2": configured, "vehicle_mps2": capable},
+                     f"{assumes.format(configured)}, the vehicle {cap.source} can hold {capable:.2f} m/s^2 "
+                     f"({cap.derivation}){consequence}")
+
+
 @cross_check("XC003", "horizontal-decel-beyond-vehicle", Severity.ERROR,
              "the fence projection brakes harder than the vehicle can (thrust, mass, tilt limit)")
 def _h_decel(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
-    v, cap = inp.cfg.vehicle, inp.vehicle
-    if cap is None or v.type.value != "multirotor":
-        return
-    if v.max_horizontal_decel_mps2 > cap.max_h_decel_mps2 + 1e-9:
-        yield c.make(("vehicle.max_horizontal_decel_mps2",),
-                     {"configured_mps2": v.max_horizontal_decel_mps2, "vehicle_mps2": cap.max_h_decel_mps2},
-                     f"the fence projection assumes {v.max_horizontal_decel_mps2:g} m/s^2 of braking, the vehicle "
-                     f"{cap.source} can hold {cap.max_h_decel_mps2:.2f} m/s^2 ({cap.derivation}): it stops "
-                     "later than projected and breaches")
+    cap = _multirotor_capability(inp)
+    if cap is not None:
+        yield from _decel_beyond(c, cap, "horizontal", inp.cfg.vehicle.max_horizontal_decel_mps2,
+                                 cap.max_h_decel_mps2, "the fence projection assumes {:g} m/s^2 of braking",
+                                 ": it stops later than projected and breaches")
 
 
 @cross_check("XC004", "vertical-decel-beyond-vehicle", Severity.ERROR,
              "the ceiling/floor projection brakes a climb or descent harder than the vehicle can")
 def _v_decel(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
-    v, cap = inp.cfg.vehicle, inp.vehicle
-    if cap is None or v.type.value != "multirotor":
-        return
-    if v.max_vertical_decel_mps2 > cap.max_v_decel_mps2 + 1e-9:
-        yield c.make(("vehicle.max_vertical_decel_mps2",),
-                     {"configured_mps2": v.max_vertical_decel_mps2, "vehicle_mps2": cap.max_v_decel_mps2},
-                     f"the ceiling and floor projections assume {v.max_vertical_decel_mps2:g} m/s^2 of vertical "
-                     f"braking, the vehicle {cap.source} can hold {cap.max_v_decel_mps2:.2f} m/s^2 "
-                     f"({cap.derivation})")
+    cap = _multirotor_capability(inp)
+    if cap is not None:
+        yield from _decel_beyond(c, cap, "vertical", inp.cfg.vehicle.max_vertical_decel_mps2,
+                                 cap.max_v_decel_mps2,
+                                 "the ceiling and floor projections assume {:g} m/s^2 of vertical braking")
 
 
 @cross_check("XC005", "reaction-time-below-vehicle", Severity.ERROR,
              "the projection's reaction time is shorter than the vehicle's loops can react")
 def _reaction(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
-    v, cap = inp.cfg.vehicle, inp.vehicle
-    if cap is None or v.type.value != "multirotor":
+    v, cap = inp.cfg.vehicle, _multirotor_capability(inp)
+    if cap is None:
         return
     if v.max_horizontal_decel_mps2 > cap.max_h_decel_mps2 + 1e-9:
         return  # no reaction time delivers a braking the vehicle cannot hold: XC003 says so
