@@ -283,49 +283,44 @@ def _altitude_band(inp: CheckInput) -> tuple[float | None, float | None]:
     return lo, hi
 
 
+def _height_outside_band(inp: CheckInput, c: CrossCheck, what: str, ceiling: bool, text: str) -> Iterator[Finding]:
+    """The finding of the trusted ``<what>_altitude_m`` (take-off or RTL) at or above the fence's highest
+    height (``ceiling``) or at or below its lowest; ``text`` formats ``{h}`` (the height) and ``{limit}``."""
+    lo, hi = _altitude_band(inp)
+    h, limit = getattr(inp.cfg.trusted, f"{what}_altitude_m"), (hi if ceiling else lo)
+    if limit is not None and (h >= limit if ceiling else h <= limit):
+        side = "ceiling" if ceiling else "floor"
+        yield c.make((f"trusted.{what}_altitude_m", f"geofence.altitude_{side}_m", "geofence.margin_m"),
+                     {f"{what}_m": h, "highest_m" if ceiling else "lowest_m": limit}, text.format(h=h, limit=limit))
+
+
 @cross_check("XC007", "takeoff-above-ceiling", Severity.ERROR,
              "the take-off height is at or above the fence ceiling less its margin")
 def _takeoff_ceiling(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
-    _, hi = _altitude_band(inp)
-    t = inp.cfg.trusted.takeoff_altitude_m
-    if hi is not None and t >= hi:
-        yield c.make(("trusted.takeoff_altitude_m", "geofence.altitude_ceiling_m", "geofence.margin_m"),
-                     {"takeoff_m": t, "highest_m": hi},
-                     f"take-off climbs to {t:g} m, but the ceiling trips at {hi:g} m (ceiling less margin): every "
-                     "take-off ends in the fence's action")
+    return _height_outside_band(inp, c, "takeoff", True,
+                                "take-off climbs to {h:g} m, but the ceiling trips at {limit:g} m (ceiling less "
+                                "margin): every take-off ends in the fence's action")
 
 
 @cross_check("XC008", "takeoff-below-floor", Severity.ERROR,
              "the take-off height does not clear the fence floor (floor + margin + hysteresis)")
 def _takeoff_floor(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
-    lo, _ = _altitude_band(inp)
-    t = inp.cfg.trusted.takeoff_altitude_m
-    if lo is not None and t <= lo:
-        yield c.make(("trusted.takeoff_altitude_m", "geofence.altitude_floor_m", "geofence.margin_m"),
-                     {"takeoff_m": t, "lowest_m": lo},
-                     f"take-off stops at {t:g} m, below {lo:g} m (floor + margin + 1 m): the floor never starts to "
-                     "apply and every grant is refused until the vehicle is clear of it")
+    return _height_outside_band(inp, c, "takeoff", False,
+                                "take-off stops at {h:g} m, below {limit:g} m (floor + margin + 1 m): the floor "
+                                "never starts to apply and every grant is refused until the vehicle is clear of it")
 
 
 @cross_check("XC009", "rtl-above-ceiling", Severity.ERROR, "the RTL height is at or above the ceiling less its margin")
 def _rtl_ceiling(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
-    _, hi = _altitude_band(inp)
-    r = inp.cfg.trusted.rtl_altitude_m
-    if hi is not None and r >= hi:
-        yield c.make(("trusted.rtl_altitude_m", "geofence.altitude_ceiling_m", "geofence.margin_m"),
-                     {"rtl_m": r, "highest_m": hi},
-                     f"RTL climbs to {r:g} m, but the ceiling trips at {hi:g} m (ceiling less margin)")
+    return _height_outside_band(inp, c, "rtl", True,
+                                "RTL climbs to {h:g} m, but the ceiling trips at {limit:g} m (ceiling less margin)")
 
 
 @cross_check("XC010", "rtl-below-floor", Severity.ERROR, "the RTL height is within the fence floor's margin")
 def _rtl_floor(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
-    lo, _ = _altitude_band(inp)
-    r = inp.cfg.trusted.rtl_altitude_m
-    if lo is not None and r <= lo:
-        yield c.make(("trusted.rtl_altitude_m", "geofence.altitude_floor_m", "geofence.margin_m"),
-                     {"rtl_m": r, "lowest_m": lo},
-                     f"RTL returns at {r:g} m, below {lo:g} m (floor + margin + 1 m): the return flies inside "
-                     "the floor's margin")
+    return _height_outside_band(inp, c, "rtl", False,
+                                "RTL returns at {h:g} m, below {limit:g} m (floor + margin + 1 m): the return "
+                                "flies inside the floor's margin")
 
 
 @cross_check("XC011", "blend-longer-than-reaction", Severity.WARNING,
