@@ -13,6 +13,7 @@ Run: ``python -m tests.serve.px4_examples_native NAME udpin://0.0.0.0:PORT``.
 from __future__ import annotations
 
 import asyncio
+import functools
 import math
 import sys
 from collections.abc import AsyncIterator, Sequence
@@ -70,12 +71,37 @@ NATIVE = Binding(VelocityNedYaw, PositionNedYaw, VelocityBodyYawspeed, Attitude,
                  lambda error: error.result.name, _mission_item, _mission_plan)
 
 
-def native_drone(system: Any) -> SimpleNamespace:
-    """The flows' ``drone`` on a connected native system."""
-    return SimpleNamespace(
-        core=SimpleNamespace(connection_state=_connected_once), action=ActionAsync(system),
-        offboard=OffboardAsync(system), telemetry=_Streams(TelemetryAsync(system)),
-        mission=_Streams(MissionAsync(system)), info=InfoAsync(system), param=ParamAsync(system))
+class NativeDrone:
+    """The flows' ``drone`` on a connected native system. A plugin is made when a flow first uses it, so a
+    flow creates the plugins it uses and no others (as the native examples do)."""
+
+    def __init__(self, system: Any) -> None:
+        self.system = system
+        self.core = SimpleNamespace(connection_state=_connected_once)
+
+    @functools.cached_property
+    def action(self) -> ActionAsync:
+        return ActionAsync(self.system)
+
+    @functools.cached_property
+    def offboard(self) -> OffboardAsync:
+        return OffboardAsync(self.system)
+
+    @functools.cached_property
+    def telemetry(self) -> _Streams:
+        return _Streams(TelemetryAsync(self.system))
+
+    @functools.cached_property
+    def mission(self) -> _Streams:
+        return _Streams(MissionAsync(self.system))
+
+    @functools.cached_property
+    def info(self) -> InfoAsync:
+        return InfoAsync(self.system)
+
+    @functools.cached_property
+    def param(self) -> ParamAsync:
+        return ParamAsync(self.system)
 
 
 async def _main(name: str, url: str) -> None:
@@ -85,7 +111,7 @@ async def _main(name: str, url: str) -> None:
         system = await mavsdk.first_autopilot(timeout_s=60.0)
         if system is None:
             raise SystemExit("no autopilot found")
-        await PROGRAMS[name](native_drone(system), NATIVE)
+        await PROGRAMS[name](NativeDrone(system), NATIVE)
     print("EXAMPLE FINISHED", flush=True)
 
 
