@@ -9,7 +9,12 @@ Run: .venv/bin/python benchmarks/bench_redundancy_pf.py [--part cost|faults|swee
   (merlin.redundancy.duplex_scenarios), with the ``table2`` preset (isolation residual as printed) and
   the ``merlin`` preset (whitened, averaged residual), CD/WD/DT/RT in the paper's format beside its
   Tables 4 and 8, plus the count of samples where the healthy IMU was flagged (must be 0).
-* sweeps: scenario F1 with Delta, tau_a, Omega and nu scaled as in the paper's Tables 4-7.
+  The ``sequential`` preset (Merlin's sequential tests on the same filters,
+  merlin.redundancy.sequential_tests) beside them, plus a fault-free flight of the same length per seed
+  (false-alarm fraction: samples with either IMU flagged) and F3 with the frozen-axis test disabled (the
+  time the frozen value itself becomes distinguishable).
+* sweeps: scenario F1 with Delta, tau_a, Omega and nu scaled as in the paper's Tables 4-7 (``--preset``);
+  ``--plus-minus`` sweeps each of them, and the sequential tests' own thresholds, by +-25 % instead.
 """
 
 from __future__ import annotations
@@ -27,9 +32,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
-from merlin.redundancy.duplex_fdi import MERLIN, TABLE2, FdiConfig
+from merlin.redundancy.duplex_fdi import FDI_PRESETS, FdiConfig
 from merlin.redundancy.duplex_scenarios import inject, metrics, nominal_flight, run_fdi
 from merlin.redundancy.particle_filter import DuplexParticleFilter, ParticleFilterConfig
+from merlin.redundancy.sequential_tests import SequentialTests
 
 # seed 003 Tables 4 and 8 and §6.1 (CD %, WD %, DT s, RT s); None where the paper gives no number
 PAPER_FAULTS = {
@@ -87,12 +93,33 @@ def cost(runs: int, steps: int) -> dict[str, object]:
     return out
 
 
-def _run(cfg: FdiConfig, fault: str, seed: int) -> dict[str, object]:
-    base = nominal_flight(DURATION_S, np.random.default_rng(1000 + seed))
+def _run(cfg: FdiConfig, fault: str, seed: int, duration_s: float = DURATION_S) -> dict[str, object]:
+    base = nominal_flight(duration_s, np.random.default_rng(1000 + seed))
     data = inject(base, fault, np.random.default_rng(2000 + seed))
     m = metrics(run_fdi(data, cfg, np.random.default_rng(3000 + seed)))
     return {"cd": m.cd_pct, "wd": m.wd_pct, "dt": m.dt_s, "rt": m.rt_s, "wrong_imu": m.wrong_imu_samples,
             "e_max": m.e_max_rad, "e_axis": m.e_max_axis}
+
+
+def _fault_free(cfg: FdiConfig, seed: int) -> dict[str, float]:
+    """The same flight with no fault: the fraction of samples with either IMU flagged, and in alert."""
+    data = nominal_flight(DURATION_S, np.random.default_rng(1000 + seed))
+    run = run_fdi(data, cfg, np.random.default_rng(3000 + seed))
+    n = run.faulty.size
+    return {"flagged_pct": 100.0 * float((run.faulty >= 0).sum()) / n,
+            "alert_pct": 100.0 * float((run.state == "alert").sum()) / n}
+
+
+def _beats(rows: list[dict[str, object]], paper: tuple[float | None, ...]) -> str:
+    """Which of the paper's columns the median meets (CD >=, WD <=, DT <=, RT <=)."""
+    out = []
+    for key, p, better in zip(("cd", "wd", "dt", "rt"), paper, (1, -1, -1, -1), strict=True):
+        if p is None:
+            continue
+        m = _med(rows, key)
+        ok = m is not None and (m - p) * better >= -1e-9
+        out.append(f"{key.upper()} {'ok' if ok else 'WORSE'}")
+    return ", ".join(out) or "-"
 
 
 def _med(rows: list[dict[str, object]], key: str) -> float | None:
@@ -105,14 +132,16 @@ def _span(rows: list[dict[str, object]], key: str) -> str:
     return f"{min(vals):.2f}-{max(vals):.2f}" if vals else "n/a"  # type: ignore[type-var]
 
 
-def faults(seeds: int) -> dict[str, object]:
+def faults(seeds: int, presets: list[str], faults_run: tuple[str, ...] = ("F1", "F2", "F3", "F4", "F5"),
+           extra_rows: bool = True) -> dict[str, object]:
     out: dict[str, object] = {}
-    for name, cfg in (("table2", TABLE2), ("merlin", MERLIN)):
+    for name in presets:
+        cfg = FDI_PRESETS[name]
         print(f"\n### preset {name}: median over {seeds} seeds (range) | paper")
         print("fault |  CD %  |  WD %  |  DT s  |  RT s  | healthy IMU flagged (samples, all seeds) | e_max rad "
               "| paper CD / WD / DT / RT | paper e_max")
         res = {}
-        for fault in ("F1", "F2", "F3", "F4", "F5"):
+        for fault in faults_run:
             rows = [_run(cfg, fault, s) for s in range(seeds)]
             res[fault] = rows
             p = PAPER_FAULTS[fault]
@@ -121,30 +150,85 @@ def faults(seeds: int) -> dict[str, object]:
                   f"{_fmt(_med(rows, 'rt'))} | {sum(int(r['wrong_imu']) for r in rows):6d} | "  # type: ignore[call-overload]
                   f"{_med(rows, 'e_max'):.3f} ({rows[0]['e_axis']}) | "
                   f"{' / '.join(_fmt(x, 5).strip() for x in p)} | {'' if pe is None else f'{pe[0]} ({pe[1]})'}"
-                  f"   [DT range {_span(rows, 'dt')}, CD range {_span(rows, 'cd')}]")
+                  f"   [CD {_span(rows, 'cd')}, WD {_span(rows, 'wd')}, DT {_span(rows, 'dt')}, "
+                  f"RT {_span(rows, 'rt')}] vs paper: {_beats(rows, p)}", flush=True)
+        if not extra_rows:
+            out[name] = res
+            continue
+        free = [_fault_free(cfg, s) for s in range(seeds)]
+        res["none"] = free  # type: ignore[assignment]
+        print(f"none  | flagged {statistics.median(r['flagged_pct'] for r in free):.3f} % of samples (max "
+              f"{max(r['flagged_pct'] for r in free):.3f} %), alert {statistics.median(r['alert_pct'] for r in free):.3f} "
+              f"% (max {max(r['alert_pct'] for r in free):.3f} %)", flush=True)
+        if cfg.decision == "sequential":
+            tests = cfg.sequential or SequentialTests()
+            blind = replace(cfg, sequential=replace(tests, stuck_samples=10**9))
+            rows = [_run(blind, "F3", s) for s in range(seeds)]
+            res["F3_value_only"] = rows
+            print(f"F3 without the frozen-axis test | {_fmt(_med(rows, 'cd'))} | {_fmt(_med(rows, 'wd'))} | "
+                  f"{_fmt(_med(rows, 'dt'))} | {_fmt(_med(rows, 'rt'))} | "
+                  f"{sum(int(r['wrong_imu']) for r in rows):6d} | [DT {_span(rows, 'dt')}]", flush=True)  # type: ignore[call-overload]
         out[name] = res
     return out
 
 
-def sweeps(seeds: int, max_delta: int) -> dict[str, object]:
-    base_cfg = TABLE2
+def _scaled(base_cfg: FdiConfig, param: str, val: float) -> FdiConfig:
+    """``base_cfg`` with one parameter scaled by ``val`` (Delta: set to ``val``)."""
+    if param == "delta":
+        return replace(base_cfg, pf=replace(base_cfg.pf, n_particles=int(val)))
+    if param == "tau_a":
+        return replace(base_cfg, tau_a_g=base_cfg.tau_a_g * val)
+    if param == "omega":
+        return replace(base_cfg, omega=base_cfg.omega * val)
+    if param == "nu":
+        return replace(base_cfg, pf=replace(base_cfg.pf, nu=tuple(x * val for x in base_cfg.pf.nu)))
+    tests = base_cfg.sequential or SequentialTests()
+    cur = getattr(tests, param)
+    new = tuple(x * val for x in cur) if isinstance(cur, tuple) else type(cur)(round(cur * val) if isinstance(cur, int)
+                                                                             else cur * val)
+    return replace(base_cfg, sequential=replace(tests, **{param: new}))
+
+
+SEQUENTIAL_OWN = ("cusum_k", "cusum_h", "shewhart_z", "isolation_h", "recovery_h", "common_rate")
+
+
+def plus_minus(seeds: int, preset: str, duration_s: float) -> dict[str, object]:
+    """F1 with each parameter at 0.75 and 1.25 of the preset's value (Delta at 3072 and 5120), beside
+    the paper's chosen row. tau_a is no parameter of the sequential tests (they never read it), so it is
+    swept only for the paper's logic."""
+    base_cfg = FDI_PRESETS[preset]
+    seq = base_cfg.decision == "sequential"
+    params = ["delta", "omega", "nu"] + (list(SEQUENTIAL_OWN) if seq else ["tau_a"])
+    out: dict[str, object] = {}
+    print(f"\n### +-25 % of one parameter (scenario F1, {duration_s:g} s, preset {preset}, median of {seeds} "
+          "seeds) | paper's chosen row 99.50 / 0.00 / 0.27 / 6.96")
+    print(" parameter x scale |  CD %  |  WD %  |  DT s  |  RT s  | healthy IMU flagged | ranges | vs paper")
+    for param in params:
+        for val in (0.75, 1.25):
+            cfg = _scaled(base_cfg, param, base_cfg.pf.n_particles * val if param == "delta" else val)
+            rows = [_run(cfg, "F1", s, duration_s) for s in range(seeds)]
+            out[f"{param}x{val}"] = rows
+            print(f"{param} x{val:4.2f} | {_fmt(_med(rows, 'cd'))} | {_fmt(_med(rows, 'wd'))} | "
+                  f"{_fmt(_med(rows, 'dt'))} | {_fmt(_med(rows, 'rt'))} | "
+                  f"{sum(int(r['wrong_imu']) for r in rows):6d} | [CD {_span(rows, 'cd')}, WD {_span(rows, 'wd')}, "  # type: ignore[call-overload]
+                  f"DT {_span(rows, 'dt')}, RT {_span(rows, 'rt')}] | {_beats(rows, PAPER_FAULTS['F1'])}", flush=True)
+    return out
+
+
+def sweeps(seeds: int, max_delta: int, preset: str = "table2", duration_s: float = DURATION_S) -> dict[str, object]:
+    base_cfg = FDI_PRESETS[preset]
     out: dict[str, object] = {}
     for param, table in PAPER_SWEEPS.items():
-        print(f"\n### sweep {param} (scenario F1, preset table2, median of {seeds} seeds) | paper")
+        if param == "tau_a" and base_cfg.decision == "sequential":
+            continue  # the sequential tests never read tau_a: every row would be the preset's own
+        print(f"\n### sweep {param} (scenario F1, preset {preset}, median of {seeds} seeds) | paper")
         print(" value |  CD %  |  WD %  |  DT s  |  RT s  | healthy IMU flagged | paper CD / WD / DT / RT")
         res = {}
         for val, paper in table.items():
-            if param == "delta":
-                if val > max_delta:
-                    continue
-                cfg = replace(base_cfg, pf=replace(base_cfg.pf, n_particles=int(val)))
-            elif param == "tau_a":
-                cfg = replace(base_cfg, tau_a_g=base_cfg.tau_a_g * val)
-            elif param == "omega":
-                cfg = replace(base_cfg, omega=base_cfg.omega * val)
-            else:
-                cfg = replace(base_cfg, pf=replace(base_cfg.pf, nu=tuple(x * val for x in base_cfg.pf.nu)))
-            rows = [_run(cfg, "F1", s) for s in range(seeds)]
+            if param == "delta" and val > max_delta:
+                continue
+            cfg = _scaled(base_cfg, param, val)
+            rows = [_run(cfg, "F1", s, duration_s) for s in range(seeds)]
             res[str(val)] = rows
             print(f"{val:6g} | {_fmt(_med(rows, 'cd'))} | {_fmt(_med(rows, 'wd'))} | {_fmt(_med(rows, 'dt'))} | "
                   f"{_fmt(_med(rows, 'rt'))} | {sum(int(r['wrong_imu']) for r in rows):6d} | "  # type: ignore[call-overload]
@@ -159,6 +243,11 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--runs", type=int, default=7)
     ap.add_argument("--max-delta", type=int, default=32768)
+    ap.add_argument("--presets", default="table2,merlin,sequential", help="comma-separated, for --part faults")
+    ap.add_argument("--faults", help="comma-separated subset of F1..F5 for --part faults (no fault-free rows)")
+    ap.add_argument("--preset", default="table2", help="the preset the sweeps run")
+    ap.add_argument("--plus-minus", action="store_true", help="sweeps: +-25 %% of each parameter instead")
+    ap.add_argument("--duration", type=float, default=DURATION_S, help="sweeps: flight length, s")
     ap.add_argument("--json")
     args = ap.parse_args()
     report: dict[str, object] = {}
@@ -175,9 +264,11 @@ def main() -> None:
             print(f"  Delta={n:>5} per filter: wall median {statistics.median(w):.2f} (min {min(w):.2f}, max "
                   f"{max(w):.2f}); CPU median {statistics.median(cp):.2f} (min {min(cp):.2f}){extra}", flush=True)
     if args.part in ("faults", "all"):
-        report["faults"] = faults(args.seeds)
+        only = tuple(args.faults.split(",")) if args.faults else ("F1", "F2", "F3", "F4", "F5")
+        report["faults"] = faults(args.seeds, args.presets.split(","), only, extra_rows=not args.faults)
     if args.part in ("sweeps", "all"):
-        report["sweeps"] = sweeps(args.seeds, args.max_delta)
+        report["sweeps"] = plus_minus(args.seeds, args.preset, args.duration) if args.plus_minus \
+            else sweeps(args.seeds, args.max_delta, args.preset, args.duration)
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=2, default=str) + "\n")
 

@@ -121,7 +121,7 @@ def evaluate(x: Expectation, events: list[dict[str, Any]], log: dict[str, np.nda
                            " velocity command (max_authority_change_command_jump_mps is null)")
         return Verdict(name, j <= lim, f"largest command step at a change of authority {j:.3f} m/s (allowed {lim})")
     if kind == "max_lane_switch_step":
-        # hardware redundancy (sims/lanes.py): within SWITCH_WINDOW_S of an autopilot-lane switch, the
+        # hardware redundancy (merlin/redundancy/lanes.py): within SWITCH_WINDOW_S of an autopilot-lane switch, the
         # largest per-tick motor-command step the hand-over adds beyond the incoming lane's own change;
         # default limit: the run's bumpless limit. At least one switch must have happened.
         # Also the raw actuated step near the switch, against the larger of the limit and the largest step

@@ -1,10 +1,10 @@
 """The closed loop for the JSBSim fixed wing: dynamics -> sensors -> estimate -> trusted core -> fixed-wing
 actuator stage -> dynamics.
 
-Same interface as :class:`sims.runner.ClosedLoop` (``sense()``, ``act(inputs)``, ``t``, ``dt``, ``truth``,
-``state``, ``decision``, ``core``, ``core_cfg``, ``wind_ned``, ``batt_frac``, ``actuators``), so
-``run_scenario`` and ``merlin serve`` drive either vehicle; ``sims.runner.make_loop`` picks this one for a
-scenario whose ``vehicle`` is a JSBSim model.
+The same shell as the multirotor's :class:`sims.multirotor_loop.ClosedLoop` (both are
+:class:`sims.vehicle_loop.SimulatedVehicle` s, :class:`merlin.pipeline.VehicleLoop` s: ``sense()``,
+``act(inputs)``, ``redundancy_report(t)``), so ``run_scenario`` and ``merlin serve`` drive either vehicle;
+``sims.runner.make_loop`` picks this one for a scenario whose ``vehicle`` is a JSBSim model.
 
 The trusted core runs unchanged. What differs is the actuator stage, because a fixed wing cannot stop: it
 is Merlin's, :class:`merlin.autopilot.fixedwing_behaviours.FixedWingBehaviours` (the escape turn, RTL's
@@ -22,21 +22,25 @@ from typing import Any
 import numpy as np
 import yaml
 
-from merlin.autopilot import fixedwing_control as fc
-from merlin.autopilot import fixedwing_guidance as fg
-from merlin.autopilot.fixedwing_behaviours import FixedWingBehaviours
+from merlin.autopilot.fixedwing_behaviours import behaviours_from_config
 from merlin.config.loader import ConfigError
 from merlin.config.models import MerlinConfig
 from merlin.config.runtime import build_core_config
 from merlin.core.step import TrustedCore
 from merlin.core.types import Behavior, Decision, Inputs, VehicleState
-from sims.battery import Battery, BatteryParams, BatterySagFault
+from merlin.pipeline import VehicleTick
+from sims.battery import BatteryParams
 from sims.fixedwing import SIMS_ROOT, FixedWingSim, SurfaceCommand
-from sims.runner import ClosedLoop, TruthPlusNoiseEstimator, _end, sensor_faults
 from sims.scenario import Scenario
 from sims.sensor_faults import SensorFaultInjector
 from sims.sensors import SensorParams, SensorSuite
-from sims.wind import DiscreteGust, WindModel, WindParams
+from sims.vehicle_loop import (
+    SimulatedVehicle,
+    TruthPlusNoiseEstimator,
+    battery_model,
+    sensor_faults,
+    wind_model,
+)
 
 G_MPS2 = 9.80665
 
@@ -45,10 +49,6 @@ G_MPS2 = 9.80665
 DEFAULT_AIRSPEED_MPS = 22.0
 #: Lowest start height above home: a fixed-wing scenario starts airborne (no take-off in this simulator).
 MIN_START_HEIGHT_M = 10.0
-#: Rate of the fixed-wing guidance and inner loops (as in tests/fixedwing: the gains were tuned there at
-#: 100 Hz; PX4 runs its fixed-wing position controller at 50 Hz). The surfaces are held in between; a
-#: change of source re-initialises and runs the loops in the tick it happens.
-AUTOPILOT_HZ = 100.0
 #: The catapult (a scenario or ``merlin serve`` starting on the ground, ``initial.pos_ned_m`` down >= 0): the
 #: aircraft rests on the launcher, motor off, until the trusted core flies TAKEOFF (armed on the ground, then
 #: a takeoff command); the launch releases it at this height above the ground, level, trimmed, at the start
@@ -164,7 +164,7 @@ def _refuse_what_cannot_act(sc: Scenario, source: str, on_launcher: bool) -> Non
                       " is not simulated, so the IMU never sees the aircraft reach flying speed and the filter"
                       " would reject every GPS fix after the release; start the EKF airborne (down < 0) or use"
                       " estimator: truth_plus_noise")
-    from sims.lanes import sensor_voter_on
+    from sims.lane_faults import sensor_voter_on
 
     voter = sensor_voter_on(sc)
     for i, f in enumerate(sc.faults):
@@ -185,13 +185,13 @@ def _refuse_what_cannot_act(sc: Scenario, source: str, on_launcher: bool) -> Non
         raise ConfigError(source, errors)
 
 
-class FixedWingLoop(ClosedLoop):
+class FixedWingLoop(SimulatedVehicle):
     """The fixed wing's vehicle side, one tick per ``sense()`` + ``act(inputs)`` (see the module docstring).
 
     ``actuators`` are (aileron, elevator, rudder, throttle) in the pilot's conventions
     (:class:`sims.fixedwing.SurfaceCommand`). ``notes`` lists what the stage did that the core's decision
     does not say (an escape turn and its side, a LAND flown as a loiter, the launch), as event-like dicts.
-    ``stage`` is Merlin's fixed-wing actuator stage (:class:`FixedWingBehaviours`).
+    ``stage`` is Merlin's fixed-wing actuator stage (:class:`merlin.autopilot.fixedwing_behaviours.FixedWingBehaviours`).
     """
 
     #: Fly the escape turn before a trusted behaviour when the fence is tripped (off only to show, in the
@@ -217,9 +217,9 @@ class FixedWingLoop(ClosedLoop):
         # JSBSim is deterministic), so a sensor or wind draw never depends on which vehicle flies.
         root = np.random.default_rng(sc.seed)
         _rng_vehicle, rng_sensors, rng_wind, rng_est, rng_faults = root.spawn(5)
-        # As the multirotor's loop (ClosedLoop.__init__): a scenario with a redundancy: section flies a
+        # As the multirotor's loop (sims.vehicle_loop.core_source): a scenario with a redundancy: section flies a
         # vehicle that reports its redundancy level to the core, when the configuration has the redundancy
-        # section (issue 5; read with getattr so that this loop does not depend on which fields it has).
+        # section (read with getattr so that this loop does not depend on which fields it has).
         red_cfg = getattr(cfg, "redundancy", None)
         core_src = cfg
         if red_cfg is not None and "redundancy" in sc.model_fields_set and not red_cfg.enabled:
@@ -241,32 +241,24 @@ class FixedWingLoop(ClosedLoop):
         steady = (float(sc.wind.steady_ned_mps[0]), float(sc.wind.steady_ned_mps[1]),
                   float(sc.wind.steady_ned_mps[2]))
         try:
-            self.vehicle = FixedWingSim(  # type: ignore[assignment]
+            self.vehicle = FixedWingSim(
                 home_lat_deg=cfg.home.lat_deg, home_lon_deg=cfg.home.lon_deg, home_alt_amsl_m=cfg.home.alt_amsl_m,
                 pos_ned_m=(float(ini.pos_ned_m[0]), float(ini.pos_ned_m[1]), -height),
                 heading_rad=math.radians(ini.yaw_deg), airspeed_mps=airspeed, rate_hz=1.0 / dt,
                 wind_ned_mps=steady, model=sc.vehicle)
         except ValueError as exc:
             raise ConfigError(source, [f"initial.airspeed_mps = {airspeed!r}: {exc}"]) from None
-        self.fw: FixedWingSim = self.vehicle  # type: ignore[assignment]
+        self.fw: FixedWingSim = self.vehicle
         self.sensors = SensorSuite(sc.sensors.apply(SensorParams()), rng_sensors, home_lat_deg=cfg.home.lat_deg,
                                    home_lon_deg=cfg.home.lon_deg)
         self.injector = SensorFaultInjector(sensor_faults(sc.faults), rng_faults)
-        gusts = [DiscreteGust(g.start_s, g.duration_s, tuple(g.amplitude_ned_mps)) for g in sc.wind.gusts]  # type: ignore[arg-type]
-        gusts += [DiscreteGust(f.start_s, (_end(f) - f.start_s) if f.end_s else 2.0, tuple(f.amplitude_ned_mps))  # type: ignore[arg-type]
-                  for f in sc.faults if f.type == "wind_gust" and f.amplitude_ned_mps]
-        self.wind = WindModel(WindParams(steady_ned_mps=steady, turbulence_w20_mps=sc.wind.turbulence_w20_mps,
-                                         gusts=tuple(gusts)), rng_wind, dt)
-        self.battery = Battery(AEROSONDE_BATTERY, [
-            BatterySagFault(f.start_s, _end(f), f.extra_resistance_ohm or 0.0, f.capacity_loss_frac or 0.0)
-            for f in sc.faults if f.type == "battery_sag"
-        ])
-        losses = [(f.start_s, _end(f)) for f in sc.faults if f.type == "gps_loss"]
+        self.wind = wind_model(sc, steady, rng_wind, dt)
+        self.battery = battery_model(AEROSONDE_BATTERY, sc)
+        losses = [(f.start_s, math.inf if f.end_s is None else f.end_s) for f in sc.faults if f.type == "gps_loss"]
         self.estimator = FixedWingEstimator(rng_est, dt, losses)
         _refuse_what_cannot_act(sc, source, self.on_launcher)
-        self.nav_events: list[dict[str, Any]] = []
         if sc.estimator == "ekf":
-            # the multirotor's fusion EKF on this aircraft's sensor frame (ClosedLoop._ekf_estimate). The
+            # the multirotor's fusion EKF on this aircraft's sensor frame (merlin.nav.fusion_stage). The
             # scenario starts airborne, so there is no alignment on the ground: the filter starts from the
             # state at t = 0 with NavInit's default uncertainties (1 m, 0.2 m/s, 1.7 deg of tilt, 11 deg of
             # yaw), as a filter handed over after an in-flight alignment would
@@ -277,9 +269,9 @@ class FixedWingLoop(ClosedLoop):
             self.ekf = NavEstimator(nav_filter_config(cfg), init=NavInit(
                 pos_ned_m=tr0.pos_ned_m, vel_ned_mps=tr0.vel_ned_mps, att_rpy_rad=tr0.rpy_rad))
             self.vision = VisionLoop(None, sc.seed)  # no camera (refused above): the GPS test trace only
-        from sims.lanes import Redundancy
+        from sims.lane_faults import build_redundancy, redundancy_setup
 
-        if Redundancy.wanted(sc):  # the IMU voter (on by default with the EKF); autopilot lanes refused above
+        if redundancy_setup(sc).wanted:  # the IMU voter (on by default with the EKF); autopilot lanes refused above
             from merlin.autopilot.multirotor_control import DEFAULT_GAINS
             from sims.sensors import dipole_field_ned_gauss
 
@@ -288,41 +280,32 @@ class FixedWingLoop(ClosedLoop):
             # hover thrust and gains are the autopilot lanes' (a multirotor's), never built here; the
             # configuration's redundancy section (presets, miscompare limits) when it has one
             with_cfg = (red_cfg,) if red_cfg is not None else ()
-            self.redundancy = Redundancy(sc, root.spawn(1)[0], fld, 0.0, DEFAULT_GAINS, *with_cfg)
+            self.redundancy = build_redundancy(sc, root.spawn(1)[0], fld, 0.0, DEFAULT_GAINS, *with_cfg)
             self.extra_log_row = self.redundancy.log_row
-        #: whether run_scenario hands the redundancy stage's level to the core each tick (as the multirotor's)
+        #: whether the driver hands the redundancy stage's level to the core each tick (as the multirotor's)
         self.reports_redundancy = bool(red_cfg is not None and core_src.redundancy.enabled
                                        and self.redundancy is not None)
 
-        # ---- the fixed-wing actuator stage: parameters from the configuration where it has them
-        trusted = cfg.trusted
-        cp0 = fc.FixedWingControlParams()
-        cruise = min(max(trusted.cruise_speed_mps, cp0.airspeed_min_mps), cp0.airspeed_max_mps)
-        # The autopilot banks up to its own 35 deg; the configuration's vehicle.bank_limit_deg is the bank the
-        # fence projection assumes, which should be what the autopilot holds in a sustained turn (less).
-        self.cp = replace(cp0, airspeed_cruise_mps=cruise)
-        # the experimental controller's attitude without the stall protections (experimental_stall_protection)
-        self.cp_unprotected = replace(self.cp, pitch_max_rad=math.radians(UNPROTECTED_PITCH_MAX_DEG),
-                                      alpha_protect_rad=math.radians(90.0))
-        self.gp = fg.GuidanceParams(rtl_height_m=trusted.rtl_altitude_m, rtl_airspeed_mps=cruise)
-        mission = tuple(fg.Waypoint(float(n), float(e), -float(d), cruise) for n, e, d in trusted.mission_ned_m)
-        every = max(1, round(1.0 / (AUTOPILOT_HZ * dt)))
+        # ---- the fixed-wing actuator stage (Merlin's, built from the configuration)
         #: what the stage did that the core's decision does not say, and the launch (one list, in order)
         self.notes: list[dict[str, Any]] = []
         self._launched_now = False
         assert self.fw.trim_result is not None
-        self.stage = FixedWingBehaviours(
-            self.core_cfg.fence, self.cp, self.gp, mission, self.fw.trim_result.surfaces,
-            self.fw.truth().to_vehicle_state(), every, every * dt,
-            cp_experimental=None if self.experimental_stall_protection else self.cp_unprotected,
-            escape_turns=self.escape_turns, rtl_routes=self.rtl_routes, notes=self.notes,
-            envelope=self.core_cfg.envelope)
+        self.stage = behaviours_from_config(cfg.trusted, self.core_cfg, self.fw.trim_result.surfaces,
+                                            self.fw.truth().to_vehicle_state(), dt, escape_turns=self.escape_turns,
+                                            rtl_routes=self.rtl_routes, notes=self.notes)
+        self.cp, self.gp = self.stage.cp, self.stage.gp
+        # the experimental controller's attitude without the stall protections (experimental_stall_protection)
+        self.cp_unprotected = replace(self.cp, pitch_max_rad=math.radians(UNPROTECTED_PITCH_MAX_DEG),
+                                      alpha_protect_rad=math.radians(90.0))
+        if not self.experimental_stall_protection:
+            self.stage.cp_experimental = self.cp_unprotected
 
         self.k = 0
         self.armed = False
         self.batt_frac = 1.0
         self.supply = 1.0
-        self.truth = self.fw.truth()  # type: ignore[assignment]
+        self.truth = self.fw.truth()
         if self.on_launcher:
             self.truth = self._on_launcher_truth(0.0)
             self.stage.surfaces = replace(self.stage.surfaces, throttle=0.0)
@@ -330,6 +313,11 @@ class FixedWingLoop(ClosedLoop):
         self.decision: Decision | None = None
         self.wind_ned: tuple[float, float, float] = steady
         self.frame: Any = None
+        # the flight logic's tick up to the core; the actuator stage (self.stage) is flown in act, after the
+        # catapult (a simulated launch) has had its say
+        self.tick = VehicleTick(self.core, self._estimator(), None, self.redundancy,
+                                vote_before_estimate=self.ekf is not None,
+                                reports_redundancy=self.reports_redundancy)
 
     @property
     def surfaces(self) -> SurfaceCommand:
@@ -343,7 +331,7 @@ class FixedWingLoop(ClosedLoop):
         return (c.aileron, c.elevator, c.rudder, c.throttle)
 
     @property  # the multirotor's attribute holds four motors; this aircraft has one
-    def motors(self) -> tuple[float]:  # type: ignore[override]
+    def motors(self) -> tuple[float]:
         """The one motor's throttle command, 0..1 (what ``merlin serve`` reports as VFR_HUD throttle)."""
         return (self.surfaces.throttle,)
 
@@ -363,31 +351,29 @@ class FixedWingLoop(ClosedLoop):
     # ------------------------------------------------------------------------------------------ the tick
 
     def sense(self) -> VehicleState:
-        """First half of a tick; on the catapult the truth is the aircraft at rest (JSBSim is not run)."""
-        if not self.on_launcher:
-            return super().sense()  # sensors (+ faults) -> the stand-in or the fusion EKF (_ekf_estimate)
+        """First half of a tick: the truth (on the catapult, the aircraft at rest: JSBSim is not run), the
+        sensor frame, then the voter and the estimator."""
         t = self.t
-        self.truth = self._on_launcher_truth(t)
+        self.truth = self._on_launcher_truth(t) if self.on_launcher else self.fw.truth()
         self.frame = self.injector.apply(self.sensors.step(self.truth))
-        self.state = self.estimator.estimate(t, self.truth, self.armed, self.batt_frac)
+        self.sensed = self.tick.sense(t, self.frame)
+        self.state = self.sensed.state
         return self.state
 
-    def _ekf_estimate(self, t: float) -> VehicleState:
-        """The fusion EKF on this aircraft's sensor frame (the multirotor's path), plus the alpha vane (read as
-        truth, as the stand-in's: :class:`FixedWingEstimator`)."""
-        s = super()._ekf_estimate(t)
-        self.state = replace(s, alpha_rad=self.truth.alpha_rad)
-        return self.state
+    def _complete_ekf_state(self, st: VehicleState) -> VehicleState:
+        """The multirotor's completion, plus the alpha vane (read as truth, as the stand-in's:
+        :class:`FixedWingEstimator`)."""
+        return replace(super()._complete_ekf_state(st), alpha_rad=self.truth.alpha_rad)
 
     def act(self, inputs: Inputs) -> Decision:
         """The core's tick on ``inputs`` (whose ``state`` must be :meth:`sense`'s), then the fixed-wing
         actuator stage and one JSBSim frame."""
         t = self.t
-        decision = self.core.step(t, inputs)
+        sensed = self.sensed
+        decision = self.tick.decide(sensed, inputs)
         self.decision = decision
         self.armed = decision.armed
-        if self.redundancy is not None and self.frame is not None:
-            self.redundancy.observe(t, self.frame)  # the IMU voter's events (a no-op when the EKF voted)
+        self.tick.vote_after(sensed)  # the IMU voter's one call when the estimator did not read it
         if self.on_launcher:
             if not (decision.armed and decision.behavior is Behavior.TAKEOFF):
                 self.wind_ned = self.wind.step(t)

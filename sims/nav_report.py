@@ -1,6 +1,6 @@
 """The navigation page of a run report (``nav.png``), for runs with the fusion EKF.
 
-Four panels, as the issue asks ("position error against distance for GPS, VO+INS and INS-only;
+Four panels ("position error against distance for GPS, VO+INS and INS-only;
 innovation test ratios with the spoof onset and detection marked"):
 
 1. horizontal estimate error against the distance flown, coloured by the navigation mode the filter was

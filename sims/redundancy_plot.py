@@ -1,7 +1,7 @@
 """The redundancy plot of a closed-loop run (``redundancy.png``): IMU lanes left in the vote, the duplex
 FDI's state and the nav health, the selected autopilot lane and the motor commands, with the voter's,
 the FDI's and the lane voter's events marked. Written only when the run's log has redundancy columns
-(``sims/lanes.py``)."""
+(``merlin/redundancy/lanes.py``)."""
 
 from __future__ import annotations
 

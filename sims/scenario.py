@@ -219,7 +219,7 @@ class Redundancy(S):
 
     sensor_voter: bool | None = Field(
         None, description="vote the three IMU lanes (merlin.redundancy) before the EKF; null: on with ekf")
-    fdi_preset: Literal["merlin", "table2"] | None = Field(
+    fdi_preset: Literal["merlin", "table2", "sequential"] | None = Field(
         None, description="duplex PF FDI preset (seed 003); null: the configuration's redundancy.fdi_preset")
     autopilot_lanes: Literal[1, 3] = Field(1, description="3: three inner-loop lanes voted by seed 000's scheme")
     lane_preset: Literal["fast", "thesis", "thesis_sitl"] | None = Field(

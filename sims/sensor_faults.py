@@ -231,6 +231,7 @@ class SensorFaultInjector:
                     self._held.pop((name, 0), None)
 
     def apply(self, frame: SensorFrame) -> SensorFrame:
+        """The frame with the faults acting at its time applied, in the list's order."""
         t = frame.t_s
         if t < self._t_first:  # fast path before any fault: only remember the healthy values
             for s in frame.imu:
@@ -241,151 +242,159 @@ class SensorFaultInjector:
                 self._remember(frame, set())
             return frame
         act = active_faults(self._faults, t)
-        imu = list(frame.imu)
-        multi = bool(frame.gps_lanes)
-        gpss: list[GpsSample | None] = list(frame.gps_lanes) if multi else [frame.gps]
-        baros: list[BaroSample | None] = list(frame.baro_lanes) if multi else [frame.baro]
-        mags: list[MagSample | None] = list(frame.mag_lanes) if multi else [frame.mag]
-        n_aux = len(gpss)
-        stuck_lanes: set[int] = set()
-        frozen: set[tuple[str, int]] = set()
-        mag_stuck = False
+        ed = _FrameEdit(frame)
         for f in act:
-            if isinstance(f, ImuStuck):
-                stuck_lanes.add(f.lane)
-                for i, s in enumerate(imu):
-                    if s.lane != f.lane:
-                        continue
-                    held = self._held_imu.get(f.lane) or self._last_imu.get(f.lane, s)
-                    self._held_imu[f.lane] = held
-                    imu[i] = ImuSample(
-                        t,
-                        held.gyro_frd_radps if f.gyro else s.gyro_frd_radps,
-                        held.accel_frd_mps2 if f.accel else s.accel_frd_mps2,
-                        s.lane,
-                    )
-            elif isinstance(f, ImuBiasStep):
-                for i, s in enumerate(imu):
-                    if s.lane == f.lane:
-                        imu[i] = ImuSample(
-                            s.t_s,
-                            _add(s.gyro_frd_radps, f.gyro_radps),
-                            _add(s.accel_frd_mps2, f.accel_mps2),
-                            s.lane,
-                        )
-            elif isinstance(f, ImuDrift):
-                k = t - f.start_s
-                for i, s in enumerate(imu):
-                    if s.lane == f.lane:
-                        imu[i] = ImuSample(
-                            s.t_s,
-                            _add(s.gyro_frd_radps, f.gyro_radps2, k),
-                            _add(s.accel_frd_mps2, f.accel_mps3, k),
-                            s.lane,
-                        )
-            elif isinstance(f, ImuNoise):
-                for i, s in enumerate(imu):
-                    if s.lane == f.lane:
-                        n = self._normals()
-                        imu[i] = ImuSample(
-                            s.t_s,
-                            _add(s.gyro_frd_radps, (n[0], n[1], n[2]), f.gyro_sigma_radps),
-                            _add(s.accel_frd_mps2, (n[3], n[4], n[5]), f.accel_sigma_mps2),
-                            s.lane,
-                        )
-            elif f.lane >= n_aux:
+            if isinstance(f, ImuStuck | ImuBiasStep | ImuDrift | ImuNoise):
+                self._imu_fault(ed, f)
+            elif f.lane >= len(ed.gps):
                 continue  # a unit this airframe does not carry (the scenario loader refuses it)
-            elif isinstance(f, GpsLoss):
-                gps = gpss[f.lane]
-                if gps is not None:
-                    gpss[f.lane] = None if f.mode is GpsLossMode.NO_SAMPLES else _no_fix(gps)
-            elif isinstance(f, GpsJump):
-                gps = gpss[f.lane]
-                if gps is not None:
-                    gpss[f.lane] = replace(gps, pos_ned_m=_add(gps.pos_ned_m, f.offset_ned_m))
-            elif isinstance(f, GpsSpoofDrift):
-                gps = gpss[f.lane]
-                if gps is not None:
-                    d = f.direction_ned
-                    nrm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) or 1.0
-                    u = (d[0] / nrm, d[1] / nrm, d[2] / nrm)
-                    # the offset at the sample's time of validity, so position and velocity agree
-                    k = max(0.0, gps.t_s - f.start_s) * f.rate_mps
-                    gpss[f.lane] = replace(
-                        gps,
-                        pos_ned_m=_add(gps.pos_ned_m, u, k),
-                        vel_ned_mps=_add(gps.vel_ned_mps, u, f.rate_mps),
-                    )
-            elif isinstance(f, GpsStuck):
-                gps = gpss[f.lane]
-                key = ("gps", f.lane)
-                frozen.add(key)
-                if gps is not None:
-                    held_g = self._held.get(key) or self._last.get(key) or gps
-                    self._held[key] = held_g
-                    assert isinstance(held_g, GpsSample)
-                    gpss[f.lane] = replace(held_g, t_s=gps.t_s)
-            elif isinstance(f, MagStuck):
-                mag = mags[f.lane]
-                if mag is not None:
-                    if not multi:
-                        mag_stuck = True
-                        held_m = self._held_mag or self._last_mag or mag
-                        self._held_mag = held_m
-                        mags[0] = MagSample(t, held_m.field_frd_gauss, mag.lane)
-                    else:
-                        key = ("mag", f.lane)
-                        frozen.add(key)
-                        held_x = self._held.get(key) or self._last.get(key) or mag
-                        self._held[key] = held_x
-                        assert isinstance(held_x, MagSample)
-                        mags[f.lane] = MagSample(t, held_x.field_frd_gauss, mag.lane)
-            elif isinstance(f, MagBias):
-                mag = mags[f.lane]
-                if mag is not None:
-                    k = (t - f.start_s) if f.ramp else 1.0
-                    mags[f.lane] = MagSample(mag.t_s, _add(mag.field_frd_gauss, f.field_gauss, k), mag.lane)
-            elif isinstance(f, BaroDrift):
-                baro = baros[f.lane]
-                if baro is not None:
-                    baros[f.lane] = replace(baro, alt_m=baro.alt_m + f.rate_mps * (t - f.start_s))
-            elif isinstance(f, BaroBias):
-                baro = baros[f.lane]
-                if baro is not None:
-                    baros[f.lane] = replace(baro, alt_m=baro.alt_m + f.offset_m)
-            elif isinstance(f, BaroStuck):
-                baro = baros[f.lane]
-                key = ("baro", f.lane)
-                frozen.add(key)
-                if baro is not None:
-                    held_b = self._held.get(key) or self._last.get(key) or baro
-                    self._held[key] = held_b
-                    assert isinstance(held_b, BaroSample)
-                    baros[f.lane] = replace(held_b, t_s=baro.t_s)
+            elif isinstance(f, GpsLoss | GpsJump | GpsSpoofDrift | GpsStuck):
+                self._gps_fault(ed, f)
+            elif isinstance(f, MagStuck | MagBias):
+                self._mag_fault(ed, f)
+            elif isinstance(f, BaroDrift | BaroBias | BaroStuck):
+                self._baro_fault(ed, f)
             elif isinstance(f, SensorDropout):
                 if f.sensor == "mag":
-                    mags[f.lane] = None
+                    ed.mag[f.lane] = None
                 elif f.sensor == "baro":
-                    baros[f.lane] = None
-        # remember healthy values; forget a held value once its stuck fault is over
+                    ed.baro[f.lane] = None
+        self._remember_healthy(frame, ed)
+        return ed.frame() if act else frame
+
+    def _imu_fault(self, ed: _FrameEdit, f: ImuStuck | ImuBiasStep | ImuDrift | ImuNoise) -> None:
+        """An IMU fault on its lane's samples: frozen at the last healthy sample, a bias step, a drift
+        growing with the time since the start, or extra white noise (one draw of six normals per sample)."""
+        t, imu = ed.t, ed.imu
+        if isinstance(f, ImuStuck):
+            ed.stuck_imu.add(f.lane)
+        for i, s in enumerate(imu):
+            if s.lane != f.lane:
+                continue
+            if isinstance(f, ImuStuck):
+                held = self._held_imu.get(f.lane) or self._last_imu.get(f.lane, s)
+                self._held_imu[f.lane] = held
+                imu[i] = ImuSample(t, held.gyro_frd_radps if f.gyro else s.gyro_frd_radps,
+                                   held.accel_frd_mps2 if f.accel else s.accel_frd_mps2, s.lane)
+            elif isinstance(f, ImuBiasStep):
+                imu[i] = ImuSample(s.t_s, _add(s.gyro_frd_radps, f.gyro_radps), _add(s.accel_frd_mps2, f.accel_mps2),
+                                   s.lane)
+            elif isinstance(f, ImuDrift):
+                k = t - f.start_s
+                imu[i] = ImuSample(s.t_s, _add(s.gyro_frd_radps, f.gyro_radps2, k),
+                                   _add(s.accel_frd_mps2, f.accel_mps3, k), s.lane)
+            else:
+                n = self._normals()
+                imu[i] = ImuSample(s.t_s, _add(s.gyro_frd_radps, (n[0], n[1], n[2]), f.gyro_sigma_radps),
+                                   _add(s.accel_frd_mps2, (n[3], n[4], n[5]), f.accel_sigma_mps2), s.lane)
+
+    def _gps_fault(self, ed: _FrameEdit, f: GpsLoss | GpsJump | GpsSpoofDrift | GpsStuck) -> None:
+        """A GPS fault on its unit: loss (no samples, or samples without a fix), a position jump, a spoofer's
+        drift (position and velocity consistent), or the position frozen at the last healthy sample."""
+        gps = ed.gps[f.lane]
+        if isinstance(f, GpsStuck):
+            ed.frozen.add(("gps", f.lane))
+        if gps is None:
+            return
+        if isinstance(f, GpsLoss):
+            ed.gps[f.lane] = None if f.mode is GpsLossMode.NO_SAMPLES else _no_fix(gps)
+        elif isinstance(f, GpsJump):
+            ed.gps[f.lane] = replace(gps, pos_ned_m=_add(gps.pos_ned_m, f.offset_ned_m))
+        elif isinstance(f, GpsSpoofDrift):
+            d = f.direction_ned
+            nrm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) or 1.0
+            u = (d[0] / nrm, d[1] / nrm, d[2] / nrm)
+            # the offset at the sample's time of validity, so position and velocity agree
+            k = max(0.0, gps.t_s - f.start_s) * f.rate_mps
+            ed.gps[f.lane] = replace(gps, pos_ned_m=_add(gps.pos_ned_m, u, k),
+                                     vel_ned_mps=_add(gps.vel_ned_mps, u, f.rate_mps))
+        else:
+            key = ("gps", f.lane)
+            held_g = self._held.get(key) or self._last.get(key) or gps
+            self._held[key] = held_g
+            assert isinstance(held_g, GpsSample)
+            ed.gps[f.lane] = replace(held_g, t_s=gps.t_s)
+
+    def _mag_fault(self, ed: _FrameEdit, f: MagStuck | MagBias) -> None:
+        """A magnetometer fault on its unit: the field frozen at the last healthy sample, or a bias (a step, or
+        a ramp growing with the time since the start)."""
+        mag, t = ed.mag[f.lane], ed.t
+        if mag is None:
+            return
+        if isinstance(f, MagBias):
+            k = (t - f.start_s) if f.ramp else 1.0
+            ed.mag[f.lane] = MagSample(mag.t_s, _add(mag.field_frd_gauss, f.field_gauss, k), mag.lane)
+        elif not ed.multi:
+            ed.mag_stuck = True
+            held_m = self._held_mag or self._last_mag or mag
+            self._held_mag = held_m
+            ed.mag[0] = MagSample(t, held_m.field_frd_gauss, mag.lane)
+        else:
+            key = ("mag", f.lane)
+            ed.frozen.add(key)
+            held_x = self._held.get(key) or self._last.get(key) or mag
+            self._held[key] = held_x
+            assert isinstance(held_x, MagSample)
+            ed.mag[f.lane] = MagSample(t, held_x.field_frd_gauss, mag.lane)
+
+    def _baro_fault(self, ed: _FrameEdit, f: BaroDrift | BaroBias | BaroStuck) -> None:
+        """A barometer fault on its unit: a drift, a bias, or the altitude frozen at the last healthy sample."""
+        baro = ed.baro[f.lane]
+        if isinstance(f, BaroStuck):
+            ed.frozen.add(("baro", f.lane))
+        if baro is None:
+            return
+        if isinstance(f, BaroDrift):
+            ed.baro[f.lane] = replace(baro, alt_m=baro.alt_m + f.rate_mps * (ed.t - f.start_s))
+        elif isinstance(f, BaroBias):
+            ed.baro[f.lane] = replace(baro, alt_m=baro.alt_m + f.offset_m)
+        else:
+            key = ("baro", f.lane)
+            held_b = self._held.get(key) or self._last.get(key) or baro
+            self._held[key] = held_b
+            assert isinstance(held_b, BaroSample)
+            ed.baro[f.lane] = replace(held_b, t_s=baro.t_s)
+
+    def _remember_healthy(self, frame: SensorFrame, ed: _FrameEdit) -> None:
+        """Remember the healthy samples (a stuck fault freezes the last of them); forget a held sample once
+        its stuck fault is over."""
         for s in frame.imu:
-            if s.lane not in stuck_lanes:
+            if s.lane not in ed.stuck_imu:
                 self._last_imu[s.lane] = s
                 self._held_imu.pop(s.lane, None)
-        if frame.mag is not None and not mag_stuck:
+        if frame.mag is not None and not ed.mag_stuck:
             self._last_mag = frame.mag
             self._held_mag = None
-        if multi:
+        if ed.multi:
             for i, m in enumerate(frame.mag_lanes):
-                if m is not None and ("mag", i) not in frozen:
+                if m is not None and ("mag", i) not in ed.frozen:
                     self._last[("mag", i)] = m
                     self._held.pop(("mag", i), None)
-        self._remember(frame, frozen)
-        if not act:
-            return frame
-        if multi:
-            return SensorFrame(t, tuple(imu), gpss[0], baros[0], mags[0], tuple(gpss), tuple(baros), tuple(mags))
-        return SensorFrame(t, tuple(imu), gpss[0], baros[0], mags[0])
+        self._remember(frame, ed.frozen)
+
+
+class _FrameEdit:
+    """One frame under edit: its samples as lists (lane 0 alone for a frame without ``*_lanes``), and which
+    units a stuck fault holds this tick."""
+
+    __slots__ = ("baro", "frozen", "gps", "imu", "mag", "mag_stuck", "multi", "stuck_imu", "t")
+
+    def __init__(self, frame: SensorFrame) -> None:
+        self.t = frame.t_s
+        self.multi = multi = bool(frame.gps_lanes)
+        self.imu = list(frame.imu)
+        self.gps: list[GpsSample | None] = list(frame.gps_lanes) if multi else [frame.gps]
+        self.baro: list[BaroSample | None] = list(frame.baro_lanes) if multi else [frame.baro]
+        self.mag: list[MagSample | None] = list(frame.mag_lanes) if multi else [frame.mag]
+        self.stuck_imu: set[int] = set()
+        self.frozen: set[tuple[str, int]] = set()
+        self.mag_stuck = False
+
+    def frame(self) -> SensorFrame:
+        if self.multi:
+            return SensorFrame(self.t, tuple(self.imu), self.gps[0], self.baro[0], self.mag[0], tuple(self.gps),
+                               tuple(self.baro), tuple(self.mag))
+        return SensorFrame(self.t, tuple(self.imu), self.gps[0], self.baro[0], self.mag[0])
 
 
 def _no_fix(s: GpsSample) -> GpsSample:

@@ -3,8 +3,8 @@
 When a scenario has a ``camera:`` section (``sims.scenario.Camera``), the downward camera
 (:mod:`sims.camera`) renders the ground from the *true* pose at its frame rate, and the VO pipeline
 (:mod:`merlin.vision.vo`) turns each frame into a NED velocity with the *filter's* attitude, the rotation
-between frames from the filter's bias-corrected gyro (``NavEstimator.gyro_attitude``: the de-rotation the
-issue asks for), the filter's height above the (flat, home-altitude) ground and the filter's velocity as
+between frames from the filter's bias-corrected gyro (``NavEstimator.gyro_attitude``: the de-rotation), the
+filter's height above the (flat, home-altitude) ground and the filter's velocity as
 the tracker's prior. The sample goes to ``NavEstimator.update_vo``, whose quality test and innovation gate
 decide whether it is fused. The camera has no latency here: a frame is processed on the tick it is taken.
 

@@ -48,11 +48,13 @@ import numpy as np
 
 from merlin.autopilot import fixedwing_control as fc
 from merlin.autopilot import fixedwing_guidance as fg
+from merlin.autopilot import fixedwing_mission
 from merlin.autopilot import fixedwing_route as fr
+from merlin.config.models import TrustedConfig
 from merlin.core import geofence
-from merlin.core.config import EnvelopeLimit
+from merlin.core.config import CoreConfig, EnvelopeLimit
 from merlin.core.envelope import envelope_values, outside
-from merlin.core.types import Authority, Behavior, CommandKind, Decision, VehicleState
+from merlin.core.types import Authority, Behavior, CommandKind, Decision, MonitorId, VehicleState
 
 #: LAND for a fixed wing: loiter over home down to this height above home (or the fence floor plus the
 #: fence margin, if higher). Low enough to be a landing approach, high enough to stay clear of the terrain
@@ -119,7 +121,7 @@ def escape_side(fence: geofence.Fence, s: VehicleState, home_ne: tuple[float, fl
 
 def _horizontal_trip(decision: Decision) -> bool:
     """Whether the core's geofence monitor is tripped by a horizontal boundary (not the floor or ceiling)."""
-    return any(m.name == "geofence" and m.tripped and m.reason.parameter in _HORIZONTAL_TRIPS
+    return any(m.name == MonitorId.GEOFENCE and m.tripped and m.reason.parameter in _HORIZONTAL_TRIPS
                for m in decision.monitors)
 
 
@@ -178,6 +180,7 @@ class FixedWingBehaviours:
         self.cp_experimental = cp if cp_experimental is None else cp_experimental
         self.gp = gp
         self.mission = mission
+        self.fw_mission: fixedwing_mission.FixedWingMission | None = None  # set by a driver that needs it
         self.escape_turns = escape_turns
         self.rtl_routes = rtl_routes
         self.land_height_m = land_height_m(fence)
@@ -303,7 +306,7 @@ class FixedWingBehaviours:
                                          " the fixed wing cannot land in this simulator"})
             gs = self._start_rtl(t, s, self.land_height_m)
         elif b is Behavior.MISSION and self.mission:
-            gs = fg.start_mission(gs, s, self.mission, loop=False)
+            gs = fixedwing_mission.start_mission(self, gs, s)  # from where it paused (fixedwing_mission)
         elif b is Behavior.TAKEOFF:
             # launched from the catapult (the core accepts TAKEOFF only on the ground): climb out along the
             # launch heading to the core's takeoff height; the core then makes it HOLD
@@ -312,8 +315,9 @@ class FixedWingBehaviours:
             n, e = s.pos_ned_m[0], s.pos_ned_m[1]
             gs = fg.start_mission(gs, s, (fg.Waypoint(n + LAUNCH_LINE_M * c, e + LAUNCH_LINE_M * sn, h,
                                                       self.cp.airspeed_cruise_mps),), loop=False)
-        else:  # HOLD, TAKEOFF (airborne already), MISSION without waypoints
-            gs = fg.start_hold(self.gp, self.cp, gs, s, clockwise=self._hold_clockwise(s))
+        else:  # HOLD (a GOTO's loiter, fixedwing_mission), ORBIT, TAKEOFF (airborne already), MISSION without waypoints
+            gs = fixedwing_mission.reposition(self, gs, b) or fg.start_hold(
+                self.gp, self.cp, gs, s, clockwise=self._hold_clockwise(s))
         self.gstate = gs
 
     def _start_escape(self, t: float, fence: geofence.Fence, s: VehicleState) -> None:
@@ -337,7 +341,7 @@ class FixedWingBehaviours:
         when it ends."""
         fence = self.fence
         assert fence is not None
-        trip = next((m for m in decision.monitors if m.name == "geofence" and m.tripped), None)
+        trip = next((m for m in decision.monitors if m.name == MonitorId.GEOFENCE and m.tripped), None)
         if trip is None:
             if self._trip_clear_since is None:
                 self._trip_clear_since = t
@@ -462,4 +466,33 @@ class FixedWingBehaviours:
                 self.gstate, targets, _status = fg.guidance_step(self.gp, self.cp, self.gstate, s)
             self.escape_side = 0.0
             return targets
-        return replace(targets, roll_rad=self.escape_side * fc.bank_limit_rad(self.cp))
+        # at the bank limit and the airspeed the fence projection assumed for the turn (fixed_wing_turn): a
+        # slower cruise would fade the bank, a faster one widen the turn
+        return replace(targets, roll_rad=self.escape_side * fc.bank_limit_rad(self.cp),
+                       airspeed_mps=fc.escape_airspeed_mps(self.cp))
+
+
+#: Rate of the fixed-wing guidance and inner loops (the gains were tuned at 100 Hz in tests/fixedwing; PX4
+#: runs its fixed-wing position controller at 50 Hz). The surfaces are held in between; a change of source
+#: re-initialises and runs the loops in the tick it happens.
+AUTOPILOT_HZ = 100.0
+
+
+def behaviours_from_config(trusted: TrustedConfig, core_cfg: CoreConfig, surfaces: fc.SurfaceCommand,
+                           s0: VehicleState, dt_s: float, *, escape_turns: bool = True, rtl_routes: bool = True,
+                           notes: list[dict[str, Any]] | None = None) -> FixedWingBehaviours:
+    """The fixed wing's actuator stage for a tick of ``dt_s``, its parameters from the configuration where it
+    has them: the cruise airspeed (clamped to the inner loops' range) for RTL and the trusted mission, the
+    RTL height, the mission's waypoints; the core's fence and envelope. ``surfaces`` is the trim the loops
+    start from, ``s0`` the state at the start."""
+    cp0 = fc.FixedWingControlParams()
+    cruise = min(max(trusted.cruise_speed_mps, cp0.airspeed_min_mps), cp0.airspeed_max_mps)
+    # The autopilot banks up to its own 35 deg; the configuration's vehicle.bank_limit_deg is the bank the
+    # fence projection assumes, which should be what the autopilot holds in a sustained turn (less).
+    cp = replace(cp0, airspeed_cruise_mps=cruise)
+    gp = fg.GuidanceParams(rtl_height_m=trusted.rtl_altitude_m, rtl_airspeed_mps=cruise)
+    mission = tuple(fg.Waypoint(float(n), float(e), -float(d), cruise) for n, e, d in trusted.mission_ned_m)
+    every = max(1, round(1.0 / (AUTOPILOT_HZ * dt_s)))
+    return FixedWingBehaviours(core_cfg.fence, cp, gp, mission, surfaces, s0, every, every * dt_s,
+                               escape_turns=escape_turns, rtl_routes=rtl_routes, notes=notes,
+                               envelope=core_cfg.envelope)

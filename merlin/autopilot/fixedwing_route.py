@@ -1,7 +1,7 @@
 """Keep-out-aware routes home for the fixed wing's RTL (and LAND, flown as a loiter over home).
 
 A fixed wing cannot stop, and its RTL used to fly L1 straight at the loiter circle over home: through any
-exclusion zone on the way (campaign runs 00072 and 00739 of ``examples/campaigns/fixed_wing.yaml``). The
+exclusion zone on the way (scenarios ``fw_rtl_keepout_climb`` and ``fw_rtl_keepout_descend`` pin it). The
 route is planned, once when RTL starts (and again after every escape turn), by the planner Merlin's trusted
 escapes share with the multirotor (:mod:`merlin.autopilot.route`: a visibility graph with A* on the free
 space, the allowed area eroded by a clearance ``c``). What is the fixed wing's own lives here:

@@ -24,12 +24,13 @@ deceleration cuts them by at most :data:`CORNER_CUT_M`.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass
 from typing import Final, NamedTuple
 
 from merlin.autopilot import route
 from merlin.core.config import TrustedParams
 from merlin.core.geofence import Fence
+from merlin.core.kinematics import limit_velocity_change, position_to_velocity, stopping_point
 from merlin.core.types import Behavior, NavMode, Setpoint, SetpointKind, Vec3, VehicleState
 
 RTL_CLIMB, RTL_RETURN, RTL_DESCEND = 0, 1, 2
@@ -78,40 +79,6 @@ class GuidanceState(NamedTuple):
     fallback: int = FALLBACK_NONE
     note: str = ""  # why the behaviour does not fly as asked (no route, a moved hold point): for an event
     goto_ned_m: Vec3 | None = None  # the commanded point (GOTO, ORBIT's centre) this state answers, flown or not
-
-
-def position_to_velocity(
-    target: Vec3,
-    pos: Vec3,
-    ff: Vec3,
-    gain_per_s: float,
-    max_h_mps: float,
-    max_up_mps: float,
-    max_down_mps: float,
-) -> Vec3:
-    """P law from position error to a velocity setpoint, horizontally and vertically speed-limited."""
-    vn = ff[0] + gain_per_s * (target[0] - pos[0])
-    ve = ff[1] + gain_per_s * (target[1] - pos[1])
-    vd = ff[2] + gain_per_s * (target[2] - pos[2])
-    h = math.hypot(vn, ve)
-    if h > max_h_mps:
-        k = max_h_mps / h
-        vn, ve = vn * k, ve * k
-    vd = min(max(vd, -max_up_mps), max_down_mps)
-    return (vn, ve, vd)
-
-
-def stopping_point(s: VehicleState, decel_mps2: float) -> Vec3:
-    """Where the vehicle comes to rest if it brakes now at ``decel_mps2`` (horizontal and vertical).
-
-    Horizontally along its velocity, ``v |v| / (2 a)``: the straight braking path the fence projection
-    assumes (:func:`merlin.core.geofence.check`). Braking each axis on its own would aim the stop off that
-    path, and the vehicle would curve past the projected stop towards the boundary it approaches at an angle.
-    """
-    p, v = s.pos_ned_m, s.vel_ned_mps
-    k = 1.0 / (2.0 * decel_mps2)
-    kh = math.hypot(v[0], v[1]) * k
-    return (p[0] + v[0] * kh, p[1] + v[1] * kh, p[2] + v[2] * abs(v[2]) * k)
 
 
 def enter(behavior: Behavior, s: VehicleState, cfg: TrustedParams, fence: Fence | None = None) -> GuidanceState:
@@ -358,7 +325,7 @@ def step(g: GuidanceState, s: VehicleState, cfg: TrustedParams, dt: float) -> tu
     v = limit_velocity_change(
         g2.vel_cmd, sp.vel_ned_mps, cfg.max_horizontal_decel_mps2 * dt, cfg.max_vertical_decel_mps2 * dt
     )
-    # g2._replace(vel_cmd=v) and sp._replace(vel_ned_mps=v), built directly: _replace costs twice as much
+    # g2 with vel_cmd=v and sp with vel_ned_mps=v (built directly: this runs every tick)
     return (
         GuidanceState(
             g2.behavior, g2.anchor_ned_m, g2.yaw_rad, g2.phase, g2.mission_index, g2.done, v, g2.path_ne_m,
@@ -375,17 +342,6 @@ def mission_leg_speed(cfg: TrustedParams, index: int) -> float:
     if index < len(speeds) and 0.0 < speeds[index] < cfg.cruise_speed_mps:
         return speeds[index]
     return cfg.cruise_speed_mps
-
-
-def limit_velocity_change(prev: Vec3, target: Vec3, max_dh_mps: float, max_dv_mps: float) -> Vec3:
-    """Move from ``prev`` towards ``target`` by at most ``max_dh_mps`` horizontally and ``max_dv_mps``
-    vertically: one tick of an acceleration limit."""
-    dn, de, dd = target[0] - prev[0], target[1] - prev[1], target[2] - prev[2]
-    h = math.hypot(dn, de)
-    if h > max_dh_mps:
-        dn, de = dn * max_dh_mps / h, de * max_dh_mps / h
-    dd = min(max(dd, -max_dv_mps), max_dv_mps)
-    return (prev[0] + dn, prev[1] + de, prev[2] + dd)
 
 
 def _target(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[GuidanceState, Setpoint]:
@@ -508,7 +464,7 @@ def goto(
 def with_speed(cfg: TrustedParams, speed_mps: float) -> TrustedParams:
     """``cfg`` flying at ``speed_mps`` (MAV_CMD_DO_CHANGE_SPEED), never faster than its cruise speed, which
     is also the trusted autopilot's limit."""
-    return replace(cfg, cruise_speed_mps=min(cfg.cruise_speed_mps, speed_mps))
+    return cfg.at_speed(speed_mps)
 
 
 #: Radial error to radial velocity while orbiting, 1/s (the position loop's gain would fight the turn).
@@ -543,3 +499,40 @@ def orbit_step(g: GuidanceState, s: VehicleState, cfg: TrustedParams, dt: float,
                                 cfg.max_vertical_decel_mps2 * dt)
     yaw = math.atan2(-ue, -un)
     return g._replace(vel_cmd=vel), Setpoint(_SP_VELOCITY, pos_ned_m=on_circle, vel_ned_mps=vel, yaw_rad=yaw)
+
+
+@dataclass(frozen=True, slots=True)
+class MultirotorGuidance:
+    """The multirotor's trusted behaviours as the core's guidance policy
+    (:class:`merlin.core.guidance_policy.GuidancePolicy`): this module's functions, one method each."""
+
+    def enter(self, behavior: Behavior, s: VehicleState, tp: TrustedParams, fence: Fence | None,
+              prev: GuidanceState | None, takeoff_alt_m: float, mission_index: int) -> GuidanceState:
+        g = enter(behavior, s, tp, fence)
+        if prev is not None:
+            # A change of behaviour during a takeover (HOLD -> RTL) continues the braking the previous
+            # behaviour's acceleration-limited command was doing, from where that command is: restarting
+            # it from the measured velocity would undo braking the fence projection already counted on.
+            g = g._replace(vel_cmd=prev.vel_cmd)
+        if behavior is _TAKEOFF:
+            g = g._replace(anchor_ned_m=(g.anchor_ned_m[0], g.anchor_ned_m[1], -takeoff_alt_m))
+        elif behavior is _MISSION and mission_index <= len(tp.mission_ned_m):
+            # resumed where it was paused, as PX4 does (at its length: a MISSION_CURRENT set the end item)
+            g = g._replace(mission_index=mission_index)
+        return g
+
+    def mission_jump(self, g: GuidanceState, mission_index: int) -> GuidanceState:
+        return g._replace(mission_index=mission_index, done=False)
+
+    def goto(self, g: GuidanceState, target_ned_m: Vec3, s: VehicleState, fence: Fence | None) -> GuidanceState:
+        return goto(g, target_ned_m, s, fence)
+
+    def step(self, g: GuidanceState, s: VehicleState, tp: TrustedParams, dt: float) -> tuple[GuidanceState, Setpoint]:
+        return step(g, s, tp, dt)
+
+    def orbit_step(self, g: GuidanceState, s: VehicleState, tp: TrustedParams, dt: float, radius_m: float,
+                   speed_mps: float) -> tuple[GuidanceState, Setpoint]:
+        return orbit_step(g, s, tp, dt, radius_m, speed_mps)
+
+    def land_duration_s(self, height_m: float, vel_down_mps: float, tp: TrustedParams) -> float:
+        return land_duration_s(height_m, vel_down_mps, tp)

@@ -37,7 +37,7 @@ from merlin.core.types import ZERO3, Command, CommandKind, Vec3, VehicleState
 GRAVITY_MPS2 = 9.80665
 MotorCommands = tuple[float, float, float, float]
 MOTORS_OFF: MotorCommands = (0.0, 0.0, 0.0, 0.0)
-_VELOCITY = CommandKind.VELOCITY  # enum member lookups through the class cost ~0.2 us each in 3.11
+_VELOCITY = CommandKind.VELOCITY  # bound once (merlin.core.types, "Enum members on the hot path")
 _ATTITUDE = CommandKind.ATTITUDE
 _ERR_MAX_MPS = 100.0  # velocity errors beyond this are treated as this (keeps every product finite)
 _ACC_MAX_MPS2 = 200.0  # a measured specific force beyond this is ignored by the velocity D term
@@ -355,7 +355,12 @@ def control_step(
     gains: MultirotorGains = DEFAULT_GAINS,
     dt_s: float = 0.0025,
 ) -> tuple[MotorCommands, ControllerState]:
-    """One tick of the inner loops: (command, estimate, state) -> (four motor commands 0..1, next state)."""
+    """One tick of the inner loops: (command, estimate, state) -> (four motor commands 0..1, next state).
+
+    The cascade of PX4's multicopter controllers, one step each: the outer loop turns a velocity command
+    into a desired attitude and collective (:func:`_velocity_to_thrust`; an attitude command gives them
+    directly), the attitude loop turns the attitude error into body rates (:func:`_attitude_to_rates`), and
+    the rate loop's PID gives the torques the mixer allocates (:func:`_rate_loop`)."""
     kind = cmd.kind
     if kind is not _VELOCITY and kind is not _ATTITUDE:  # IDLE, TERMINATE
         if st.active:
@@ -384,8 +389,7 @@ def control_step(
             _clamp(_fin(wy, 0.0), -wl, wl),
             _clamp(_fin(wz, 0.0), -wl, wl),
         )
-
-    qw, qx, qy, qz = _quat_from_rpy(ra, pa, ya) if att_ok else (1.0, 0.0, 0.0, 0.0)
+    q = _quat_from_rpy(ra, pa, ya) if att_ok else (1.0, 0.0, 0.0, 0.0)
 
     # --- outer loop: desired attitude quaternion and collective
     ixy, h, sat_xy, sat_t = st.vel_int_xy_mps2, st.hover_thrust_est, False, 0
@@ -394,34 +398,7 @@ def control_step(
     if not -ymax <= yaw_rate_ff <= ymax:  # _clamp(_fin(...)) inlined: NaN and infinities become 0
         yaw_rate_ff = _clamp(_fin(yaw_rate_ff, 0.0), -ymax, ymax)
     if kind is _VELOCITY:
-        acc_n = acc_e = 0.0
-        acc_up = math.nan
-        if att_ok:
-            # kinematic acceleration = R f + g from the specific force
-            fx, fy, fz = est.accel_frd_mps2
-            if (
-                -_ACC_MAX_MPS2 < fx < _ACC_MAX_MPS2
-                and -_ACC_MAX_MPS2 < fy < _ACC_MAX_MPS2
-                and -_ACC_MAX_MPS2 < fz < _ACC_MAX_MPS2
-            ):
-                acc_n = (
-                    (1.0 - 2.0 * (qy * qy + qz * qz)) * fx
-                    + 2.0 * (qx * qy - qw * qz) * fy
-                    + 2.0 * (qx * qz + qw * qy) * fz
-                )
-                acc_e = (
-                    2.0 * (qx * qy + qw * qz) * fx
-                    + (1.0 - 2.0 * (qx * qx + qz * qz)) * fy
-                    + 2.0 * (qy * qz - qw * qx) * fz
-                )
-                acc_up = -(
-                    2.0 * (qx * qz - qw * qy) * fx
-                    + 2.0 * (qy * qz + qw * qx) * fy
-                    + (1.0 - 2.0 * (qx * qx + qy * qy)) * fz
-                    + GRAVITY_MPS2
-                )
-                if g.vel_d_xy == 0.0:
-                    acc_n = acc_e = 0.0
+        acc_n, acc_e, acc_up = _kinematic_acceleration(est, q, g) if att_ok else (0.0, 0.0, math.nan)
         tn, te, td, ixy, h, sat_xy, sat_t = _velocity_to_thrust(cmd, est, st, g, dt, acc_n, acc_e, acc_up)
         collective = math.sqrt(tn * tn + te * te + td * td)
         yaw_sp = _fin(cmd.yaw_rad, ya if att_ok else 0.0)
@@ -433,61 +410,99 @@ def control_step(
         qd = _quat_from_rpy(_clamp(_fin(rs, 0.0), -lim, lim), _clamp(_fin(ps, 0.0), -lim, lim), yaw_sp)
         collective = _clamp(_fin(cmd.thrust, st.hover_thrust_est), 0.0, 1.0)
 
-    # --- attitude loop: tilt first, yaw at reduced weight (Brescianini et al. 2013). Quaternion products
-    # are written out: this runs at 400 Hz and each helper call costs as much as its arithmetic.
-    if att_ok:
-        # current and desired body z axes, in NED
-        ezx, ezy, ezz = 2.0 * (qx * qz + qw * qy), 2.0 * (qy * qz - qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy)
-        dw, dx, dy, dz = qd
-        edx, edy, edz = 2.0 * (dx * dz + dw * dy), 2.0 * (dy * dz - dw * dx), 1.0 - 2.0 * (dx * dx + dy * dy)
-        dot = ezx * edx + ezy * edy + ezz * edz
-        # q_r: the shortest rotation taking ez onto ezd (world frame)
-        if dot > -0.999:
-            rw, rx, ry, rz = 1.0 + dot, ezy * edz - ezz * edy, ezz * edx - ezx * edz, ezx * edy - ezy * edx
-        else:  # opposite: rotate about the current body x axis (any axis normal to ez works)
-            rw, rx, ry, rz = (
-                0.0,
-                1.0 - 2.0 * (qy * qy + qz * qz),
-                2.0 * (qx * qy + qw * qz),
-                2.0 * (qx * qz - qw * qy),
-            )
-        n = 1.0 / math.sqrt(rw * rw + rx * rx + ry * ry + rz * rz)
-        rw, rx, ry, rz = rw * n, rx * n, ry * n, rz * n
-        # a = q_r * q: the reduced (tilt-only) attitude setpoint
-        aw = rw * qw - rx * qx - ry * qy - rz * qz
-        ax = rw * qx + rx * qw + ry * qz - rz * qy
-        ay = rw * qy - rx * qz + ry * qw + rz * qx
-        az = rw * qz + rx * qy - ry * qx + rz * qw
-        # m = conj(a) * qd: the remaining rotation, about z; only its w and z parts are needed
-        mw = aw * dw + ax * dx + ay * dy + az * dz
-        mz = aw * dz - ax * dy + ay * dx - az * dw
-        if mw < 0.0:
-            mw, mz = -mw, -mz
-        yw = g.yaw_weight
-        cw = math.cos(yw * math.acos(-1.0 if mw < -1.0 else (1.0 if mw > 1.0 else mw)))  # clamped to [-1, 1]
-        sz = math.sin(yw * math.asin(-1.0 if mz < -1.0 else (1.0 if mz > 1.0 else mz)))
-        # f = a * (cw, 0, 0, sz): the setpoint with the yaw correction weighted
-        fw, fx, fy, fz = aw * cw - az * sz, ax * cw + ay * sz, ay * cw - ax * sz, az * cw + aw * sz
-        # e = conj(q) * f: the attitude error in body axes
-        ew = qw * fw + qx * fx + qy * fy + qz * fz
-        ex = qw * fx - qx * fw - qy * fz + qz * fy
-        ey = qw * fy + qx * fz - qy * fw - qz * fx
-        ez = qw * fz - qx * fy + qy * fx - qz * fw
-        k = 2.0 * g.att_p_rp_per_s if ew >= 0.0 else -2.0 * g.att_p_rp_per_s
-        # plus the yaw-rate feed-forward about the world down axis, expressed in body axes
-        rsx = k * ex + yaw_rate_ff * (2.0 * (qx * qz - qw * qy))
-        rsy = k * ey + yaw_rate_ff * (2.0 * (qy * qz + qw * qx))
-        rsz = k * ez + yaw_rate_ff * (1.0 - 2.0 * (qx * qx + qy * qy))
-    else:
-        rsx = rsy = 0.0
-        rsz = yaw_rate_ff
+    rsx, rsy, rsz = _attitude_to_rates(q, qd, yaw_rate_ff, g) if att_ok else (0.0, 0.0, yaw_rate_ff)
     rmax = g.rate_max_rp_radps
     # _clamp(x, -max, max), inlined (per tick)
     rsx = -rmax if rsx < -rmax else (rmax if rsx > rmax else rsx)
     rsy = -rmax if rsy < -rmax else (rmax if rsy > rmax else rsy)
     rsz = -ymax if rsz < -ymax else (ymax if rsz > ymax else rsz)
+    motors, sat, sat_thr, rate_int, d_filt = _rate_loop((rsx, rsy, rsz), (wx, wy, wz), collective, est.landed,
+                                                        st, g, dt)
+    if sat_thr > 0:
+        sat_t = 1
+    return motors, ControllerState(True, ixy, h, rate_int, (wx, wy, wz), d_filt, sat, sat_xy, sat_t,
+                                   (rsx, rsy, rsz), collective)
 
-    # --- rate loop: PID, derivative on the measurement through a first-order low-pass
+
+def _kinematic_acceleration(est: VehicleState, q: tuple[float, float, float, float],
+                            g: MultirotorGains) -> tuple[float, float, float]:
+    """The kinematic acceleration (north, east, up) from the specific force, ``R f + g``; zero horizontally
+    (and NaN up: unknown) for an implausible reading, and zero horizontally without acceleration feedback."""
+    qw, qx, qy, qz = q
+    fx, fy, fz = est.accel_frd_mps2
+    if not (-_ACC_MAX_MPS2 < fx < _ACC_MAX_MPS2 and -_ACC_MAX_MPS2 < fy < _ACC_MAX_MPS2
+            and -_ACC_MAX_MPS2 < fz < _ACC_MAX_MPS2):
+        return 0.0, 0.0, math.nan
+    acc_n = (1.0 - 2.0 * (qy * qy + qz * qz)) * fx + 2.0 * (qx * qy - qw * qz) * fy + 2.0 * (qx * qz + qw * qy) * fz
+    acc_e = 2.0 * (qx * qy + qw * qz) * fx + (1.0 - 2.0 * (qx * qx + qz * qz)) * fy + 2.0 * (qy * qz - qw * qx) * fz
+    acc_up = -(
+        2.0 * (qx * qz - qw * qy) * fx
+        + 2.0 * (qy * qz + qw * qx) * fy
+        + (1.0 - 2.0 * (qx * qx + qy * qy)) * fz
+        + GRAVITY_MPS2
+    )
+    if g.vel_d_xy == 0.0:
+        acc_n = acc_e = 0.0
+    return acc_n, acc_e, acc_up
+
+
+def _attitude_to_rates(q: tuple[float, float, float, float], qd: tuple[float, float, float, float],
+                       yaw_rate_ff: float, g: MultirotorGains) -> tuple[float, float, float]:
+    """The attitude loop: tilt first, yaw at reduced weight (Brescianini et al. 2013), plus the yaw-rate
+    feed-forward; the body-rate setpoint before its limits. Quaternion products are written out."""
+    qw, qx, qy, qz = q
+    # current and desired body z axes, in NED
+    ezx, ezy, ezz = 2.0 * (qx * qz + qw * qy), 2.0 * (qy * qz - qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy)
+    dw, dx, dy, dz = qd
+    edx, edy, edz = 2.0 * (dx * dz + dw * dy), 2.0 * (dy * dz - dw * dx), 1.0 - 2.0 * (dx * dx + dy * dy)
+    dot = ezx * edx + ezy * edy + ezz * edz
+    # q_r: the shortest rotation taking ez onto ezd (world frame)
+    if dot > -0.999:
+        rw, rx, ry, rz = 1.0 + dot, ezy * edz - ezz * edy, ezz * edx - ezx * edz, ezx * edy - ezy * edx
+    else:  # opposite: rotate about the current body x axis (any axis normal to ez works)
+        rw, rx, ry, rz = (
+            0.0,
+            1.0 - 2.0 * (qy * qy + qz * qz),
+            2.0 * (qx * qy + qw * qz),
+            2.0 * (qx * qz - qw * qy),
+        )
+    n = 1.0 / math.sqrt(rw * rw + rx * rx + ry * ry + rz * rz)
+    rw, rx, ry, rz = rw * n, rx * n, ry * n, rz * n
+    # a = q_r * q: the reduced (tilt-only) attitude setpoint
+    aw = rw * qw - rx * qx - ry * qy - rz * qz
+    ax = rw * qx + rx * qw + ry * qz - rz * qy
+    ay = rw * qy - rx * qz + ry * qw + rz * qx
+    az = rw * qz + rx * qy - ry * qx + rz * qw
+    # m = conj(a) * qd: the remaining rotation, about z; only its w and z parts are needed
+    mw = aw * dw + ax * dx + ay * dy + az * dz
+    mz = aw * dz - ax * dy + ay * dx - az * dw
+    if mw < 0.0:
+        mw, mz = -mw, -mz
+    yw = g.yaw_weight
+    cw = math.cos(yw * math.acos(-1.0 if mw < -1.0 else (1.0 if mw > 1.0 else mw)))  # clamped to [-1, 1]
+    sz = math.sin(yw * math.asin(-1.0 if mz < -1.0 else (1.0 if mz > 1.0 else mz)))
+    # f = a * (cw, 0, 0, sz): the setpoint with the yaw correction weighted
+    fw, fx, fy, fz = aw * cw - az * sz, ax * cw + ay * sz, ay * cw - ax * sz, az * cw + aw * sz
+    # e = conj(q) * f: the attitude error in body axes
+    ew = qw * fw + qx * fx + qy * fy + qz * fz
+    ex = qw * fx - qx * fw - qy * fz + qz * fy
+    ey = qw * fy + qx * fz - qy * fw - qz * fx
+    ez = qw * fz - qx * fy + qy * fx - qz * fw
+    k = 2.0 * g.att_p_rp_per_s if ew >= 0.0 else -2.0 * g.att_p_rp_per_s
+    # plus the yaw-rate feed-forward about the world down axis, expressed in body axes
+    return (k * ex + yaw_rate_ff * (2.0 * (qx * qz - qw * qy)),
+            k * ey + yaw_rate_ff * (2.0 * (qy * qz + qw * qx)),
+            k * ez + yaw_rate_ff * (1.0 - 2.0 * (qx * qx + qy * qy)))
+
+
+def _rate_loop(rate_sp: Vec3, rates: Vec3, collective: float, landed: bool, st: ControllerState,
+               g: MultirotorGains, dt: float) -> tuple[MotorCommands, tuple[int, int, int], int, Vec3, Vec3]:
+    """The rate loop: PID with the derivative on the measurement through a first-order low-pass, the mixer,
+    and the integrators held where the mixer saturated in their direction (and on the ground, where the gear
+    holds the attitude). Returns the motors, the mixer's saturation, the integrators and the filtered
+    derivative."""
+    rsx, rsy, rsz = rate_sp
+    wx, wy, wz = rates
     px, py, pz = st.rate_prev_frd_radps
     alpha = 1.0 - math.exp(-2.0 * math.pi * g.rate_d_cutoff_hz * dt)
     dfx, dfy, dfz = st.rate_d_filt
@@ -500,7 +515,7 @@ def control_step(
     ty = g.rate_p_rp * ery + iry - g.rate_d_rp * dfy
     tz = g.rate_p_yaw * erz + irz
     motors, sat, sat_thr = mix_quad_x(tx, ty, tz, collective)
-    if not est.landed:  # on the ground the gear, not the integrator, holds the attitude
+    if not landed:
         sr, sp, sy = sat
         # _clamp(integrator, -max, max), inlined (per tick)
         imax, iymax = g.rate_i_rp_max, g.rate_i_yaw_max
@@ -513,18 +528,4 @@ def control_step(
         if not (sy > 0 and erz > 0.0) and not (sy < 0 and erz < 0.0):
             irz = irz + g.rate_i_yaw * erz * dt
             irz = -iymax if irz < -iymax else (iymax if irz > iymax else irz)
-    if sat_thr > 0:
-        sat_t = 1
-    return motors, ControllerState(
-        True,
-        ixy,
-        h,
-        (irx, iry, irz),
-        (wx, wy, wz),
-        (dfx, dfy, dfz),
-        sat,
-        sat_xy,
-        sat_t,
-        (rsx, rsy, rsz),
-        collective,
-    )
+    return motors, sat, sat_thr, (irx, iry, irz), (dfx, dfy, dfz)

@@ -162,7 +162,7 @@ def load_campaign_scenario(path: str | Path) -> CampaignScenario:
     data["config"] = config_raw
     cfg = _inline_config(data, p.parent, str(p))
     vary = tuple(parse_distribution(str(k), v, str(p)) for k, v in vary_raw.items())
-    # a path that does not exist fails now, not in run 731: set every key to its distribution's centre
+    # a path that does not exist fails now, not hours into the campaign: set every key to its distribution's centre
     probe = copy.deepcopy(data)
     for d in vary:
         set_path(probe, d.path, d.centre(), str(p))

@@ -190,8 +190,9 @@ def default_vehicle(cfg: MerlinConfig) -> str | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from merlin.config.crosschecks import Severity, parse_accept, run_checks, vehicle_capability
+    from merlin.config.crosschecks import Severity, parse_accept, run_checks
     from merlin.resources import shipped  # a shipped configuration by name: `merlin check-config default`
+    from sims.runner import vehicle_capability
 
     checked = load_and_build(shipped(args.file, "configs"))
     cfg = checked.cfg

@@ -1,7 +1,7 @@
 """``merlin guard``: supervise an experimental controller on a real PX4 or ArduPilot autopilot from a
 companion computer (docs/guard.md).
 
-    merlin guard --autopilot serial:///dev/ttyAMA0:921600 --controller udpin:127.0.0.1:14540 \\
+    merlin guard --autopilot serial:///dev/ttyAMA0:921600 --controller udpout:127.0.0.1:14540 \\
                  [--gcs udpout:10.0.0.2:14550] --config guard.yaml [--out DIR]
 
 ``--config`` is a Merlin configuration file (limits, fence, rules) with an optional ``guard:`` section
@@ -24,18 +24,21 @@ EXIT_REFUSED = 3
 
 def register(sub: Any) -> None:
     p = sub.add_parser("guard", help="supervise an experimental controller in front of a real PX4/ArduPilot autopilot")
-    p.add_argument("--autopilot", required=True, metavar="URL",
+    p.add_argument("--autopilot", metavar="URL",
                    help="the autopilot's link: serial:///dev/ttyX:BAUD, /dev/ttyX,BAUD, udpin:HOST:PORT, "
                         "udpout:HOST:PORT, tcp:HOST:PORT, tcpin:HOST:PORT")
-    p.add_argument("--controller", required=True, metavar="URL",
-                   help="the experimental controller's link (e.g. udpin:127.0.0.1:14540, where MAVSDK's "
-                        "udp://:14540 connects as udpout:127.0.0.1:14540)")
+    p.add_argument("--controller", metavar="URL",
+                   help="the experimental controller's link (e.g. udpout:127.0.0.1:14540 for a controller "
+                        "listening where PX4 SITL sends, as MAVSDK's udp://:14540 does)")
     p.add_argument("--gcs", default=None, metavar="URL", help="the ground station's link (optional)")
     p.add_argument("--config", default=None, help="Merlin configuration YAML with an optional guard: section")
     p.add_argument("--out", default=None, help="directory for guard.tlog and events.jsonl "
                                                "(default out/guard/<UTC time>)")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     p.add_argument("--quiet", action="store_true")
+    p.add_argument("--replay", default=None, metavar="DIR",
+                   help="re-run a session's decisions from DIR/core_inputs.jsonl with DIR/effective_config.yaml "
+                        "and check they equal the core events in DIR/events.jsonl (exit 0 identical, 1 not)")
     p.set_defaults(func=run)
 
 
@@ -46,7 +49,7 @@ def load(path: str | None) -> tuple[Any, Any]:
     from merlin.guard.config import GuardConfig
 
     if path is None:
-        return MerlinConfig(), GuardConfig()
+        return MerlinConfig(), GuardConfig.model_validate({})
     data, lines = read_yaml_file(path)
     data = dict(data or {})
     guard_data = data.pop("guard", None)
@@ -55,11 +58,42 @@ def load(path: str | None) -> tuple[Any, Any]:
     return validate_model(MerlinConfig, data, str(path), lines), gcfg
 
 
+def replay_session(out: Path) -> tuple[bool, str]:
+    """Re-run a session's core from its input log; (identical, what was compared or the first difference)."""
+    import json
+
+    from merlin.config.runtime import build_core_config
+    from merlin.core.step import TrustedCore
+    from merlin.core.types import EventKind
+    from merlin.guard.inputs_log import replay_inputs
+    from merlin.guard.runner import EFFECTIVE_CONFIG
+
+    cfg, _gcfg = load(str(out / EFFECTIVE_CONFIG))
+    decisions = replay_inputs(out / "core_inputs.jsonl", TrustedCore(build_core_config(cfg)))
+    kinds = {k.value for k in EventKind}
+    again = [json.loads(json.dumps(e.to_dict(), default=str)) for d in decisions for e in d.events]
+    logged = [e for e in (json.loads(x) for x in (out / "events.jsonl").read_text().splitlines() if x.strip())
+              if e.get("type") in kinds]
+    for i, (a, b) in enumerate(zip(again, logged, strict=False)):
+        if a != b:
+            return False, f"event {i} differs: replayed {a} logged {b}"
+    if len(again) != len(logged):
+        return False, f"{len(again)} events replayed, {len(logged)} logged"
+    return True, f"{len(decisions)} ticks, {len(again)} core events identical"
+
+
 def run(args: argparse.Namespace) -> int:
     from merlin.config.loader import ConfigError
     from merlin.guard.endpoints import EndpointError, parse_endpoint
     from merlin.guard.runner import Guard, GuardRefused
 
+    if args.replay is not None:
+        same, detail = replay_session(Path(args.replay))
+        print(f"merlin guard --replay {args.replay}: {detail}")
+        return 0 if same else 1
+    if not args.autopilot or not args.controller:
+        print("merlin guard: --autopilot and --controller are required (or --replay DIR)", file=sys.stderr)
+        return 2
     try:
         ap = parse_endpoint(args.autopilot, "--autopilot")
         ctl = parse_endpoint(args.controller, "--controller")

@@ -49,9 +49,10 @@ def review_text(cfg: Any, sha: str, source: str, found: list[Any] | None = None,
 def run(args: argparse.Namespace) -> int:
     from merlin.campaign.limits import trigger_table
     from merlin.commands.check_config import default_vehicle
-    from merlin.config.crosschecks import Severity, parse_accept, run_checks, vehicle_capability
+    from merlin.config.crosschecks import Severity, parse_accept, run_checks
     from merlin.config.loader import config_sha256, load_config
     from merlin.config.summary import envelope_table
+    from sims.runner import vehicle_capability
 
     cfg = load_config(args.config)
     sha = config_sha256(cfg)

@@ -235,7 +235,7 @@ def options_from_args(args: argparse.Namespace) -> Any:
     if problems:
         raise ConfigError("command line", problems)
     cfg, config_dir = _load(args.config)
-    cfg = _vehicle_config(args.vehicle, args.config, cfg)  # issue 8: the fixed wing
+    cfg = _vehicle_config(args.vehicle, args.config, cfg)  # the fixed wing's aircraft and limits
     cfg = sitl_home(cfg, args.config, os.environ)
     overrides = LinkOverrides(
         key_file=Path(args.signing_key) if args.signing_key else None,
@@ -268,7 +268,8 @@ def preflight(cfg: Any, vehicle: str, source: str, accept_risk: list[str] | None
     """The cross-checks (merlin.config.crosschecks) of the configuration to fly, against ``vehicle``: refuse
     (CrossCheckRefusal, exit 2) on an error not accepted by id; log every accepted error and warning, and
     write them to ``crosschecks.json`` beside the flight's logs, so the record says what was flown anyway."""
-    from merlin.config.crosschecks import gate, parse_accept, run_checks, vehicle_capability
+    from merlin.config.crosschecks import gate, parse_accept, run_checks
+    from sims.runner import vehicle_capability
 
     result = gate(run_checks(cfg, vehicle=vehicle_capability(vehicle)), parse_accept(accept_risk), source)
     log = logging.getLogger("merlin.serve.crosschecks")

@@ -33,7 +33,8 @@ def preflight(sc: Any, cfg: Any, source: str, accept: frozenset[str] = frozenset
     """The cross-checks of a scenario's configuration against its vehicle: the gate's result (what was
     accepted, the warnings), or :class:`~merlin.config.crosschecks.CrossCheckRefusal` on an error that neither
     ``accept`` nor the scenario's ``accept_risk`` accepts."""
-    from merlin.config.crosschecks import gate, parse_accept, run_checks, vehicle_capability
+    from merlin.config.crosschecks import gate, parse_accept, run_checks
+    from sims.runner import vehicle_capability
 
     accepted = accept | parse_accept(sc.accept_risk, f"{source}: accept_risk")
     found = run_checks(cfg, vehicle=vehicle_capability(sc.vehicle))

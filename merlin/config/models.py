@@ -19,6 +19,9 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
+from merlin.core.config import Clear
+from merlin.core.types import MonitorId
+
 CONFIG_VERSION = 1
 
 
@@ -394,10 +397,8 @@ class ActionName(StrEnum):
     TERMINATE = "terminate"
 
 
-class ClearName(StrEnum):
-    WHEN_CLEAR = "when_clear"  # the action ends when the monitor clears
-    ON_REQUEST = "on_request"  # the action holds until a new authority exchange or mode command
-    NEVER = "never"  # until disarm
+#: When a latched action ends: the core's own enum (its values are this file's spelling).
+ClearName = Clear
 
 
 class Rule(Strict):
@@ -410,22 +411,7 @@ class Rule(Strict):
 
 
 #: The monitors, in the order the table is listed (the order carries no precedence: actions do).
-MONITORS: tuple[str, ...] = (
-    "state_invalid",
-    "envelope",
-    "geofence",
-    "controller_heartbeat",
-    "setpoint_stale",
-    "setpoint_invalid",
-    "rc_link",
-    "gcs_link",
-    "nav_gps_lost",
-    "nav_inertial_timeout",
-    "nav_lost",
-    "battery_low",
-    "battery_critical",
-    "nav_redundancy",
-)
+MONITORS: tuple[str, ...] = tuple(m.value for m in MonitorId)
 
 A = ActionName
 
@@ -435,25 +421,25 @@ def _default_rules() -> dict[str, Rule]:
     # envelope -> return to launch; airspace boundary -> return home (pilot error included); experimental
     # computer heartbeat -> loiter; GPS lost or spoofed -> return home on VO and INS.
     return {
-        "state_invalid": Rule(experimental=A.LAND, operator=A.LAND, trusted=A.LAND),
-        "envelope": Rule(experimental=A.RTL, operator=A.RTL, trusted=A.NONE),
-        "geofence": Rule(experimental=A.RTL, operator=A.RTL, trusted=A.RTL),
-        "controller_heartbeat": Rule(experimental=A.HOLD, operator=A.NONE, trusted=A.NONE),
-        "setpoint_stale": Rule(experimental=A.HOLD, operator=A.NONE, trusted=A.NONE),
-        "setpoint_invalid": Rule(experimental=A.HOLD, operator=A.NONE, trusted=A.NONE),
-        "rc_link": Rule(experimental=A.WARN, operator=A.RTL, trusted=A.NONE),
-        "gcs_link": Rule(experimental=A.RTL, operator=A.WARN, trusted=A.RTL),
-        "nav_gps_lost": Rule(experimental=A.RTL, operator=A.WARN, trusted=A.RTL),
-        "nav_inertial_timeout": Rule(experimental=A.LAND, operator=A.LAND, trusted=A.LAND),
-        "nav_lost": Rule(experimental=A.LAND, operator=A.LAND, trusted=A.LAND),
-        "battery_low": Rule(experimental=A.RTL, operator=A.WARN, trusted=A.RTL),
-        "battery_critical": Rule(
+        MonitorId.STATE_INVALID: Rule(experimental=A.LAND, operator=A.LAND, trusted=A.LAND),
+        MonitorId.ENVELOPE: Rule(experimental=A.RTL, operator=A.RTL, trusted=A.NONE),
+        MonitorId.GEOFENCE: Rule(experimental=A.RTL, operator=A.RTL, trusted=A.RTL),
+        MonitorId.CONTROLLER_HEARTBEAT: Rule(experimental=A.HOLD, operator=A.NONE, trusted=A.NONE),
+        MonitorId.SETPOINT_STALE: Rule(experimental=A.HOLD, operator=A.NONE, trusted=A.NONE),
+        MonitorId.SETPOINT_INVALID: Rule(experimental=A.HOLD, operator=A.NONE, trusted=A.NONE),
+        MonitorId.RC_LINK: Rule(experimental=A.WARN, operator=A.RTL, trusted=A.NONE),
+        MonitorId.GCS_LINK: Rule(experimental=A.RTL, operator=A.WARN, trusted=A.RTL),
+        MonitorId.NAV_GPS_LOST: Rule(experimental=A.RTL, operator=A.WARN, trusted=A.RTL),
+        MonitorId.NAV_INERTIAL_TIMEOUT: Rule(experimental=A.LAND, operator=A.LAND, trusted=A.LAND),
+        MonitorId.NAV_LOST: Rule(experimental=A.LAND, operator=A.LAND, trusted=A.LAND),
+        MonitorId.BATTERY_LOW: Rule(experimental=A.RTL, operator=A.WARN, trusted=A.RTL),
+        MonitorId.BATTERY_CRITICAL: Rule(
             experimental=A.LAND, operator=A.LAND, trusted=A.LAND, clear=ClearName.NEVER
         ),
         # hardware redundancy down to simplex (redundancy.warn_at): a warning, no change of authority by
         # default (the last lane still flies; it only can no longer be cross-checked). Applies only when
         # redundancy.enabled (docs/redundancy.md)
-        "nav_redundancy": Rule(
+        MonitorId.NAV_REDUNDANCY: Rule(
             experimental=A.WARN, operator=A.WARN, trusted=A.WARN, clear=ClearName.WHEN_CLEAR
         ),
     }
@@ -512,6 +498,12 @@ class HandoverConfig(Strict):
     )
     max_attitude_rate_degps: float = Field(90.0, gt=0.0, description="attitude command slew limit")
     max_thrust_rate_per_s: float = Field(1.0, gt=0.0, description="collective slew limit, 1/s")
+    min_grant_height_m: float | None = Field(
+        None, ge=0.0,
+        description="no grant below this height above home. None: for a fixed wing the height from which the "
+                    "stall recovery keeps the floor, derived from the aircraft model (merlin.autopilot."
+                    "fixedwing_recovery.min_grant_height_m); for a multirotor no limit. A fixed-wing value below "
+                    "the derived one is cross-check XC025")
     # PX4's offboard flows let the controller's own setpoints lift the vehicle (MAVSDK's offboard_attitude
     # example): the altitude floors cannot judge a vehicle still below them, so they are deferred for such a
     # take-off, and this bounds it: a controller may climb through the floors, not stay below them
@@ -963,12 +955,14 @@ class RedundancyConfig(Strict):
         " down to this level: simplex = one lane left (no fault can be detected any more); duplex = already"
         " when one of three is lost. Its action is arbiter.rules.nav_redundancy (default warn)",
     )
-    fdi_preset: Literal["merlin", "table2"] = Field(
+    fdi_preset: Literal["merlin", "table2", "sequential"] = Field(
         "merlin",
-        description="duplex IMU particle-filter FDI (seed 003). Both use every number of the paper's Table 2"
-        " (4096 particles, nu, tau_a/g/m, Omega); table2 isolates with the residual exactly as printed, merlin"
-        " with each residual component divided by its noise scale and averaged since the alert (the printed"
-        " one flagged the healthy IMU on F4)",
+        description="duplex IMU particle-filter FDI (seed 003). All use the paper's particle filters with every"
+        " number of its Table 2 (4096 particles, nu); table2 and merlin its decision logic (tau_a/g/m, Omega):"
+        " table2 isolates with the residual exactly as printed, merlin with each residual component divided by"
+        " its noise scale and averaged since the alert (the printed one flagged the healthy IMU on F4);"
+        " sequential decides with Merlin's sequential tests instead (CUSUM detection, a jump and kinematic"
+        " isolation likelihood ratio, a recovery test of its own; merlin.redundancy.sequential_tests)",
     )
     lane_preset: Literal["fast", "thesis", "thesis_sitl"] = Field(
         "fast",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+from merlin.autopilot.guidance import MultirotorGuidance
 from merlin.config.fence_build import build_fence
 from merlin.config.loader import config_sha256
 from merlin.config.models import ENVELOPE_PARAMETERS, MerlinConfig
@@ -16,11 +17,12 @@ from merlin.core.config import (
     OperatorParams,
     RuleRow,
     SetpointClamp,
+    Takeover,
     TrustedParams,
     WatchdogTimeouts,
 )
 from merlin.core.envelope import PARAMETER_INDEX
-from merlin.core.types import Action, Behavior
+from merlin.core.types import Action, Behavior, MonitorId
 
 _DEG = math.pi / 180.0
 _ANGLE_PARAMS = {
@@ -55,25 +57,51 @@ def envelope_limits(cfg: MerlinConfig, stage: str | None = None) -> tuple[Envelo
     return tuple(out)
 
 
+def min_grant_height_m(cfg: MerlinConfig) -> float | None:
+    """The height above home below which the arbiter refuses a grant: the configuration's
+    ``handover.min_grant_height_m``, else, for a fixed wing, the height from which its stall recovery keeps
+    the floor (:func:`merlin.autopilot.fixedwing_recovery.min_grant_height_m`), else none."""
+    if cfg.handover.min_grant_height_m is not None:
+        return float(cfg.handover.min_grant_height_m)
+    if cfg.vehicle.type.value != "fixed_wing":
+        return None
+    # the autopilot's recovery law and the aircraft model (the config layer may read the autopilot; the core
+    # only receives the number)
+    from merlin.autopilot import fixedwing_recovery
+
+    return fixedwing_recovery.min_grant_height_m(cfg)
+def _takeover(monitor: MonitorId, oversight_envelope: bool, oversight_geofence: bool) -> Takeover:
+    """The table's takeover column: a pilot who takes over during an envelope or geofence trip is given the
+    override grace to fly out of it (or is not judged by it at all when its oversight is switched off);
+    every other monitor judges the pilot at once."""
+    if monitor is MonitorId.ENVELOPE:
+        return Takeover.GRACE if oversight_envelope else Takeover.EXEMPT
+    if monitor is MonitorId.GEOFENCE:
+        return Takeover.GRACE if oversight_geofence else Takeover.EXEMPT
+    return Takeover.JUDGED
+
+
 def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig:
     h, o, t, v = cfg.handover, cfg.operator, cfg.trusted, cfg.vehicle
     rules = tuple(
         RuleRow(
-            monitor=name,
+            monitor=MonitorId(name),
             experimental=Action[r.experimental.name],
             operator=Action[r.operator.name],
             trusted=Action[r.trusted.name],
-            clear=r.clear.value,
+            clear=r.clear,
+            takeover=_takeover(MonitorId(name), o.oversight_envelope, o.oversight_geofence),
         )
         for name, r in cfg.arbiter.rules.items()
         # nav_redundancy exists only on a vehicle that reports its redundancy (redundancy.enabled)
-        if name != "nav_redundancy" or cfg.redundancy.enabled
+        if name != MonitorId.NAV_REDUNDANCY or cfg.redundancy.enabled
     )
     fence = build_fence(cfg.geofence, cfg.home, cfg.vehicle, source=source) if cfg.geofence.enabled else None
     return CoreConfig(
         envelope=envelope_limits(cfg),
         rules=rules,
         fence=fence,
+        guidance=MultirotorGuidance(),
         watchdogs=WatchdogTimeouts(
             controller_heartbeat_s=cfg.watchdogs.controller_heartbeat.timeout_s,
             setpoint_stale_s=cfg.watchdogs.setpoint_stale.timeout_s,
@@ -92,6 +120,7 @@ def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig
             max_accel_mps2=h.max_accel_mps2,
             max_attitude_rate_radps=h.max_attitude_rate_degps * _DEG,
             max_thrust_rate_per_s=h.max_thrust_rate_per_s,
+            min_grant_height_m=min_grant_height_m(cfg),
             ground_takeoff_s=h.ground_takeoff_s,
         ),
         operator=OperatorParams(

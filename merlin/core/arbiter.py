@@ -1,20 +1,23 @@
 """The authority arbiter: who flies, and why.
 
 Read it like PX4's commander failsafe framework: the monitors' verdicts come in as data, a declarative
-table (:class:`merlin.core.config.RuleRow`, one row per monitor, one action per authority, a clear
-condition) says what each verdict means, actions are ordered by precedence (:class:`Action`: a later member
+table (:class:`merlin.core.config.RuleRow`, one row per monitor: one action per authority, a clear
+condition, who may take over) says what each verdict means, actions are ordered by precedence (:class:`Action`: a later member
 always wins), and one pure function, :func:`update`, advances the state by one tick. No clock, no I/O.
 
 The rules it enforces, in the order a tick applies them:
 
+0. A trusted behaviour that completed on the previous tick (TAKEOFF at its height, a flown MISSION) hands
+   over to the behaviour that follows it.
 1. An acknowledged grant switches authority on the tick after its ACK, if the preconditions still hold.
 2. Revocation never waits: if a tripped monitor's action for the current authority is HOLD or worse,
    authority returns to TRUSTED on this tick with that monitor's reason, and the action is latched.
    SHADOW is judged by the EXPERIMENTAL column on what the controller *commands*; a violation ends it.
    Under TRUSTED, a tripped monitor escalates Merlin's own behaviour (e.g. HOLD -> RTL) while airborne.
 3. The human operator can always take over (a rising edge of the takeover switch on a live RC link),
-   and remains under envelope/geofence oversight unless configured otherwise; a monitor already tripped
-   at the takeover is given ``override_grace_s`` so the human can fly out of the condition.
+   and is judged by the table's operator column; the takeover column (:class:`merlin.core.config.Takeover`)
+   gives a monitor already tripped at the takeover ``override_grace_s`` so the human can fly out of the
+   condition (envelope, geofence), or exempts the human from it (its oversight switched off).
 4. Ground-station commands (arm, disarm, takeoff, hold, RTL, land, mission, terminate) are acknowledged.
 5. The positive exchange (paper: "eliminates ambiguity of causality"): REQUEST -> preconditions ->
    GRANT(seq) -> ACK(seq) -> switch on the next tick; no ACK by the deadline -> DENIED(ack_timeout).
@@ -29,7 +32,7 @@ from collections.abc import Mapping
 from typing import NamedTuple
 
 from merlin.core import geofence
-from merlin.core.config import Clear, CoreConfig, RuleRow
+from merlin.core.config import Clear, CoreConfig, HandoverParams, RuleRow, Takeover
 from merlin.core.types import (
     ACTION_BEHAVIOR,
     Action,
@@ -40,6 +43,7 @@ from merlin.core.types import (
     EventKind,
     GcsCommand,
     GcsCommandKind,
+    MonitorId,
     Reason,
     ReasonCode,
     RequestKind,
@@ -57,9 +61,6 @@ BEHAVIOR_RANK: dict[Behavior, int] = {
     Behavior.ORBIT: 2,  # a commanded hold that circles: as HOLD, below every failsafe behaviour
 }
 
-#: Monitors that the operator-oversight switches in the configuration can exempt the human from.
-OVERSIGHT = {"envelope": "oversight_envelope", "geofence": "oversight_geofence"}
-
 #: Seconds on the ground in LAND/RTL before Merlin disarms (as PX4's COM_DISARM_LAND default of 2 s).
 AUTO_DISARM_LANDED_S = 2.0
 
@@ -72,10 +73,10 @@ _MODE_BEHAVIOR = {
 
 
 class Latch(NamedTuple):
-    monitor: str
+    monitor: str  # a MonitorId, or "gcs" for a commanded termination
     action: Action
     reason: Reason
-    clear: str
+    clear: Clear
 
 
 class Pending(NamedTuple):
@@ -96,7 +97,7 @@ class ArbiterState(NamedTuple):
     last_revocation_t_s: float = -math.inf
     takeover_prev: bool = False
     grace_until_s: float = -math.inf
-    grace_monitors: frozenset[str] = frozenset()
+    grace_monitors: frozenset[MonitorId] = frozenset()
     landed_since_s: float | None = None
     takeoff_alt_m: float = 0.0
     target_ned_m: tuple[float, float, float] | None = None  # GOTO's hold point or ORBIT's centre, until replaced
@@ -125,9 +126,9 @@ class TickView(NamedTuple):
     """What the earlier stages of this tick found, as the arbiter needs it."""
 
     now: float
-    tripped: Mapping[str, Reason]  # monitors tripped on the vehicle's state
-    shadow_tripped: Mapping[str, Reason]  # monitors tripped on what a SHADOW controller commands
-    newly_tripped: frozenset[str]
+    tripped: Mapping[MonitorId, Reason]  # monitors tripped on the vehicle's state
+    shadow_tripped: Mapping[MonitorId, Reason]  # monitors tripped on what a SHADOW controller commands
+    newly_tripped: frozenset[MonitorId]
     grant_block: Reason | None  # first failing precondition for EXPERIMENTAL (None: all hold)
     shadow_block: Reason | None  # first failing precondition for SHADOW
     arm_block: Reason | None  # why arming would be refused now (None: may arm)
@@ -135,6 +136,8 @@ class TickView(NamedTuple):
     landed: bool
     requests: tuple[AuthorityRequest, ...] = ()
     commands: tuple[GcsCommand, ...] = ()
+    # the trusted behaviour that completed on the previous tick (TAKEOFF at its height, MISSION flown), or None
+    completed: Behavior | None = None
 
 
 def column(row: RuleRow, authority: Authority) -> Action:
@@ -147,7 +150,7 @@ def column(row: RuleRow, authority: Authority) -> Action:
 
 
 def _worst(
-    tripped: Mapping[str, Reason], cfg: CoreConfig, authority: Authority, st: ArbiterState, now: float
+    tripped: Mapping[MonitorId, Reason], cfg: CoreConfig, authority: Authority, st: ArbiterState, now: float
 ) -> list[tuple[Action, RuleRow, Reason]]:
     """Tripped monitors with their action under ``authority``, worst first (table order breaks ties)."""
     out: list[tuple[Action, RuleRow, Reason]] = []
@@ -156,10 +159,9 @@ def _worst(
         if reason is None:
             continue
         action = column(row, authority)
-        if authority is Authority.OPERATOR and row.monitor in OVERSIGHT:
-            exempt = not getattr(cfg.operator, OVERSIGHT[row.monitor])
+        if authority is Authority.OPERATOR and row.takeover is not Takeover.JUDGED:
             in_grace = row.monitor in st.grace_monitors and now <= st.grace_until_s
-            if exempt or in_grace:
+            if row.takeover is Takeover.EXEMPT or in_grace:
                 action = Action.NONE
         out.append((action, row, reason))
     out.sort(key=lambda x: -int(x[0]))
@@ -260,7 +262,8 @@ def _operator(st: ArbiterState, view: TickView, cfg: CoreConfig, events: list[Ev
         reason = _simple(ReasonCode.OPERATOR_TAKEOVER, "operator took over")
         st = _cancel_exchange(st, now, reason, events)
         events.append(_authority_event(now, st.authority, Authority.OPERATOR, reason))
-        in_condition = frozenset(m for m in OVERSIGHT if m in view.tripped)
+        in_condition = frozenset(r.monitor for r in cfg.rules if r.takeover is not Takeover.JUDGED
+                                 and r.monitor in view.tripped)
         return st._replace(
             authority=Authority.OPERATOR,
             latches=_drop_on_request(st.latches),
@@ -278,28 +281,36 @@ def _ack(now: float, cmd: GcsCommand, accepted: bool, reason: Reason, events: li
     )
 
 
+def _arm_or_disarm(st: ArbiterState, view: TickView, cmd: GcsCommand, events: list[Event]) -> ArbiterState:
+    """ARM (refused while a precondition fails, unless forced) and DISARM (refused in the air, unless forced);
+    either is accepted at once when the vehicle already is so."""
+    now, ok = view.now, Reason(ReasonCode.NONE)
+    if cmd.kind is GcsCommandKind.ARM:
+        if st.armed:
+            _ack(now, cmd, True, ok, events)
+        elif view.arm_block is not None and not cmd.force:
+            _ack(now, cmd, False, view.arm_block, events)
+        else:
+            st = st._replace(armed=True, base=Behavior.IDLE, revocations=0, landed_since_s=None)
+            _ack(now, cmd, True, ok, events)
+        return st
+    if not st.armed:
+        _ack(now, cmd, True, ok, events)
+    elif not view.landed and not cmd.force:
+        _ack(now, cmd, False, _simple(ReasonCode.PRECONDITION, "refused: vehicle is airborne"), events)
+    else:
+        st = _disarm(st, now, _simple(ReasonCode.DISARMED, "disarmed by ground station"), events)
+        _ack(now, cmd, True, ok, events)
+    return st
+
+
 def _commands(st: ArbiterState, view: TickView, cfg: CoreConfig, events: list[Event]) -> ArbiterState:
     now = view.now
     ok = Reason(ReasonCode.NONE)
     for cmd in view.commands:
         k = cmd.kind
-        if k is GcsCommandKind.ARM:
-            if st.armed:
-                _ack(now, cmd, True, ok, events)
-            elif view.arm_block is not None and not cmd.force:
-                _ack(now, cmd, False, view.arm_block, events)
-            else:
-                st = st._replace(armed=True, base=Behavior.IDLE, revocations=0, landed_since_s=None)
-                _ack(now, cmd, True, ok, events)
-            continue
-        if k is GcsCommandKind.DISARM:
-            if not st.armed:
-                _ack(now, cmd, True, ok, events)
-            elif not view.landed and not cmd.force:
-                _ack(now, cmd, False, _simple(ReasonCode.PRECONDITION, "refused: vehicle is airborne"), events)
-            else:
-                st = _disarm(st, now, _simple(ReasonCode.DISARMED, "disarmed by ground station"), events)
-                _ack(now, cmd, True, ok, events)
+        if k is GcsCommandKind.ARM or k is GcsCommandKind.DISARM:
+            st = _arm_or_disarm(st, view, cmd, events)
             continue
         if k is GcsCommandKind.MISSION_CURRENT:
             # as PX4's MISSION_SET_CURRENT: armed or not, in the mission or not (the index a later start or
@@ -415,6 +426,10 @@ def _goto_or_orbit(st: ArbiterState, view: TickView, cfg: CoreConfig, cmd: GcsCo
             math.isfinite(radius) and radius != 0.0)):
         _ack(now, cmd, False, _simple(ReasonCode.INVALID_INPUT, "refused: no finite target or radius"), events)
         return st
+    if target[2] > 0.0:  # below home: the trusted autopilot would fly into the ground (PX4 flies it)
+        _ack(now, cmd, False, _simple(ReasonCode.INVALID_INPUT, f"refused: the target is {target[2]:.1f} m below"
+                                      " home"), events)
+        return st
     block = _target_block(cfg, target, radius)
     if block is not None:
         _ack(now, cmd, False, block, events)
@@ -472,6 +487,19 @@ def _exchange_block(st: ArbiterState, view: TickView, cfg: CoreConfig, target: A
             f"refused: {st.revocations} revocations this flight, the limit is {limit}",
         )
     return view.grant_block
+
+
+def grant_height_block(handover: HandoverParams, alt_m: float) -> Reason | None:
+    """Why a grant must be refused at height ``alt_m`` above home (None: it may be granted): below
+    ``handover.min_grant_height_m`` a revocation could not recover above the floor (for a fixed wing, the
+    stall recovery's height bound, :func:`merlin.config.runtime.min_grant_height_m`). A height that is not a
+    number is refused too. Scenarios ``fw_adv_push_before_stall_38m`` and ``_45m`` pin it."""
+    limit = handover.min_grant_height_m
+    if limit is None or alt_m >= limit:
+        return None
+    return Reason(ReasonCode.PRECONDITION, "arbiter", "altitude_m", alt_m, limit, 0.0,
+                  f"refused: {alt_m:.1f} m is below the minimum grant height {limit:.1f} m (the height from "
+                  "which a revocation still recovers above the floor)")
 
 
 def _exchange(st: ArbiterState, view: TickView, cfg: CoreConfig, events: list[Event]) -> ArbiterState:
@@ -532,6 +560,17 @@ def _exchange(st: ArbiterState, view: TickView, cfg: CoreConfig, events: list[Ev
     return st
 
 
+def _complete(st: ArbiterState, done: Behavior, cfg: CoreConfig) -> ArbiterState:
+    """A trusted behaviour that completed on the previous tick hands over: TAKEOFF at its height to what it was
+    started for (HOLD, or MISSION for a mission started on the ground), a flown MISSION to the configured
+    ``trusted.mission_end`` (HOLD: it holds at its last waypoint as MISSION)."""
+    if done is Behavior.TAKEOFF:
+        return st._replace(base=st.after_takeoff, after_takeoff=Behavior.HOLD)
+    if done is Behavior.MISSION and cfg.trusted.mission_end is not Behavior.HOLD:
+        return st._replace(base=cfg.trusted.mission_end)
+    return st
+
+
 def _housekeeping(st: ArbiterState, view: TickView, events: list[Event]) -> ArbiterState:
     now = view.now
     kept = tuple(
@@ -561,6 +600,8 @@ def update(st: ArbiterState, view: TickView, cfg: CoreConfig) -> tuple[ArbiterSt
     events: list[Event] = []
     # Each stage runs only when it can have an effect: on a quiet tick (nothing tripped, no request,
     # no command) the arbiter costs a handful of comparisons (docs/architecture.md, "Cost of the tick").
+    if view.completed is not None:
+        st = _complete(st, view.completed, cfg)
     if st.switch is not None:
         st = _switch(st, view, cfg, events)
     if view.tripped or st.authority is Authority.SHADOW:

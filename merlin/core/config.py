@@ -7,19 +7,32 @@ the core never imports pydantic or reads a file.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Final
+from dataclasses import dataclass, field, replace
+from enum import StrEnum
+from typing import Any
 
 from merlin.core.geofence import Fence
-from merlin.core.types import Action, Behavior
+from merlin.core.guidance_policy import GuidancePolicy
+from merlin.core.types import Action, Behavior, MonitorId
 
 
-class Clear:
-    """When a latched action ends (cf. PX4 failsafe framework's clear conditions)."""
+class Clear(StrEnum):
+    """When a latched action ends (cf. PX4 failsafe framework's clear conditions). The values are the
+    configuration file's spelling (``arbiter.rules.<monitor>.clear``)."""
 
-    WHEN_CLEAR: Final = "when_clear"
-    ON_REQUEST: Final = "on_request"
-    NEVER: Final = "never"
+    WHEN_CLEAR = "when_clear"  # the action ends when the monitor clears
+    ON_REQUEST = "on_request"  # the action holds until a new authority exchange or mode command
+    NEVER = "never"  # until disarm
+
+
+class Takeover(StrEnum):
+    """Who may take over while a monitor is tripped, and how the pilot who does is judged by it (cf. PX4
+    failsafe framework's user-takeover policy). The operator can always take authority with the takeover
+    switch; this column says what the monitor then does to the pilot."""
+
+    JUDGED = "judged"  # judged at once by the table's operator column
+    GRACE = "grace"  # a trip present at the takeover waits operator.override_grace_s: the pilot flies out of it
+    EXEMPT = "exempt"  # the pilot is not judged by this monitor (operator.oversight_* switched off)
 
 
 @dataclass(frozen=True, slots=True)
@@ -50,13 +63,15 @@ class EnvelopeLimit:
 
 @dataclass(frozen=True, slots=True)
 class RuleRow:
-    """One row of the arbiter's table: the monitor, its action under each authority, its clear condition."""
+    """One row of the arbiter's table: the monitor, its action under each authority, when a latched action
+    ends, and who may take over while it is tripped."""
 
-    monitor: str
+    monitor: MonitorId
     experimental: Action
     operator: Action
     trusted: Action
-    clear: str = Clear.ON_REQUEST
+    clear: Clear = Clear.ON_REQUEST
+    takeover: Takeover = Takeover.JUDGED
 
 
 @dataclass(frozen=True, slots=True)
@@ -80,6 +95,7 @@ class HandoverParams:
     max_accel_mps2: float = 6.0
     max_attitude_rate_radps: float = 1.5708
     max_thrust_rate_per_s: float = 1.0
+    min_grant_height_m: float | None = None  # no grant below this height above home (None: no limit)
     ground_takeoff_s: float = 10.0
 
 
@@ -116,6 +132,11 @@ class TrustedParams:
     # trusted autopilot flies after the last waypoint: HOLD there, RTL or LAND (scenario trusted_mission_rtl)
     mission_speed_mps: tuple[float, ...] = ()
     mission_end: Behavior = Behavior.HOLD
+
+    def at_speed(self, speed_mps: float) -> TrustedParams:
+        """These parameters flying at ``speed_mps`` (MAV_CMD_DO_CHANGE_SPEED), never faster than the cruise
+        speed, which is also the trusted autopilot's limit."""
+        return replace(self, cruise_speed_mps=min(self.cruise_speed_mps, speed_mps))
 
 
 @dataclass(frozen=True, slots=True)
@@ -157,6 +178,8 @@ class CoreConfig:
     envelope: tuple[EnvelopeLimit, ...]
     rules: tuple[RuleRow, ...]
     fence: Fence | None
+    # how the trusted behaviours are flown, per vehicle (merlin.core.guidance_policy); built at the edge
+    guidance: GuidancePolicy[Any]
     watchdogs: WatchdogTimeouts = field(default_factory=WatchdogTimeouts)
     handover: HandoverParams = field(default_factory=HandoverParams)
     operator: OperatorParams = field(default_factory=OperatorParams)
@@ -167,7 +190,7 @@ class CoreConfig:
     config_sha256: str = ""
     clamp: SetpointClamp | None = field(default_factory=SetpointClamp)  # None: not clamped (fixed wing)
 
-    def rule(self, monitor: str) -> RuleRow:
+    def rule(self, monitor: MonitorId | str) -> RuleRow:
         for r in self.rules:
             if r.monitor == monitor:
                 return r

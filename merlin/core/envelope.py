@@ -32,7 +32,7 @@ import math
 from typing import NamedTuple
 
 from merlin.core.config import EnvelopeLimit
-from merlin.core.types import Reason, ReasonCode, Setpoint, SetpointKind, VehicleState
+from merlin.core.types import MonitorId, Reason, ReasonCode, Setpoint, SetpointKind, VehicleState
 
 #: One nanosecond: far below any tick period, far above the rounding error of a sum of tick periods.
 TIME_EPS_S = 1e-9
@@ -160,7 +160,7 @@ def budget_reason(lim: EnvelopeLimit, value: float, outside_s: float) -> Reason:
     scale = lim.display_scale
     return Reason(
         code=ReasonCode.ENVELOPE,
-        monitor="envelope",
+        monitor=MonitorId.ENVELOPE,
         parameter=lim.name,
         value=shown * scale,
         limit=lim.shown_limit(shown),
@@ -238,7 +238,7 @@ def update(
             shown = _wrap_pi(value) if lim.wraps and math.isfinite(value) else value
             best = Reason(
                 code=ReasonCode.ENVELOPE,
-                monitor="envelope",
+                monitor=MonitorId.ENVELOPE,
                 parameter=lim.name,
                 value=shown * lim.display_scale,
                 limit=lim.shown_limit(shown),
@@ -258,7 +258,7 @@ def all_inside(limits: tuple[EnvelopeLimit, ...], values: tuple[float, ...]) -> 
         if outside(lim, value):
             return Reason(
                 ReasonCode.ENVELOPE,
-                "envelope",
+                MonitorId.ENVELOPE,
                 lim.name,
                 value * lim.display_scale,
                 lim.shown_limit(value),

@@ -14,10 +14,10 @@ from __future__ import annotations
 import math
 from typing import Final, NamedTuple
 
-from merlin.autopilot.guidance import limit_velocity_change, position_to_velocity, stopping_point
 from merlin.core import geofence
 from merlin.core.config import HandoverParams, OperatorParams, SetpointClamp, TrustedParams
 from merlin.core.geofence import Fence
+from merlin.core.kinematics import limit_velocity_change, position_to_velocity, stopping_point
 from merlin.core.types import (
     ZERO3,
     Authority,
@@ -65,7 +65,7 @@ def setpoint_to_command(sp: Setpoint, s: VehicleState, source: Authority, tp: Tr
             math.inf,
             math.inf,
         )
-        # positional, in Command's field order (every tick: keywords cost twice as much)
+        # positional, in Command's field order (built every tick)
         return Command(
             _CMD_VELOCITY,  # kind
             source,  # source

@@ -15,14 +15,15 @@ makes :func:`step` raise: bad values become the ``invalid_input`` faults of the 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import replace
 from types import MappingProxyType
 from typing import Final, NamedTuple
 
-from merlin.autopilot import guidance
 from merlin.core import arbiter, envelope, geofence, watchdog
 from merlin.core.arbiter import ArbiterState, TickView
-from merlin.core.config import CoreConfig
+from merlin.core.config import CoreConfig, WatchdogTimeouts
+from merlin.core.guidance_policy import GuidanceMemory
 from merlin.core.shaping import (
     Blend,
     OperatorMemory,
@@ -46,8 +47,10 @@ from merlin.core.types import (
     Event,
     EventKind,
     Inputs,
+    MonitorId,
     MonitorStatus,
     NavMode,
+    OperatorInput,
     Reason,
     ReasonCode,
     RedundancyReport,
@@ -66,8 +69,7 @@ MAX_SETPOINT_POSITION_M = 1.0e5
 MAX_SETPOINT_VELOCITY_MPS = 100.0
 MAX_SETPOINT_YAW_RATE_RADPS = 20.0
 
-# Enum members the tick reads, bound once (``merlin.core.types``, "Enum members on the hot path": in
-# Python 3.11 ``Authority.SHADOW`` costs ~0.13 µs, a module constant ~0.01 µs; a tick reads about twenty).
+# Enum members the tick reads, bound once (``merlin.core.types``, "Enum members on the hot path").
 _TRUSTED: Final = Authority.TRUSTED
 _OPERATOR: Final = Authority.OPERATOR
 _EXPERIMENTAL: Final = Authority.EXPERIMENTAL
@@ -85,12 +87,28 @@ _CMD_IDLE: Final = CommandKind.IDLE
 _CMD_VELOCITY: Final = CommandKind.VELOCITY
 _CMD_TERMINATE: Final = CommandKind.TERMINATE
 _NO_ACTION: Final = Action.NONE
-_NO_MONITORS: frozenset[str] = frozenset()
+_NO_MONITORS: frozenset[MonitorId] = frozenset()
+_M_STATE_INVALID: Final = MonitorId.STATE_INVALID
+_M_ENVELOPE: Final = MonitorId.ENVELOPE
+_M_GEOFENCE: Final = MonitorId.GEOFENCE
+_M_CONTROLLER_HEARTBEAT: Final = MonitorId.CONTROLLER_HEARTBEAT
+_M_SETPOINT_STALE: Final = MonitorId.SETPOINT_STALE
+_M_SETPOINT_INVALID: Final = MonitorId.SETPOINT_INVALID
+_M_RC_LINK: Final = MonitorId.RC_LINK
+_M_GCS_LINK: Final = MonitorId.GCS_LINK
+_M_NAV_GPS_LOST: Final = MonitorId.NAV_GPS_LOST
+_M_NAV_INERTIAL_TIMEOUT: Final = MonitorId.NAV_INERTIAL_TIMEOUT
+_M_NAV_LOST: Final = MonitorId.NAV_LOST
+_M_BATTERY_LOW: Final = MonitorId.BATTERY_LOW
+_M_BATTERY_CRITICAL: Final = MonitorId.BATTERY_CRITICAL
+_M_NAV_REDUNDANCY: Final = MonitorId.NAV_REDUNDANCY
+#: The watchdogs (and the state's validity) that refuse a grant before anything else is looked at.
+_GRANT_WATCHDOGS: Final = (_M_STATE_INVALID, _M_CONTROLLER_HEARTBEAT, _M_SETPOINT_STALE, _M_SETPOINT_INVALID)
 
 #: ``nav_gps_lost``'s reason depends on the navigation mode alone (it trips on every tick of a GPS outage):
 #: built once per mode. Read-only.
 _GPS_NOT_TRUSTED: Final = MappingProxyType({
-    mode: Reason(ReasonCode.NAV_DEGRADED, "nav_gps_lost", "nav_mode", float(mode), float(NavMode.GPS), 0.0,
+    mode: Reason(ReasonCode.NAV_DEGRADED, MonitorId.NAV_GPS_LOST, "nav_mode", float(mode), float(NavMode.GPS), 0.0,
                  f"GPS not trusted: navigating on {mode.name}")
     for mode in (NavMode.VO, NavMode.INERTIAL)
 })
@@ -102,8 +120,8 @@ class CoreState(NamedTuple):
     env_since: tuple[float | None, ...] = ()
     shadow_env_since: tuple[float | None, ...] = ()
     hb_alive_since_s: float | None = None
-    reported: frozenset[str] = frozenset()  # monitors whose trip has been reported and not yet cleared
-    guidance: guidance.GuidanceState | None = None
+    reported: frozenset[MonitorId] = frozenset()  # monitors whose trip has been reported and not yet cleared
+    guidance: GuidanceMemory | None = None  # the trusted behaviour's memory (cfg.guidance's)
     operator: OperatorMemory = OperatorMemory(0.0, None)
     blend: Blend | None = None
     last_command: Command | None = None
@@ -125,6 +143,9 @@ class CoreState(NamedTuple):
     # offboard flows): the altitude floors are deferred for it until the vehicle is above them; the time it
     # left the ground (None: no such take-off). See _ground_takeoff.
     ground_takeoff_since_s: float | None = None
+    # the trusted behaviour that completed on this tick (TAKEOFF at its height, MISSION flown): the next tick's
+    # arbiter hands over to what follows it
+    completed: Behavior | None = None
 
 
 def initial_state(cfg: CoreConfig) -> CoreState:
@@ -189,11 +210,11 @@ def validate_state(s: VehicleState) -> Reason | None:
     )
     for name, v, lim in checks:
         if not _finite3(v):
-            return _bad("state_invalid", name, math.nan, f"is not three finite numbers: {v!r}")
+            return _bad(MonitorId.STATE_INVALID, name, math.nan, f"is not three finite numbers: {v!r}")
         assert isinstance(v, tuple)
         for x in v:
             if abs(x) > lim:
-                return _bad("state_invalid", name, x, f"magnitude {x!r} exceeds {lim:g}")
+                return _bad(MonitorId.STATE_INVALID, name, x, f"magnitude {x!r} exceeds {lim:g}")
     scalars: tuple[tuple[str, object, float, float], ...] = (
         ("airspeed_mps", s.airspeed_mps, 0.0, MAX_ABS_VELOCITY_MPS),
         ("pos_sigma_h_m", s.pos_sigma_h_m, 0.0, MAX_ABS_POSITION_M),
@@ -204,9 +225,9 @@ def validate_state(s: VehicleState) -> Reason | None:
     )
     for name, x, lo, hi in scalars:
         if not isinstance(x, (int, float)) or not math.isfinite(x) or x < lo or x > hi:
-            return _bad("state_invalid", name, x, f"= {x!r} is outside [{lo:g}, {hi:g}]")
+            return _bad(MonitorId.STATE_INVALID, name, x, f"= {x!r} is outside [{lo:g}, {hi:g}]")
     if not isinstance(s.nav_mode, NavMode):
-        return _bad("state_invalid", "nav_mode", math.nan, f"= {s.nav_mode!r} is not a navigation mode")
+        return _bad(MonitorId.STATE_INVALID, "nav_mode", math.nan, f"= {s.nav_mode!r} is not a navigation mode")
     return None
 
 
@@ -234,13 +255,13 @@ def validate_setpoint(sp: Setpoint) -> Reason | None:
     if _setpoint_ok(sp):
         return None
     if not isinstance(sp.kind, SetpointKind):
-        return _bad("setpoint_invalid", "kind", math.nan, f"= {sp.kind!r} is not a setpoint kind")
+        return _bad(MonitorId.SETPOINT_INVALID, "kind", math.nan, f"= {sp.kind!r} is not a setpoint kind")
     fields: tuple[tuple[str, object, float], ...]
     if sp.kind is SetpointKind.ATTITUDE:
         fields = (("att_rpy_rad", sp.att_rpy_rad, math.pi),)
         t = sp.thrust
         if not isinstance(t, (int, float)) or not math.isfinite(t) or not 0.0 <= t <= 1.0:
-            return _bad("setpoint_invalid", "thrust", t, f"= {t!r} is outside [0, 1]")
+            return _bad(MonitorId.SETPOINT_INVALID, "thrust", t, f"= {t!r} is outside [0, 1]")
     else:
         fields = (
             ("pos_ned_m", sp.pos_ned_m, MAX_SETPOINT_POSITION_M),
@@ -251,14 +272,14 @@ def validate_setpoint(sp: Setpoint) -> Reason | None:
             ("yaw_rate_radps", sp.yaw_rate_radps, MAX_SETPOINT_YAW_RATE_RADPS),
         ):
             if not isinstance(x, (int, float)) or not math.isfinite(x) or abs(x) > lim:
-                return _bad("setpoint_invalid", name, x, f"= {x!r} is not finite within +-{lim:g}")
+                return _bad(MonitorId.SETPOINT_INVALID, name, x, f"= {x!r} is not finite within +-{lim:g}")
     for name, v, lim in fields:
         if not _finite3(v):
-            return _bad("setpoint_invalid", name, math.nan, f"is not three finite numbers: {v!r}")
+            return _bad(MonitorId.SETPOINT_INVALID, name, math.nan, f"is not three finite numbers: {v!r}")
         assert isinstance(v, tuple)
         for x in v:
             if abs(x) > lim:
-                return _bad("setpoint_invalid", name, x, f"magnitude {x!r} exceeds {lim:g}")
+                return _bad(MonitorId.SETPOINT_INVALID, name, x, f"magnitude {x!r} exceeds {lim:g}")
     return None
 
 
@@ -273,7 +294,7 @@ def _status(
     return MonitorStatus(name, reason is not None, reason if reason is not None else NO_REASON, detail)
 
 
-def _fence_reason(res: geofence.FenceResult, monitor: str = "geofence") -> Reason:
+def _fence_reason(res: geofence.FenceResult, monitor: str = MonitorId.GEOFENCE) -> Reason:
     return Reason(
         ReasonCode.GEOFENCE,
         monitor,
@@ -313,18 +334,17 @@ def _grant_block(
     cfg: CoreConfig,
     s: VehicleState,
     inputs: Inputs,
-    tripped: dict[str, Reason],
-    hb_alive_since: float | None,
+    report: MonitorReport,
     now: float,
     shadow: bool,
-    env_values: tuple[float, ...] | None = None,
 ) -> Reason | None:
-    """The first precondition for a grant that does not hold now (None: all hold). ``env_values``: the
-    envelope's values as the monitor judges them this tick (the state's, unless a floor is deferred)."""
-    for name in ("state_invalid", "controller_heartbeat", "setpoint_stale", "setpoint_invalid"):
+    """The first precondition for a grant (to SHADOW with ``shadow``) that does not hold now (None: all hold)."""
+    tripped = report.tripped
+    for name in _GRANT_WATCHDOGS:
         r = tripped.get(name)
         if r is not None:
             return r
+    hb_alive_since = report.hb_alive_since_s
     alive = 0.0 if hb_alive_since is None else now - hb_alive_since
     need = cfg.handover.heartbeat_alive_min_s
     if hb_alive_since is None or alive + envelope.TIME_EPS_S < need:
@@ -339,7 +359,7 @@ def _grant_block(
         r = tripped.get(row.monitor)
         if r is not None and row.experimental >= Action.HOLD:
             return r
-    env = envelope.all_inside(cfg.envelope, env_values if env_values is not None else envelope.envelope_values(s))
+    env = envelope.all_inside(cfg.envelope, report.env_values)  # as the monitor judged them this tick
     if env is not None:
         return env
     nav = cfg.nav
@@ -349,37 +369,52 @@ def _grant_block(
     if s.pos_sigma_h_m > nav.max_pos_sigma_h_m:
         return Reason(ReasonCode.NAV_DEGRADED, "nav", "pos_sigma_h_m", s.pos_sigma_h_m, nav.max_pos_sigma_h_m,
                       0.0, f"refused: position sigma {s.pos_sigma_h_m:.2f} m above {nav.max_pos_sigma_h_m:.2f} m")
-    cv = envelope.commanded_values(sp, s)  # once: it is pure (it was computed once per limit, then again)
+    cv = envelope.commanded_values(sp, s)
     cmd_env = envelope.all_inside(tuple(lim for lim in cfg.envelope if not math.isnan(cv[lim.index])), cv)
     if cmd_env is not None:
         return replace(cmd_env, text=f"refused: the setpoint commands {cmd_env.parameter}={cmd_env.value:.4g}"
                        f" outside [{cmd_env.limit:.4g}]")
-    return _setpoint_consistency(sp, s, cfg)
+    # below the minimum grant height a revocation would not recover above the floor (a fixed wing's stall
+    # recovery: scenario fw_adv_grant_below_recovery_height)
+    return (_setpoint_consistency(sp, s, cfg) or _floor_block(cfg, s, report)
+            or arbiter.grant_height_block(cfg.handover, s.alt_m))
+
+
+def _floor_block(cfg: CoreConfig, s: VehicleState, report: MonitorReport) -> Reason | None:
+    """The fence floor does not protect a vehicle below it yet (scenario adv_floor_takeoff): no grant until
+    the vehicle has climbed clear of it, unless the controller flies its own take-off (_ground_takeoff)."""
+    if report.floor_reached or report.ground_takeoff_since_s is not None or cfg.fence is None:
+        return None
+    fl = cfg.fence.params.altitude_floor_m
+    if fl is None or not cfg.fence.params.enabled:
+        return None
+    return Reason(ReasonCode.PRECONDITION, _M_GEOFENCE, "altitude_m", s.alt_m, fl, 0.0,
+                  f"refused: {s.alt_m:.1f} m is not yet clear of the fence floor {fl:g} m")
 
 
 def _inertial_landing_due(cfg: CoreConfig, s: VehicleState, already_due: bool) -> Reason | None:
     """``nav_inertial_timeout``: LAND is due when the inertial-only time at touchdown would reach the limit.
 
     The trusted inertial time (``nav.inertial_time_limit_s``) bounds the landing, not its start: LAND is due
-    once ``nav_inertial_s + land_s >= limit``, where ``land_s`` is Merlin's own LAND from the present height
-    above home (:func:`guidance.land_duration_s`) plus ``nav.inertial_land_margin_s``. On the ground there is
-    nothing to land (``land_s = 0``): the rule is then the limit itself. Once due, the landing stays due
-    while navigation stays inertial-only (``already_due``): descending as LAND does keeps the sum about
-    constant, and noise in the height or the vertical speed must not un-trip and re-trip the monitor.
+    once ``nav_inertial_s + land_s >= limit``, where ``land_s`` is the vehicle's own LAND from the present
+    height above home (the guidance policy's ``land_duration_s``) plus ``nav.inertial_land_margin_s``. On the
+    ground there is nothing to land (``land_s = 0``): the rule is then the limit itself. Once due, the landing
+    stays due while navigation stays inertial-only (``already_due``): descending as LAND does keeps the sum
+    about constant, and noise in the height or the vertical speed must not un-trip and re-trip the monitor.
     """
     limit_s = cfg.nav.inertial_time_limit_s
     if s.landed:
         if s.nav_inertial_s < limit_s and not already_due:
             return None
-        return Reason(ReasonCode.NAV_DEGRADED, "nav_inertial_timeout", "inertial_at_touchdown_s",
+        return Reason(ReasonCode.NAV_DEGRADED, _M_NAV_INERTIAL_TIMEOUT, "inertial_at_touchdown_s",
                       s.nav_inertial_s, limit_s, s.nav_inertial_s,
                       f"inertial-only navigation on the ground for {s.nav_inertial_s:.1f} s: at its {limit_s:g} s limit")
     height_m = s.alt_m
-    land_s = guidance.land_duration_s(height_m, s.vel_ned_mps[2], cfg.trusted) + cfg.nav.inertial_land_margin_s
+    land_s = cfg.guidance.land_duration_s(height_m, s.vel_ned_mps[2], cfg.trusted) + cfg.nav.inertial_land_margin_s
     due_s = s.nav_inertial_s + land_s  # a non-finite height gives land_s = inf: due now
     if due_s < limit_s and not already_due:
         return None
-    return Reason(ReasonCode.NAV_DEGRADED, "nav_inertial_timeout", "inertial_at_touchdown_s", due_s, limit_s,
+    return Reason(ReasonCode.NAV_DEGRADED, _M_NAV_INERTIAL_TIMEOUT, "inertial_at_touchdown_s", due_s, limit_s,
                   s.nav_inertial_s,
                   f"inertial-only navigation for {s.nav_inertial_s:.1f} s: landing from {height_m:.1f} m takes"
                   f" {land_s:.1f} s, due by the {limit_s:g} s limit")
@@ -394,18 +429,18 @@ def _redundancy_reason(red: RedundancyReport, min_lanes: int) -> Reason:
     channels and the nav health the redundancy stage hands on."""
     lanes = red.lanes
     level = _LEVEL_NAMES[lanes] if 0 <= lanes < len(_LEVEL_NAMES) else str(lanes)
-    return Reason(ReasonCode.REDUNDANCY_DEGRADED, "nav_redundancy", "lanes", float(lanes), float(min_lanes), 0.0,
-                  f"redundancy degraded to {level}: {red.cause or 'a redundant channel'}; nav health"
-                  f" {red.nav_health:.2f}")
+    return Reason(ReasonCode.REDUNDANCY_DEGRADED, MonitorId.NAV_REDUNDANCY, "lanes", float(lanes),
+                  float(min_lanes), 0.0, f"redundancy degraded to {level}: {red.cause or 'a redundant channel'};"
+                  f" nav health {red.nav_health:.2f}")
 
 
-def _arm_block(cfg: CoreConfig, s: VehicleState, tripped: dict[str, Reason]) -> Reason | None:
-    r = tripped.get("state_invalid")
+def _arm_block(cfg: CoreConfig, s: VehicleState, tripped: Mapping[MonitorId, Reason]) -> Reason | None:
+    r = tripped.get(MonitorId.STATE_INVALID)
     if r is not None:
         return r
     if cfg.fence is not None and not geofence.contains(cfg.fence, s.pos_ned_m):
-        return Reason(ReasonCode.OUTSIDE_FENCE, "geofence", text="refused: arming outside the geofence")
-    for name in ("battery_critical", "nav_lost"):
+        return Reason(ReasonCode.OUTSIDE_FENCE, MonitorId.GEOFENCE, text="refused: arming outside the geofence")
+    for name in (MonitorId.BATTERY_CRITICAL, MonitorId.NAV_LOST):
         r = tripped.get(name)
         if r is not None:
             return r
@@ -458,27 +493,25 @@ def _floor_deferred(cfg: CoreConfig, values: tuple[float, ...]) -> tuple[float, 
     return (*values[:k], low, *values[k + 1:])
 
 
-# -------------------------------------------------------------------------------------------------- step
+# ------------------------------------------------------------------------------------------ the stages
 
 
-def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[CoreState, Decision]:
-    """Advance the trusted core by one tick."""
-    events: list[Event] = []
-    if not isinstance(now, (int, float)) or not math.isfinite(now):
-        now = st.t_s if st.t_s is not None else 0.0
-    dt = 0.0 if st.t_s is None else max(0.0, now - st.t_s)
-    if (len(st.env_since) != len(cfg.envelope) or len(st.clear_statuses) != len(cfg.rules)
-            or len(st.env_budget) != len(cfg.envelope)):
-        st = initial_state(cfg)._replace(arbiter=st.arbiter, t_s=st.t_s)
+class Checked(NamedTuple):
+    """The tick's inputs after validation."""
 
-    # -- validate inputs
+    s: VehicleState  # the state the tick judges and flies on: the last valid one when the new one is not
+    state_bad: Reason | None  # why the state given is unusable (None: usable)
+    setpoint: Setpoint | None  # the experimental controller's latest setpoint
+    setpoint_bad: Reason | None  # why that setpoint is unusable (None: usable, or none given)
+
+
+def _validate(st: CoreState, inputs: Inputs) -> Checked:
     raw = inputs.state
     state_bad = None if _state_ok(raw) else validate_state(raw)  # validate_state's fast path, without its call
     s = st.last_valid_state if state_bad is not None else raw
     if state_bad is not None:
         s = replace(s, armed=bool(raw.armed), landed=bool(raw.landed))
-    exp = inputs.experimental
-    sp = exp.setpoint
+    sp = inputs.experimental.setpoint
     # A setpoint is validated once: the edge passes the same immutable object until a new one arrives.
     if sp is None:
         sp_bad = None
@@ -486,11 +519,30 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
         sp_bad = st.checked_setpoint_bad
     else:
         sp_bad = validate_setpoint(sp)
+    return Checked(s, state_bad, sp, sp_bad)
 
-    # -- monitors on the vehicle's state
-    tripped: dict[str, Reason] = {}
-    if state_bad is not None:
-        tripped["state_invalid"] = state_bad
+
+class MonitorReport(NamedTuple):
+    """The monitor stage's verdict on this tick, and what the monitors carry to the next one."""
+
+    tripped: dict[MonitorId, Reason]  # the monitors tripped on the vehicle's state, with their reasons
+    shadow_tripped: dict[MonitorId, Reason]  # under SHADOW: those tripped on what the controller commands
+    env: envelope.EnvelopeResult  # the envelope's timers, exceedance budget and offending parameters
+    env_values: tuple[float, ...]  # the envelope's values as judged (the altitude held while a floor is deferred)
+    shadow_env_since: tuple[float | None, ...]  # the envelope's timers on the SHADOW controller's commands
+    budget_authority: Authority  # the authority the exceedance budget is charged to
+    floor_reached: bool  # the fence floor applies (the vehicle has climbed clear of it since it took off)
+    ground_takeoff_since_s: float | None  # a take-off the controller flies: the floors deferred (_ground_takeoff)
+    hb_alive_since_s: float | None  # the controller's heartbeat unbroken since
+    rc_lost: bool  # the RC link has timed out
+
+
+def monitor(cfg: CoreConfig, st: CoreState, now: float, dt: float, inputs: Inputs, c: Checked) -> MonitorReport:
+    """The monitor stage: every monitor of the rule table on this tick's inputs, in the table's terms."""
+    s = c.s
+    tripped: dict[MonitorId, Reason] = {}
+    if c.state_bad is not None:
+        tripped[_M_STATE_INVALID] = c.state_bad
     # The budget charges the interval since the previous tick to the authority that was in force over it;
     # a new authority starts from an empty budget (its own time outside only).
     budget_auth = st.arbiter.authority
@@ -499,292 +551,344 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     # height compares False: never clear), so the trusted take-off climbs through it instead of tripping it.
     floor_reached = not s.landed and cfg.fence is not None and (
         st.floor_reached or geofence.clear_of_floor(cfg.fence, s.pos_ned_m, s.pos_sigma_v_m))
-    env_values = envelope.envelope_values(raw)
-    ground_takeoff = _ground_takeoff(cfg, st, s, now, exp.requests, floor_reached, env_values[1])
+    env_values = envelope.envelope_values(inputs.state)
+    ground_takeoff = _ground_takeoff(cfg, st, s, now, inputs.experimental.requests, floor_reached, env_values[1])
     if ground_takeoff is not None:
         env_values = _floor_deferred(cfg, env_values)
     env = envelope.update(cfg.envelope, st.env_since, env_values, now, False, budget, dt)
     if env.reason is not None:
-        tripped["envelope"] = env.reason
-    fence_res = None
+        tripped[_M_ENVELOPE] = env.reason
     wind_ne = (0.0, 0.0)
     if cfg.fence is not None:
         if cfg.fence.params.vehicle == "fixed_wing":  # a fixed wing's escape turn drifts with the wind
             wind_ne = geofence.wind_triangle_ne(s.vel_ned_mps, s.airspeed_mps, s.att_rpy_rad[2])
-        # the command being flown (the last actuated one) drives the vehicle during the reaction time too;
-        # an experimental velocity command is a ramp towards its clamped setpoint (track_command) that goes on
-        # during the reaction time: the projection takes the setpoint itself, the commanded intent
-        flown = st.last_command
-        if (flown is not None and flown.source is _EXPERIMENTAL and flown.kind is _CMD_VELOCITY
-                and cfg.clamp is not None and sp is not None and sp_bad is None):
-            flown = clamp_command(setpoint_to_command(sp, s, _EXPERIMENTAL, cfg.trusted), cfg.clamp)
-        demand = (None if cfg.fence.params.vehicle == "fixed_wing" else demanded_velocity(
-            flown, s, cfg.fence.params.reaction_time_s, cfg.fence.params.gravity_mps2))
-        fence_res = geofence.check(cfg.fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, s.pos_sigma_v_m,
-                                   floor_reached, wind_ne, demand)
-        if fence_res.tripped:
-            tripped["geofence"] = _fence_reason(fence_res)
-    wd = cfg.watchdogs
-    hb_t, sp_t = exp.heartbeat_t_s, exp.setpoint_t_s
-    if hb_t is None or not now - hb_t <= wd.controller_heartbeat_s:  # "not <=": a NaN time is expired too
-        tripped["controller_heartbeat"] = watchdog.reason(
-            ReasonCode.CONTROLLER_HEARTBEAT, "controller_heartbeat", now, hb_t, wd.controller_heartbeat_s)
-    if sp_t is None or not now - sp_t <= wd.setpoint_stale_s:
-        tripped["setpoint_stale"] = watchdog.reason(
-            ReasonCode.SETPOINT_STALE, "setpoint_stale", now, sp_t, wd.setpoint_stale_s)
-    if sp_bad is not None:
-        tripped["setpoint_invalid"] = sp_bad
-    op = inputs.operator
-    rc_t, gcs_t = op.link_t_s, inputs.gcs_link_t_s
-    rc_lost = rc_t is not None and not now - rc_t <= wd.rc_link_s
-    if rc_lost:
-        tripped["rc_link"] = watchdog.reason(ReasonCode.RC_LINK, "rc_link", now, rc_t, wd.rc_link_s)
-    if gcs_t is not None and not now - gcs_t <= wd.gcs_link_s:
-        tripped["gcs_link"] = watchdog.reason(ReasonCode.GCS_LINK, "gcs_link", now, gcs_t, wd.gcs_link_s)
-    if state_bad is None:
-        mode = s.nav_mode
-        if mode is _NAV_VO or mode is _NAV_INERTIAL:
-            tripped["nav_gps_lost"] = _GPS_NOT_TRUSTED[mode]
-        if mode is _NAV_INERTIAL:
-            r = _inertial_landing_due(cfg, s, st.inertial_land_due)
-            if r is not None:
-                tripped["nav_inertial_timeout"] = r
-        if mode is _NAV_LOST:
-            tripped["nav_lost"] = Reason(ReasonCode.NAV_LOST, "nav_lost", "nav_mode", float(mode), 0.0, 0.0,
-                                         "navigation lost")
-        if s.battery_frac < cfg.battery.critical_frac:
-            tripped["battery_critical"] = Reason(ReasonCode.BATTERY_CRITICAL, "battery_critical", "battery_frac",
-                                                 s.battery_frac, cfg.battery.critical_frac)
-        if s.battery_frac < cfg.battery.low_frac:
-            tripped["battery_low"] = Reason(ReasonCode.BATTERY_LOW, "battery_low", "battery_frac", s.battery_frac,
-                                            cfg.battery.low_frac)
+        fence_trip = _fence_monitor(cfg, cfg.fence, st.last_command, c, floor_reached, wind_ne)
+        if fence_trip is not None:
+            tripped[_M_GEOFENCE] = fence_trip
+    rc_lost = _watchdog_monitors(cfg.watchdogs, now, inputs, c.setpoint_bad, tripped)
+    if c.state_bad is None:
+        _nav_and_battery_monitors(cfg, s, st.inertial_land_due, tripped)
     red = inputs.redundancy
     if red is not None and red.lanes < cfg.nav.redundancy_min_lanes:
-        tripped["nav_redundancy"] = _redundancy_reason(red, cfg.nav.redundancy_min_lanes)
-    hb_since = watchdog.alive_since(now, exp.heartbeat_t_s, wd.controller_heartbeat_s, st.hb_alive_since_s)
+        tripped[_M_NAV_REDUNDANCY] = _redundancy_reason(red, cfg.nav.redundancy_min_lanes)
+    hb_since = watchdog.alive_since(now, inputs.experimental.heartbeat_t_s, cfg.watchdogs.controller_heartbeat_s,
+                                    st.hb_alive_since_s)
+    shadow_tripped: dict[MonitorId, Reason] = {}
+    shadow_since: tuple[float | None, ...] = (None,) * len(cfg.envelope)
+    if st.arbiter.authority is _SHADOW:
+        shadow_tripped, shadow_since = _shadow_monitors(cfg, st.shadow_env_since, now, c, tripped, floor_reached,
+                                                        wind_ne)
+    return MonitorReport(tripped, shadow_tripped, env, env_values, shadow_since, budget_auth, floor_reached,
+                         ground_takeoff, hb_since, rc_lost)
 
-    # -- SHADOW: judge what the controller commands, not what the vehicle does
-    arb = st.arbiter
-    shadow_tripped: dict[str, Reason] = {}
-    shadow_since = st.shadow_env_since
-    if arb.authority is _SHADOW:
-        shadow_tripped = {k: v for k, v in tripped.items() if k not in ("envelope", "geofence")}
-        if sp is not None and sp_bad is None:
-            cv = envelope.commanded_values(sp, s)
-            senv = envelope.update(cfg.envelope, shadow_since, cv, now, skip_nan=True)
-            shadow_since = senv.since
-            if senv.reason is not None:
-                shadow_tripped["envelope"] = replace(senv.reason, monitor="envelope (commanded)")
-            if cfg.fence is not None and sp.kind is not SetpointKind.ATTITUDE:
-                cmd = setpoint_to_command(sp, s, _SHADOW, cfg.trusted)
-                fr = geofence.check(cfg.fence, s.pos_ned_m, cmd.vel_ned_mps, s.pos_sigma_h_m, s.pos_sigma_v_m,
-                                    floor_reached, wind_ne)
-                if fr.tripped:
-                    shadow_tripped["geofence"] = _fence_reason(fr, "geofence (commanded)")
-    else:
-        shadow_since = (None,) * len(cfg.envelope)
 
-    # -- preconditions (only computed when an exchange needs them)
-    need_block = bool(exp.requests) or arb.switch is not None
-    grant_block = _grant_block(cfg, s, inputs, tripped, hb_since, now, False, env_values) if need_block else None
-    if grant_block is None and need_block and not floor_reached and ground_takeoff is None and cfg.fence is not None:
-        fl = cfg.fence.params.altitude_floor_m
-        if fl is not None and cfg.fence.params.enabled:  # the floor does not protect a vehicle below it yet
-            grant_block = Reason(ReasonCode.PRECONDITION, "geofence", "altitude_m", s.alt_m, fl, 0.0,
-                                 f"refused: {s.alt_m:.1f} m is not yet clear of the fence floor {fl:g} m")
-    shadow_block = _grant_block(cfg, s, inputs, tripped, hb_since, now, True, env_values) if need_block else None
-    arm_block = _arm_block(cfg, s, tripped) if inputs.gcs_commands else None
+def _fence_monitor(cfg: CoreConfig, fence: geofence.Fence, last: Command | None, c: Checked, floor_reached: bool,
+                   wind_ne: tuple[float, float]) -> Reason | None:
+    """``geofence``: the projected path of the vehicle, driven by the command being flown, against the fence."""
+    s, sp = c.s, c.setpoint
+    # the command being flown (the last actuated one) drives the vehicle during the reaction time too;
+    # an experimental velocity command is a ramp towards its clamped setpoint (track_command) that goes on
+    # during the reaction time: the projection takes the setpoint itself, the commanded intent
+    flown = last
+    if (flown is not None and flown.source is _EXPERIMENTAL and flown.kind is _CMD_VELOCITY
+            and cfg.clamp is not None and sp is not None and c.setpoint_bad is None):
+        flown = clamp_command(setpoint_to_command(sp, s, _EXPERIMENTAL, cfg.trusted), cfg.clamp)
+    prm = fence.params
+    demand = None if prm.vehicle == "fixed_wing" else demanded_velocity(flown, s, prm.reaction_time_s,
+                                                                        prm.gravity_mps2)
+    res = geofence.check(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, s.pos_sigma_v_m, floor_reached,
+                         wind_ne, demand)
+    return _fence_reason(res) if res.tripped else None
 
+
+def _watchdog_monitors(wd: WatchdogTimeouts, now: float, inputs: Inputs, sp_bad: Reason | None,
+                       tripped: dict[MonitorId, Reason]) -> bool:
+    """The controller's heartbeat and setpoint, the RC and ground-station links; True when the RC link is lost."""
+    exp = inputs.experimental
+    hb_t, sp_t = exp.heartbeat_t_s, exp.setpoint_t_s
+    if hb_t is None or not now - hb_t <= wd.controller_heartbeat_s:  # "not <=": a NaN time is expired too
+        tripped[_M_CONTROLLER_HEARTBEAT] = watchdog.reason(
+            ReasonCode.CONTROLLER_HEARTBEAT, _M_CONTROLLER_HEARTBEAT, now, hb_t, wd.controller_heartbeat_s)
+    if sp_t is None or not now - sp_t <= wd.setpoint_stale_s:
+        tripped[_M_SETPOINT_STALE] = watchdog.reason(
+            ReasonCode.SETPOINT_STALE, _M_SETPOINT_STALE, now, sp_t, wd.setpoint_stale_s)
+    if sp_bad is not None:
+        tripped[_M_SETPOINT_INVALID] = sp_bad
+    rc_t, gcs_t = inputs.operator.link_t_s, inputs.gcs_link_t_s
+    rc_lost = rc_t is not None and not now - rc_t <= wd.rc_link_s
+    if rc_lost:
+        tripped[_M_RC_LINK] = watchdog.reason(ReasonCode.RC_LINK, _M_RC_LINK, now, rc_t, wd.rc_link_s)
+    if gcs_t is not None and not now - gcs_t <= wd.gcs_link_s:
+        tripped[_M_GCS_LINK] = watchdog.reason(ReasonCode.GCS_LINK, _M_GCS_LINK, now, gcs_t, wd.gcs_link_s)
+    return rc_lost
+
+
+def _nav_and_battery_monitors(cfg: CoreConfig, s: VehicleState, inertial_land_due: bool,
+                              tripped: dict[MonitorId, Reason]) -> None:
+    """The navigation mode's monitors and the battery's, on a valid state."""
+    mode = s.nav_mode
+    if mode is _NAV_VO or mode is _NAV_INERTIAL:
+        tripped[_M_NAV_GPS_LOST] = _GPS_NOT_TRUSTED[mode]
+    if mode is _NAV_INERTIAL:
+        r = _inertial_landing_due(cfg, s, inertial_land_due)
+        if r is not None:
+            tripped[_M_NAV_INERTIAL_TIMEOUT] = r
+    if mode is _NAV_LOST:
+        tripped[_M_NAV_LOST] = Reason(ReasonCode.NAV_LOST, _M_NAV_LOST, "nav_mode", float(mode), 0.0, 0.0,
+                                      "navigation lost")
+    bat = cfg.battery
+    if s.battery_frac < bat.critical_frac:
+        tripped[_M_BATTERY_CRITICAL] = Reason(ReasonCode.BATTERY_CRITICAL, _M_BATTERY_CRITICAL, "battery_frac",
+                                              s.battery_frac, bat.critical_frac)
+    if s.battery_frac < bat.low_frac:
+        tripped[_M_BATTERY_LOW] = Reason(ReasonCode.BATTERY_LOW, _M_BATTERY_LOW, "battery_frac", s.battery_frac,
+                                         bat.low_frac)
+
+
+def _shadow_monitors(cfg: CoreConfig, since: tuple[float | None, ...], now: float, c: Checked,
+                     tripped: dict[MonitorId, Reason], floor_reached: bool, wind_ne: tuple[float, float],
+                     ) -> tuple[dict[MonitorId, Reason], tuple[float | None, ...]]:
+    """SHADOW: judge what the controller commands, not what the vehicle does (the envelope on the commanded
+    values, the fence on the commanded velocity); the other monitors as on the vehicle's state."""
+    shadow: dict[MonitorId, Reason] = {k: v for k, v in tripped.items() if k is not _M_ENVELOPE and k is not _M_GEOFENCE}
+    s, sp = c.s, c.setpoint
+    if sp is None or c.setpoint_bad is not None:
+        return shadow, since
+    senv = envelope.update(cfg.envelope, since, envelope.commanded_values(sp, s), now, skip_nan=True)
+    if senv.reason is not None:
+        shadow[_M_ENVELOPE] = replace(senv.reason, monitor="envelope (commanded)")
+    if cfg.fence is not None and sp.kind is not SetpointKind.ATTITUDE:
+        cmd = setpoint_to_command(sp, s, _SHADOW, cfg.trusted)
+        fr = geofence.check(cfg.fence, s.pos_ned_m, cmd.vel_ned_mps, s.pos_sigma_h_m, s.pos_sigma_v_m,
+                            floor_reached, wind_ne)
+        if fr.tripped:
+            shadow[_M_GEOFENCE] = _fence_reason(fr, "geofence (commanded)")
+    return shadow, senv.since
+
+
+def _tick_view(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs, c: Checked,
+               report: MonitorReport) -> TickView:
+    """What the arbiter reads: the monitors' verdict, and the preconditions where an exchange or a command
+    needs them."""
+    exp, op, tripped = inputs.experimental, inputs.operator, report.tripped
+    need_block = bool(exp.requests) or st.arbiter.switch is not None
+    grant_block = _grant_block(cfg, c.s, inputs, report, now, False) if need_block else None
+    shadow_block = _grant_block(cfg, c.s, inputs, report, now, True) if need_block else None
+    arm_block = _arm_block(cfg, c.s, tripped) if inputs.gcs_commands else None
     newly = frozenset(k for k in tripped if k not in st.reported) if tripped else _NO_MONITORS
-    # positional, in field order (every tick: keywords cost twice as much); the names are TickView's
-    view = TickView(
-        now,  # now
-        tripped,  # tripped
-        shadow_tripped,  # shadow_tripped
-        newly,  # newly_tripped
-        grant_block,  # grant_block
-        shadow_block,  # shadow_block
-        arm_block,  # arm_block
-        bool(op.takeover) and not rc_lost and op.link_t_s is not None,  # takeover
-        bool(s.landed),  # landed
-        exp.requests,  # requests
-        inputs.gcs_commands,  # commands
+    return TickView(
+        now, tripped, report.shadow_tripped, newly, grant_block, shadow_block, arm_block,
+        bool(op.takeover) and not report.rc_lost and op.link_t_s is not None,  # takeover
+        bool(c.s.landed), exp.requests, inputs.gcs_commands, st.completed,
     )
-    arb, arb_events = arbiter.update(arb, view, cfg)
 
-    # -- trusted guidance
-    behavior = arb.behavior
-    authority = arb.authority
-    g = st.guidance
-    flies_trusted = authority in (_TRUSTED, _SHADOW) and arb.armed
+
+class TrustedStep(NamedTuple):
+    """What the trusted behaviour flew this tick."""
+
+    memory: GuidanceMemory | None  # the behaviour's memory (None: Merlin's own autopilot does not fly)
+    setpoint: Setpoint | None  # the behaviour's setpoint, to be shaped into the command
+    mission_index: int  # the mission waypoint to resume at
+    completed: Behavior | None  # TAKEOFF at its height or MISSION flown: the arbiter hands over next tick
+
+
+def _fly_trusted(cfg: CoreConfig, st: CoreState, arb: ArbiterState, behavior: Behavior, now: float, dt: float,
+                 s: VehicleState, events: list[Event]) -> TrustedStep:
+    """Merlin's own behaviour, flown by the vehicle's guidance policy while it holds authority (or SHADOW)."""
+    policy, g, before = cfg.guidance, st.guidance, st.arbiter
     # a new flight starts the mission from its start (the index is reset at the disarm), unless a
     # MISSION_CURRENT sets where it goes on from (in flight or on the ground, as PX4's MISSION_SET_CURRENT)
-    mission_index = st.mission_index if arb.armed or not st.arbiter.armed else 0
-    jumped = arb.mission_jump_seq != st.arbiter.mission_jump_seq
+    mission_index = st.mission_index if arb.armed or not before.armed else 0
+    jumped = arb.mission_jump_seq != before.mission_jump_seq
     if jumped:
         mission_index = arb.mission_jump_index
-    g_setpoint: Setpoint | None = None
-    if flies_trusted and behavior not in (_IDLE, _TERMINATE):
-        if g is None or g.behavior is not behavior or arb.target_seq != st.arbiter.target_seq or (
-                arb.target_ned_m is None and st.arbiter.target_ned_m is not None):  # new behaviour, GOTO/ORBIT, or target dropped
-            prev_g = g
-            g = guidance.enter(behavior, s, cfg.trusted, cfg.fence)
-            if g.note:  # the behaviour cannot fly as asked inside the range (no route home, a moved hold point)
-                what = "no_route" if g.fallback else "safe_point"
-                events.append(Event(now, EventKind.WARNING, reason=Reason(ReasonCode.GEOFENCE, "route", what, text=g.note)))
-            if prev_g is not None:
-                # A change of behaviour during a takeover (HOLD -> RTL) continues the braking the previous
-                # behaviour's acceleration-limited command was doing, from where that command is: restarting
-                # it from the measured velocity would undo braking the fence projection already counted on.
-                g = g._replace(vel_cmd=prev_g.vel_cmd)
-            if behavior is _TAKEOFF:
-                g = g._replace(anchor_ned_m=(g.anchor_ned_m[0], g.anchor_ned_m[1], -arb.takeoff_alt_m))
-            elif behavior is _MISSION and mission_index <= len(cfg.trusted.mission_ned_m):
-                # resumed where it was paused, as PX4 does (at its length: a MISSION_CURRENT set the end item)
-                g = g._replace(mission_index=mission_index)
-        elif jumped and behavior is _MISSION:
-            g = g._replace(mission_index=mission_index, done=False)  # flying the mission: on to the new waypoint
-        if arb.target_ned_m is not None and g.goto_ned_m != arb.target_ned_m and (
-                behavior is _HOLD or behavior is _ORBIT):
-            g = guidance.goto(g, arb.target_ned_m, s, cfg.fence)  # GOTO's point, ORBIT's centre (at the command)
-            if g.note:  # GOTO has no route inside the range: it holds where it is
-                events.append(Event(now, EventKind.WARNING, reason=Reason(ReasonCode.GEOFENCE, "route", "no_route",
-                                                                          text=g.note)))
-        tp = cfg.trusted if not arb.speed_mps else guidance.with_speed(cfg.trusted, arb.speed_mps)
-        if behavior is _ORBIT:
-            g, g_setpoint = guidance.orbit_step(g, s, tp, dt, arb.orbit_radius_m, arb.orbit_speed_mps)
-        else:
-            g, g_setpoint = guidance.step(g, s, tp, dt)
-        if behavior is _TAKEOFF and g.done:
-            arb = arb._replace(base=arb.after_takeoff, after_takeoff=_HOLD)
-        elif behavior is _MISSION:
-            mission_index = g.mission_index
-            if g.done:  # flown: a later start flies it again from the first waypoint
-                mission_index = 0
-                if cfg.trusted.mission_end is not _HOLD:
-                    arb = arb._replace(base=cfg.trusted.mission_end)
+    if not (arb.authority in (_TRUSTED, _SHADOW) and arb.armed) or behavior is _IDLE or behavior is _TERMINATE:
+        return TrustedStep(None, None, mission_index, None)
+    if g is None or g.behavior is not behavior or arb.target_seq != before.target_seq or (
+            arb.target_ned_m is None and before.target_ned_m is not None):  # new behaviour, GOTO/ORBIT, or target dropped
+        g = policy.enter(behavior, s, cfg.trusted, cfg.fence, g, arb.takeoff_alt_m, mission_index)
+        if g.note:  # the behaviour cannot fly as asked inside the range (no route home, a moved hold point)
+            _route_warning(events, now, "no_route" if g.fallback else "safe_point", g.note)
+    elif jumped and behavior is _MISSION:
+        g = policy.mission_jump(g, mission_index)  # flying the mission: on to the new waypoint
+    if arb.target_ned_m is not None and g.goto_ned_m != arb.target_ned_m and (behavior is _HOLD or behavior is _ORBIT):
+        g = policy.goto(g, arb.target_ned_m, s, cfg.fence)  # GOTO's point, ORBIT's centre (at the command)
+        if g.note:  # GOTO has no route inside the range: it holds where it is
+            _route_warning(events, now, "no_route", g.note)
+    tp = cfg.trusted if not arb.speed_mps else cfg.trusted.at_speed(arb.speed_mps)
+    if behavior is _ORBIT:
+        g, setpoint = policy.orbit_step(g, s, tp, dt, arb.orbit_radius_m, arb.orbit_speed_mps)
     else:
-        g = None
-    prev_behavior = st.last_source[1] if st.last_source is not None else _IDLE
-    if behavior is not prev_behavior:
-        events.append(Event(now, EventKind.BEHAVIOR, behavior=behavior))
+        g, setpoint = policy.step(g, s, tp, dt)
+    completed = None
+    if behavior is _TAKEOFF and g.done:
+        completed = _TAKEOFF
+    elif behavior is _MISSION:
+        mission_index = g.mission_index
+        if g.done:  # flown: a later start flies it again from the first waypoint
+            mission_index, completed = 0, _MISSION
+    return TrustedStep(g, setpoint, mission_index, completed)
 
-    # -- the source's command, then bumpless shaping
+
+def _route_warning(events: list[Event], now: float, what: str, note: str) -> None:
+    events.append(Event(now, EventKind.WARNING, reason=Reason(ReasonCode.GEOFENCE, "route", what, text=note)))
+
+
+def _incoming(cfg: CoreConfig, st: CoreState, arb: ArbiterState, source: tuple[Authority, Behavior], dt: float,
+              op: OperatorInput, c: Checked, floor_reached: bool, trusted_sp: Setpoint | None,
+              ) -> tuple[OperatorMemory, Command]:
+    """The command of the source in authority, before bumpless shaping (and the operator's memory)."""
+    authority, behavior = source
+    s, sp = c.s, c.setpoint
     op_mem = st.operator
-    source = (authority, behavior)
     if source != st.last_source and authority is _OPERATOR:
-        # a takeover during a fence trip (its override grace) fences the pilot for the rest of the session
-        fenced = "geofence" in arb.grace_monitors
-        # A fenced pilot's stick ramps on from the command Merlin was braking with, not from the measured
-        # velocity: that lags the braking command, and restarting from it undid the braking the fence
-        # counted on (adv_pilot_regrab_keepout: a re-grab 0.45 s into the trusted braking stopped 2 m
-        # inside the keep-out's margin).
-        last = st.last_command
-        ramp_from = (last.vel_ned_mps if fenced and last is not None and last.kind is _CMD_VELOCITY
-                     and math.isfinite(last.vel_ned_mps[0] + last.vel_ned_mps[1] + last.vel_ned_mps[2]) else None)
-        op_mem = OperatorMemory(s.att_rpy_rad[2], None, ramp_from, fenced)
+        op_mem = _operator_memory(st, s, _M_GEOFENCE in arb.grace_monitors)
+    flies_trusted = (authority is _TRUSTED or authority is _SHADOW) and arb.armed
     if not arb.armed or (flies_trusted and behavior is _IDLE):
-        incoming = Command(_CMD_IDLE, authority)
-    elif flies_trusted and behavior is _TERMINATE:
-        incoming = Command(_CMD_TERMINATE, authority)
-    elif authority is _OPERATOR:
-        op_mem, incoming = operator_command(op, s, op_mem, dt, cfg.operator, cfg.trusted, cfg.fence, floor_reached)
-    elif authority is _EXPERIMENTAL and sp is not None and sp_bad is None:
+        return op_mem, Command(_CMD_IDLE, authority)
+    if flies_trusted and behavior is _TERMINATE:
+        return op_mem, Command(_CMD_TERMINATE, authority)
+    if authority is _OPERATOR:
+        return operator_command(op, s, op_mem, dt, cfg.operator, cfg.trusted, cfg.fence, floor_reached)
+    if authority is _EXPERIMENTAL and sp is not None and c.setpoint_bad is None:
         # commanded intent counts: what the validator accepts is flown only within the vehicle's limits
         incoming = setpoint_to_command(sp, s, authority, cfg.trusted)
         if cfg.clamp is not None:
             incoming = track_command(clamp_command(incoming, cfg.clamp), st.last_command, s, dt, cfg.clamp)
-    elif g_setpoint is not None:
-        incoming = setpoint_to_command(g_setpoint, s, _TRUSTED, cfg.trusted)
-    else:  # unreachable in practice: EXPERIMENTAL without a valid setpoint is revoked this tick
-        incoming = Command(_CMD_VELOCITY, _TRUSTED, yaw_rad=s.att_rpy_rad[2])
-    blend = st.blend
-    if incoming.kind in (_CMD_IDLE, _CMD_TERMINATE):
-        blend, command = None, incoming
-    elif flies_trusted and incoming.kind is _CMD_VELOCITY:
-        # Merlin's own command is bumpless by construction: each behaviour starts from the vehicle's
-        # measured velocity and moves at most at the braking deceleration the fence projection assumes
-        # (guidance.step). Blending it with the revoked source's last command would keep flying that
-        # command for the blend window (a 30 m/s step kept ~35 deg of tilt for seconds after a revocation:
-        # adv_velocity_step_30mps_100m), so after a safety revocation Merlin brakes from the first tick.
-        blend, command = None, incoming
-    else:
-        if source != st.last_source or (st.last_command is not None and st.last_command.kind is not incoming.kind):
-            # (on the ground the collective a transfer starts from is none: a controller granted there, which
-            # flies its own take-off, starts from motors at rest, not from a hover thrust that nearly lifts off)
-            blend = Blend(now, blend_start(st.last_command, incoming, s, 0.0 if s.landed else cfg.trusted.hover_thrust))
-            last = blend.start
-        else:
-            last = st.last_command if st.last_command is not None else incoming
-        if blend is None:  # no transition: what shape() returns first thing, without the call
-            command = incoming
-        else:
-            blend, command = shape(blend, last, incoming, now, dt, cfg.handover)
+        return op_mem, incoming
+    if trusted_sp is not None:
+        return op_mem, setpoint_to_command(trusted_sp, s, _TRUSTED, cfg.trusted)
+    # unreachable in practice: EXPERIMENTAL without a valid setpoint is revoked this tick
+    return op_mem, Command(_CMD_VELOCITY, _TRUSTED, yaw_rad=s.att_rpy_rad[2])
 
-    # -- monitor statuses and their edges (reported only where the table gives them a consequence)
+
+def _operator_memory(st: CoreState, s: VehicleState, fenced: bool) -> OperatorMemory:
+    """The operator's memory at a takeover. A takeover during a fence trip (its override grace) fences the pilot
+    for the rest of the session, and the fenced pilot's stick ramps on from the command Merlin was braking with,
+    not from the measured velocity: that lags the braking command, and restarting from it undid the braking the
+    fence counted on (scenario adv_pilot_regrab_keepout)."""
+    last = st.last_command
+    ramp_from = (last.vel_ned_mps if fenced and last is not None and last.kind is _CMD_VELOCITY
+                 and math.isfinite(last.vel_ned_mps[0] + last.vel_ned_mps[1] + last.vel_ned_mps[2]) else None)
+    return OperatorMemory(s.att_rpy_rad[2], None, ramp_from, fenced)
+
+
+def _bumpless(cfg: CoreConfig, st: CoreState, source: tuple[Authority, Behavior], flies_trusted: bool,
+              now: float, dt: float, s: VehicleState, incoming: Command) -> tuple[Blend | None, Command]:
+    """Command shaping: a change of source blends from the last actuated command (see merlin.core.shaping)."""
+    if incoming.kind is _CMD_IDLE or incoming.kind is _CMD_TERMINATE:
+        return None, incoming
+    if flies_trusted and incoming.kind is _CMD_VELOCITY:
+        # Merlin's own command is bumpless by construction: each behaviour starts from the vehicle's
+        # measured velocity and moves at most at the braking deceleration the fence projection assumes.
+        # Blending it with the revoked source's last command would keep flying that command for the blend
+        # window (scenario adv_velocity_step_30mps_100m), so after a safety revocation Merlin brakes from the
+        # first tick.
+        return None, incoming
+    blend = st.blend
+    last_cmd = st.last_command
+    if source != st.last_source or (last_cmd is not None and last_cmd.kind is not incoming.kind):
+        # (on the ground the collective a transfer starts from is none: a controller granted there, which flies
+        # its own take-off, starts from motors at rest, not from a hover thrust that nearly lifts off)
+        blend = Blend(now, blend_start(last_cmd, incoming, s, 0.0 if s.landed else cfg.trusted.hover_thrust))
+        last = blend.start
+    else:
+        last = last_cmd if last_cmd is not None else incoming
+    if blend is None:  # no transition: what shape() returns first thing, without the call
+        return None, incoming
+    return shape(blend, last, incoming, now, dt, cfg.handover)
+
+
+def _statuses(cfg: CoreConfig, st: CoreState, now: float, authority: Authority, report: MonitorReport,
+              events: list[Event]) -> tuple[tuple[MonitorStatus, ...], frozenset[MonitorId]]:
+    """Every row's status, and the edges of the monitors the table gives a consequence under ``authority``
+    (reported when tripped, again when cleared)."""
+    tripped, was_reported, violating = report.tripped, st.reported, report.env.violating
+    if not tripped and not was_reported and not violating and not report.shadow_tripped:
+        return st.clear_statuses, _NO_MONITORS  # a quiet tick: every row clear, nothing to report
     statuses: list[MonitorStatus] = []
-    reported: set[str] = set()
-    was_reported = st.reported
-    quiet = not tripped and not was_reported and not env.violating and not shadow_tripped
-    for row, clear in () if quiet else zip(cfg.rules, st.clear_statuses, strict=True):
+    reported: set[MonitorId] = set()
+    for row, clear in zip(cfg.rules, st.clear_statuses, strict=True):
         name = row.monitor
         reason = tripped.get(name)
-        if reason is None and name not in was_reported and name != "envelope":
+        if reason is None and name not in was_reported and name is not _M_ENVELOPE:
             statuses.append(clear)  # clear, and not reported before: what the steps below give, cheaply
             continue
-        detail = env.violating if name == "envelope" else ()
-        statuses.append(_status(clear, reason, detail))
-        relevant = reason is not None and arbiter.column(row, authority) is not _NO_ACTION
-        if relevant:
+        statuses.append(_status(clear, reason, violating if name is _M_ENVELOPE else ()))
+        if reason is not None and arbiter.column(row, authority) is not _NO_ACTION:
             reported.add(name)
-            if name not in st.reported:
-                assert reason is not None
+            if name not in was_reported:
                 events.append(Event(now, EventKind.MONITOR_TRIPPED, reason=reason))
-        elif name in st.reported and reason is None:
+        elif name in was_reported and reason is None:
             events.append(Event(now, EventKind.MONITOR_CLEARED, reason=Reason(ReasonCode.NONE, name)))
-        elif name in st.reported:
+        elif name in was_reported:
             reported.add(name)
-    for name, reason in shadow_tripped.items():
-        if name in ("envelope", "geofence"):
+    for name, reason in report.shadow_tripped.items():
+        if name is _M_ENVELOPE or name is _M_GEOFENCE:
             statuses.append(MonitorStatus(f"shadow_{name}", True, reason))
+    return tuple(statuses), frozenset(reported) if reported else _NO_MONITORS
 
-    # positional, in field order (every tick: keywords cost twice as much); the names are CoreState's
+
+# -------------------------------------------------------------------------------------------------- step
+
+
+def _start(cfg: CoreConfig, st: CoreState, now: float) -> tuple[float, float, CoreState]:
+    """The tick's time (a non-finite one is the previous tick's), its interval, and the state fitted to the
+    configuration (a new configuration with other tables starts its timers afresh)."""
+    if not isinstance(now, (int, float)) or not math.isfinite(now):
+        now = st.t_s if st.t_s is not None else 0.0
+    dt = 0.0 if st.t_s is None else max(0.0, now - st.t_s)
+    if (len(st.env_since) != len(cfg.envelope) or len(st.clear_statuses) != len(cfg.rules)
+            or len(st.env_budget) != len(cfg.envelope)):
+        st = initial_state(cfg)._replace(arbiter=st.arbiter, t_s=st.t_s, completed=st.completed)
+    return now, dt, st
+
+
+def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[CoreState, Decision]:
+    """Advance the trusted core by one tick: the stages of the module docstring, each called once."""
+    now, dt, st = _start(cfg, st, now)
+    checked = _validate(st, inputs)
+    report = monitor(cfg, st, now, dt, inputs, checked)
+    arb, arb_events = arbiter.update(st.arbiter, _tick_view(cfg, st, now, inputs, checked, report), cfg)
+    authority, behavior = arb.authority, arb.behavior
+    events: list[Event] = []
+    trusted = _fly_trusted(cfg, st, arb, behavior, now, dt, checked.s, events)
+    if behavior is not (st.last_source[1] if st.last_source is not None else _IDLE):
+        events.append(Event(now, EventKind.BEHAVIOR, behavior=behavior))
+    source = (authority, behavior)
+    op_mem, incoming = _incoming(cfg, st, arb, source, dt, inputs.operator, checked, report.floor_reached,
+                                 trusted.setpoint)
+    flies_trusted = (authority is _TRUSTED or authority is _SHADOW) and arb.armed
+    blend, command = _bumpless(cfg, st, source, flies_trusted, now, dt, checked.s, incoming)
+    statuses, reported = _statuses(cfg, st, now, authority, report, events)
+    # positional, in field order (built every tick); the names are CoreState's
     new_state = CoreState(
         now,  # t_s
         arb,  # arbiter
-        env.since,  # env_since
-        shadow_since,  # shadow_env_since
-        hb_since,  # hb_alive_since_s
-        frozenset(reported) if reported else _NO_MONITORS,  # reported
-        g,  # guidance
+        report.env.since,  # env_since
+        report.shadow_env_since,  # shadow_env_since
+        report.hb_alive_since_s,  # hb_alive_since_s
+        reported,  # reported
+        trusted.memory,  # guidance
         op_mem,  # operator
         blend,  # blend
         command,  # last_command
         source,  # last_source
-        s,  # last_valid_state
+        checked.s,  # last_valid_state
         st.clear_statuses,  # clear_statuses
-        sp,  # checked_setpoint
-        sp_bad,  # checked_setpoint_bad
-        "nav_inertial_timeout" in tripped if state_bad is None else st.inertial_land_due,  # inertial_land_due
-        mission_index,  # mission_index
-        env.budget,  # env_budget
-        budget_auth,  # env_budget_authority
-        floor_reached,  # floor_reached
-        ground_takeoff,  # ground_takeoff_since_s
+        checked.setpoint,  # checked_setpoint
+        checked.setpoint_bad,  # checked_setpoint_bad
+        # inertial_land_due: stays due while navigation stays inertial-only (an invalid state changes nothing)
+        _M_NAV_INERTIAL_TIMEOUT in report.tripped if checked.state_bad is None else st.inertial_land_due,
+        trusted.mission_index,  # mission_index
+        report.env.budget,  # env_budget
+        report.budget_authority,  # env_budget_authority
+        report.floor_reached,  # floor_reached
+        report.ground_takeoff_since_s,  # ground_takeoff_since_s
+        trusted.completed,  # completed
     )
-    all_events = (*arb_events, *events)
-    # positional, as CoreState above; the names are Decision's
-    decision = Decision(
-        now,  # t_s
-        authority,  # authority
-        behavior,  # behavior
-        command,  # command
-        st.clear_statuses if quiet else tuple(statuses),  # monitors
-        all_events,  # events
-        arb.armed,  # armed
-        arb.pending.seq if arb.pending is not None else 0,  # pending_grant_seq
-        arb.revocations,  # revocations
-    )
+    decision = Decision(now, authority, behavior, command, statuses, (*arb_events, *events), arb.armed,
+                        arb.pending.seq if arb.pending is not None else 0, arb.revocations)
     return new_state, decision
 
 

@@ -20,7 +20,7 @@ same objects, so every comparison gives what it gave; about 2.5 µs of a closed-
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import Enum, IntEnum
+from enum import Enum, IntEnum, StrEnum
 from typing import NamedTuple
 
 Vec3 = tuple[float, float, float]
@@ -66,6 +66,27 @@ ACTION_BEHAVIOR: dict[Action, Behavior] = {
     Action.LAND: Behavior.LAND,
     Action.TERMINATE: Behavior.TERMINATE,
 }
+
+
+class MonitorId(StrEnum):
+    """The monitors the arbiter's table has a row for, in the table's order (the order carries no precedence:
+    the actions do). The values are the names configuration files and logs use (``arbiter.rules.geofence``,
+    the log column ``mon_geofence``); a member compares and hashes equal to its value."""
+
+    STATE_INVALID = "state_invalid"
+    ENVELOPE = "envelope"
+    GEOFENCE = "geofence"
+    CONTROLLER_HEARTBEAT = "controller_heartbeat"
+    SETPOINT_STALE = "setpoint_stale"
+    SETPOINT_INVALID = "setpoint_invalid"
+    RC_LINK = "rc_link"
+    GCS_LINK = "gcs_link"
+    NAV_GPS_LOST = "nav_gps_lost"
+    NAV_INERTIAL_TIMEOUT = "nav_inertial_timeout"
+    NAV_LOST = "nav_lost"
+    BATTERY_LOW = "battery_low"
+    BATTERY_CRITICAL = "battery_critical"
+    NAV_REDUNDANCY = "nav_redundancy"
 
 
 class NavMode(IntEnum):
@@ -154,7 +175,7 @@ class Reason:
     """Why something happened: the monitor, the parameter, the measured value, its limit and for how long."""
 
     code: ReasonCode
-    monitor: str = ""
+    monitor: str = ""  # a MonitorId, or the stage that decided ("arbiter", "handover", "route", "nav")
     parameter: str = ""
     value: float = 0.0
     limit: float = 0.0

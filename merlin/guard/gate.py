@@ -27,7 +27,9 @@ sections 6 and 13, "what PX4 does and what Merlin does"), applied to a real auto
   vehicle goes). Anything that rewrites the autopilot (parameters, missions and fences, home, FTP,
   reboot) is DENIED: the experimental controller never rewrites what keeps the vehicle safe, including
   the failsafe parameters the guard checked at start-up.
-- Telemetry requests pass, except those that would slow or stop a message the guard itself needs.
+- Telemetry requests pass, except those that would slow or stop a message the guard itself needs: a
+  slower interval is answered ACCEPTED by the guard (the message already streams at least that often) and
+  not forwarded; switching it off is DENIED.
 """
 
 from __future__ import annotations
@@ -60,6 +62,7 @@ class Route(Enum):
     DENY = "deny"  # not forwarded; a command is answered COMMAND_ACK DENIED; a STATUSTEXT says why
     REQUEST = "request"  # an authority request: held until the core decides
     RELEASE = "release"  # the controller gives authority back, then the frame goes to the autopilot
+    ACCEPT = "accept"  # answered COMMAND_ACK ACCEPTED by the guard, not forwarded (see SET_MESSAGE_INTERVAL)
 
 
 @dataclass(frozen=True, slots=True)
@@ -131,9 +134,13 @@ def _command(c: w.CommandIn, ctx: GateContext) -> Verdict:
     if cmd == w.MAV_CMD_SET_MESSAGE_INTERVAL:
         needed = ctx.guard_intervals_us.get(int(c.params[0]))
         asked = c.params[1]
-        if needed is not None and (asked <= 0 or asked > needed):
-            return Verdict(Route.DENY, f"SET_MESSAGE_INTERVAL {w.message_name(int(c.params[0]))} {asked:g} us: the "
-                                       f"guard needs it every {needed:g} us or faster")
+        name = w.message_name(int(c.params[0]))
+        if needed is not None and asked < 0:
+            return Verdict(Route.DENY, f"SET_MESSAGE_INTERVAL {name} off: the guard needs it every {needed:g} us")
+        if needed is not None and (asked == 0 or asked > needed):
+            # slower than the guard keeps it (MAVSDK's telemetry plugin asks 1 Hz for several): the stream
+            # already runs at least that often, so the request is met without slowing the guard's
+            return Verdict(Route.ACCEPT, f"SET_MESSAGE_INTERVAL {name} {asked:g} us: already every {needed:g} us")
     return FORWARD
 
 

@@ -17,15 +17,18 @@ Start-up (:meth:`Guard.start`), before anything from the controller reaches the 
 Authority follows the ICD's standard flow for controllers that do not speak Merlin's dialect: the
 controller's request for the dialect's offboard mode (PX4 OFFBOARD, ArduPilot GUIDED) is the REQUEST; the
 guard holds the mode command until the core decides; on a grant the guard acknowledges the grant for the
-controller (the mode command itself is the controller's intent, and its setpoints already stream) and
+controller (the mode command itself is the controller's intent, and its setpoints already stream), and
+once the core has handed authority over (its check of the first setpoint against the vehicle passed) it
 forwards the command, so the autopilot's own COMMAND_ACK answers the controller; on a denial the guard
 answers COMMAND_ACK DENIED and a STATUSTEXT with the reason. On a revocation the guard stops passing the
 controller's setpoints and streams the trusted command instead; the controller sees the autopilot's
 HEARTBEAT with the mode of Merlin's behaviour (PX4 AUTO.LOITER/AUTO.RTL/AUTO.LAND, Copter BRAKE/RTL/LAND)
 in place of OFFBOARD/GUIDED, so standard tools see the revocation as the mode change they know.
 
-Logs in ``out_dir``: ``guard.tlog`` (every frame in and out on every link, pymavlink's tlog format) and
-``events.jsonl`` (the core's events and the guard's own: start, refusals, denials, stop).
+Logs in ``out_dir`` (pymavlink's tlog format): ``guard.tlog``, every frame received on every link once
+and every frame the guard originates (forwarded copies are not repeated); ``autopilot.tlog``, the
+autopilot's frames alone, which ``merlin replay`` reads as a flight log; ``events.jsonl``, the core's
+events and the guard's own (start check, requests, denials, revocations, braking, stop).
 """
 
 from __future__ import annotations
@@ -54,6 +57,7 @@ from merlin.core.types import (
     GcsCommand,
     GcsCommandKind,
     Inputs,
+    MonitorId,
     NavMode,
     OperatorInput,
     RequestKind,
@@ -61,6 +65,7 @@ from merlin.core.types import (
     SetpointKind,
 )
 from merlin.geodesy import LocalFrame
+from merlin.guard import inputs_log
 from merlin.guard import wire as w
 from merlin.guard.config import GuardConfig
 from merlin.guard.dialects import Autopilot, Dialect, ModeTable, detect, mode_table
@@ -74,9 +79,22 @@ from merlin.link.frames import Frame
 from merlin.link.tlog import TlogWriter
 
 log = logging.getLogger("merlin.guard")
+EFFECTIVE_CONFIG = "effective_config.yaml"
+
+
+def write_effective_config(out_dir: Path, cfg: MerlinConfig, gcfg: GuardConfig) -> None:
+    """What the session ran with, beside its logs: the Merlin configuration and the guard: section."""
+    import yaml
+
+    data = cfg.model_dump(mode="json")
+    data["guard"] = gcfg.model_dump(mode="json")
+    (out_dir / EFFECTIVE_CONFIG).write_text(yaml.safe_dump(data, sort_keys=False))
 HEARTBEAT_PERIOD_S = 1.0
 STATUSTEXT_REPEAT_S = 1.0
-SWITCH_TIMEOUT_S = 2.0  # after a grant, the autopilot must show its offboard mode within this  # one STATUSTEXT per denial reason per second at most
+SWITCH_TIMEOUT_S = 2.0
+HOLD_MARGIN_S = 0.05  # a held request reaches the core this long after the liveness rule is met (one tick+)
+IN_PROGRESS_INTERVAL_S = 0.5  # as merlin serve: MAVSDK waits 1.5 s after each IN_PROGRESS
+MAV_RESULT_IN_PROGRESS = 5  # after a grant, the autopilot must show its offboard mode within this  # one STATUSTEXT per denial reason per second at most
 
 
 class GuardRefused(RuntimeError):
@@ -115,6 +133,9 @@ class _Held:
     command: int | None  # the MAV_CMD to answer (None: SET_MODE, which has no COMMAND_ACK)
     sender: tuple[int, int]
     t_s: float
+    # held by the guard (IN_PROGRESS sent) until the controller's liveness is established; None: with the core
+    release_t: float | None = None
+    next_progress_t: float = 0.0
 
 
 class Guard:
@@ -141,6 +162,7 @@ class Guard:
         self._reader: ParamReader | None = None
         self.decision: Decision | None = None
         self.hb_t: float | None = None
+        self.alive_since: float | None = None  # start of the controller's current unbroken liveness
         self.sp: Setpoint | None = None
         self.sp_t: float | None = None
         self.gcs_t: float | None = None
@@ -162,11 +184,18 @@ class Guard:
         self._stop = False
         self.out_dir = out_dir
         self.tlog: TlogWriter | None = None
+        self.ap_tlog: TlogWriter | None = None
         self._events_fd: int | None = None
+        self._inputs_fd: int | None = None
         if out_dir is not None:
             out_dir.mkdir(parents=True, exist_ok=True)
             self.tlog = TlogWriter(out_dir / "guard.tlog", fsync_interval_s=None)
+            # the autopilot's own frames alone: the vehicle's telemetry as merlin replay reads a .tlog
+            self.ap_tlog = TlogWriter(out_dir / "autopilot.tlog", fsync_interval_s=None)
             self._events_fd = os.open(out_dir / "events.jsonl", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+            # the core's inputs, a line per tick: the session's decisions re-run exactly (inputs_log)
+            self._inputs_fd = os.open(out_dir / "core_inputs.jsonl", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+            write_effective_config(out_dir, cfg, gcfg)
         self.on_forward: Callable[[str, Frame], None] | None = None  # benchmark hook: a frame forwarded
 
     # ------------------------------------------------------------------------------------------ basics
@@ -178,12 +207,14 @@ class Guard:
         if self._events_fd is not None:
             os.write(self._events_fd, (json.dumps(record, default=str) + "\n").encode())
 
-    def _send(self, link: _Link | None, raw: bytes) -> None:
+    def _send(self, link: _Link | None, raw: bytes, originated: bool = True) -> None:
+        """Write ``raw`` to ``link``; the tlog records what the guard originates (a forwarded frame is in it
+        once already, from its arrival)."""
         if link is None:
             return
         link.transport.write(raw)
         link.frames_out += 1
-        if self.tlog is not None:
+        if originated and self.tlog is not None:
             self.tlog.write(raw, time.time())
 
     @property
@@ -199,8 +230,11 @@ class Guard:
                 link.transport.remote = addr  # answer whoever sent valid MAVLink (udpin)
             for fr in frames:
                 link.frames_in += 1
+                now_unix = time.time()
                 if self.tlog is not None:
-                    self.tlog.write(fr.raw, time.time())
+                    self.tlog.write(fr.raw, now_unix)
+                if link is self.ap_link and self.ap_tlog is not None:
+                    self.ap_tlog.write(fr.raw, now_unix)
             out.extend(frames)
         return out
 
@@ -257,17 +291,19 @@ class Guard:
                 self.telemetry.on(t, rec)
                 raw = fr.raw
                 if self.gcs_link is not None:
-                    self._send(self.gcs_link, raw)
-                self._send(self.ctl_link, self._heartbeat_for_controller(rec, raw))
+                    self._send(self.gcs_link, raw, originated=False)
+                shown = self._heartbeat_for_controller(rec, raw)
+                self._send(self.ctl_link, shown, originated=shown is not raw)
                 return
         elif isinstance(rec, w.ParamValue):
-            if self._reader is not None:
-                self._reader.on_value(rec.param_id, rec.value)
+            if self._reader is not None and self.autopilot is not None:
+                bytewise = self.autopilot.dialect is Dialect.PX4
+                self._reader.on_value(rec.param_id, w.param_number(rec, bytewise))
         elif rec is not None and fr.system_id == self.target[0]:
             self.telemetry.on(t, rec)
-        self._send(self.ctl_link, fr.raw)
+        self._send(self.ctl_link, fr.raw, originated=False)
         if self.gcs_link is not None:
-            self._send(self.gcs_link, fr.raw)
+            self._send(self.gcs_link, fr.raw, originated=False)
 
     def _heartbeat_for_controller(self, hb: w.Heartbeat, raw: bytes) -> bytes:
         d, m = self.decision, self.modes
@@ -285,7 +321,7 @@ class Guard:
         if state.nav_mode is NavMode.LOST:
             refusal = "navigation: " + "; ".join(self.telemetry.faults(self.t()))
         elif d is not None:
-            fence = next((m for m in d.monitors if m.name == "geofence" and m.tripped), None)
+            fence = next((m for m in d.monitors if m.name == MonitorId.GEOFENCE and m.tripped), None)
             if fence is not None:
                 refusal = f"outside the fence ({fence.reason.describe()})"
         assert self.modes is not None
@@ -301,11 +337,12 @@ class Guard:
         if self.modes is None:
             return  # nothing reaches an autopilot the guard has not recognised and checked
         rec = self.decoder.typed(fr) if fr.msg_id in w.TYPED_IDS else None
-        if fr.msg_id == w.HEARTBEAT:
+        if fr.msg_id == w.HEARTBEAT or fr.msg_id in w.SETPOINT_IDS:
+            # a setpoint stream is the controller's liveness too, as PX4's offboard loss timeout counts it
+            if self.hb_t is None or t - self.hb_t > self.cfg.watchdogs.controller_heartbeat.timeout_s:
+                self.alive_since = t
             self.hb_t = t
-        elif fr.msg_id in w.SETPOINT_IDS:
-            # a setpoint stream is the controller's liveness, as PX4's offboard loss timeout counts it
-            self.hb_t = t
+        if fr.msg_id in w.SETPOINT_IDS:
             self.sp_t = t
             self.sp = _core_setpoint(rec)
         v = classify(fr.msg_id, rec, self._gate_context())
@@ -316,17 +353,66 @@ class Guard:
         elif v.route is Route.DENY:
             self._deny(fr, rec, v.reason, t)
         elif v.route is Route.REQUEST:
-            cmd = rec.command if isinstance(rec, w.CommandIn) else None
-            self.held = _Held(fr.raw, cmd, (fr.system_id, fr.component_id), t)
-            self.requests.append(AuthorityRequest(RequestKind.REQUEST, t_s=t))
-            self.event({"t": t, "type": "guard_request", "detail": v.reason})
+            self._on_request(fr, rec, v.reason, t)
+        elif v.route is Route.ACCEPT:
+            if isinstance(rec, w.CommandIn):
+                self._send(self.ctl_link, w.Encoder(*self.target).command_ack(
+                    (fr.system_id, fr.component_id), rec.command, w.MAV_RESULT_ACCEPTED))
+            self.counts[f"answered: {v.reason}"] += 1
         elif v.route is Route.RELEASE:
             self.requests.append(AuthorityRequest(RequestKind.RELEASE, t_s=t))
             self.event({"t": t, "type": "guard_release", "detail": v.reason})
             self._forward_to_autopilot(fr)
 
+    def _on_request(self, fr: Frame, rec: object | None, reason: str, t: float) -> None:
+        """A standard request, as ``merlin serve`` takes it (ICD section 6): one PX4 would accept (setpoints
+        streaming) is never denied for Merlin's own timing. While the controller's liveness is younger than
+        ``handover.heartbeat_alive_min_s`` the guard holds it, answering COMMAND_ACK IN_PROGRESS (and again
+        every 0.5 s, and to each retransmission), and passes it to the core once the rule can be met."""
+        cmd = rec.command if isinstance(rec, w.CommandIn) else None
+        sender = (fr.system_id, fr.component_id)
+        h = self.held
+        if h is not None and h.sender == sender and h.command == cmd:
+            self._in_progress(h, t)  # a retransmission (MAVSDK resends after 0.5 s): the same request
+            return
+        alive = 0.0 if self.alive_since is None else t - self.alive_since
+        need = self.cfg.handover.heartbeat_alive_min_s + HOLD_MARGIN_S
+        streaming = self.sp_t is not None and t - self.sp_t <= self.cfg.links.offboard_loss_timeout_s
+        self.held = _Held(fr.raw, cmd, sender, t)
+        if streaming and alive < need and self.alive_since is not None:
+            self.held.release_t = self.alive_since + need
+            self._in_progress(self.held, t)
+            self.event({"t": t, "type": "guard_request_held", "detail": f"{reason}: controller alive {alive:.2f} s"
+                        f" of handover.heartbeat_alive_min_s {self.cfg.handover.heartbeat_alive_min_s:g}"})
+            return
+        self.requests.append(AuthorityRequest(RequestKind.REQUEST, t_s=t))
+        self.event({"t": t, "type": "guard_request", "detail": reason})
+
+    def _in_progress(self, h: _Held, t: float) -> None:
+        if h.command is not None:
+            self._send(self.ctl_link, w.Encoder(*self.target).command_ack(h.sender, h.command, MAV_RESULT_IN_PROGRESS))
+        h.next_progress_t = t + IN_PROGRESS_INTERVAL_S
+
+    def _advance_held(self, t: float) -> None:
+        h = self.held
+        if h is None or h.release_t is None:
+            return
+        if self.hb_t is None or t - self.hb_t > self.cfg.links.offboard_loss_timeout_s:
+            # the controller went silent while its request was held: PX4 would refuse OFFBOARD now
+            if h.command is not None:
+                self._send(self.ctl_link, w.Encoder(*self.target).command_ack(h.sender, h.command, w.MAV_RESULT_DENIED))
+            self.event({"t": t, "type": "guard_request_dropped", "detail": "the controller went silent"})
+            self.held = None
+            return
+        if t >= h.release_t:
+            h.release_t = None
+            self.requests.append(AuthorityRequest(RequestKind.REQUEST, t_s=t))
+            self.event({"t": t, "type": "guard_request", "detail": "held request passed to the core"})
+        elif t >= h.next_progress_t:
+            self._in_progress(h, t)
+
     def _forward_to_autopilot(self, fr: Frame) -> None:
-        self._send(self.ap_link, fr.raw)
+        self._send(self.ap_link, fr.raw, originated=False)
         if self.on_forward is not None:
             self.on_forward("controller", fr)
 
@@ -343,7 +429,7 @@ class Guard:
     def _on_gcs(self, fr: Frame, t: float) -> None:
         if fr.msg_id == w.HEARTBEAT:
             self.gcs_t = t
-        self._send(self.ap_link, fr.raw)  # the operator's link is trusted: everything passes
+        self._send(self.ap_link, fr.raw, originated=False)  # the operator's link is trusted: everything passes
 
     # ---------------------------------------------------------------------------------------- tick
 
@@ -359,11 +445,14 @@ class Guard:
         state = self.telemetry.vehicle_state(t)
         self._arm_sync(state.armed)
         m = self.modes
-        in_offboard = m is not None and self.ap_mode is not None and m.is_offboard(self.ap_mode)
-        d0 = self.decision
-        if in_offboard:
-            self.switch_deadline = None
+        # the autopilot's HEARTBEAT comes at 1 Hz: while a mode command the guard forwarded is on its way, the
+        # vehicle is taken to be in the offboard mode already, so that trusted setpoints stream from the first
+        # tick Merlin needs them (PX4 leaves OFFBOARD after COM_OF_LOSS_T without them)
         switching = self.switch_deadline is not None and t < self.switch_deadline
+        in_offboard = m is not None and ((self.ap_mode is not None and m.is_offboard(self.ap_mode)) or switching)
+        d0 = self.decision
+        if m is not None and self.ap_mode is not None and m.is_offboard(self.ap_mode):
+            self.switch_deadline = None
         if self.supervising and not in_offboard and self.fallback_sent_t is None and not switching:
             # someone else (the ground station, the RC switch, the autopilot's own failsafe) took the vehicle
             # out of the offboard mode: the guard stops flying it, and the controller loses authority
@@ -371,6 +460,7 @@ class Guard:
             if d0 is not None and d0.authority is Authority.EXPERIMENTAL:
                 self.requests.append(AuthorityRequest(RequestKind.RELEASE, t_s=t))
             self.event({"t": t, "type": "guard_standby", "detail": f"autopilot in {m.name(self.ap_mode or 0) if m else '?'}"})
+        self._advance_held(t)
         inputs = Inputs(
             state=state,
             experimental=ExperimentalInput(self.hb_t, self.sp, self.sp_t, tuple(self.requests)),
@@ -380,6 +470,8 @@ class Guard:
         )
         self.requests.clear()
         self.commands.clear()
+        if self._inputs_fd is not None:
+            os.write(self._inputs_fd, inputs_log.encode(t, inputs).encode())
         d = self.core.step(t, inputs)
         self.decision = d
         for e in d.events:
@@ -410,12 +502,16 @@ class Guard:
         if kind is EventKind.GRANTED:
             # the standard flow has no ACK message: the controller's mode command is its acknowledgement
             self.requests.append(AuthorityRequest(RequestKind.ACK, seq=e.seq, t_s=t))
+        elif kind is EventKind.AUTHORITY and e.to is Authority.EXPERIMENTAL:
+            # the transfer is done (the core checked the first setpoint against the vehicle): only now does the
+            # autopilot get the mode command, so it never flies the controller's setpoints before the core
+            # has handed over
             self.supervising = True
             self.switch_deadline = t + SWITCH_TIMEOUT_S
             self.trusted_since = None
             self.fallback_sent_t = None
             if self.held is not None:
-                self._send(self.ap_link, self.held.raw)
+                self._send(self.ap_link, self.held.raw, originated=False)
                 self.held = None
         elif kind is EventKind.DENIED and self.held is not None:
             reason = e.reason.describe()
@@ -432,7 +528,9 @@ class Guard:
 
     def _fly_trusted(self, d: Decision, t: float) -> None:
         assert self.modes is not None
-        since = self.trusted_since if self.trusted_since is not None else t
+        if self.trusted_since is None:
+            self.trusted_since = t
+        since = self.trusted_since
         out: TrustedOutput = trusted_output(d, self.modes, self.gcfg, t - since, self.telemetry._last_state)
         if out.mode is not None:
             if self.ap_mode == out.mode:
@@ -461,7 +559,8 @@ class Guard:
             except (OSError, ValueError):
                 ready = list(fds)
                 time.sleep(min(remaining, 0.001))
-            for fd in ready:
+            # the controller's frames first: a setpoint waiting behind a burst of telemetry is added latency
+            for fd in sorted(ready, key=lambda f: fds[f] is not self.ctl_link):
                 link = fds[fd]
                 for fr in self._read(link, 0.0):
                     now = self.t()
@@ -493,11 +592,13 @@ class Guard:
         self.event({"t": self.t(), "type": "guard_stopped", "counts": dict(self.counts)})
         for link in self.links:
             link.transport.close()
-        if self.tlog is not None:
-            self.tlog.close()
-        if self._events_fd is not None:
-            os.close(self._events_fd)
-            self._events_fd = None
+        for tl in (self.tlog, self.ap_tlog):
+            if tl is not None:
+                tl.close()
+        for fd in (self._events_fd, self._inputs_fd):
+            if fd is not None:
+                os.close(fd)
+        self._events_fd = self._inputs_fd = None
 
 
 def _core_setpoint(rec: object | None) -> Setpoint:

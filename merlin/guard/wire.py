@@ -17,6 +17,7 @@ with frames it cannot validate.
 from __future__ import annotations
 
 import math
+import struct
 from collections import Counter
 from dataclasses import dataclass
 from functools import cache
@@ -188,7 +189,23 @@ class ExtendedSysState:
 @dataclass(frozen=True, slots=True)
 class ParamValue:
     param_id: str
-    value: float
+    value: float  # param_value as it travelled (see :func:`param_number`)
+    param_type: int  # MAV_PARAM_TYPE
+
+
+# MAV_PARAM_TYPE (common.xml) of the integer types, and their layout in param_value's four bytes
+_INT_LAYOUT = {1: "<B", 2: "<b", 3: "<H", 4: "<h", 5: "<I", 6: "<i"}
+
+
+def param_number(p: ParamValue, bytewise: bool) -> float:
+    """The parameter's value. PX4 carries integer parameters *bytewise* in the float field
+    (MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE: the int's bytes read as a float; COM_OBL_RC_ACT 5 arrives
+    as 7.0e-45); ArduPilot casts them (PARAM_ENCODE_C_CAST: 5 arrives as 5.0). MAVLink parameter protocol."""
+    fmt = _INT_LAYOUT.get(p.param_type)
+    if not bytewise or fmt is None:
+        return p.value
+    raw = struct.pack("<f", p.value)
+    return float(struct.unpack_from(fmt, raw)[0])
 
 
 @dataclass(frozen=True, slots=True)
@@ -270,7 +287,7 @@ def _typed_param(m: Any) -> ParamValue:
     pid = m.param_id
     if isinstance(pid, bytes):
         pid = pid.decode("ascii", "replace")
-    return ParamValue(str(pid).rstrip("\x00"), _f(m.param_value))
+    return ParamValue(str(pid).rstrip("\x00"), float(m.param_value), int(m.param_type))
 
 
 def _typed_command_long(m: Any) -> CommandIn:
@@ -324,7 +341,7 @@ class Decoder:
             return None
         try:
             m = self._mav.decode(bytearray(fr.raw))
-            return conv(m)
+            return conv(m)  # type: ignore[no-untyped-call]
         except Exception as exc:  # a frame with a good CRC but a bad payload: never crash the router
             self.errors[type(exc).__name__] += 1
             return None
@@ -384,4 +401,5 @@ def message_name(msg_id: int) -> str:
 
 def dialect_module() -> ModuleType:
     """The generated ardupilotmega bindings (tests compare the mode tables against their enums)."""
-    return ardupilotmega
+    module: ModuleType = ardupilotmega
+    return module

@@ -180,12 +180,13 @@ def _guided(cmd: i.CommandIn, role: LinkRole, t_s: float, frame: LocalFrame | No
     """MAVSDK Action's goto_location (DO_REPOSITION), do_orbit (DO_ORBIT) and set_current_speed
     (DO_CHANGE_SPEED), as the trusted autopilot's GOTO, ORBIT and SPEED; positions as PX4 reads them
     (latitude/longitude, altitude above mean sea level, in any global frame of COMMAND_INT or in
-    COMMAND_LONG), NaN for "where the vehicle is"."""
+    COMMAND_LONG), NaN for "where the vehicle is". A fixed wing flies GOTO and ORBIT as loiter circles
+    (merlin.autopilot.fixedwing_mission) and refuses DO_CHANGE_SPEED."""
     p, c = cmd.params, cmd.command
     name = {MAV_CMD_DO_REPOSITION: "DO_REPOSITION", MAV_CMD_DO_ORBIT: "DO_ORBIT"}.get(c, "DO_CHANGE_SPEED")
-    if fixed_wing:
-        return (Refused(MAV_RESULT_UNSUPPORTED, f"{name} is not flown by the fixed wing's trusted autopilot"),)
     if c == MAV_CMD_DO_CHANGE_SPEED:
+        if fixed_wing:  # (its trusted autopilot flies its own cruise airspeed)
+            return (Refused(MAV_RESULT_UNSUPPORTED, f"{name} is not flown by the fixed wing's trusted autopilot"),)
         if int(p[0]) not in SPEED_TYPES_HORIZONTAL or not math.isfinite(p[0]):
             return (Refused(MAV_RESULT_UNSUPPORTED, f"DO_CHANGE_SPEED speed type {p[0]:g}: only 0 (air) or 1"
                                                     " (ground) speed"),)

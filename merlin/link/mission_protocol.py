@@ -386,5 +386,6 @@ class MissionProtocol(ItemTransfer):
 __all__ = [
     "MAV_CMD_DO_CHANGE_SPEED", "MAV_CMD_NAV_LAND", "MAV_CMD_NAV_RETURN_TO_LAUNCH", "MAV_CMD_NAV_TAKEOFF",
     "MAV_CMD_NAV_WAYPOINT", "MAV_MISSION_DENIED", "MissionEnd", "MissionPlan", "MissionProtocol",
-    "MissionTransferResult", "MissionWaypoint", "check_legs_against_fence", "decode_mission", "plan_from_config",
+    "MissionTransferResult", "MissionWaypoint", "check_jump_against_fence", "check_legs_against_fence",
+    "decode_mission", "plan_from_config", "waypoint_at_or_after",
 ]

@@ -145,6 +145,11 @@ class Px4Param:
 #: 5 terminate) and the rule action each is in Merlin's table. PX4's "disabled" still warns in Merlin.
 PX4_FAILSAFE_ACTIONS: Mapping[int, str] = {0: "warn", 1: "hold", 2: "rtl", 3: "land", 5: "terminate"}
 
+#: PX4's offboard-loss actions (COM_OBL_RC_ACT: 3 Return, 4 Land, 5 Hold, 6 Terminate; commander_params.c) and
+#: Merlin's rule action for each. PX4's 0-2 (Position, Altitude, Stabilized: the RC pilot's modes) and 7
+#: (Disarm) have no Merlin equivalent and are refused on write.
+PX4_OFFBOARD_LOSS_ACTIONS: Mapping[int, str] = {3: "rtl", 4: "land", 5: "hold", 6: "terminate"}
+
 #: The PX4 parameters Merlin publishes (PX4's parameter reference gives their meaning there).
 PX4_PARAMS: tuple[Px4Param, ...] = (
     Px4Param("MIS_TAKEOFF_ALT", ("trusted", "takeoff_altitude_m"),
@@ -161,6 +166,13 @@ PX4_PARAMS: tuple[Px4Param, ...] = (
     # PX4's data-link-loss action applies to its own autopilot's flight: the rule for gcs_link under TRUSTED
     Px4Param("NAV_DLL_ACT", ("arbiter", "rules", "gcs_link", "trusted"),
              "ground-station link lost while Merlin's autopilot flies", PX4_FAILSAFE_ACTIONS),
+    # PX4's offboard-loss failsafe, which a companion-side supervisor (merlin guard) reads to check that a dead
+    # companion is caught: the loss time is links.offboard_loss_timeout_s (Merlin revokes never later than
+    # it), the action Merlin's rule for a stale setpoint stream under EXPERIMENTAL
+    Px4Param("COM_OF_LOSS_T", ("links", "offboard_loss_timeout_s"),
+             "offboard setpoint stream lost: the failsafe comes at most this long after the last setpoint, s"),
+    Px4Param("COM_OBL_RC_ACT", ("arbiter", "rules", "setpoint_stale", "experimental"),
+             "offboard setpoint stream lost: Merlin's action", PX4_OFFBOARD_LOSS_ACTIONS),
 )
 _PX4_BY_NAME = {p.name: p for p in PX4_PARAMS}
 

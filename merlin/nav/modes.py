@@ -4,7 +4,7 @@ Pure functions of the filter's health flags. The mode says which source horizont
 rests on (paper Table 1: GPS absolute; VO and inertial drift, VO with distance and time, inertial with
 time). What a mode leads to is decided by the trusted core's rule table alone (``arbiter.rules`` in
 ``merlin/config/models.py``, whose defaults are the paper's: "Additional system failsafes", GPS lost or
-spoofed -> return home on vision and IMU; the issue's rule for GPS and VO both lost: land within the
+spoofed -> return home on vision and IMU; Merlin's rule for GPS and VO both lost: land within the
 inertial time limit); :func:`configured_actions` reads it for logs and plots.
 """
 

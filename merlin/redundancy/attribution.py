@@ -313,85 +313,131 @@ class SubAlertAttribution:
         miscompare = miscompare or lp >= cfg.detect_radps
         if self._b0 is None:
             if not miscompare:
-                # the pair's own offsets (turn-on biases), followed slowly while the lanes agree
-                k = min(1.0, dt / cfg.baseline_tau_s)
-                self._pair.follow(dt, d, lp)
-                rc0 = r - self._r_base
-                self._r_base += k * rc0
-                # the prior counts as field_noise_prior_s of data: a running mean until baseline_tau_s
-                self._noise_s += dt
-                kv = max(k, min(1.0, dt / (cfg.field_noise_prior_s + self._noise_s)))
-                self._r_var += kv * ((rc0**2).mean(axis=1) - self._r_var)
-                if self._rc_prev is not None:
-                    self._r_c1 += kv * ((rc0 * self._rc_prev).mean(axis=1) - self._r_c1)
-                self._rc_prev = rc0
-                mb = bias_radps.mean(axis=0)
-                if self._mb_mean is None:
-                    self._mb_mean = mb.copy()
-                else:
-                    kb = min(1.0, dt / cfg.bias_wander_tau_s)
-                    dev = mb - self._mb_mean
-                    self._mb_mean += kb * dev
-                    self._mb_cov += kb * (np.outer(dev, dev) - self._mb_cov)
+                self._follow_agreement(dt, d, lp, r, bias_radps)
                 return _IDLE
-            self._b0 = bias_radps.copy()
-            self._t0 = t_s
-            self._d_sum[:] = 0.0
-            self._n = 0
-            self._field_num[:] = 0.0
-            self._field_den = 0.0
-            self.counter_s = 0.0
-            self.verdict = None
-            self.evidence = ""
+            self._start_episode(t_s, bias_radps)
         if decide if count is None else count:
-            self.counter_s = self.counter_s + dt if miscompare else max(0.0, self.counter_s - cfg.decay * dt)
+            self._integrate(dt, miscompare)
         if decide and self.counter_s <= 0.0 and not miscompare:
             self._b0 = None  # the episode is over: the pair agrees again
             return _IDLE
-        base = self._pair.base if self._pair.base is not None else np.zeros(3)
-        self._d_sum += d - base
-        self._n += 1
-        dmean = self._d_sum / self._n
-        dd = float(dmean @ dmean)
-        bias_shares = (0.0, 0.0)
-        field_shares = (0.0, 0.0)
-        field_sigma = bias_sigma = math.inf
-        if dd >= cfg.min_disagreement_radps**2:
-            shift = bias_radps - self._b0
-            bias_shares = (float(shift[0] @ dmean) / dd, -float(shift[1] @ dmean) / dd)
-            bias_sigma = math.sqrt(2.0 * float(dmean @ self._mb_cov @ dmean)) / dd
-            # what the field residual of the faulty lane should be, ramping up with the tracker's lag
-            tau = cfg.field_tau_s
-            ramp = 1.0 - math.exp(-(t_s - self._t0) / tau)
-            e = ramp * tau * np.cross(dmean, 0.5 * (mag[0] + mag[1]))
-            rc = r - self._r_base
-            self._field_num += (float(rc[0] @ e), -float(rc[1] @ e))
-            self._field_den += float(e @ e)
-            if self._field_den > 0.0:
-                # standard error of each lane's share under no signal: var(sum rc.e) = var_r sum |e|^2,
-                # inflated by (1 + rho) / (1 - rho) for a lag-1 correlation rho of the residual
-                rho = np.clip(self._r_c1 / np.maximum(self._r_var, 1e-30), 0.0, 0.9)
-                var = self._r_var * (1.0 + rho) / (1.0 - rho)
-                field_sigma = float(np.sqrt(var.max() / self._field_den))
-                if field_sigma <= cfg.max_feed_share_sigma \
-                        and self._field_den >= self._n * cfg.min_field_signal_gauss**2:
-                    field_shares = (self._field_num[0] / self._field_den, self._field_num[1] / self._field_den)
+        dmean = self._mean_disagreement(d)
+        bias_shares, bias_sigma = self._bias_shares(dmean, bias_radps)
+        field_shares, field_sigma = self._field_shares(t_s, dmean, r, mag)
         bias_ok = bias_sigma <= cfg.max_bias_share_sigma
-        feed: int | None = None
-        margin = 0.0
-        for sh in (field_shares, bias_shares if bias_ok else (0.0, 0.0)):
-            if abs(sh[0] - sh[1]) >= max(cfg.feed_margin, margin):
-                margin = abs(sh[0] - sh[1])
-                feed = 0 if sh[0] < sh[1] else 1
+        feed = self._feed(field_shares, bias_shares if bias_ok else (0.0, 0.0))
         if decide and self.verdict is None and self.counter_s >= cfg.persistence_s - 1e-9:
-            # unreliable bias evidence cannot name a lane, but it still vetoes a field verdict it contradicts
-            by_field = _clear(field_shares, cfg) if field_sigma <= cfg.max_field_share_sigma else None
-            by_bias = _clear(bias_shares, cfg)
-            if by_field is not None and by_bias in (None, by_field):
-                self.verdict, self.evidence = by_field, "field"
-            elif by_bias is not None and by_field is None and bias_ok:
-                self.verdict, self.evidence = by_bias, "bias"
+            self._decide(field_shares, field_sigma, bias_shares, bias_ok)
         if self.verdict is not None:
             feed = 1 - self.verdict
         return Attribution(True, self.counter_s, field_shares, bias_shares, feed, self.verdict,
                            field_sigma, bias_sigma, bias_ok, self.evidence)
+
+    def _follow_agreement(self, dt: float, d: np.ndarray, lp: float, r: np.ndarray,
+                          bias_radps: np.ndarray) -> None:
+        """No episode and no miscompare: follow the pair's own offsets (turn-on biases) slowly, each
+        tracker's residual mean, variance and lag-1 covariance, and the filters' common-mode bias wander."""
+        cfg = self.cfg
+        k = min(1.0, dt / cfg.baseline_tau_s)
+        self._pair.follow(dt, d, lp)
+        rc0 = r - self._r_base
+        self._r_base += k * rc0
+        # the prior counts as field_noise_prior_s of data: a running mean until baseline_tau_s
+        self._noise_s += dt
+        kv = max(k, min(1.0, dt / (cfg.field_noise_prior_s + self._noise_s)))
+        self._r_var += kv * ((rc0**2).mean(axis=1) - self._r_var)
+        if self._rc_prev is not None:
+            self._r_c1 += kv * ((rc0 * self._rc_prev).mean(axis=1) - self._r_c1)
+        self._rc_prev = rc0
+        mb = bias_radps.mean(axis=0)
+        if self._mb_mean is None:
+            self._mb_mean = mb.copy()
+        else:
+            kb = min(1.0, dt / cfg.bias_wander_tau_s)
+            dev = mb - self._mb_mean
+            self._mb_mean += kb * dev
+            self._mb_cov += kb * (np.outer(dev, dev) - self._mb_cov)
+
+    def _start_episode(self, t_s: float, bias_radps: np.ndarray) -> None:
+        """A miscompare begins an episode at k0 = now: the filters' bias estimates b(k0) are stored."""
+        self._b0 = bias_radps.copy()
+        self._t0 = t_s
+        self._d_sum[:] = 0.0
+        self._n = 0
+        self._field_num[:] = 0.0
+        self._field_den = 0.0
+        self.counter_s = 0.0
+        self.verdict = None
+        self.evidence = ""
+
+    def _integrate(self, dt: float, miscompare: bool) -> None:
+        """The persistence integrator: up by dt with a miscompare, down by ``decay`` x dt without."""
+        self.counter_s = self.counter_s + dt if miscompare else max(0.0, self.counter_s - self.cfg.decay * dt)
+
+    def _mean_disagreement(self, d: np.ndarray) -> np.ndarray:
+        """D: the pair's disagreement averaged over the episode, its pre-onset offset removed."""
+        base = self._pair.base if self._pair.base is not None else np.zeros(3)
+        self._d_sum += d - base
+        self._n += 1
+        out: np.ndarray = self._d_sum / self._n
+        return out
+
+    def _bias_shares(self, dmean: np.ndarray, bias_radps: np.ndarray) -> tuple[tuple[float, float], float]:
+        """p^(1) = s^(1) . D / |D|^2, p^(2) = -s^(2) . D / |D|^2 with s^(i) = b^(i)(k) - b^(i)(k0), and
+        their standard error sqrt(2 D^T C D) / |D|^2 from the common-mode wander C (module docstring)."""
+        dd = float(dmean @ dmean)
+        if dd < self.cfg.min_disagreement_radps**2:
+            return (0.0, 0.0), math.inf
+        assert self._b0 is not None
+        shift = bias_radps - self._b0
+        shares = (float(shift[0] @ dmean) / dd, -float(shift[1] @ dmean) / dd)
+        return shares, math.sqrt(2.0 * float(dmean @ self._mb_cov @ dmean)) / dd
+
+    def _field_shares(self, t_s: float, dmean: np.ndarray, r: np.ndarray,
+                      mag: np.ndarray) -> tuple[tuple[float, float], float]:
+        """The field trackers' shares p^(1) = r^(1) . e / |e|^2, p^(2) = -r^(2) . e / |e|^2 summed over the
+        episode, e = tau (D x m) ramped in with the tracker's lag; (0, 0) until their standard error is
+        within ``max_feed_share_sigma`` and the expected signal above ``min_field_signal_gauss``."""
+        cfg = self.cfg
+        if float(dmean @ dmean) < cfg.min_disagreement_radps**2:
+            return (0.0, 0.0), math.inf
+        tau = cfg.field_tau_s
+        ramp = 1.0 - math.exp(-(t_s - self._t0) / tau)
+        e = ramp * tau * np.cross(dmean, 0.5 * (mag[0] + mag[1]))
+        rc = r - self._r_base
+        self._field_num += (float(rc[0] @ e), -float(rc[1] @ e))
+        self._field_den += float(e @ e)
+        if self._field_den <= 0.0:
+            return (0.0, 0.0), math.inf
+        # standard error of each lane's share under no signal: var(sum rc.e) = var_r sum |e|^2,
+        # inflated by (1 + rho) / (1 - rho) for a lag-1 correlation rho of the residual
+        rho = np.clip(self._r_c1 / np.maximum(self._r_var, 1e-30), 0.0, 0.9)
+        var = self._r_var * (1.0 + rho) / (1.0 - rho)
+        sigma = float(np.sqrt(var.max() / self._field_den))
+        if sigma <= cfg.max_feed_share_sigma and self._field_den >= self._n * cfg.min_field_signal_gauss**2:
+            return (self._field_num[0] / self._field_den, self._field_num[1] / self._field_den), sigma
+        return (0.0, 0.0), sigma
+
+    def _feed(self, *evidence: tuple[float, float]) -> int | None:
+        """The IMU to feed the estimator: the lower share of the evidence whose shares differ most, by at
+        least ``feed_margin``; None (the mean) when none does."""
+        feed: int | None = None
+        margin = 0.0
+        for sh in evidence:
+            if abs(sh[0] - sh[1]) >= max(self.cfg.feed_margin, margin):
+                margin = abs(sh[0] - sh[1])
+                feed = 0 if sh[0] < sh[1] else 1
+        return feed
+
+    def _decide(self, field_shares: tuple[float, float], field_sigma: float, bias_shares: tuple[float, float],
+                bias_ok: bool) -> None:
+        """The verdict, once the integrator reached ``persistence_s``: the field trackers' lane if the bias
+        estimates do not name the other; else the bias estimates' lane, if reliable and the trackers name
+        none. Unreliable bias evidence cannot name a lane, but it still vetoes a field verdict it contradicts."""
+        cfg = self.cfg
+        by_field = _clear(field_shares, cfg) if field_sigma <= cfg.max_field_share_sigma else None
+        by_bias = _clear(bias_shares, cfg)
+        if by_field is not None and by_bias in (None, by_field):
+            self.verdict, self.evidence = by_field, "field"
+        elif by_bias is not None and by_field is None and bias_ok:
+            self.verdict, self.evidence = by_bias, "bias"

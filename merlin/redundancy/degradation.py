@@ -1,4 +1,4 @@
-"""The IMU degradation chain: triplex vote -> duplex PF FDI -> simplex (issue item 2).
+"""The IMU degradation chain: triplex vote -> duplex PF FDI -> simplex.
 
 Three IMU lanes are voted by mid-value select (:mod:`merlin.redundancy.sensor_voter`). Once one lane is
 isolated, two remain and a majority no longer exists: the two survivors (with their magnetometer
@@ -37,6 +37,7 @@ from merlin.redundancy.attribution import (
 from merlin.redundancy.duplex_fdi import MERLIN, DuplexImuFdi, FdiConfig, FdiOutput, FdiState
 from merlin.redundancy.events import FaultKind, FaultReport, RedundancyLevel
 from merlin.redundancy.sensor_voter import IMU_SPEC, ChannelSpec, LaneSample, TriplexVoter, VotedOutput
+from merlin.redundancy.sequential_fdi import SequentialImuFdi, build_fdi
 
 _EVIDENCE = {"field": "field trackers", "bias": "particle filters' bias estimates"}
 
@@ -79,7 +80,7 @@ class ImuDegradationChain:
         self.voter = TriplexVoter(spec)
         self.fdi_config = fdi_config
         self.rng = rng
-        self.fdi: DuplexImuFdi | None = None
+        self.fdi: DuplexImuFdi | SequentialImuFdi | None = None
         self.fdi_period_s = fdi_period_s
         self._next_fdi_t: float | None = None
         self._verdict: int | None = None
@@ -108,7 +109,10 @@ class ImuDegradationChain:
              gps: tuple[float, tuple[float, float, float]] | None = None) -> ChainOutput:
         """``imu``: the three IMU lanes (gyro + accel, as :func:`imu_lane` builds them); ``mag``: each
         lane's newest field vector in gauss (needed only once the chain is duplex); ``gps``: the newest GPS
-        fix as (time of validity, velocity NED m/s), for the accelerometer attribution (None: none)."""
+        fix as (time of validity, velocity NED m/s), for the accelerometer attribution (None: none).
+
+        One tick: the triplex vote (mid-value select), then at duplex the pair's FDI step with its
+        isolation and the lane fed, or at simplex the FDI's end; then the source switch and the health."""
         if gps is not None:
             self._gps_ref = gps
         out, events = self.voter.step(t_s, imu, duplex_fault_lane=self._verdict,
@@ -119,96 +123,127 @@ class ImuDegradationChain:
         if out.level is RedundancyLevel.DUPLEX:
             pair = (lanes[0], lanes[1])
             if self.fdi is None or self.fdi.lanes != pair:
-                self.fdi = DuplexImuFdi(self.fdi_config, self.rng, lanes=pair)
-                self._next_fdi_t = t_s
-                self._verdict = None
-                self.attribution_lane = None
-                self.accel_attribution_lane = None
-                self._alert_evidence = None
-                self._accel_alert_evidence = None
-                self._declared_t = None
-                self._unresolved_reported = False
-                if self.attribution_config is not None:
-                    self.attribution = SubAlertAttribution(self.attribution_config)
-                if self.accel_attribution_config is not None:
-                    self.accel_attribution = AccelAttribution(self.accel_attribution_config)
-                ev.append(FaultReport(t_s, FaultKind.DEGRADED, "imu", -1, 2.0, 3.0,
-                                      detail=f"no majority: duplex PF FDI arbitrates lanes {pair}"))
-            samples = [imu[i] for i in pair]
-            mags = [mag[i] for i in pair]
-            due = self._next_fdi_t is not None and t_s >= self._next_fdi_t - 1e-9
-            if due and all(s is not None for s in samples) and all(m is not None for m in mags):
-                vals = np.array([s.values for s in samples])  # type: ignore[union-attr]
-                fdi_out = self.fdi.step(t_s, vals[:, :3], vals[:, 3:], np.array(mags, float))
-                self._next_fdi_t = (self._next_fdi_t or t_s) + self.fdi_period_s
-                ev.extend(fdi_out.events)
-                if fdi_out.faulty is not None and self._verdict is None:
-                    if self._declared_t is None:
-                        self._declared_t = t_s
-                    ev.extend(self._cross_check(t_s, pair, fdi_out.faulty))
-                # In the alert state one of the two lanes is faulty and it is not yet known which: the
-                # mean would hand half the fault to the estimator until the verdict (a 0.5 rad/s yaw-gyro
-                # bias took up to 3.3 s to decide, and meanwhile the EKF excluded GPS in 2 of 4 seeds,
-                # docs/redundancy.md). Feed it the lane with the smaller isolation residual instead: the
-                # statistic seed 003 §5 (eq. 42) itself isolates with at the declaration, with the MERLIN
-                # preset whitened and averaged since the alert instant, so the lane fed is the one the
-                # FDI would keep if it decided now. Back in N the mean returns (seed 003 §2).
-                if fdi_out.state is FdiState.ALERT:
-                    if self._alert_t0 is None:
-                        self._alert_t0 = t_s
-                else:
-                    self._alert_t0 = None
-                av = self._accel_alert_evidence
-                if fdi_out.state is FdiState.ALERT and self.alert_feed == "lowest_residual" \
-                        and av is not None and av.feed is not None:
-                    # an accelerometer disagreement the GPS-referenced evidence already tells apart: feed
-                    # the lane it favours (seed 003's residual is each filter's accelerometer and
-                    # magnetometer misfit, and a filter tilts to explain a horizontal bias away)
-                    self.alert_lane = pair[av.feed]
-                elif fdi_out.state is FdiState.ALERT and self.alert_feed == "lowest_residual":
-                    r0, r1 = fdi_out.residual
-                    self.alert_lane = pair[0] if r0 <= r1 else pair[1]
-                elif fdi_out.faulty is not None and self._verdict is None:
-                    # declared, isolation waiting for the cross-check: feed the lane the field trackers
-                    # favour, else the one the FDI would keep
-                    a = self._alert_evidence
-                    lean = a.feed if a is not None and a.feed is not None else 1 - fdi_out.faulty
-                    self.alert_lane = pair[lean]
-                else:
-                    self.alert_lane = None
-                ev.extend(self._attribute(t_s, pair, vals[:, :3], np.array(mags, float), fdi_out,
-                                          out.duplex_miscompare))
-                ev.extend(self._attribute_accel(t_s, pair, vals, fdi_out, self._gps_ref))
-            feed = self.alert_lane if self.alert_lane is not None else self._sub_alert_feed()
-            if feed is not None and feed in pair and imu[feed] is not None \
-                    and out.valid and set(out.lanes_used) == set(pair):
-                out = replace(out, values=imu[feed].values, lanes_used=(feed,))  # type: ignore[union-attr]
+                ev.append(self._enter_duplex(t_s, pair))
+            fdi_out = self._step_fdi(t_s, pair, imu, mag, out, ev)
+            out = self._feed(pair, imu, out)
         elif out.level is RedundancyLevel.SIMPLEX and self.fdi is not None:
-            self.fdi = None
-            self.alert_lane = None
-            self.attribution = None
-            self.attribution_lane = None
-            self._alert_evidence = None
-            self.accel_attribution = None
-            self.accel_attribution_lane = None
-            self._accel_alert_evidence = None
-            ev.append(FaultReport(t_s, FaultKind.DEGRADED, "imu", -1, 1.0, 2.0,
-                                  detail="simplex: one IMU left, no fault can be detected any more; nav health "
-                                         f"lowered to {NAV_HEALTH[RedundancyLevel.SIMPLEX]}"))
+            ev.append(self._enter_simplex(t_s))
         step = self._source_step(imu, out)
+        return ChainOutput(out, out.level, self._health(out), fdi_out, tuple(ev), step)
+
+    def _enter_duplex(self, t_s: float, pair: tuple[int, int]) -> FaultReport:
+        """Two lanes left (or a new pair): a fresh duplex FDI on them, and fresh attribution layers."""
+        self.fdi = build_fdi(self.fdi_config, self.rng, lanes=pair)
+        self._next_fdi_t = t_s
+        self._verdict = None
+        self.attribution_lane = None
+        self.accel_attribution_lane = None
+        self._alert_evidence = None
+        self._accel_alert_evidence = None
+        self._declared_t = None
+        self._unresolved_reported = False
+        if self.attribution_config is not None:
+            self.attribution = SubAlertAttribution(self.attribution_config)
+        if self.accel_attribution_config is not None:
+            self.accel_attribution = AccelAttribution(self.accel_attribution_config)
+        return FaultReport(t_s, FaultKind.DEGRADED, "imu", -1, 2.0, 3.0,
+                           detail=f"no majority: duplex PF FDI arbitrates lanes {pair}")
+
+    def _step_fdi(self, t_s: float, pair: tuple[int, int], imu: tuple[LaneSample | None, ...],
+                  mag: tuple[tuple[float, float, float] | None, ...], out: VotedOutput,
+                  ev: list[FaultReport]) -> FdiOutput | None:
+        """The FDI's step when one is due (every ``fdi_period_s``, both lanes' IMU and field present): its
+        events, the cross-check of a declaration, the lane fed during its alert, the attribution layers."""
+        assert self.fdi is not None
+        samples = [imu[i] for i in pair]
+        mags = [mag[i] for i in pair]
+        due = self._next_fdi_t is not None and t_s >= self._next_fdi_t - 1e-9
+        if not (due and all(s is not None for s in samples) and all(m is not None for m in mags)):
+            return None
+        vals = np.array([s.values for s in samples])  # type: ignore[union-attr]
+        fdi_out = self.fdi.step(t_s, vals[:, :3], vals[:, 3:], np.array(mags, float))
+        self._next_fdi_t = (self._next_fdi_t or t_s) + self.fdi_period_s
+        ev.extend(fdi_out.events)
+        if fdi_out.faulty is not None and self._verdict is None:
+            if self._declared_t is None:
+                self._declared_t = t_s
+            ev.extend(self._cross_check(t_s, pair, fdi_out.faulty))
+        if fdi_out.state is FdiState.ALERT:
+            if self._alert_t0 is None:
+                self._alert_t0 = t_s
+        else:
+            self._alert_t0 = None
+        self.alert_lane = self._alert_lane(pair, fdi_out)
+        ev.extend(self._attribute(t_s, pair, vals[:, :3], np.array(mags, float), fdi_out, out.duplex_miscompare))
+        ev.extend(self._attribute_accel(t_s, pair, vals, fdi_out, self._gps_ref))
+        return fdi_out
+
+    def _alert_lane(self, pair: tuple[int, int], fdi_out: FdiOutput) -> int | None:
+        """The lane fed while the FDI is in its alert state, or declared and waiting for the cross-check.
+
+        In the alert state one of the two lanes is faulty and it is not yet known which: the mean would
+        hand half the fault to the estimator until the verdict (a 0.5 rad/s yaw-gyro bias took up to 3.3 s
+        to decide, and meanwhile the EKF excluded GPS in 2 of 4 seeds, docs/redundancy.md). Feed it the
+        lane with the smaller isolation residual instead: the statistic seed 003 §5 (eq. 42) itself isolates
+        with at the declaration, with the MERLIN preset whitened and averaged since the alert instant, so
+        the lane fed is the one the FDI would keep if it decided now. Back in N the mean returns (seed 003
+        §2)."""
+        av = self._accel_alert_evidence
+        alerting = fdi_out.state is FdiState.ALERT and self.alert_feed == "lowest_residual"
+        if alerting and av is not None and av.feed is not None:
+            # an accelerometer disagreement the GPS-referenced evidence already tells apart: feed the lane it
+            # favours (seed 003's residual is each filter's accelerometer and magnetometer misfit, and a
+            # filter tilts to explain a horizontal bias away)
+            return pair[av.feed]
+        if alerting:
+            r0, r1 = fdi_out.residual
+            return pair[0] if r0 <= r1 else pair[1]
+        if fdi_out.faulty is not None and self._verdict is None:
+            # declared, isolation waiting for the cross-check: feed the lane the field trackers favour, else
+            # the one the FDI would keep
+            a = self._alert_evidence
+            lean = a.feed if a is not None and a.feed is not None else 1 - fdi_out.faulty
+            return pair[lean]
+        return None
+
+    def _feed(self, pair: tuple[int, int], imu: tuple[LaneSample | None, ...], out: VotedOutput) -> VotedOutput:
+        """The voted output, or one lane of the pair instead of its mean when the alert or an attribution
+        layer leans on it."""
+        feed = self.alert_lane if self.alert_lane is not None else self._sub_alert_feed()
+        if feed is not None and feed in pair and imu[feed] is not None \
+                and out.valid and set(out.lanes_used) == set(pair):
+            return replace(out, values=imu[feed].values, lanes_used=(feed,))  # type: ignore[union-attr]
+        return out
+
+    def _enter_simplex(self, t_s: float) -> FaultReport:
+        """One lane left: the FDI and the attribution layers end; nav health drops."""
+        self.fdi = None
+        self.alert_lane = None
+        self.attribution = None
+        self.attribution_lane = None
+        self._alert_evidence = None
+        self.accel_attribution = None
+        self.accel_attribution_lane = None
+        self._accel_alert_evidence = None
+        return FaultReport(t_s, FaultKind.DEGRADED, "imu", -1, 1.0, 2.0,
+                           detail="simplex: one IMU left, no fault can be detected any more; nav health "
+                                  f"lowered to {NAV_HEALTH[RedundancyLevel.SIMPLEX]}")
+
+    def _health(self, out: VotedOutput) -> float:
+        """Nav health by level; at duplex while the two lanes disagree and neither is known faulty yet, no
+        better than one unchecked IMU."""
         health = NAV_HEALTH[out.level]
         if out.level is RedundancyLevel.DUPLEX and (
                 (self.attribution is not None and self.attribution.active)
                 or (self.accel_attribution is not None and self.accel_attribution.active)):
-            # the two lanes disagree and neither is known faulty yet: no better than one unchecked IMU
             health = min(health, NAV_HEALTH[RedundancyLevel.SIMPLEX])
-        return ChainOutput(out, out.level, health, fdi_out, tuple(ev), step)
+        return health
 
     def _source_step(self, imu: tuple[LaneSample | None, ...], out: VotedOutput) -> tuple[float, ...] | None:
         """Once the voter is down to two lanes, the output switches between the pair's mean and one lane
         (the lane fed during an alert or an attribution, the survivor after an isolation). Each lane's
         biases are its own, so a switch is a step in what the estimator integrates; it is returned so that
-        the estimator can widen its bias uncertainty by it (sims/runner.py)."""
+        the estimator can widen its bias uncertainty by it (merlin.nav.fusion_stage)."""
         used = tuple(out.lanes_used) if out.valid else None
         prev, self._fed = self._fed, used
         if used is None or prev is None or set(prev) == set(used) or out.level is RedundancyLevel.TRIPLEX:

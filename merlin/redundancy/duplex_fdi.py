@@ -38,6 +38,7 @@ import numpy as np
 
 from merlin.redundancy.events import FaultKind, FaultReport
 from merlin.redundancy.particle_filter import DuplexParticleFilter, ParticleFilterConfig
+from merlin.redundancy.sequential_tests import SequentialTests
 
 G0_MPS2 = 9.80665
 
@@ -68,15 +69,25 @@ class FdiConfig:
     # fault shows in a low-noise channel (a gyro oscillation seen through the magnetometer).
     residual: str = "paper"
     residual_sigma: tuple[float, float, float] = (0.02, 0.004, 0.01)
+    # Decision logic. "paper": seed 003 §5 (E_Z1, E3 and the residual above, E4), this module's
+    # DuplexImuFdi. "sequential": Merlin's sequential tests (merlin.redundancy.sequential_tests, run by
+    # merlin.redundancy.sequential_fdi.SequentialImuFdi) on the same two filters; ``sequential`` holds their
+    # parameters (None: the defaults). merlin.redundancy.sequential_fdi.build_fdi builds either.
+    decision: str = "paper"
+    sequential: SequentialTests | None = None
 
     def __post_init__(self) -> None:
         if self.residual not in ("paper", "whitened_mean"):
             raise ValueError(f"residual must be 'paper' or 'whitened_mean', not {self.residual!r}")
+        if self.decision not in ("paper", "sequential"):
+            raise ValueError(f"decision must be 'paper' or 'sequential', not {self.decision!r}")
 
 
 TABLE2 = FdiConfig()  # seed 003 Table 2 exactly, isolation residual as printed (selectable: fdi_preset: table2)
 MERLIN = FdiConfig(residual="whitened_mean")  # every Table 2 number; residual whitened and averaged (default)
-FDI_PRESETS: dict[str, FdiConfig] = {"table2": TABLE2, "merlin": MERLIN}
+# every Table 2 number for the filters; Merlin's sequential tests decide (docs/benchmarks/redundancy.md §2)
+SEQUENTIAL = FdiConfig(decision="sequential", sequential=SequentialTests())
+FDI_PRESETS: dict[str, FdiConfig] = {"table2": TABLE2, "merlin": MERLIN, "sequential": SEQUENTIAL}
 
 
 @dataclass(frozen=True, slots=True)

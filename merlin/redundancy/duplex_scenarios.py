@@ -20,7 +20,7 @@ pitch manoeuvres" before 28 s).
 Metrics (§6.2): T_0 the fault samples, T_f the samples where the faulty IMU is flagged;
 CD = |T_f n T_0| / |T_0|, WD = |T_f \\ T_0| / |T_0|, DT = min T_f - min T_0, RT = max T_f - max T_0
 (negative DT and RT are shown as 0.00, as in the paper's tables). Samples where the *healthy* IMU is
-flagged are counted separately: the issue requires zero.
+flagged are counted separately: there must be none.
 """
 
 from __future__ import annotations
@@ -29,9 +29,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from merlin.redundancy.duplex_fdi import G0_MPS2, DuplexImuFdi, FdiConfig, FdiState
+from merlin.redundancy.duplex_fdi import G0_MPS2, FdiConfig, FdiState
 from merlin.redundancy.events import FaultReport
 from merlin.redundancy.particle_filter import dcm_body_to_ned, euler_from_quat, quat_from_euler
+from merlin.redundancy.sequential_fdi import build_fdi
 
 DT_S = 0.01  # 100 Hz, seed 003 §2
 
@@ -145,7 +146,7 @@ class FdiRun:
 
 
 def run_fdi(data: DuplexData, config: FdiConfig, rng: np.random.Generator) -> FdiRun:
-    fdi = DuplexImuFdi(config, rng)
+    fdi = build_fdi(config, rng)
     n = data.t_s.size
     states = np.empty(n, dtype=object)
     faulty = np.full(n, -1)

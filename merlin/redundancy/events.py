@@ -14,7 +14,7 @@ from enum import Enum, IntEnum
 
 
 class FaultKind(Enum):
-    # per-lane validation (issue item 1)
+    # per-lane validation
     TIMEOUT = "timeout"
     NON_FINITE = "non_finite"
     RANGE = "range"

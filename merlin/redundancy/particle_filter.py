@@ -313,6 +313,17 @@ class DuplexParticleFilter:
         self.last_y_hat = self.predicted_output(qm)
         return FilterEstimate(qm.copy(), self.b_hat.copy(), self.last_y_hat.copy())
 
+    def restart_from(self, src: int, dst: int, bias_radps: np.ndarray) -> None:
+        """Filter ``dst`` takes filter ``src``'s attitude particles, its own bias particles re-centred on
+        ``bias_radps`` (3,): a recovered IMU's filter, whose attitude drifted with the fault, restarts from
+        the healthy one's (merlin.redundancy.sequential_fdi)."""
+        self.x[:4, dst] = self.x[:4, src]
+        self._pending_rot[:, dst] = self._pending_rot[:, src]
+        shift = (np.asarray(bias_radps, float) - self.b_hat[src])[:, None]
+        self.x[4:, dst] = self.x[4:, src] + shift.astype(self._dt)
+        self.q_hat[dst] = self.q_hat[src]
+        self.b_hat[dst] = np.asarray(bias_radps, float)
+
     def predicted_output(self, q: np.ndarray) -> np.ndarray:
         """y_hat = h(x_hat) for the two mean quaternions (2, 4) -> (2, 6)."""
         r = dcm_body_to_ned(q)  # (2, 3, 3)

@@ -26,7 +26,7 @@ Tick, in order (one direction of flow, nothing reaches back):
 5. a per-lane persistence integrator rises by the tick's dt while the lane is invalid or miscompares and
    falls by ``decay`` x dt while it is clean; reaching ``persistence_s`` isolates the lane, latched;
 6. optional reintegration: an isolated lane that stays valid and within threshold of the others for
-   ``reintegration_s`` comes back (off by default, as the issue asks).
+   ``reintegration_s`` comes back (off by default: a lane once isolated stays out unless configured).
 """
 
 from __future__ import annotations
@@ -333,7 +333,7 @@ def _vote_step_general(
             events.append(FaultReport(t_s, FaultKind.ISOLATED, name, duplex_fault_lane,
                                       detail=duplex_fault_detail))
 
-    # optional reintegration (issue item 1: "off by default")
+    # optional reintegration (off by default)
     if spec.reintegration_s is not None:
         healthy = [i for i, ln in enumerate(lanes) if not ln.isolated and ln.fault is None]
         ref = _mid_value([lanes[i].last_values for i in healthy]) if healthy else None  # type: ignore[misc]

@@ -23,16 +23,15 @@ from merlin.core.step import TrustedCore
 from merlin.core.types import (
     AuthorityRequest,
     EventKind,
-    ExperimentalInput,
     GcsCommand,
     GcsCommandKind,
-    Inputs,
     NavMode,
     RequestKind,
     Setpoint,
     SetpointKind,
     VehicleState,
 )
+from merlin.pipeline import InputBuilder
 from merlin.replay.flightlog import FlightLog, hold
 
 G = 9.80665
@@ -153,6 +152,7 @@ def home_frame(log: FlightLog, cfg: MerlinConfig, frame: str = "auto") -> tuple[
 def replay(log: FlightLog, cfg: MerlinConfig, rate_hz: float = 50.0) -> ReplayResult:
     core_cfg = build_core_config(cfg, source=log.source)
     core = TrustedCore(core_cfg)
+    inputs = InputBuilder(rc_connected=False)  # the core's inputs as every driver builds them; no RC link
     dt = 1.0 / rate_hz
     t = np.arange(0.0, log.t_end_s, dt)
     sts = states(log, t)
@@ -184,8 +184,12 @@ def replay(log: FlightLog, cfg: MerlinConfig, rate_hz: float = 50.0) -> ReplayRe
             reqs.append(AuthorityRequest(RequestKind.REQUEST, t_s=now))
             last_req = now
         sp = Setpoint(SetpointKind.POSITION, pos_ned_m=s.pos_ned_m, vel_ned_mps=s.vel_ned_mps, yaw_rad=s.att_rpy_rad[2])
-        d = core.step(now, Inputs(state=s, experimental=ExperimentalInput(now, sp, now, tuple(reqs)),
-                                  gcs_link_t_s=now, gcs_commands=cmds))
+        # the replayed controller heartbeats and holds the logged state every tick; the ground station is live
+        inputs.controller_heartbeat(now)
+        inputs.setpoint(sp, now)
+        inputs.request(tuple(reqs))
+        inputs.gcs_heartbeat(now)
+        d = core.step(now, inputs.build(s, cmds))
         for e in d.events:
             if e.kind is EventKind.GRANTED:
                 granted_seq = e.seq

@@ -41,6 +41,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from merlin.autopilot import fixedwing_mission
 from merlin.config.loader import config_sha256
 from merlin.config.models import MerlinConfig
 from merlin.config.runtime import build_core_config
@@ -52,10 +53,8 @@ from merlin.core.types import (
     Decision,
     Event,
     EventKind,
-    ExperimentalInput,
     GcsCommand,
     GcsCommandKind,
-    Inputs,
     NavMode,
     OperatorInput,
     ReasonCode,
@@ -98,6 +97,7 @@ from merlin.link.px4_modes import OFFBOARD
 from merlin.link.security import LinkPolicy
 from merlin.link.signing import write_key_file
 from merlin.link.tlog import TlogWriter
+from merlin.pipeline import InputBuilder
 from merlin.serve.link_security import LinkSetup, describe
 from merlin.serve.offboard_takeoff import HANDOVER_MARGIN_M, Facts, OffboardTakeoff
 from merlin.serve.records import EventLog, TickStats, write_effective_config
@@ -254,6 +254,13 @@ class Server:
         self._mission_current = -1  # the last MISSION_CURRENT seq sent
         self._mission_complete = False  # flown to its end this flight (its end item reported on landing)
         self._mission_jumps: dict[int, int] = {}  # MISSION_CURRENT commands awaiting the core: seq -> waypoint
+        # the fixed wing's mission and GOTO/ORBIT loiters (merlin.autopilot.fixedwing_mission): what its stage
+        # reads beyond the core's decision
+        stage = self._fw_stage()
+        if stage is not None:
+            stage.fw_mission = fixedwing_mission.FixedWingMission(arbiter=lambda: self.loop.core.state.arbiter)
+        self._fw_target_seq = 0  # the core's GOTO/ORBIT count the stage flies
+        self._fw_mission_done = False  # the fixed wing flew its mission to the end (its end item commanded)
         self._was_armed = False
         self.limits = self.cfg.envelope.resolve(self.cfg.envelope.active_stage)
         self.cfg_sha256 = config_sha256(self.cfg)
@@ -263,6 +270,7 @@ class Server:
         self.effective_config = opts.out_dir / EFFECTIVE_CONFIG
         self._write_effective_config()
         self.pending = _Pending()
+        self.inputs = InputBuilder()  # the core's inputs from what the links delivered (_tick)
         self.hb_t: float | None = None
         self.gcs_t: float | None = None
         self.rc_t: float | None = None
@@ -392,12 +400,24 @@ class Server:
         acked = False
         for intent in intents:
             if isinstance(intent, GcsCommand):
-                refused = self._mission_start_refused(intent)
+                if intent.kind is GcsCommandKind.HOLD and ls.role is LinkRole.CONTROLLER and self.loop.state.landed:
+                    # MAVSDK's offboard.stop() (AUTO.LOITER) after Merlin took authority back and landed: PX4
+                    # accepts Hold on the ground and the vehicle stays there; so does Merlin, without asking the
+                    # core for a HOLD it refuses on the ground (the RELEASE before it went to the core as usual)
+                    self._send(ls, command_ack(m, sender, MAV_RESULT_ACCEPTED))
+                    self.events.write({"t": rx.t_s, "type": "hold_on_ground", "link": ls.name,
+                                       "detail": "HOLD on the ground from the controller link: accepted, nothing flies"})
+                    acked = True
+                    continue
+                intent, refused = self._fixed_wing_loiter(intent)
+                if refused is None:
+                    refused = self._mission_start_refused(intent)
+                    refused = None if refused is None else f"mission not started: {refused}"
                 if refused is not None:  # as PX4's mission feasibility check at start, with Merlin's leg check
                     self._send(ls, command_ack(m, sender, MAV_RESULT_DENIED))
-                    self._broadcast(o.StatusTextOut(o.MAV_SEVERITY_WARNING, f"Merlin: mission not started: {refused}"))
+                    self._broadcast(o.StatusTextOut(o.MAV_SEVERITY_WARNING, f"Merlin: {refused}"))
                     self.events.write({"t": rx.t_s, "type": "command_refused", "link": ls.name,
-                                       "command": m.command, "detail": f"mission: {refused}"})
+                                       "command": m.command, "detail": refused})
                     acked = True
                     continue
                 self._cmd_seq += 1
@@ -711,6 +731,36 @@ class Server:
         self._mission_reached = self.mission.plan.seq_of(idx) - 1
         self._mission_complete = False
         self._mission_current = -1
+        stage, fm = self._fw_stage(), self._fw_mission()
+        if stage is not None and fm is not None:  # the fixed wing's stage flies its own mission: moved there too
+            flying = self.decision is not None and self.decision.behavior is Behavior.MISSION
+            if idx >= len(stage.mission):
+                fm.resume_index = 0
+                if flying:
+                    self._fw_mission_done = True
+                    self._command_mission_end(self.t)
+            else:
+                fm.resume_index = idx
+                if flying:
+                    stage.mode_key = None  # re-entered from the new waypoint on the next tick
+
+    def _fixed_wing_loiter(self, cmd: GcsCommand) -> tuple[GcsCommand, str | None]:
+        """A fixed wing's GOTO or ORBIT is a loiter circle (merlin.autopilot.fixedwing_mission): an orbit's
+        radius is never tighter than the stage's loiter radius (the core then checks the circle flown), and a
+        GOTO's circle, which the core's check of the point alone does not see, is checked against the fence
+        here. Returns the command to pass on and why it is refused (None: it is not)."""
+        stage = self._fw_stage()
+        if stage is None or cmd.kind not in (GcsCommandKind.GOTO, GcsCommandKind.ORBIT) or cmd.target_ned_m is None:
+            return cmd, None
+        low = stage.land_height_m  # the height its LAND loiter keeps from the terrain
+        if -cmd.target_ned_m[2] < low:
+            return cmd, (f"{cmd.kind.name} refused: the fixed wing's loiter at {-cmd.target_ned_m[2]:.1f} m above home"
+                         f" is below {low:g} m, the lowest it loiters")
+        if cmd.kind is GcsCommandKind.ORBIT:
+            return replace(cmd, param=fixedwing_mission.orbit_radius_m(stage, cmd.param)), None
+        fence = self.loop.core_cfg.fence if self.cfg.geofence.enabled else None
+        why = fixedwing_mission.circle_block(fence, cmd.target_ned_m, stage.gp.loiter_radius_m)
+        return cmd, (None if why is None else f"GOTO refused: {why}")
 
     def _mission_start_refused(self, cmd: GcsCommand) -> str | None:
         """Why a MISSION command must be refused now: the uploaded mission no longer fits the fence in force
@@ -730,6 +780,8 @@ class Server:
 
         airspeed = stage.gp.rtl_airspeed_mps  # the stage's cruise airspeed
         stage.mission = tuple(Waypoint(n, e, -d, airspeed) for n, e, d in (w.pos_ned_m for w in plan.waypoints))
+        if stage.fw_mission is not None:
+            stage.fw_mission.resume_index = 0
 
     def _mission_progress(self, d: Decision) -> None:
         """MISSION_ITEM_REACHED for each item passed while flying the mission, and MISSION_CURRENT when the
@@ -743,11 +795,9 @@ class Server:
         self._was_armed = d.armed
         if plan.empty:
             return
-        st = self.loop.core.state
-        g = st.guidance
         outs: list[o.OutMessage] = []
-        if d.behavior is Behavior.MISSION and g is not None and g.behavior is Behavior.MISSION:
-            idx = g.mission_index
+        idx = self._index_flown(d)
+        if idx is not None:
             if idx >= len(plan.waypoints):
                 self._mission_complete = True
                 upto = plan.end_seq - 1 if plan.end_seq >= 0 else len(plan.items) - 1
@@ -755,7 +805,10 @@ class Server:
                 upto = plan.seq_of(idx) - 1
             outs += [o.MissionItemReachedOut(k) for k in range(self._mission_reached + 1, upto + 1)]
             self._mission_reached = max(self._mission_reached, upto)
-        if (self._mission_complete and plan.end_seq > self._mission_reached and not d.armed
+        # the end item: once landed and disarmed (a fixed wing, which does not land here: once its RTL or LAND
+        # loiter begins)
+        ended = not d.armed or (self._fw_stage() is not None and d.behavior in (Behavior.RTL, Behavior.LAND))
+        if (self._mission_complete and plan.end_seq > self._mission_reached and ended
                 and plan.end is not MissionEnd.HOLD):
             outs.append(o.MissionItemReachedOut(plan.end_seq))
             self._mission_reached = plan.end_seq
@@ -766,14 +819,64 @@ class Server:
         for msg in outs:
             self._broadcast(msg)
 
+    def _fw_stage(self) -> Any:
+        """The fixed wing's actuator stage (None for a multirotor)."""
+        return getattr(self.loop, "stage", None) if self.mav_type == o.MAV_TYPE_FIXED_WING else None
+
+    def _fw_mission(self) -> fixedwing_mission.FixedWingMission | None:
+        stage = self._fw_stage()
+        return None if stage is None else stage.fw_mission
+
+    def _fixed_wing_tick(self, d: Decision) -> None:
+        """After a fixed wing's tick: a new GOTO/ORBIT target re-enters the stage's behaviour (its loiter moves
+        there); the mission's resume point follows the stage's L1 mission; flown to its end, the mission's end
+        item (RTL, LAND) is commanded to the core, as the multirotor's core does itself."""
+        stage, fm = self._fw_stage(), self._fw_mission()
+        if stage is None or fm is None:
+            return
+        arb = self.loop.core.state.arbiter
+        if arb.target_seq != self._fw_target_seq:
+            self._fw_target_seq = arb.target_seq
+            stage.mode_key = None
+        if d.behavior is not Behavior.MISSION or d.authority is not Authority.TRUSTED or not stage.mission:
+            return
+        idx, finished = fixedwing_mission.progress(stage)
+        if not finished:
+            fm.resume_index, self._fw_mission_done = idx, False
+        elif not self._fw_mission_done:
+            self._fw_mission_done = True
+            fm.resume_index = 0  # a later start flies it again from the first waypoint
+            self._command_mission_end(d.t_s)
+
+    def _command_mission_end(self, t: float) -> None:
+        end = self.mission.plan.end
+        kind = {MissionEnd.RTL: GcsCommandKind.RTL, MissionEnd.LAND: GcsCommandKind.LAND}.get(end)
+        if kind is None:
+            return
+        self._cmd_seq += 1
+        self.pending.commands.append(GcsCommand(kind, seq=self._cmd_seq))
+        self.events.write({"t": t, "type": "fixed_wing_mission_end", "end": end.value})
+
+    def _index_flown(self, d: Decision) -> int | None:
+        """The waypoint being flown while the trusted MISSION flies (its length past the last), else None: the
+        core's guidance's for a multirotor, the fixed-wing stage's own L1 mission for a fixed wing."""
+        if d.behavior is not Behavior.MISSION:
+            return None
+        stage = self._fw_stage()
+        if stage is not None:
+            return fixedwing_mission.progress(stage)[0] if stage.mission else None
+        g = self.loop.core.state.guidance
+        return g.mission_index if g is not None and g.behavior is Behavior.MISSION else None
+
     def _mission_current_message(self, d: Decision | None) -> o.MissionCurrentOut:
         plan = self.mission.plan
         if plan.empty:
             return o.MissionCurrentOut(0, 0, o.MISSION_STATE_NO_MISSION, 2)
-        st = self.loop.core.state
-        g = st.guidance
         flying = d is not None and d.behavior is Behavior.MISSION
-        idx = g.mission_index if flying and g is not None and g.behavior is Behavior.MISSION else st.mission_index
+        idx = self._index_flown(d) if flying and d is not None else None
+        if idx is None:
+            fm = self._fw_mission()
+            idx = fm.resume_index if fm is not None else self.loop.core.state.mission_index
         if self._mission_complete:
             state, seq = o.MISSION_STATE_COMPLETE, plan.seq_of(len(plan.waypoints))
         else:
@@ -883,18 +986,22 @@ class Server:
             else:
                 self.sp = m.to_setpoint()
             self.sp_t = sp_t
-        inputs = Inputs(
-            state=state,
-            experimental=ExperimentalInput(self.hb_t, self.sp, self.sp_t, tuple(p.requests)),
-            operator=replace(self.op, link_t_s=self.rc_t) if self.rc_t is not None else OperatorInput(),
-            gcs_link_t_s=self.gcs_t,
-            gcs_commands=tuple(p.commands),
-        )
+        # the core's inputs, built as merlin sim builds them (merlin.pipeline.InputBuilder), with the
+        # vehicle's redundancy report
+        b = self.inputs
+        b.controller_heartbeat(self.hb_t)
+        b.setpoint(self.sp, self.sp_t)
+        b.request(tuple(p.requests))
+        b.gcs_heartbeat(self.gcs_t)
+        b.rc_frame(self.rc_t)
+        b.operator(self.op)
+        inputs = b.build(state, tuple(p.commands), self.loop.redundancy_report(t))
         prev = self.decision
         d = self.loop.act(inputs)
         if sp_arrival_ns:
             self.stats.record_setpoint_latency(time.monotonic_ns() - sp_arrival_ns)
         self.decision = d
+        self._fixed_wing_tick(d)
         self.ulog.record(t, state, d, self.sp, self.loop)
         for e in d.events:
             self._on_event(e, d)

@@ -2,7 +2,7 @@
 (:mod:`merlin.ulog.topics`), the events as logged messages, the envelope as parameters, and the
 configuration as information.
 
-The source is a table of columns named as ``merlin sim``'s log (``sims/runner.py``: ``t``, ``est_*``,
+The source is a table of columns named as ``merlin sim``'s log (``sims/run_log.py``: ``t``, ``est_*``,
 ``authority``, ``env_<parameter>``, ``mon_<monitor>``, ``detail_<monitor>_<key>``...). ``merlin sim``
 writes a whole run at once (:func:`write_flight_ulog`); ``merlin serve`` appends as it flies
 (:class:`FlightULog`, fed rows by :func:`flight_row`). The local positions are Merlin's frame: the

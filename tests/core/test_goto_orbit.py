@@ -101,3 +101,15 @@ def test_orbit_settles_on_its_circle_in_the_commanded_direction() -> None:
     assert abs(math.hypot(pos[0], pos[1]) - 20.0) < 0.5
     steps = [(b - a + math.pi) % (2 * math.pi) - math.pi for a, b in zip(angles[-500:], angles[-499:], strict=False)]
     assert all(x > 0 for x in steps)  # clockwise seen from above: the bearing from the centre increases
+
+
+def test_a_target_below_home_is_refused() -> None:
+    """An altitude read as above mean sea level that is below home (a script sending a height above home as
+    AMSL, say) would fly the trusted autopilot into the ground: refused, naming the depth."""
+    h = Harness()
+    h.airborne()
+    for kind in (GcsCommandKind.GOTO, GcsCommandKind.ORBIT):
+        d = h.tick(commands=(GcsCommand(kind, param=20.0, target_ned_m=(40.0, 0.0, 398.0)),))
+        [ack] = _acks(d)
+        assert not ack.accepted and ack.reason.code is ReasonCode.INVALID_INPUT and "below home" in ack.reason.text
+    assert h.core.state.arbiter.target_ned_m is None

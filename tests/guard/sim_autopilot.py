@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import socket
+import struct
 import threading
 import time
 from dataclasses import dataclass, field
@@ -30,6 +31,8 @@ from merlin.link.px4_modes import Px4AutoSubMode, Px4MainMode, Px4Mode
 
 PX4_PARAMS = {"COM_OF_LOSS_T": 0.5, "COM_OBL_RC_ACT": 5.0}
 COPTER_PARAMS = {"GUID_TIMEOUT": 0.5, "FS_GCS_ENABLE": 1.0, "FS_GCS_TIMEOUT": 2.0, "MAV_GCS_SYSID": 255.0}
+PX4_INT32 = frozenset({"COM_OBL_RC_ACT", "COM_OBL_ACT"})
+COPTER_INTEGER = frozenset({"FS_GCS_ENABLE", "MAV_GCS_SYSID"})
 ACC_MPS2 = 3.0
 
 
@@ -113,8 +116,14 @@ class SimAutopilot:
         elif name == "PARAM_REQUEST_READ":
             pid = msg.param_id if isinstance(msg.param_id, str) else msg.param_id.decode()  # type: ignore[attr-defined]
             if pid in self.params:
-                self.send(self.m.param_value_encode(pid.encode(), self.params[pid], mav.MAV_PARAM_TYPE_REAL32,
-                                                    len(self.params), 0))
+                value, ptype = self.params[pid], mav.MAV_PARAM_TYPE_REAL32
+                if self.dialect is Dialect.PX4 and pid in PX4_INT32:
+                    # PX4 sends integer parameters bytewise (the int's bytes as the float field)
+                    value = struct.unpack("<f", struct.pack("<i", int(value)))[0]
+                    ptype = mav.MAV_PARAM_TYPE_INT32
+                elif pid in COPTER_INTEGER:
+                    ptype = mav.MAV_PARAM_TYPE_INT8  # ArduPilot casts: 1 arrives as 1.0
+                self.send(self.m.param_value_encode(pid.encode(), value, ptype, len(self.params), 0))
         elif name == "SET_POSITION_TARGET_LOCAL_NED":
             self.track.setpoints_t.append(now)
             self.sp_t = now

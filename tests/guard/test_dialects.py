@@ -63,3 +63,14 @@ def test_copter_table_offboard_is_guided_and_brake_is_17() -> None:
 def test_fixed_wings_fall_back_to_the_autopilots_modes() -> None:
     plane = mode_table(detect(M.MAV_AUTOPILOT_ARDUPILOTMEGA, M.MAV_TYPE_FIXED_WING, 1, 1))  # type: ignore[arg-type]
     assert not plane.streams_setpoints and plane.offboard == M.PLANE_MODE_GUIDED
+
+
+def test_px4_integer_parameters_are_read_bytewise_and_ardupilots_as_cast() -> None:
+    import struct
+
+    five_bytewise = struct.unpack("<f", struct.pack("<i", 5))[0]
+    assert wire.param_number(wire.ParamValue("COM_OBL_RC_ACT", five_bytewise, 6), bytewise=True) == 5.0
+    minus_one = struct.unpack("<f", struct.pack("<i", -1))[0]  # NaN's bit pattern: still -1
+    assert wire.param_number(wire.ParamValue("COM_OBL_RC_ACT", minus_one, 6), bytewise=True) == -1.0
+    assert wire.param_number(wire.ParamValue("FS_GCS_ENABLE", 1.0, 2), bytewise=False) == 1.0
+    assert wire.param_number(wire.ParamValue("COM_OF_LOSS_T", 0.5, 9), bytewise=True) == 0.5

@@ -29,3 +29,37 @@ def test_bad_urls_name_the_option_the_text_and_the_forms(url: str, why: str) -> 
     with pytest.raises(EndpointError, match=why) as e:
         parse_endpoint(url, "--autopilot")
     assert "--autopilot" in str(e.value) and "allowed forms" in str(e.value)
+
+
+def test_tcp_client_and_server_carry_frames_both_ways() -> None:
+    import socket
+    import time
+
+    from merlin.guard.endpoints import open_transport
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = open_transport(parse_endpoint(f"tcpin:127.0.0.1:{port}"))
+    client = open_transport(parse_endpoint(f"tcp:127.0.0.1:{port}"))
+    try:
+        got: list[bytes] = []
+        for _ in range(100):  # accept happens on the server's first read
+            got += [d for d, _ in server.read(0.01)]
+            client.write(b"\xfd ping")
+            if got:
+                break
+            time.sleep(0.01)
+        assert got and got[0].startswith(b"\xfd ping") and not server.datagram
+        server.write(b"pong")
+        back: list[bytes] = []
+        for _ in range(100):
+            back += [d for d, _ in client.read(0.01)]
+            if back:
+                break
+        assert back == [b"pong"]
+        server.close()  # the peer goes away: the client reads silence, never raises
+        assert isinstance(client.read(0.05), list)
+        client.write(b"after close")
+    finally:
+        client.close()

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from hypothesis import given
+from hypothesis import strategies as st
+
 from merlin.guard import wire as w
 from merlin.guard.dialects import (
     MAV_AUTOPILOT_ARDUPILOTMEGA,
@@ -75,8 +78,35 @@ def test_flying_commands_need_authority_and_stream_rates_the_guard_needs_are_kep
     assert classify(w.COMMAND_INT, repos, ctx()).route is Route.DENY
     assert classify(w.COMMAND_INT, repos, ctx(experimental=True)).route is Route.FORWARD
     slow = cmd(w.MAV_CMD_SET_MESSAGE_INTERVAL, w.ATTITUDE, 1e6)
-    assert classify(w.COMMAND_LONG, slow, ctx()).route is Route.DENY
+    assert classify(w.COMMAND_LONG, slow, ctx()).route is Route.ACCEPT  # met by the guard's faster stream
+    off = cmd(w.MAV_CMD_SET_MESSAGE_INTERVAL, w.ATTITUDE, -1)
+    assert classify(w.COMMAND_LONG, off, ctx()).route is Route.DENY
     fast = cmd(w.MAV_CMD_SET_MESSAGE_INTERVAL, w.ATTITUDE, 10_000)
     assert classify(w.COMMAND_LONG, fast, ctx()).route is Route.FORWARD
     other = cmd(w.MAV_CMD_SET_MESSAGE_INTERVAL, 147, -1)  # BATTERY_STATUS off: not the guard's
     assert classify(w.COMMAND_LONG, other, ctx()).route is Route.FORWARD
+
+
+@given(experimental=st.booleans(), offboard=st.booleans(), trusted=st.booleans(), landed=st.booleans(),
+       msg_id=st.sampled_from(sorted(w.SETPOINT_IDS)))
+def test_no_setpoint_flies_the_vehicle_without_authority(experimental: bool, offboard: bool, trusted: bool,
+                                                         landed: bool, msg_id: int) -> None:
+    """Safety invariant: a controller's setpoint reaches an autopilot that flies setpoints (its offboard mode)
+    only while the controller holds EXPERIMENTAL authority, and never while Merlin's trusted autopilot flies."""
+    v = classify(msg_id, None, ctx(experimental=experimental, trusted=trusted and not experimental, landed=landed,
+                                   offboard=offboard))
+    if v.route is Route.FORWARD and not experimental:
+        assert not offboard and not trusted
+
+
+@given(main=st.integers(0, 255), sub=st.integers(0, 255), experimental=st.booleans(), trusted=st.booleans())
+def test_no_mode_command_from_the_controller_reaches_a_manual_mode(main: int, sub: int, experimental: bool,
+                                                                   trusted: bool) -> None:
+    """Safety invariant: whatever PX4 mode the controller asks for, it is forwarded only if it is the
+    offboard mode under authority or one of the autopilot's own safe modes, and never while Merlin flies."""
+    c = cmd(w.MAV_CMD_DO_SET_MODE, 1, main, sub)
+    v = classify(w.COMMAND_LONG, c, ctx(experimental=experimental, trusted=trusted and not experimental))
+    custom = PX4.requested_mode(main, sub)
+    if v.route in (Route.FORWARD, Route.RELEASE):
+        assert custom in PX4.release_modes or (custom == PX4.offboard and experimental)
+        assert not (trusted and not experimental)

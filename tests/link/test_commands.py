@@ -212,7 +212,7 @@ def test_refusals_say_why_terrain_frames_fixed_wing_zero_radius_reboot() -> None
     for cmd, kw, result in (
         (_cmd_int(192, 10, -1, 1, 0, NAN, 47.0, 8.0, 10.0), {}, MAV_RESULT_UNSUPPORTED),  # terrain frame
         (_cmd_int(34, 5, 0.0, 2, 0, 0, 47.0, 8.0, NAN), {}, MAV_RESULT_DENIED),  # zero radius
-        (_cmd_int(192, 5, -1, 1, 0, NAN, 47.0, 8.0, 410.0), {"fixed_wing": True}, MAV_RESULT_UNSUPPORTED),
+        (_cmd(178, 1, 20.0), {"fixed_wing": True}, MAV_RESULT_UNSUPPORTED),  # its own cruise airspeed
         (_cmd(178, 2, 1.0), {}, MAV_RESULT_UNSUPPORTED),  # climb speed
         (_cmd(178, 1, -1.0), {}, MAV_RESULT_DENIED),
         (_cmd(246, 1), {}, MAV_RESULT_UNSUPPORTED),  # reboot
@@ -221,6 +221,10 @@ def test_refusals_say_why_terrain_frames_fixed_wing_zero_radius_reboot() -> None
         assert isinstance(r, Refused) and r.result == result and r.detail, (cmd, r)
     [s] = interpret_command(_cmd(178, 1, 2.5, -1), LinkRole.GCS, 400.0)
     assert s == GcsCommand(GcsCommandKind.SPEED, param=2.5)
+    # a fixed wing flies a reposition and an orbit as loiter circles (merlin.autopilot.fixedwing_mission)
+    [g] = interpret_command(_cmd_int(192, 5, -1, 1, 0, NAN, 47.0, 8.0, 410.0), LinkRole.GCS, 400.0, frame=f,
+                            pos_ned_m=(0.0, 0.0, -5.0), fixed_wing=True)
+    assert isinstance(g, GcsCommand) and g.kind is GcsCommandKind.GOTO and g.target_ned_m == (0.0, 0.0, -10.0)
 
 
 def test_a_held_request_answers_in_progress_repeats_and_can_be_cancelled() -> None:

@@ -1,4 +1,4 @@
-"""Hardware redundancy inside the closed loop (sims/lanes.py wired into sims/runner.py): the IMU voter
+"""Hardware redundancy inside the closed loop (merlin/redundancy/lanes.py in the vehicle's tick): the IMU voter
 before the EKF, the degradation chain, three autopilot lanes with the bumpless switch."""
 
 from __future__ import annotations
@@ -13,15 +13,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
-import sims.lanes as lanes_mod
+import merlin.redundancy.lanes as lanes_mod
 from merlin.autopilot.multirotor_control import DEFAULT_GAINS, MIX_PITCH, MIX_ROLL, MIX_YAW, ControllerState
 from merlin.config.models import MerlinConfig
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
 from merlin.redundancy.events import RedundancyLevel
 from merlin.redundancy.lane_voter import BumplessSwitch
+from merlin.redundancy.lanes import BUMPLESS_STEP_PER_S, track_actuated
 from merlin.redundancy.sensor_suite import VOTED_LANE, SensorSuiteVoter
 from sims.expectations import evaluate
-from sims.lanes import BUMPLESS_STEP_PER_S, track_actuated
 from sims.runner import ClosedLoop, RunResult, run_scenario
 from sims.scenario import Expectation, Scenario
 

@@ -13,8 +13,8 @@ from pydantic import ValidationError
 
 from merlin.config.models import MerlinConfig
 from merlin.measurements import BaroSample, GpsSample, MagSample
+from merlin.redundancy.lanes import LaneContext, LaneNavigation, channel_specs, lane_config
 from merlin.redundancy.sensor_suite import VOTED_LANE, SensorSuiteVoter
-from sims.lanes import LaneContext, LaneNavigation, channel_specs, lane_config
 from sims.runner import ClosedLoop, gps_loss_spans, run_scenario
 from sims.scenario import Scenario
 from sims.sensor_faults import BaroBias, BaroStuck, GpsStuck, MagBias, SensorDropout, SensorFaultInjector

@@ -223,3 +223,21 @@ def test_manual_control_from_the_controller_link_never_makes_it_the_operator(ser
     assert [e["link"] for e in events if e["type"] == "manual_control_refused"] == ["controller"]
     _manual_control_burst(m, 2.0)  # the control: from the ground station it is the operator's
     assert [e for e in serve.events() if e["type"] == "authority" and e.get("to") == "OPERATOR"]
+
+
+def test_mavsdk_set_current_mission_item(serve: ServeProc) -> None:
+    """MAVSDK's own call (MISSION_SET_CURRENT, then it waits for MISSION_CURRENT with the item): accepted, and
+    MAVSDK's mission progress reads the item set."""
+    pytest.importorskip("mavsdk_grpc")
+    import socket
+
+    from tests.serve.conftest import lines_until
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        grpc_port = s.getsockname()[1]
+    p = serve.spawn("-m", "tests.serve.mavsdk_mission_current", f"udpin://0.0.0.0:{serve.ctl_port}", str(grpc_port))
+    out = "\n".join(lines_until(p, "FLOW FINISHED", 90))
+    assert "FLOW FINISHED" in out and "FLOW progress 2/3" in out, out[-2000:]
+    jumps = [e for e in serve.events() if e["type"] == "command_ack" and e["command"] == "MISSION_CURRENT"]
+    assert [j["accepted"] for j in jumps] == [True], jumps

@@ -1,14 +1,26 @@
 """The MAVSDK example flows on the native ``mavsdk`` 4.x binding (:mod:`tests.serve.px4_examples_native`)
-against a fresh ``merlin serve``: the mission (upload, start on the ground, RTL after it, back on the
-ground), take-off and land, and offboard velocity NED."""
+against a fresh ``merlin serve``: the twelve MAVSDK-Python examples, checked as their gRPC twins in
+:mod:`tests.serve.test_px4_examples_grpc` (the two information flows share one serve: they change nothing)."""
 
 from __future__ import annotations
 
+import math
 import time
+from pathlib import Path
+from typing import Any
 
 import pytest
 
-from tests.serve.conftest import ServeProc, lines_until
+from tests.serve.conftest import (
+    STEP_TIMEOUT_S,
+    ServeProc,
+    gcs_connection,
+    lines_until,
+    start_serve,
+    stop,
+    wait_for,
+)
+from tests.serve.px4_examples import PX4_HOME
 
 pytest.importorskip("mavsdk.asyncio", reason="the native MAVSDK binding (mavsdk 4.x) runs these flows")
 pytestmark = pytest.mark.integration
@@ -54,3 +66,77 @@ def test_native_offboard_velocity_ned(serve: ServeProc) -> None:
     assert not any(e["type"] == "denied" for e in events)
     # flown to its end inside the default envelope: no revocation
     assert not any(e["type"] == "revoked" for e in events), [e for e in events if e["type"] == "revoked"]
+
+
+def _types(serve: ServeProc, kind: str) -> list[dict[str, Any]]:
+    return [e for e in serve.events() if e["type"] == kind]
+
+
+def _flown(serve: ServeProc, revoked_on: tuple[str, ...] = ()) -> None:
+    """Granted, never denied, revoked only on ``revoked_on`` (the envelope parameters the example leaves)."""
+    assert _types(serve, "granted"), "never granted OFFBOARD"
+    assert not _types(serve, "denied"), _types(serve, "denied")
+    revoked = _types(serve, "revoked")
+    assert [(r["reason"], r["reason_detail"]["parameter"]) for r in revoked] == [
+        ("envelope", p) for p in revoked_on], revoked
+
+
+def test_native_firmware_version_and_all_params(serve: ServeProc) -> None:
+    out = run_native(serve, "firmware_version", 60)
+    assert "flight_sw_major" in out or "Version" in out, out[-2000:]
+    out = run_native(serve, "all_params", 90)
+    assert "IntParam" in out or "FloatParam" in out or "name" in out.lower(), out[-2000:]
+
+
+def test_native_telemetry_takeoff_and_land(serve: ServeProc) -> None:
+    out = run_native(serve, "telemetry_takeoff_and_land", 120)
+    assert "Altitude: 10" in out or "Altitude: 9" in out, out[-2000:]
+
+
+def test_native_offboard_position_ned(serve: ServeProc) -> None:
+    run_native(serve, "offboard_position_ned", 120)  # its last setpoint is on the ground (the gRPC test's note)
+    _flown(serve, revoked_on=("altitude_m",))
+
+
+def test_native_offboard_velocity_body(serve: ServeProc) -> None:
+    run_native(serve, "offboard_velocity_body", 150)
+    _flown(serve)
+
+
+def test_native_offboard_attitude(serve: ServeProc) -> None:
+    run_native(serve, "offboard_attitude", 90)  # granted on the ground, 0.7 thrust revoked on vel_d (gRPC test)
+    _flown(serve, revoked_on=("vel_d_mps",))
+    assert "LAND" in _wait_behaviour(serve, "LAND")
+
+
+def test_native_offboard_position_velocity_ned(serve: ServeProc) -> None:
+    run_native(serve, "offboard_position_velocity_ned", 120)
+    _flown(serve)
+
+
+def test_native_do_orbit(serve: ServeProc) -> None:
+    run_native(serve, "do_orbit", 150)
+    assert "RTL" in _wait_behaviour(serve, "RTL")
+
+
+def test_native_goto(tmp_path: Path) -> None:
+    cfg = tmp_path / "range_1500m.yaml"
+    lat, lon, alt = PX4_HOME
+    cfg.write_text(f"home: {{lat_deg: {lat}, lon_deg: {lon}, alt_amsl_m: {alt}}}\n"
+                   "geofence:\n  inclusion_circles: [{name: wide range, center_ne_m: [0, 0], radius_m: 1500}]\n")
+    serve = start_serve(tmp_path, "--config", str(cfg))
+    try:
+        m = gcs_connection(serve.gcs_port)
+        run_native(serve, "goto", 90)
+        k = 111_320.0
+        target = (47.399386, 8.535245)
+        track = []
+        t_end = time.monotonic() + 15.0
+        while time.monotonic() < t_end:  # every report read as it arrives (the gRPC test's note)
+            pos = wait_for(m, lambda x: x.get_type() == "GLOBAL_POSITION_INT", timeout_s=STEP_TIMEOUT_S)
+            assert pos is not None
+            track.append(math.hypot((pos.lat / 1e7 - target[0]) * k,
+                                    (pos.lon / 1e7 - target[1]) * k * math.cos(math.radians(target[0]))))
+        assert track[-1] < track[0] - 40.0, (track[0], track[-1])
+    finally:
+        stop(serve)

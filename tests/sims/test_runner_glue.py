@@ -11,7 +11,8 @@ import pytest
 
 import sims.runner as runner
 from merlin.config.models import MerlinConfig
-from sims.runner import ClosedLoop, RunResult, _Log, run_scenario
+from sims.run_log import _Log
+from sims.runner import ClosedLoop, RunResult, run_scenario
 from sims.scenario import Scenario
 
 TAKEOFF = [{"t": 0.5, "command": "arm"}, {"t": 1.0, "command": "takeoff", "param": 8}]

@@ -1,14 +1,16 @@
-"""Hardware redundancy inside the closed loop: the IMU voter before the EKF and three autopilot lanes.
+"""The vehicle's redundancy stages: the IMU voter before the estimator and three autopilot lanes.
 
-Two stages the runner (:class:`sims.runner.ClosedLoop`) builds when the scenario's ``redundancy:``
-section asks for them, and that cost nothing when it does not (the runner holds ``None`` and skips them):
+Flight logic, used by every driver of the tick (:mod:`merlin.pipeline`; the simulator's loops build it from a
+scenario's ``redundancy:`` section in :mod:`sims.lane_faults`), and costing nothing when off (the driver
+holds ``None`` and skips it):
 
-* :class:`ImuVoterStage` -- sensors -> **voter** -> estimator. The simulator's three IMU lanes go through
+* :class:`ImuVoterStage` -- sensors -> **voter** -> estimator. The three IMU lanes go through
   :class:`merlin.redundancy.sensor_suite.SensorSuiteVoter`: per-lane validation, mid-value select,
   miscompare persistence, latched isolation, and the degradation chain triplex -> duplex (seed 003's
-  particle-filter FDI arbitrates the pair) -> simplex. The voted IMU sample is what the fusion EKF
-  predicts with. The airframe has one magnetometer, one barometer and one GPS: they pass through
-  unvoted, and the single magnetometer is the one both duplex filters read.
+  particle-filter FDI arbitrates the pair) -> simplex. It returns :class:`VotedSensors`: the voted IMU
+  sample the fusion EKF predicts with and, as a value, the change of IMU source the estimator must
+  widen its biases for. With one magnetometer, barometer and GPS they pass through unvoted, and the
+  single magnetometer is the one both duplex filters read.
 * :class:`AutopilotLanes` -- three instances of Merlin's inner-loop stack
   (:func:`merlin.autopilot.multirotor_control.control_step`), lane i on IMU lane i for its rate and
   acceleration feedback, each lane running seed 000's :class:`~merlin.redundancy.lane_voter.LaneVoter`
@@ -16,16 +18,17 @@ section asks for them, and that cost nothing when it does not (the runner holds 
   :class:`~merlin.redundancy.lane_voter.Selector` picks the lane whose command drives the motors through
   a :class:`~merlin.redundancy.lane_voter.BumplessSwitch`, and every standby lane back-calculates its
   integrators onto the actuated command (:func:`track_actuated`), so it never fights the active lane and
-  a hand-over starts from where the motors are.
+  a hand-over starts from where the motors are. A lane's failure (silent, babbling, mute) is the
+  world's: a driver that injects them (the simulator) hands a :class:`LaneFaults` in.
 
 What is shared and what is not: the three lanes share the one navigation solution (one EKF, or the
 stand-in estimator) for position, velocity and attitude; each lane's rate loop and velocity-D term read
 its own IMU lane, which is where lane-to-lane differences come from (turn-on biases, noise). A real
 triplex has three filters as well; running three EKFs here would triple the cost of the slowest stage
 for no behaviour the scenarios exercise (a lane's nav solution diverging is seen by its flags the same
-way).
+way). ``lane_navigation: own`` (:class:`LaneNavigation`) runs them.
 
-Events are plain dicts like the runner's others, with types ``imu_<kind>`` (``imu_stuck``,
+Events are plain dicts like the driver's others, with types ``imu_<kind>`` (``imu_stuck``,
 ``imu_isolated``, ``imu_degraded``, ``imu_alert``, ``imu_fault_declared``, ...) and ``autopilot_<kind>``
 (``autopilot_peer_silent``, ``autopilot_vote_changed``, ``autopilot_lane_switch``, ...); ``lane`` is
 the unit concerned (-1: the channel).
@@ -34,9 +37,8 @@ the unit concerned (-1: the channel).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -52,7 +54,17 @@ from merlin.autopilot.multirotor_control import (
     reset_from_state,
 )
 from merlin.config.models import RedundancyConfig
-from merlin.core.types import Command, CommandKind, NavMode, RedundancyReport, VehicleState
+from merlin.core.arbiter import column
+from merlin.core.config import CoreConfig
+from merlin.core.types import (
+    Action,
+    Command,
+    CommandKind,
+    Decision,
+    NavMode,
+    RedundancyReport,
+    VehicleState,
+)
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
 from merlin.redundancy.duplex_fdi import FDI_PRESETS, FdiState
 from merlin.redundancy.events import FaultReport, RedundancyLevel
@@ -69,7 +81,6 @@ from merlin.redundancy.lane_voter import (
 )
 from merlin.redundancy.sensor_suite import SensorSuiteVoter
 from merlin.redundancy.sensor_voter import CHANNEL_SPECS, ChannelSpec, LaneState
-from sims.scenario import Fault, Scenario
 
 # The bumpless limit: the most a hand-over may move any one motor command (0..1) per 400 Hz tick.
 # Merlin's number, from the airframe: the motors' speed time constant is 0.04 s
@@ -105,12 +116,6 @@ PF_SIGMA_MAG_GAUSS = 0.01
 PF_RESIDUAL_ACCEL_G = 0.1
 
 
-def sensor_voter_on(sc: Scenario) -> bool:
-    """The IMU voter is on when asked, and by default whenever the fusion EKF is (it feeds the EKF)."""
-    v = sc.redundancy.sensor_voter
-    return sc.estimator == "ekf" if v is None else v
-
-
 def _event(r: FaultReport) -> dict[str, Any]:
     d = r.to_dict()
     channel = r.sensor.split(".", 1)[0]
@@ -124,14 +129,33 @@ def _event(r: FaultReport) -> dict[str, Any]:
 # ------------------------------------------------------------------------------------------ IMU voter
 
 
+@dataclass(frozen=True, slots=True)
+class VotedSensors:
+    """What the voter stage hands the estimator and the autopilot lanes at one tick."""
+
+    #: the voted IMU sample (None before the first one)
+    imu: ImuSample | None
+    #: the change of IMU source fed this tick, (gyro, accel) bias steps, else None: the estimator widens its
+    #: bias uncertainty by it (the new source's biases are not the old one's)
+    imu_source_step: tuple[float, ...] | None
+    #: the IMU lanes' samples the vote read, and which lanes the voter has isolated (the autopilot lanes')
+    imu_lanes: tuple[ImuSample | None, ...]
+    imu_isolated: tuple[bool, ...]
+    #: with three magnetometer / barometer / GPS units: the voted samples of this tick (None when no unit
+    #: delivered one this tick); with one unit of each, None (the estimator reads the frame's own)
+    mag: MagSample | None = None
+    baro: BaroSample | None = None
+    gps: GpsSample | None = None
+
+
 class ImuVoterStage:
     """The three IMU lanes voted (with the degradation chain) before the estimator; one call per tick."""
 
     def __init__(self, rng: np.random.Generator, field_ned_gauss: tuple[float, float, float],
                  fdi_preset: str = "merlin", specs: dict[str, ChannelSpec] | None = None) -> None:
         base = FDI_PRESETS[fdi_preset]
-        # the PF's reference field must be the one the simulated magnetometer measures (seed 003 assumed
-        # southern Italy's; the simulator's is the IGRF dipole at the scenario's home)
+        # the PF's reference field must be the one the magnetometer measures (seed 003 assumed southern
+        # Italy's; the simulator's is the IGRF dipole at the scenario's home)
         cfg = replace(base, pf=replace(base.pf, earth_field_ned_gauss=field_ned_gauss,
                                        sigma_mag_gauss=PF_SIGMA_MAG_GAUSS),
                       residual_sigma=(PF_RESIDUAL_ACCEL_G, *base.residual_sigma[1:]))
@@ -139,27 +163,18 @@ class ImuVoterStage:
         self.events: list[dict[str, Any]] = []
         self._imu: tuple[ImuSample | None, ...] = (None, None, None)
         self._mag: MagSample | None = None
-        # with three magnetometer / barometer / GPS units: each unit's newest sample, and the voted
-        # samples of this tick (None when no unit delivered one this tick): what the EKF fuses
+        # with three magnetometer / barometer / GPS units: each unit's newest sample
         self._mags: list[MagSample | None] = [None] * N_LANES
         self._baros: list[BaroSample | None] = [None] * N_LANES
         self._gpss: list[GpsSample | None] = [None] * N_LANES
-        self.voted_mag: MagSample | None = None
-        self.voted_baro: BaroSample | None = None
-        self.voted_gps: GpsSample | None = None
-        self._t: float | None = None
-        self.voted: ImuSample | None = None
-        self.imu_source_step: tuple[float, ...] | None = None  # the IMU source fed changed this tick
         self.level = RedundancyLevel.TRIPLEX
         self.levels: dict[str, RedundancyLevel] = {}
         self.nav_health = 1.0
 
-    def vote(self, t: float, frame: Any) -> ImuSample | None:
-        """The voted IMU sample at ``t`` from the tick's :class:`sims.sensors.SensorFrame` (cached: a
-        second call in the same tick returns the first's answer)."""
-        if self._t == t:
-            return self.voted
-        self._t = t
+    def vote(self, t: float, frame: Any) -> VotedSensors:
+        """The voted samples at ``t`` from the tick's sensor frame (``imu``, ``mag``, ``baro``, ``gps`` and,
+        with three units of each, ``*_lanes``: :class:`sims.sensors.SensorFrame`'s fields). Call once per
+        tick: the voter's persistence counts ticks."""
         if frame.mag is not None:
             self._mag = frame.mag
         if frame.imu:
@@ -167,8 +182,9 @@ class ImuVoterStage:
                 raise ValueError(f"the IMU voter needs {N_LANES} IMU lanes, the simulator has {len(frame.imu)}")
             self._imu = frame.imu
         # the voter's clock is the sensors' (the samples' time of validity): with healthy lanes the voted
-        # sample is then bit for bit the per-axis median the runner used before the voter
+        # sample is then bit for bit the per-axis median of the lanes
         ts = frame.imu[0].t_s if frame.imu else t
+        mag = baro = gps = None
         if frame.gps_lanes:
             if len(frame.gps_lanes) != N_LANES:
                 raise ValueError(f"the sensor voter needs {N_LANES} GPS/baro/mag units, got {len(frame.gps_lanes)}")
@@ -180,19 +196,17 @@ class ImuVoterStage:
                         held[i] = smp  # type: ignore[assignment]
                         new[k] = True
             out = self.suite.step(ts, self._imu, tuple(self._mags), tuple(self._baros), tuple(self._gpss))
-            self.voted_mag = out.mag if new[0] else None
-            self.voted_baro = out.baro if new[1] else None
-            self.voted_gps = out.gps if new[2] else None
+            mag = out.mag if new[0] else None
+            baro = out.baro if new[1] else None
+            gps = out.gps if new[2] else None
         else:
             out = self.suite.step(ts, self._imu, (self._mag,), (frame.baro,), (frame.gps,))
         for r in out.events:
             self.events.append(_event(r))
-        self.voted = out.imu
-        self.imu_source_step = out.imu_source_step
         self.levels = dict(out.levels)
         self.level = self.levels["imu"]
         self.nav_health = out.nav_health
-        return out.imu
+        return VotedSensors(out.imu, out.imu_source_step, self._imu, self.isolated, mag, baro, gps)
 
     @property
     def isolated(self) -> tuple[bool, ...]:
@@ -212,8 +226,6 @@ class ImuVoterStage:
             return 0.0
         return {FdiState.NORMAL: 1.0, FdiState.ALERT: 2.0}.get(fdi.state, 3.0)
 
-    def lane_samples(self) -> tuple[ImuSample | None, ...]:
-        return self._imu
 
 
 # ------------------------------------------------------------------------------------ autopilot lanes
@@ -241,12 +253,22 @@ def track_actuated(st: ControllerState, own: MotorCommands, actuated: tuple[floa
     return st._replace(rate_int=rate_int, hover_thrust_est=h)
 
 
-@dataclass(frozen=True, slots=True)
-class LaneFailure:
-    lane: int
-    start_s: float
-    end_s: float
-    mode: str  # "silent", "garbage" or "mute" (its messages no longer reach its peers; it hears them)
+#: A failed lane's mode: "silent" (it stops), "garbage" (it keeps talking nonsense and commands random
+#: motors) or "mute" (its messages no longer reach its peers; it hears them); None: healthy.
+LaneMode = str | None
+NO_FAILURE: tuple[LaneMode, ...] = (None,) * N_LANES
+
+
+class LaneFaults(Protocol):
+    """Failures of the autopilot lanes' own hardware, injected by a driver that simulates them."""
+
+    def failed(self, t: float) -> tuple[LaneMode, ...]:
+        """Each lane's failure mode at ``t``."""
+        ...
+
+    def garbage(self, lane: int) -> MotorCommands:
+        """The motor command a babbling lane outputs this tick."""
+        ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -269,6 +291,24 @@ class LaneContext:
 
 
 NO_CONTEXT = LaneContext()
+
+
+def lane_context(decision: Decision, core_cfg: CoreConfig, battery_frac: float) -> LaneContext:
+    """What every autopilot lane reads beside its own sensors after the core's ``decision``: the battery
+    reading against the configured critical level, whether the core acts on a failsafe (a tripped monitor
+    whose rule gives more than a warning under the decision's authority) and the GCS link watchdog."""
+    rows = {r.monitor: r for r in core_cfg.rules}
+    failsafe = False
+    link_ok = True
+    for m in decision.monitors:
+        if not m.tripped:
+            continue
+        if m.name == "gcs_link":
+            link_ok = False
+        row = rows.get(m.name)
+        if row is not None and column(row, decision.authority) > Action.WARN:
+            failsafe = True
+    return LaneContext(battery_frac > core_cfg.battery.critical_frac, not failsafe, link_ok)
 
 # A lane's own position stops being valid after this long without a position aid (GPS or VO): PX4's
 # COM_POS_FS_DELAY default, 1 s, the delay after which the commander declares local position invalid when
@@ -302,6 +342,11 @@ class LaneNavigation:
         self.states: list[VehicleState] = [VehicleState()] * N_LANES
         self.last_seen: list[dict[str, float]] = [{} for _ in range(N_LANES)]
         self.events: list[dict[str, Any]] = []
+        # per lane: one of its own magnetometer, barometer or GPS units isolated by the sensor voter (with
+        # three of each). PX4's sensors-healthy condition, the thesis's sensors_initialized, falls the same
+        # way when its own sensor checks fail (seed 000 §5.3.2: instance 0's stuck magnetometers);
+        # examples/scenarios/seed000_mag_failure_thesis.yaml pins it
+        self.units_isolated: tuple[bool, ...] = (False,) * N_LANES
 
     def _unit(self, frame: Any, name: str, lane: int) -> Any:
         lanes = getattr(frame, f"{name}_lanes")
@@ -342,8 +387,8 @@ class LaneNavigation:
         sensors and the vehicle-wide ``ctx``."""
         st = self.states[lane]
         seen = self.last_seen[lane]
-        sensors_ok = all(k in seen and t - seen[k] <= _SENSOR_TIMEOUT_S[k] + 1e-9
-                         for k in ("imu", "mag", "baro", "gps"))
+        sensors_ok = not self.units_isolated[lane] and all(k in seen and t - seen[k] <= _SENSOR_TIMEOUT_S[k] + 1e-9
+                                                           for k in ("imu", "mag", "baro", "gps"))
         gyro_ok = imu is not None and not imu_isolated and all(math.isfinite(v) for v in imu.gyro_frd_radps) \
             and "imu" in seen and t - seen["imu"] <= _SENSOR_TIMEOUT_S["imu"] + 1e-9
         aided = st.nav_mode is NavMode.GPS or st.nav_mode is NavMode.VO or (
@@ -370,14 +415,13 @@ class AutopilotLanes:
     """Three inner-loop lanes, seed 000's exchange and vote, the selector and the bumpless switch."""
 
     def __init__(self, cfg: LaneVoterConfig, dt_s: float, hover_thrust: float, gains: MultirotorGains,
-                 failures: list[LaneFailure], rng: np.random.Generator, max_step: float | None = None,
+                 faults: LaneFaults | None = None, max_step: float | None = None,
                  tracking_gain: float | None = None) -> None:
         self.cfg = cfg
         self.dt = dt_s
         self.gains = gains
         self.hover = hover_thrust
-        self.failures = failures
-        self.rng = rng
+        self.faults = faults
         self.max_step = BUMPLESS_STEP_PER_S * dt_s if max_step is None else max_step
         self.tracking_gain = TRACKING_GAIN if tracking_gain is None else tracking_gain
         self.voters = [LaneVoter(cfg, i) for i in range(N_LANES)]
@@ -402,13 +446,6 @@ class AutopilotLanes:
         self.nav: LaneNavigation | None = None  # each lane's own estimator (lane_navigation: own)
         self.max_sigma_h_m = math.inf  # a lane's position is invalid beyond this sigma (config nav limit)
         self._ctx = NO_CONTEXT
-
-    def failed(self, t: float) -> tuple[str | None, ...]:
-        out: list[str | None] = [None] * N_LANES
-        for f in self.failures:
-            if f.start_s <= t < f.end_s:
-                out[f.lane] = f.mode
-        return tuple(out)
 
     @staticmethod
     def own_flags(state: VehicleState, imu: ImuSample | None, imu_isolated: bool,
@@ -441,7 +478,7 @@ class AutopilotLanes:
         picks, the switch actuates, the standby lanes track. Returns the four motor commands. With
         :attr:`nav` set (``lane_navigation: own``) lane i flies on its own estimate ``nav.states[i]``."""
         self._ctx = ctx
-        failed = self.failed(t)
+        failed = NO_FAILURE if self.faults is None else self.faults.failed(t)
         flying = cmd.kind is CommandKind.VELOCITY or cmd.kind is CommandKind.ATTITUDE
         if flying and self.takeoff_t is None:
             self.takeoff_t = t
@@ -451,8 +488,8 @@ class AutopilotLanes:
             if mode == "silent":
                 continue
             if mode == "garbage":
-                g = self.rng.random(4)
-                own[i] = (float(g[0]), float(g[1]), float(g[2]), float(g[3]))
+                assert self.faults is not None
+                own[i] = self.faults.garbage(i)
                 continue
             lane_state = self._lane_state(state, imu[i]) if self.nav is None else self.nav.states[i]
             if flying:
@@ -585,12 +622,7 @@ class AutopilotLanes:
         }
 
 
-def lane_failures(faults: list[Fault]) -> list[LaneFailure]:
-    return [LaneFailure(f.lane, f.start_s, math.inf if f.end_s is None else f.end_s, f.mode)
-            for f in faults if f.type == "autopilot_lane_fail"]
-
-
-# ------------------------------------------------------------------------------- the runner's handle
+# ------------------------------------------------------------------------------- the driver's handle
 
 
 def channel_specs(rc: RedundancyConfig) -> dict[str, ChannelSpec]:
@@ -633,39 +665,51 @@ def lane_config(rc: RedundancyConfig, preset: str | None = None) -> LaneVoterCon
 _LEVEL_WORD = {3: "TRIPLEX", 2: "DUPLEX", 1: "SIMPLEX", 0: "NONE"}
 
 
-class Redundancy:
-    """What :class:`sims.runner.ClosedLoop` holds when the scenario's ``redundancy:`` section is active:
-    the IMU voter stage (or None), the autopilot lanes (or None), their events, log row and metrics."""
+@dataclass(frozen=True, slots=True)
+class RedundancySetup:
+    """The redundant hardware the vehicle carries and how its stages run (a simulated vehicle's from its
+    scenario's ``redundancy:`` section, :func:`sims.lane_faults.redundancy_setup`)."""
 
-    def __init__(self, sc: Scenario, rng: np.random.Generator, field_ned_gauss: tuple[float, float, float],
-                 hover_thrust: float, gains: MultirotorGains, rc: RedundancyConfig | None = None,
-                 ekf_factory: Callable[[], Any] | None = None,
-                 standin_factory: Callable[[np.random.Generator, int], Any] | None = None,
+    dt_s: float
+    sensor_voter: bool = False  # the IMU voter before the estimator
+    autopilot_lanes: int = 1  # 3: three voted inner-loop lanes
+    sensor_lanes: int = 1  # magnetometer, barometer and GPS units: 1 (passed through) or 3 (voted)
+    fdi_preset: str | None = None  # None: the configuration's redundancy.fdi_preset
+    lane_preset: str | None = None  # None: the configuration's redundancy.lane_preset
+    bumpless_step: float | None = None  # None: BUMPLESS_STEP_PER_S * dt_s
+    lane_navigation: str = "shared"  # "own": each lane its own estimator (LaneNavigation)
+
+    @property
+    def wanted(self) -> bool:
+        return self.sensor_voter or self.autopilot_lanes == 3
+
+
+class VehicleRedundancy:
+    """What a vehicle's tick holds when it carries redundant hardware: the IMU voter stage (or None), the
+    autopilot lanes (or None), each lane's own estimator (or None), their events, log row and metrics, and
+    the report handed to the core."""
+
+    def __init__(self, setup: RedundancySetup, voter_rng: np.random.Generator,
+                 field_ned_gauss: tuple[float, float, float], hover_thrust: float, gains: MultirotorGains,
+                 rc: RedundancyConfig | None = None, lane_faults: LaneFaults | None = None,
+                 lane_ekfs: list[Any] | None = None, lane_standins: list[Any] | None = None,
                  max_sigma_h_m: float = math.inf) -> None:
-        """``ekf_factory`` (a new fusion EKF) or ``standin_factory`` (rng, lane -> a stand-in estimator)
-        builds each lane's own estimator when the scenario asks for ``lane_navigation: own``."""
+        """``lane_ekfs`` (fusion EKFs) or ``lane_standins`` (stand-in estimators), one per lane, are each
+        lane's own estimator with ``lane_navigation: own``."""
         rc = RedundancyConfig() if rc is None else rc
-        r_vote, r_lanes = rng.spawn(2)
-        fdi = sc.redundancy.fdi_preset or rc.fdi_preset
-        self.voter = ImuVoterStage(r_vote, field_ned_gauss, fdi, channel_specs(rc)) if sensor_voter_on(sc) \
+        fdi = setup.fdi_preset or rc.fdi_preset
+        self.voter = ImuVoterStage(voter_rng, field_ned_gauss, fdi, channel_specs(rc)) if setup.sensor_voter \
             else None
-        self.aux_voted = sc.redundancy.sensor_lanes == 3
+        self.aux_voted = setup.sensor_lanes == 3
         self.lanes: AutopilotLanes | None = None
-        if sc.redundancy.autopilot_lanes == 3:
-            step = sc.redundancy.bumpless_step
-            self.lanes = AutopilotLanes(lane_config(rc, sc.redundancy.lane_preset), sc.dt_s, hover_thrust, gains,
-                                        lane_failures(sc.faults), r_lanes, max_step=step)
+        if setup.autopilot_lanes == 3:
+            self.lanes = AutopilotLanes(lane_config(rc, setup.lane_preset), setup.dt_s, hover_thrust, gains,
+                                        lane_faults, max_step=setup.bumpless_step)
         self.lane_nav: LaneNavigation | None = None
-        if sc.redundancy.lane_navigation == "own" and self.lanes is not None:
-            # streams spawned after the voter's and the lanes' (theirs stay as they were)
-            r_nav = rng.spawn(N_LANES)
-            if ekf_factory is not None:
-                self.lane_nav = LaneNavigation([ekf_factory() for _ in range(N_LANES)], None,
-                                               sc.redundancy.sensor_lanes)
-            else:
-                assert standin_factory is not None
-                self.lane_nav = LaneNavigation(None, [standin_factory(r_nav[i], i) for i in range(N_LANES)],
-                                               sc.redundancy.sensor_lanes)
+        if setup.lane_navigation == "own" and self.lanes is not None:
+            if lane_ekfs is None and lane_standins is None:
+                raise ValueError("lane_navigation 'own' needs each lane's estimator (lane_ekfs or lane_standins)")
+            self.lane_nav = LaneNavigation(lane_ekfs, lane_standins, setup.sensor_lanes)
             self.lanes.nav = self.lane_nav
             self.lanes.max_sigma_h_m = max_sigma_h_m
         self._report = RedundancyReport()
@@ -701,33 +745,27 @@ class Redundancy:
             self._report = RedundancyReport(low, health, cause)
         return self._report
 
-    @staticmethod
-    def wanted(sc: Scenario) -> bool:
-        return sensor_voter_on(sc) or sc.redundancy.autopilot_lanes == 3
-
     def sense(self, t: float, frame: Any, truth: Any, armed: bool, batt_frac: float) -> VehicleState:
         """With ``lane_navigation: own``: every lane's own estimate; the core sees the selected lane's."""
         assert self.lane_nav is not None and self.lanes is not None
         states = self.lane_nav.sense(t, frame, truth, armed, batt_frac)
         return states[self.lanes.selected]
 
-    def motors(self, t: float, cmd: Command, state: VehicleState, frame: Any,
+    def motors(self, t: float, cmd: Command, state: VehicleState, voted: VotedSensors | None, frame: Any,
                ctx: LaneContext = NO_CONTEXT) -> MotorCommands:
-        """The actuated command from the three lanes (call only when ``lanes`` is set)."""
+        """The actuated command from the three lanes (call only when ``lanes`` is set): ``voted`` is this
+        tick's voter output (None without the voter: the lanes then read the frame's IMU lanes)."""
         assert self.lanes is not None
-        if self.voter is not None:
-            self.voter.vote(t, frame)  # cached when the EKF path already voted this tick
-            imu = self.voter.lane_samples()
-            iso = self.voter.isolated
+        if voted is not None:
+            imu, iso = voted.imu_lanes, voted.imu_isolated
+            if self.voter is not None and self.lane_nav is not None and self.aux_voted:
+                self.lane_nav.units_isolated = tuple(
+                    any(self.voter.channel_lanes(ch)[i].isolated for ch in ("mag", "baro", "gps"))
+                    for i in range(N_LANES))
         else:
             imu = tuple(frame.imu) if frame.imu and len(frame.imu) == N_LANES else (None, None, None)
             iso = (False, False, False)
         return self.lanes.step(t, cmd, state, imu, iso, ctx)
-
-    def observe(self, t: float, frame: Any) -> None:
-        """Run the voter for its events when no EKF consumes it (estimator: truth_plus_noise)."""
-        if self.voter is not None:
-            self.voter.vote(t, frame)
 
     @property
     def events(self) -> list[dict[str, Any]]:

@@ -1,0 +1,68 @@
+"""The fusion EKF as the tick's estimator stage (:mod:`merlin.pipeline`).
+
+Per tick, in this order: predict with the voted IMU sample (or, without the voter, the per-axis median of
+three IMU lanes: the triplex voter's selection rule, without its isolation) and widen the filter's bias
+uncertainty when the voter changed IMU source; fuse GPS, barometer and magnetometer (the voted samples when
+the vehicle carries three units of each); then any further aiding a driver adds (the camera's visual
+odometry); collect the filter's events. What the filter does not estimate (armed, on the ground, battery,
+airspeed) the driver completes from its own sensors.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from merlin.core.types import VehicleState
+from merlin.measurements import ImuSample
+from merlin.nav.estimator import NavEstimator
+from merlin.redundancy.lanes import VotedSensors
+
+
+class FusionStage:
+    """:class:`merlin.nav.estimator.NavEstimator` on the tick's sensor frame; ``events`` collects its
+    events as plain dicts (``nav_<kind>``)."""
+
+    def __init__(self, ekf: NavEstimator, aiding: Callable[[float, NavEstimator], Any] | None = None,
+                 complete: Callable[[VehicleState], VehicleState] | None = None) -> None:
+        self.ekf = ekf
+        #: called after the sensor updates with (t, filter): the driver's further aiding (visual odometry)
+        self.aiding = aiding
+        #: the driver's completion of the filter's state (armed, on the ground, battery, airspeed)
+        self.complete = complete
+        self.events: list[dict[str, Any]] = []
+
+    def estimate(self, t: float, frame: Any, voted: VotedSensors | None) -> VehicleState:
+        """The filter's state after this tick's samples (``frame``: ``imu`` lanes, ``gps``, ``baro``,
+        ``mag`` and, with three units of each, ``*_lanes``)."""
+        fr = frame
+        ekf = self.ekf
+        if voted is not None:
+            imu_v = voted.imu
+            if fr.imu and imu_v is not None:
+                ekf.predict(imu_v)
+                step = voted.imu_source_step
+                if step is not None:  # a lane switch: the new source's biases are not the old one's
+                    ekf.widen_imu_bias(step[3:6], step[0:3])
+        elif fr.imu:
+            lanes = fr.imu
+            if len(lanes) == 3:
+                g = tuple(sorted(s.gyro_frd_radps[i] for s in lanes)[1] for i in range(3))
+                a = tuple(sorted(s.accel_frd_mps2[i] for s in lanes)[1] for i in range(3))
+                imu = ImuSample(lanes[0].t_s, g, a, -1)
+            else:
+                imu = lanes[0]
+            ekf.predict(imu)
+        gps, baro, mag = fr.gps, fr.baro, fr.mag
+        if fr.gps_lanes and voted is not None:
+            # three units of each: the voted samples, not lane 0's
+            gps, baro, mag = voted.gps, voted.baro, voted.mag
+        ekf.update_samples(gps, baro, mag)
+        if self.aiding is not None:
+            self.aiding(t, ekf)
+        for e in ekf.pop_events():
+            self.events.append({"t": e.t_s, "type": f"nav_{e.kind.value}", "source": e.source,
+                                "parameter": e.parameter, "statistic": e.statistic, "limit": e.limit,
+                                "text": e.describe()})
+        st = ekf.state()
+        return st if self.complete is None else self.complete(st)
