@@ -466,7 +466,10 @@ class FixedWingBehaviours:
                 self.gstate, targets, _status = fg.guidance_step(self.gp, self.cp, self.gstate, s)
             self.escape_side = 0.0
             return targets
-        return replace(targets, roll_rad=self.escape_side * fc.bank_limit_rad(self.cp))
+        # at the bank limit and the airspeed the fence projection assumed for the turn (fixed_wing_turn): a
+        # slower cruise would fade the bank, a faster one widen the turn
+        return replace(targets, roll_rad=self.escape_side * fc.bank_limit_rad(self.cp),
+                       airspeed_mps=fc.escape_airspeed_mps(self.cp))
 
 
 #: Rate of the fixed-wing guidance and inner loops (the gains were tuned at 100 Hz in tests/fixedwing; PX4

@@ -220,6 +220,26 @@ def bank_limit_rad(p: FixedWingControlParams) -> float:
     return min(p.bank_max_rad, math.acos(1.0 / max(p.load_factor_max, 1.0 + 1e-9)))
 
 
+#: The escape turn's airspeed is this far above the full-bank airspeed: the speed loop approaches its target
+#: exponentially, so a target at the full-bank airspeed itself would reach it only asymptotically.
+ESCAPE_AIRSPEED_MARGIN_MPS = 0.5
+
+
+def full_bank_airspeed_mps(p: FixedWingControlParams) -> float:
+    """The slowest airspeed at which the loops give the whole bank: below ``airspeed_min + bank_full_margin``
+    the bank fades out, and a stall recovery holds the wings level until ``airspeed_min +
+    recovery_exit_margin`` (:func:`control_step`)."""
+    return p.airspeed_min_mps + max(p.bank_full_margin_mps, p.recovery_exit_margin_mps)
+
+
+def escape_airspeed_mps(p: FixedWingControlParams) -> float:
+    """The airspeed the trusted escape turn is flown at (:mod:`merlin.autopilot.fixedwing_behaviours`), and
+    the one the core's fence projection assumes for it (:func:`merlin.core.geofence.fixed_wing_turn`, filled in
+    by :func:`merlin.config.fence_build.build_fence_params`): just above the full-bank airspeed, so the
+    whole bank is available and the turn is as tight as the loops fly one."""
+    return full_bank_airspeed_mps(p) + ESCAPE_AIRSPEED_MARGIN_MPS
+
+
 @dataclass(frozen=True, slots=True)
 class _Energy:
     ste_d: float
@@ -434,9 +454,14 @@ def control_step(
     else:
         pass  # full power at once, or TECS's slewed above
     pitch_target = _clip(pitch_target, p.pitch_min_rad, p.pitch_max_rad)
-    v_ground = math.sqrt(sum(c * c for c in s.vel_ned_mps))
-    if v_ground > 3.0:
-        gamma = math.asin(_clip(-s.vel_ned_mps[2] / v_ground, -1.0, 1.0))
+    # The flight path against the air (alpha ~ theta - gamma holds in the air mass): the airspeed, not the
+    # groundspeed, under the vertical speed (no vertical wind). Against a strong headwind the ground path is
+    # far steeper than the air path, and a cap on the ground path held the nose down in a dive at an angle
+    # of attack of 3 deg (a floor trip at 42 m in a 12 m/s headwind, escape-turning at the bank limit, flew
+    # into the ground; tests/fixedwing/test_autopilot.py pins the cap against the air path).
+    v_air = s.airspeed_mps
+    if v_air > 3.0:
+        gamma = math.asin(_clip(-s.vel_ned_mps[2] / v_air, -1.0, 1.0))
         pitch_target = min(pitch_target, gamma + p.alpha_protect_rad * math.cos(phi))
 
     # ---- setpoint slewing (bumpless, and gentle on the airframe)

@@ -577,6 +577,58 @@ def _clamp_above_env(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
                          "send is revoked for the speed Merlin chose to fly it at")
 
 
+def _grant_heights(cfg: MerlinConfig) -> tuple[float | None, float | None]:
+    """(enforced, derived) minimum grant heights: what the arbiter refuses below
+    (:func:`merlin.config.runtime.min_grant_height_m`), and, for a fixed wing, the height the stall recovery's
+    bound derives (None for a multirotor)."""
+    from merlin.config.runtime import min_grant_height_m
+
+    derived = None
+    if cfg.vehicle.type.value == "fixed_wing":
+        from merlin.autopilot import fixedwing_recovery
+
+        derived = fixedwing_recovery.min_grant_height_m(cfg)
+    return min_grant_height_m(cfg), derived
+
+
+@cross_check("XC025", "grant-below-recovery-height", Severity.WARNING,
+             "a fixed wing may be granted below the height from which its stall recovery keeps the floor")
+def _grant_below_recovery(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
+    """``handover.min_grant_height_m`` set below the derived minimum grant height (the floor, or the envelope's
+    altitude minimum, plus the recovery's height bound): a revocation just after such a grant may take the
+    aircraft through the floor. A warning, not an error: a test range may choose it (the recovery scenarios
+    ``fw_adv_push_before_stall_38m`` and ``_45m`` fly a configuration that does, to measure the recovery)."""
+    enforced, derived = _grant_heights(inp.cfg)
+    if derived is None or enforced is None or enforced >= derived - 1e-9:
+        return
+    yield c.make(("handover.min_grant_height_m", "geofence.altitude_floor_m", "geofence.margin_m",
+                  _stage_key(inp.cfg, "altitude_m")),
+                 {"min_grant_height_m": enforced, "derived_m": derived},
+                 f"grants are allowed from {enforced:g} m, below the {derived:.1f} m from which the stall recovery "
+                 "keeps the floor (floor + margin + the recovery's height bound, merlin.autopilot.fixedwing_recovery): "
+                 "a revocation just after a grant there may go through the floor")
+
+
+@cross_check("XC026", "no-grant-height", Severity.ERROR,
+             "the minimum grant height is at or above the ceiling or the envelope's altitude maximum")
+def _no_grant_height(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
+    """No height is left at which a grant is allowed and the vehicle may fly: every request is refused."""
+    enforced, _derived = _grant_heights(inp.cfg)
+    if enforced is None:
+        return
+    _, hi = _altitude_band(inp)
+    alt = inp.cfg.envelope.effective().get("altitude_m")
+    tops: list[tuple[float | None, str, tuple[str, ...]]] = [
+        (hi, "the fence ceiling less its margin", ("geofence.altitude_ceiling_m", "geofence.margin_m"))]
+    if alt is not None and alt.enabled:
+        tops.append((alt.max, "the envelope's altitude maximum", (_stage_key(inp.cfg, "altitude_m"),)))
+    for top, what, keys in tops:
+        if top is not None and enforced >= top:
+            yield c.make(("handover.min_grant_height_m", *keys), {"min_grant_height_m": enforced, "highest_m": top},
+                         f"no grant is allowed below {enforced:.1f} m, and {what} is {top:g} m: every request for "
+                         "authority is refused")
+
+
 #: Grid spacing of the range's sample points for XC022, m.
 REACHABILITY_SPACING_M = 10.0
 
@@ -607,6 +659,8 @@ CHECKS: tuple[CrossCheck, ...] = (
     _return_path,
     _mission_in_range,
     _clamp_above_env,
+    _grant_below_recovery,
+    _no_grant_height,
 )
 
 

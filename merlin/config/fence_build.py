@@ -38,6 +38,16 @@ def build_fence_params(geofence_cfg: GeofenceConfig, vehicle_cfg: VehicleLimits)
         "position_only" if geofence_cfg.mode.value == "position_only" else "velocity_projection"
     )
     vehicle: VehicleKind = "fixed_wing" if vehicle_cfg.type.value == "fixed_wing" else "multirotor"
+    turn: dict[str, float] = {}
+    if vehicle == "fixed_wing":
+        # The escape turn as Merlin's fixed-wing loops fly it: one model for the projection and the takeover
+        # (merlin.core.geofence.fixed_wing_turn). Imported here: the core never depends on the autopilot.
+        from merlin.autopilot import fixedwing_control as fc
+
+        cp = fc.FixedWingControlParams()
+        turn = {"full_bank_airspeed_mps": fc.full_bank_airspeed_mps(cp),
+                "turn_airspeed_mps": fc.escape_airspeed_mps(cp),
+                "turn_speed_gain_per_s": cp.speed_gain_per_s}
     return FenceParams(
         mode=mode,
         margin_m=geofence_cfg.margin_m,
@@ -52,6 +62,7 @@ def build_fence_params(geofence_cfg: GeofenceConfig, vehicle_cfg: VehicleLimits)
         enabled=geofence_cfg.enabled,
         max_h_accel_mps2=STANDARD_GRAVITY_MPS2 * math.tan(math.radians(vehicle_cfg.max_tilt_deg)),
         max_v_accel_mps2=vehicle_cfg.max_vertical_accel_mps2,
+        **turn,
     )
 
 

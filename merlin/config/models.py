@@ -498,6 +498,12 @@ class HandoverConfig(Strict):
     )
     max_attitude_rate_degps: float = Field(90.0, gt=0.0, description="attitude command slew limit")
     max_thrust_rate_per_s: float = Field(1.0, gt=0.0, description="collective slew limit, 1/s")
+    min_grant_height_m: float | None = Field(
+        None, ge=0.0,
+        description="no grant below this height above home. None: for a fixed wing the height from which the "
+                    "stall recovery keeps the floor, derived from the aircraft model (merlin.autopilot."
+                    "fixedwing_recovery.min_grant_height_m); for a multirotor no limit. A fixed-wing value below "
+                    "the derived one is cross-check XC025")
     # PX4's offboard flows let the controller's own setpoints lift the vehicle (MAVSDK's offboard_attitude
     # example): the altitude floors cannot judge a vehicle still below them, so they are deferred for such a
     # take-off, and this bounds it: a controller may climb through the floors, not stay below them

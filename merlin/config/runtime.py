@@ -57,6 +57,19 @@ def envelope_limits(cfg: MerlinConfig, stage: str | None = None) -> tuple[Envelo
     return tuple(out)
 
 
+def min_grant_height_m(cfg: MerlinConfig) -> float | None:
+    """The height above home below which the arbiter refuses a grant: the configuration's
+    ``handover.min_grant_height_m``, else, for a fixed wing, the height from which its stall recovery keeps
+    the floor (:func:`merlin.autopilot.fixedwing_recovery.min_grant_height_m`), else none."""
+    if cfg.handover.min_grant_height_m is not None:
+        return float(cfg.handover.min_grant_height_m)
+    if cfg.vehicle.type.value != "fixed_wing":
+        return None
+    # the autopilot's recovery law and the aircraft model (the config layer may read the autopilot; the core
+    # only receives the number)
+    from merlin.autopilot import fixedwing_recovery
+
+    return fixedwing_recovery.min_grant_height_m(cfg)
 def _takeover(monitor: MonitorId, oversight_envelope: bool, oversight_geofence: bool) -> Takeover:
     """The table's takeover column: a pilot who takes over during an envelope or geofence trip is given the
     override grace to fly out of it (or is not judged by it at all when its oversight is switched off);
@@ -107,6 +120,7 @@ def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig
             max_accel_mps2=h.max_accel_mps2,
             max_attitude_rate_radps=h.max_attitude_rate_degps * _DEG,
             max_thrust_rate_per_s=h.max_thrust_rate_per_s,
+            min_grant_height_m=min_grant_height_m(cfg),
             ground_takeoff_s=h.ground_takeoff_s,
         ),
         operator=OperatorParams(

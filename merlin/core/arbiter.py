@@ -32,7 +32,7 @@ from collections.abc import Mapping
 from typing import NamedTuple
 
 from merlin.core import geofence
-from merlin.core.config import Clear, CoreConfig, RuleRow, Takeover
+from merlin.core.config import Clear, CoreConfig, HandoverParams, RuleRow, Takeover
 from merlin.core.types import (
     ACTION_BEHAVIOR,
     Action,
@@ -487,6 +487,19 @@ def _exchange_block(st: ArbiterState, view: TickView, cfg: CoreConfig, target: A
             f"refused: {st.revocations} revocations this flight, the limit is {limit}",
         )
     return view.grant_block
+
+
+def grant_height_block(handover: HandoverParams, alt_m: float) -> Reason | None:
+    """Why a grant must be refused at height ``alt_m`` above home (None: it may be granted): below
+    ``handover.min_grant_height_m`` a revocation could not recover above the floor (for a fixed wing, the
+    stall recovery's height bound, :func:`merlin.config.runtime.min_grant_height_m`). A height that is not a
+    number is refused too. Scenarios ``fw_adv_push_before_stall_38m`` and ``_45m`` pin it."""
+    limit = handover.min_grant_height_m
+    if limit is None or alt_m >= limit:
+        return None
+    return Reason(ReasonCode.PRECONDITION, "arbiter", "altitude_m", alt_m, limit, 0.0,
+                  f"refused: {alt_m:.1f} m is below the minimum grant height {limit:.1f} m (the height from "
+                  "which a revocation still recovers above the floor)")
 
 
 def _exchange(st: ArbiterState, view: TickView, cfg: CoreConfig, events: list[Event]) -> ArbiterState:

@@ -95,6 +95,7 @@ class HandoverParams:
     max_accel_mps2: float = 6.0
     max_attitude_rate_radps: float = 1.5708
     max_thrust_rate_per_s: float = 1.0
+    min_grant_height_m: float | None = None  # no grant below this height above home (None: no limit)
     ground_takeoff_s: float = 10.0
 
 

@@ -129,6 +129,14 @@ class FenceParams:
     # g tan(max tilt), vertically the climb/sink acceleration limit); see ``demand_vel_ned_mps`` of check().
     max_h_accel_mps2: float = STANDARD_GRAVITY_MPS2 * math.tan(math.radians(45.0))  # VehicleLimits.max_tilt_deg
     max_v_accel_mps2: float = 4.0
+    # Fixed wing: how the trusted loops fly the escape turn (:func:`fixed_wing_turn`). Below
+    # ``full_bank_airspeed_mps`` they hold the wings (nearly) level and regain speed towards
+    # ``turn_airspeed_mps`` at the speed loop's first-order rate ``turn_speed_gain_per_s``; the turn is
+    # then flown at the bank limit at ``turn_airspeed_mps`` (or the current airspeed, if faster). 0 for
+    # both airspeeds: the turn at the current airspeed, at once (no speed to regain).
+    full_bank_airspeed_mps: float = 0.0
+    turn_airspeed_mps: float = 0.0
+    turn_speed_gain_per_s: float = 0.6
 
     def __post_init__(self) -> None:
         problems: list[str] = []
@@ -140,7 +148,16 @@ class FenceParams:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 problems.append(f"{name}={v!r} must be finite and >= 0")
-        for name in ("max_h_decel_mps2", "max_v_decel_mps2", "gravity_mps2", "max_h_accel_mps2", "max_v_accel_mps2"):
+        for name in ("full_bank_airspeed_mps", "turn_airspeed_mps"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and 0.0 <= v <= MAX_SPEED_MPS):
+                problems.append(f"{name}={v!r} must be finite and in [0, {MAX_SPEED_MPS:g}]")
+        if self.full_bank_airspeed_mps > 0.0 and not (self.turn_airspeed_mps > self.full_bank_airspeed_mps):
+            problems.append(f"turn_airspeed_mps ({self.turn_airspeed_mps!r}) must be above full_bank_airspeed_mps "
+                            f"({self.full_bank_airspeed_mps!r}) when that is given (the speed loop never reaches "
+                            "its own target)")
+        for name in ("max_h_decel_mps2", "max_v_decel_mps2", "gravity_mps2", "max_h_accel_mps2", "max_v_accel_mps2",
+                     "turn_speed_gain_per_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0.0):
                 problems.append(f"{name}={v!r} must be finite and > 0")
@@ -572,15 +589,16 @@ def check(fence: Fence, pos_ned_m: Sequence[float], vel_ned_mps: Sequence[float]
                 ve = 0.0
             v = math.hypot(vn, ve)
             wind = (wn, we)
-        leg = v * tr
-        radius = v * v / (prm.gravity_mps2 * math.tan(prm.bank_limit_rad))
+        turn = fixed_wing_turn(prm, v)
+        leg, radius = turn.leg_m, turn.radius_m
         d = leg + math.pi * radius
-        drift = _drift_m(wind, v, tr, radius)
+        drift = _drift_m(wind, turn)
         # farthest point of either turn from the position, plus the drift over the whole manoeuvre
         reach = math.hypot(leg, radius) + radius + drift
         # the polyline's chord error (beyond the finest table only for turns wider than ~2.6 km)
-        sag = _WIND_SAG_FACTOR * max(ARC_CHORD_ERROR_M, radius * fence._arc_tables[-1][1])
+        sag = _WIND_SAG_FACTOR * max(ARC_CHORD_ERROR_M, radius * fence._arc_tables[-1][1]) + _leg_sag_m(turn)
     else:
+        turn = None
         leg = radius = sag = drift = 0.0
         d = v * tr + v * v / (2.0 * prm.max_h_decel_mps2)
         reach = d
@@ -592,7 +610,7 @@ def check(fence: Fence, pos_ned_m: Sequence[float], vel_ned_mps: Sequence[float]
             if demand is not None:
                 return _check_demand(fence, n, e, h, vd, -dvd, sigma_v_m, airborne, w, demand)
 
-    return _verdict(fence, n, e, h, vn, ve, vd, v, d, leg, radius, w, sag, reach, fixed_wing, wind, drift,
+    return _verdict(fence, n, e, h, vn, ve, vd, v, d, leg, radius, w, sag, reach, turn, wind, drift,
                     sigma_v_m, airborne)
 
 
@@ -634,12 +652,14 @@ def _check_position_only(fence: Fence, n: float, e: float, h: float, airborne: b
 
 def _verdict(
     fence: Fence, n: float, e: float, h: float, vn: float, ve: float, vd: float, v: float, d: float, leg: float,
-    radius: float, w: float, sag: float, reach: float, fixed_wing: bool, wind: tuple[float, float], drift: float,
-    sigma_v_m: float, airborne: bool,
+    radius: float, w: float, sag: float, reach: float, turn: FixedWingTurn | None, wind: tuple[float, float],
+    drift: float, sigma_v_m: float, airborne: bool,
 ) -> FenceResult:
     """The projected path (horizontal, then ceiling and floor) against the fence, and the tripped kind with its
-    clearance (computed only on a trip: it is the costly part)."""
+    clearance (computed only on a trip: it is the costly part). ``turn``: the fixed wing's escape (None: a
+    multirotor's straight braking path)."""
     prm = fence.params
+    fixed_wing = turn is not None
     tr = prm.reaction_time_s
     ceiling, floor = prm.altitude_ceiling_m, prm.altitude_floor_m
     trip_h = False
@@ -651,7 +671,7 @@ def _verdict(
             elif fence._grid_nj and _grid_clears_path(fence, n, e, vn, ve, v, d, leg, radius, w, fixed_wing, drift):
                 trip_h = False
             else:
-                trip_h = _path_hits(fence, n, e, vn, ve, v, d, leg, radius, w, sag, reach, fixed_wing, wind)
+                trip_h = _path_hits(fence, n, e, vn, ve, v, d, turn, w, sag, reach, wind)
 
     wv = prm.margin_m + prm.sigma_k * sigma_v_m
     trip_c = trip_f = False
@@ -678,9 +698,7 @@ def _verdict(
         return FenceResult(True, "floor", dv_down, h - floor - wv)
     # Coordinates near the underflow range make GEOS raise floating-point flags; the answers stay sound.
     with np.errstate(all="ignore"):
-        kind, clearance = _projected_clearance(
-            fence, n, e, vn, ve, v, d, leg, radius, w, sag, reach, fixed_wing, wind
-        )
+        kind, clearance = _projected_clearance(fence, n, e, vn, ve, v, d, turn, w, sag, reach, wind)
     return FenceResult(True, kind, d, clearance)
 
 
@@ -775,7 +793,7 @@ def _check_demand(
         return FenceResult(True, "floor", dv_down, h - floor - wv)
     with np.errstate(all="ignore"):
         kind, clearance = _projected_clearance(
-            fence, n, e, 0.0, 0.0, d, d, 0.0, 0.0, w + sag, 0.0, reach, False, _NO_WIND, verts
+            fence, n, e, 0.0, 0.0, d, d, None, w + sag, 0.0, reach, _NO_WIND, verts
         )
     return FenceResult(True, kind, d, clearance)
 
@@ -940,11 +958,80 @@ _WIND_SAG_FACTOR = 1.05
 _NO_WIND: tuple[float, float] = (0.0, 0.0)
 
 
-def _drift_m(wind: tuple[float, float], v_air: float, reaction_s: float, radius: float) -> float:
-    """How far the wind carries a fixed wing over the reaction leg and the half turn (0 without wind)."""
-    if wind is _NO_WIND or not (v_air > 0.0):
+class FixedWingTurn(NamedTuple):
+    """The fixed-wing escape as the trusted loops fly it, in the air mass (:func:`fixed_wing_turn`).
+
+    A straight leg of ``leg_m``: the reaction time at the airspeed ``v0_mps`` of the trip, then, when the
+    aircraft is slower than the loops' full-bank airspeed, the speed regained wings level, for
+    ``accel_s`` (the speed loop's first-order approach to ``v_turn_mps``). Then the half turn of
+    ``radius_m`` at the bank limit, flown at ``v_turn_mps``. ``duration_s``: the whole manoeuvre's time
+    (what the wind drifts it by)."""
+
+    v0_mps: float
+    reaction_s: float
+    accel_s: float
+    v_turn_mps: float
+    speed_gain_per_s: float
+    leg_m: float
+    radius_m: float
+    duration_s: float
+
+    def leg_s_m(self, t: FloatArray) -> FloatArray:
+        """Distance along the leg at the times ``t`` (0..reaction_s + accel_s)."""
+        tr, v0, k, ve = self.reaction_s, self.v0_mps, self.speed_gain_per_s, self.v_turn_mps
+        ta = np.clip(t - tr, 0.0, None)
+        return np.asarray(v0 * np.minimum(t, tr) + ve * ta - (ve - v0) * (1.0 - np.exp(-k * ta)) / k)
+
+
+def fixed_wing_turn(prm: FenceParams, v_air_mps: float) -> FixedWingTurn:
+    """The escape the projection assumes from horizontal airspeed ``v_air_mps``, in the model the trusted
+    loops fly (:mod:`merlin.autopilot.fixedwing_control`, whose parameters set ``full_bank_airspeed_mps``,
+    ``turn_airspeed_mps`` and ``turn_speed_gain_per_s`` through :func:`merlin.config.fence_build`):
+
+    * the reaction time at the current airspeed (detection, roll-in);
+    * below the full-bank airspeed ``V_b`` the loops give the bank only in part (and none while they
+      recover from a stall), so the turn waits for the speed: the speed loop approaches its target ``V_t``
+      as ``V_t - (V_t - v) exp(-k t)``, which reaches ``V_b`` after ``ln((V_t - v) / (V_t - V_b)) / k``
+      over ``V_t t - (V_t - v)(1 - exp(-k t)) / k`` (flown straight: the partial bank on the way only
+      turns the aircraft earlier, away from the hazard the turn escapes);
+    * the half turn at the bank limit at ``max(v, V_t)``: the radius ``V^2 / (g tan(bank))`` and the time
+      ``pi V / (g tan(bank))`` both grow with the speed, so the faster speed the loops may fly it at is
+      the cautious one (the loops slow a faster aircraft to ``V_t`` in the turn).
+
+    Scenarios ``fw_adv_slow_pullup_west_wind`` and ``fw_adv_slow_climb_notch`` pin it: a slow aircraft
+    revoked where the turn at its current airspeed would have cleared the edge, whose real turn started
+    seconds later and wider and left the range."""
+    v = max(v_air_mps, 0.0)
+    tr = prm.reaction_time_s
+    g_tan = prm.gravity_mps2 * math.tan(prm.bank_limit_rad)
+    k = prm.turn_speed_gain_per_s
+    vt = max(v, prm.turn_airspeed_mps)
+    accel_s = 0.0
+    if v < prm.full_bank_airspeed_mps:
+        accel_s = math.log((vt - v) / (vt - prm.full_bank_airspeed_mps)) / k
+    leg = v * tr + vt * accel_s - (vt - v) * (1.0 - math.exp(-k * accel_s)) / k
+    radius = vt * vt / g_tan
+    return FixedWingTurn(v, tr, accel_s, vt, k, leg, radius, tr + accel_s + math.pi * vt / g_tan)
+
+
+#: Time samples of a leg that regains speed in a wind (its ground path is curved: the air path's distance
+#: is not linear in time while the drift is); the chord error between samples is added to the widening.
+_LEG_SAMPLES = 8
+
+
+def _leg_sag_m(turn: FixedWingTurn) -> float:
+    """The largest chord error of a sampled speed-regaining leg (:func:`_turn_path`); 0 when none is flown."""
+    if not (turn.accel_s > 0.0):
         return 0.0
-    return math.hypot(wind[0], wind[1]) * (reaction_s + math.pi * radius / v_air)
+    dt = turn.accel_s / _LEG_SAMPLES
+    return (turn.v_turn_mps - turn.v0_mps) * turn.speed_gain_per_s * dt * dt / 8.0
+
+
+def _drift_m(wind: tuple[float, float], turn: FixedWingTurn) -> float:
+    """How far the wind carries a fixed wing over the reaction leg and the half turn (0 without wind)."""
+    if wind is _NO_WIND or not (turn.v_turn_mps > 0.0):
+        return 0.0
+    return math.hypot(wind[0], wind[1]) * turn.duration_s
 
 
 def _turn_path(
@@ -953,33 +1040,46 @@ def _turn_path(
     e: float,
     un: float,
     ue: float,
-    leg: float,
-    radius: float,
+    turn: FixedWingTurn,
     side: float,
     wind: tuple[float, float] = _NO_WIND,
-    v_air: float = 0.0,
 ) -> tuple[FloatArray, float]:
-    """The fixed-wing path: reaction leg, then a half turn (side +1 right, -1 left). Returns (verts, sag).
+    """The fixed-wing path: the straight leg, then a half turn (side +1 right, -1 left). Returns (verts, sag).
 
-    ``un, ue`` is the direction of the air velocity. With a ``wind`` (and the airspeed ``v_air``), each
-    vertex is moved downwind by ``wind * t``, ``t`` being when the aircraft flying the air path at
-    ``v_air`` reaches it: the ground path of a constant-bank turn in a steady wind."""
+    ``un, ue`` is the direction of the air velocity. With a ``wind``, each vertex is moved downwind by
+    ``wind * t``, ``t`` being when the aircraft flying the air path (:class:`FixedWingTurn`) reaches it:
+    the ground path of a constant-bank turn in a steady wind. A leg that regains speed is sampled in time
+    (its ground path bends), and its chord error is added to the returned sag."""
+    leg, radius = turn.leg_m, turn.radius_m
     sag, cphi, sphi = _arc_table(fence, radius)
     an, ae = n + leg * un, e + leg * ue  # start of the turn
     rn, re_ = -ue * side, un * side  # unit normal towards the turn centre (right of u for side = +1)
-    verts = np.empty((cphi.shape[0] + 1, 2))
+    drifting = wind is not _NO_WIND and turn.v_turn_mps > 0.0
+    lead = _LEG_SAMPLES + 1 if drifting and turn.accel_s > 0.0 else 1
+    verts = np.empty((cphi.shape[0] + lead, 2))
+    t = np.empty(verts.shape[0])
     verts[0, 0], verts[0, 1] = n, e
+    t[0] = 0.0
+    if lead > 1:
+        # the end of the reaction leg, then the speed regained, in equal steps of time
+        tl = turn.reaction_s + turn.accel_s * np.arange(0, _LEG_SAMPLES) / _LEG_SAMPLES
+        sl = turn.leg_s_m(tl)
+        verts[1:lead, 0] = n + sl * un
+        verts[1:lead, 1] = e + sl * ue
+        t[1:lead] = tl
+        # |d2s/dt2| <= (V_t - v) k; a chord over dt is within max|p''| dt^2 / 8 of the curve
+        leg_sag = _leg_sag_m(turn)
+    else:
+        leg_sag = 0.0
     # point(phi) = centre + R (-normal cos(phi) + u sin(phi)): phi = 0 is the turn's start, heading u.
-    verts[1:, 0] = an + radius * (rn - rn * cphi + un * sphi)
-    verts[1:, 1] = ae + radius * (re_ - re_ * cphi + ue * sphi)
-    if wind is not _NO_WIND and v_air > 0.0:
-        t = np.empty(verts.shape[0])
-        t[0] = 0.0
+    verts[lead:, 0] = an + radius * (rn - rn * cphi + un * sphi)
+    verts[lead:, 1] = ae + radius * (re_ - re_ * cphi + ue * sphi)
+    if drifting:
         # the tables hold phi = linspace(0, pi, m + 1); arctan2 gives it back exactly enough for a time
-        t[1:] = (leg + radius * np.arctan2(sphi, cphi)) / v_air
+        t[lead:] = turn.reaction_s + turn.accel_s + radius * np.arctan2(sphi, cphi) / turn.v_turn_mps
         verts[:, 0] += wind[0] * t
         verts[:, 1] += wind[1] * t
-        sag *= _WIND_SAG_FACTOR
+        sag = sag * _WIND_SAG_FACTOR + leg_sag
     return verts, sag
 
 
@@ -991,15 +1091,14 @@ def _path_hits(
     ve: float,
     v: float,
     d: float,
-    leg: float,
-    radius: float,
+    turn: FixedWingTurn | None,
     w: float,
     sag: float,
     reach: float,
-    fixed_wing: bool,
     wind: tuple[float, float] = _NO_WIND,
 ) -> bool:
-    """The exact test: does the projected path (either turn, for a fixed wing) come within w of a hazard."""
+    """The exact test: does the projected path (either turn, for a fixed wing: ``turn`` given) come within w
+    of a hazard."""
     hazard = _local_hazard(fence, n, e, reach + w + sag)
     if hazard is _NOTHING_NEAR:
         return False
@@ -1008,13 +1107,13 @@ def _path_hits(
         # length of a tiny one, so the path is tested as its start point with the widening grown by its
         # reach (cautious by at most a micrometre).
         return bool(shapely.dwithin(hazard, shapely.points((n, e)), w + reach))
-    if not fixed_wing:
+    if turn is None:
         k = d / v
         path = shapely.linestrings(np.array(((n, e), (n + k * vn, e + k * ve))))
         return bool(shapely.dwithin(hazard, path, w))
     un, ue = vn / v, ve / v
     for side in (1.0, -1.0):
-        verts, arc_sag = _turn_path(fence, n, e, un, ue, leg, radius, side, wind, v)
+        verts, arc_sag = _turn_path(fence, n, e, un, ue, turn, side, wind)
         if not bool(shapely.dwithin(hazard, shapely.linestrings(verts), w + arc_sag)):
             return False  # this turn stays clear: no trip
     return True
@@ -1102,12 +1201,10 @@ def _projected_clearance(
     ve: float,
     v: float,
     d: float,
-    leg: float,
-    radius: float,
+    turn: FixedWingTurn | None,
     w: float,
     sag: float,
     reach: float,
-    fixed_wing: bool,
     wind: tuple[float, float] = _NO_WIND,
     path_verts: FloatArray | None = None,
 ) -> tuple[FenceKind, float]:
@@ -1116,9 +1213,9 @@ def _projected_clearance(
     ``path_verts``: a multirotor path given as a polyline (:func:`_demanded_path`) instead of the segment."""
     if path_verts is not None:
         paths = [(path_verts, 0.0)]
-    elif fixed_wing:
+    elif turn is not None:
         un, ue = (vn / v, ve / v) if v > 0.0 else (1.0, 0.0)
-        paths = [_turn_path(fence, n, e, un, ue, leg, radius, side, wind, v) for side in (1.0, -1.0)]
+        paths = [_turn_path(fence, n, e, un, ue, turn, side, wind) for side in (1.0, -1.0)]
     else:
         k = d / v if v > 0.0 else 0.0
         paths = [(np.array(((n, e), (n + k * vn, e + k * ve))), 0.0)]
@@ -1223,14 +1320,14 @@ def turn_clearances(
             free = _INF if d > w else 0.0
             return TurnClearance(1, d - w, free), TurnClearance(-1, d - w, free)
         un, ue = vn / v, ve / v
-        leg = v * prm.reaction_time_s
-        radius = v * v / (prm.gravity_mps2 * math.tan(prm.bank_limit_rad))
-        reach = math.hypot(leg, radius) + radius + _drift_m(wind, v, prm.reaction_time_s, radius)
-        sag_max = _WIND_SAG_FACTOR * max(ARC_CHORD_ERROR_M, radius * fence._arc_tables[-1][1])
+        turn = fixed_wing_turn(prm, v)
+        radius = turn.radius_m
+        reach = math.hypot(turn.leg_m, radius) + radius + _drift_m(wind, turn)
+        sag_max = _WIND_SAG_FACTOR * max(ARC_CHORD_ERROR_M, radius * fence._arc_tables[-1][1]) + _leg_sag_m(turn)
         hazard = _local_hazard(fence, n, e, reach + w + sag_max)
         out = []
         for side in (1, -1):
-            verts, arc_sag = _turn_path(fence, n, e, un, ue, leg, radius, float(side), wind, v)
+            verts, arc_sag = _turn_path(fence, n, e, un, ue, turn, float(side), wind)
             line = shapely.linestrings(verts)
             # the whole forbidden area for the distance (a tile answers exactly only within its reach)
             margin = float(shapely.distance(fence._forbidden, line)) - w - arc_sag
@@ -1417,9 +1514,8 @@ def trigger_distance_m(
     if params.vehicle == "fixed_wing":
         if c <= 0.0:
             return w
-        leg = v * params.reaction_time_s
-        radius = v * v / (params.gravity_mps2 * math.tan(params.bank_limit_rad))
-        return leg * c + radius * (1.0 - abs(math.sin(heading_rad))) + w
+        turn = fixed_wing_turn(params, v)
+        return turn.leg_m * c + turn.radius_m * (1.0 - abs(math.sin(heading_rad))) + w
     tr = params.reaction_time_s
     a = min(max(accel_mps2, 0.0), params.max_h_accel_mps2)
     if a > 0.0:

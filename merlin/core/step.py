@@ -374,7 +374,10 @@ def _grant_block(
     if cmd_env is not None:
         return replace(cmd_env, text=f"refused: the setpoint commands {cmd_env.parameter}={cmd_env.value:.4g}"
                        f" outside [{cmd_env.limit:.4g}]")
-    return _setpoint_consistency(sp, s, cfg) or _floor_block(cfg, s, report)
+    # below the minimum grant height a revocation would not recover above the floor (a fixed wing's stall
+    # recovery: scenario fw_adv_grant_below_recovery_height)
+    return (_setpoint_consistency(sp, s, cfg) or _floor_block(cfg, s, report)
+            or arbiter.grant_height_block(cfg.handover, s.alt_m))
 
 
 def _floor_block(cfg: CoreConfig, s: VehicleState, report: MonitorReport) -> Reason | None:

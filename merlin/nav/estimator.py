@@ -33,19 +33,16 @@ from filterpy.kalman import ExtendedKalmanFilter
 
 from merlin.core.types import ZERO3, NavMode, Vec3, VehicleState
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample, VoQuality, VoSample
+from merlin.nav import kernels
 from merlin.nav.config import NavConfig
 from merlin.nav.events import NavEvent, NavEventKind
 from merlin.nav.modes import select_mode
 from merlin.nav.quaternion import (
     Quat,
-    quat_exp,
     quat_from_euler,
-    quat_mul,
-    quat_normalize,
     quat_rotate,
     quat_to_dcm,
     quat_to_euler,
-    skew,
     wrap_pi,
 )
 
@@ -126,6 +123,45 @@ def _mag_heading(field: Vec3, roll: float, pitch: float, declination_rad: float)
     return wrap_pi(declination_rad - math.atan2(ly, lx)), math.hypot(lx, ly)
 
 
+class Cusum:
+    """Page's (1954) one-sided CUSUM of a statistic whose mean is 1 under a consistent model (a NIS per
+    degree of freedom): g ← max(0, g + min(s, clip) − allowance), alarm when g > threshold. The clip bounds
+    what one outlier can add, so a single wild epoch is the single-epoch gate's business and a
+    persistent small bias the CUSUM's."""
+
+    __slots__ = ("allowance", "clip", "threshold", "value")
+
+    def __init__(self, allowance: float, clip: float, threshold: float) -> None:
+        self.allowance = allowance
+        self.clip = clip
+        self.threshold = threshold
+        self.value = 0.0
+
+    def add(self, s: float) -> None:
+        self.value = max(0.0, self.value + min(s, self.clip) - self.allowance)
+
+    @property
+    def alarm(self) -> bool:
+        return self.value > self.threshold
+
+    def reset(self) -> None:
+        self.value = 0.0
+
+
+def gps_admission(status: GpsStatus, usable: bool, fused_recently: bool, ever_fused: bool) -> GpsStatus:
+    """The GPS admission transition, before any consistency test. A receiver whose own quality (fix type,
+    satellites) is below the configured minimum is UNUSABLE. One coming back, from UNUSABLE or from an
+    admitted receiver not fused for longer than the timeout, is admitted at once only if it was fused
+    recently or never (its first acquisition is judged by the gates alone); otherwise it is EXCLUDED and
+    must agree with the VO/INS-propagated estimate for gps_readmit_s first. An EXCLUDED receiver stays
+    excluded: readmission is the consistency test's (``NavEstimator._gps_readmission``)."""
+    if not usable:
+        return GpsStatus.UNUSABLE
+    if status is GpsStatus.UNUSABLE or (status is GpsStatus.OK and ever_fused and not fused_recently):
+        return GpsStatus.OK if fused_recently or not ever_fused else GpsStatus.EXCLUDED
+    return status
+
+
 class NavEstimator:
     """Error-state EKF over [p, v, θ, b_g, b_a, b_gps, b_baro] driven by the IMU, fusing GPS, VO, baro and
     magnetometer.
@@ -140,14 +176,23 @@ class NavEstimator:
         self.cfg = config
         self._t = init.t_s
         self._imu_seen = False
-        self._p = np.array(init.pos_ned_m, dtype=float)
-        self._v = np.array(init.vel_ned_mps, dtype=float)
-        self._q: Quat = quat_from_euler(*init.att_rpy_rad)
-        self._q_gyro: Quat = self._q  # integrated from the bias-corrected gyro only, never updated
-        self._bg = np.zeros(3)
-        self._ba = np.zeros(3)
-        self._b_gps = np.zeros(3)
-        self._b_baro = 0.0
+        # the nominal state in one array (merlin.nav.kernels names its parts); the attributes are views
+        s = np.zeros(kernels.N_STATE)
+        self._s = s
+        self._p = s[kernels.S_P]
+        self._v = s[kernels.S_V]
+        self._bg = s[kernels.S_BG]
+        self._ba = s[kernels.S_BA]
+        self._b_gps = s[kernels.S_BGPS]
+        self._dr = s[kernels.S_DR]  # position propagated by the mechanisation alone (never corrected)
+        self._p[:] = init.pos_ned_m
+        self._v[:] = init.vel_ned_mps
+        q0 = quat_from_euler(*init.att_rpy_rad)
+        s[kernels.S_Q] = q0
+        s[kernels.S_QG] = q0  # integrated from the bias-corrected gyro only, never updated
+        self._c = np.array([config.gravity_mps2, config.gps_bias_tau_s, float(config.cov_predict_every_n)])
+        self._every_n = config.cov_predict_every_n
+        self._H_vo = np.zeros((2, N_ERR))
         self._g = np.array([0.0, 0.0, config.gravity_mps2])
         self._last_gyro: Vec3 = ZERO3
         self._last_accel: Vec3 = (0.0, 0.0, -config.gravity_mps2)
@@ -166,9 +211,7 @@ class NavEstimator:
             + [config.gps_bias_sigma_v_m**2]
             + [config.init_baro_bias_sigma_m**2]
         )
-        self.kf = kf
-        self._F = np.eye(N_ERR)
-        self._Q = np.zeros((N_ERR, N_ERR))
+        self.kf = kf  # kf.P is updated in place by the kernels: never rebind it
         self._q_density = np.array(
             [0.0] * 3
             + [config.accel_noise_mps2_rthz**2] * 3
@@ -182,16 +225,16 @@ class NavEstimator:
             # barometer offset: a random walk (thermal and weather drift; Groves 2013, sec. 6.2.1)
             + [config.baro_bias_rw_m_rts**2]
         )
-        # pending covariance prediction (cov_predict_every_n > 1): accumulated time and specific force
-        self._pend_n = 0
-        self._pend_dt = 0.0
-        self._pend_f_ned = np.zeros(3)
-
         # source health
         self.gps_status = GpsStatus.OK
-        self._gps_cusum = 0.0
-        self._gps_wcusum = 0.0
-        self._gps_vcusum = 0.0
+        # Page's CUSUM on three statistics of the admitted epochs (update_gps)
+        self._cusum_innov = Cusum(
+            config.gps_cusum_allowance, config.gps_cusum_clip, config.gps_cusum_threshold
+        )
+        self._cusum_vo = Cusum(config.gps_cusum_allowance, config.gps_cusum_clip, config.gps_cusum_threshold)
+        self._cusum_window = Cusum(
+            config.gps_cusum_allowance, config.gps_cusum_clip, config.gps_cusum_threshold
+        )
         # the stationary variances (horizontal, vertical) the wander state is modelled with, following the
         # receiver's eph/epv (_follow_receiver), and the time of the fix they were last updated at
         self._gps_bias_var_h = config.gps_bias_sigma_h_m**2
@@ -201,7 +244,6 @@ class NavEstimator:
         self._vo_recent: deque[tuple[float, float, float, float, float]] = deque(maxlen=32)
         # (t, GPS north, GPS east, dead-reckoned north, east) of recent admitted epochs
         self._gps_window: deque[tuple[float, float, float, float, float]] = deque()
-        self._dr = np.zeros(3)  # position propagated by the mechanisation alone (never corrected)
         self._gps_reject_since: float | None = None
         self._gps_agree_since: float | None = None
         self._gps_pos_fused_t: float | None = None
@@ -237,307 +279,295 @@ class NavEstimator:
             self._emit(NavEventKind.IMU_GAP, "imu", dt, self.cfg.max_imu_dt_s, "dt_s", "IMU gap")
             dt = self.cfg.max_imu_dt_s
         self._t = imu.t_s
-        self._last_gyro, self._last_accel = imu.gyro_frd_radps, imu.accel_frd_mps2
-        bg, ba = self._bg, self._ba
-        wx = imu.gyro_frd_radps[0] - bg[0]
-        wy = imu.gyro_frd_radps[1] - bg[1]
-        wz = imu.gyro_frd_radps[2] - bg[2]
-        f_b = (
-            imu.accel_frd_mps2[0] - ba[0],
-            imu.accel_frd_mps2[1] - ba[1],
-            imu.accel_frd_mps2[2] - ba[2],
+        g, a = imu.gyro_frd_radps, imu.accel_frd_mps2
+        self._last_gyro, self._last_accel = g, a
+        kernels.mechanise(
+            self._s, self.kf.P, self._q_density, self._c, g[0], g[1], g[2], a[0], a[1], a[2], dt
         )
-        f_n = quat_rotate(self._q, f_b)
-        ax, ay, az = f_n[0], f_n[1], f_n[2] + self.cfg.gravity_mps2
-        p, v = self._p, self._v
-        half_dt2 = 0.5 * dt * dt
-        dn = v[0] * dt + ax * half_dt2
-        de = v[1] * dt + ay * half_dt2
-        p[0] += dn
-        p[1] += de
-        p[2] += v[2] * dt + az * half_dt2
-        self._dr[0] += dn
-        self._dr[1] += de
-        v[0] += ax * dt
-        v[1] += ay * dt
-        v[2] += az * dt
-        self._pend_f_ned += (f_n[0] * dt, f_n[1] * dt, f_n[2] * dt)
-        self._pend_dt += dt
-        self._pend_n += 1
-        # the covariance Jacobian uses the attitude at the start of the interval, like the mechanisation
-        if self._pend_n >= self.cfg.cov_predict_every_n:
-            self._predict_covariance()
-        dq = quat_exp(wx * dt, wy * dt, wz * dt)
-        self._q = quat_normalize(quat_mul(self._q, dq))
-        self._q_gyro = quat_normalize(quat_mul(self._q_gyro, dq))
         self._update_mode()
+
+    @property
+    def _q(self) -> Quat:
+        s = self._s
+        return (float(s[6]), float(s[7]), float(s[8]), float(s[9]))
+
+    @property
+    def _q_gyro(self) -> Quat:
+        s = self._s
+        return (float(s[10]), float(s[11]), float(s[12]), float(s[13]))
+
+    @property
+    def _b_baro(self) -> float:
+        return float(self._s[kernels.I_BBARO])
+
+    @property
+    def _pend_n(self) -> int:
+        return int(self._s[kernels.I_PN])
 
     def _predict_covariance(self) -> None:
         """P = F P Fᵀ + Q with the first-order transition of the global-error dynamics (Solà sec. 7.2):
-        δṗ = δv, δv̇ = -[R f]× δθ - R δb_a, δθ̇ = -R δb_g, biases random walks."""
-        dt = self._pend_dt
-        if dt <= 0.0:
-            return
-        R = quat_to_dcm(self._q)
-        fx, fy, fz = self._pend_f_ned / dt
-        F = self._F
-        F[0, 3] = F[1, 4] = F[2, 5] = dt
-        # -[f]× dt
-        F[3, 7], F[3, 8] = fz * dt, -fy * dt
-        F[4, 6], F[4, 8] = -fz * dt, fx * dt
-        F[5, 6], F[5, 7] = fy * dt, -fx * dt
-        F[V_, BA_] = R * -dt
-        F[TH_, BG_] = R * -dt
-        decay = math.exp(-dt / self.cfg.gps_bias_tau_s)
-        F[15, 15] = F[16, 16] = F[17, 17] = decay
-        self._b_gps *= decay
-        # white noise densities integrate to variances growing with dt (Solà sec. 5.4.3)
-        Q = self._Q
-        Q[_DIAG, _DIAG] = self._q_density * dt
-        self.kf.F = F
-        self.kf.Q = Q
-        self.kf.predict()
-        self._pend_n = 0
-        self._pend_dt = 0.0
-        self._pend_f_ned[:] = 0.0
+        δṗ = δv, δv̇ = -[R f]× δθ - R δb_a, δθ̇ = -R δb_g, biases random walks; F and Q as filterpy's
+        ``predict`` takes them are ``kernels.transition`` and ``diag(q_density dt)``, evaluated on F's
+        non-identity blocks (``kernels.cov_predict``)."""
+        kernels.cov_predict(self._s, self.kf.P, self._q_density, self.cfg.gps_bias_tau_s)
 
     # ------------------------------------------------------------------------------ measurement update
 
-    def _innovation(
-        self, z: np.ndarray, hx: np.ndarray, H: np.ndarray, R: np.ndarray, angle: bool = False
-    ) -> tuple[np.ndarray, np.ndarray]:
-        if self._pend_n:
+    def _residual(self, z: np.ndarray, hx: np.ndarray, angle: bool = False) -> np.ndarray:
+        """y = z − h(x̂) (angles wrapped), after the pending covariance prediction: every update is applied
+        at the filter's time."""
+        if self._every_n > 1:  # with every_n = 1 nothing is ever pending after predict()
             self._predict_covariance()
-        y = z - hx
+        y: np.ndarray = z - hx
         if angle:
-            y = np.array([wrap_pi(float(a)) for a in y])
-        S = H @ self.kf.P @ H.T + R
-        return y, S
+            y = _angle_residual(z, hx)
+        return y
 
-    @staticmethod
-    def _nis(y: np.ndarray, S: np.ndarray) -> float:
-        return float(y @ np.linalg.solve(S, y))
+    def _nis(self, H: np.ndarray, r: np.ndarray, y: np.ndarray, lo: int = 0, hi: int = -1) -> float:
+        """yᵀ S⁻¹ y over the rows lo..hi (all by default) with S = H P Hᵀ + R, R = diag(r)."""
+        return float(kernels.nis(H, self.kf.P, r, y, lo, len(y) if hi < 0 else hi))
 
-    def _fuse(self, z: np.ndarray, hx: np.ndarray, H: np.ndarray, R: np.ndarray, angle: bool = False) -> None:
-        """filterpy's EKF update on the error state (prior error mean zero), then inject and reset."""
-        residual = _angle_residual if angle else np.subtract
-        self.kf.update(
-            z.reshape(-1, 1), HJacobian=lambda _x: H, Hx=lambda _x: hx.reshape(-1, 1), R=R, residual=residual
-        )
-        self._inject()
+    def _fuse(self, y: np.ndarray, H: np.ndarray, r: np.ndarray) -> None:
+        """filterpy's EKF update on the error state (prior error mean zero: K = P Hᵀ S⁻¹, δx = K y, Joseph
+        form P = (I − K H) P (I − K H)ᵀ + K R Kᵀ), then inject δx and reset (Solà sec. 6.2-6.3, 7.3);
+        evaluated on the non-zero entries of H in one kernel (``kernels.fuse``)."""
+        kernels.fuse(self._s, self.kf.P, H, r, y, False)
 
-    def _fuse_heading_only(self, z: np.ndarray, hx: np.ndarray, H: np.ndarray, R: np.ndarray) -> None:
+    def _fuse_heading_only(self, y: np.ndarray, H: np.ndarray, r: np.ndarray) -> None:
         """An update whose gain may not touch the tilt: K = P Hᵀ S⁻¹ with its δθ_n, δθ_e rows set to zero,
         so the attitude correction is a rotation about the vertical (the heading) and roll and pitch are
         left to the accelerometer's coupling with GPS and VO. The gain is then not the optimal one, and the
         covariance must follow the gain actually applied: the Joseph form
         P⁺ = (I − K H) P (I − K H)ᵀ + K R Kᵀ holds for any gain (Simon 2006, "Optimal State Estimation",
-        sec. 5.2; filterpy's ``update`` uses it with the optimal K). The result is stored in filterpy's
-        attributes (x, P, K, y, S) as its own update would."""
-        kf = self.kf
-        P = kf.P
-        PHT = P @ H.T
-        S = H @ PHT + R
-        K = PHT @ np.linalg.inv(S)
-        K[6:8, :] = 0.0
-        y = _angle_residual(z, hx).reshape(-1, 1)
-        I_KH = np.eye(N_ERR) - K @ H
-        kf.x = K @ y
-        kf.P = I_KH @ P @ I_KH.T + K @ R @ K.T
-        kf.K, kf.y, kf.S = K, y, S
-        self._inject()
-
-    def _inject(self) -> None:
-        """Inject the error mean into the nominal state and reset it (Solà sec. 6.2-6.3, 7.3)."""
-        dx = self.kf.x[:, 0]
-        self._p += dx[P_]
-        self._v += dx[V_]
-        dth = dx[TH_]
-        self._q = quat_normalize(quat_mul(quat_exp(dth[0], dth[1], dth[2]), self._q))
-        self._bg += dx[BG_]
-        self._ba += dx[BA_]
-        self._b_gps += dx[BGPS_]
-        self._b_baro += float(dx[BBARO])
-        # reset: the global-error reset Jacobian G = diag(I, I, I + [δθ/2]×, I, I) (Solà sec. 7.3)
-        G = np.eye(N_ERR)
-        G[TH_, TH_] += skew(0.5 * dth)
-        self.kf.P = G @ self.kf.P @ G.T
-        self.kf.x[:] = 0.0
+        sec. 5.2; filterpy's ``update`` uses it with the optimal K), so the same kernel serves."""
+        kernels.fuse(self._s, self.kf.P, H, r, y, True)
 
     def update_gps(self, gps: GpsSample) -> GpsCheck | None:
+        """One GPS epoch: filterpy's ``update`` with the tests that guard it, one step per method.
+
+        1. Admission (:func:`gps_admission`): a receiver too poor to use is UNUSABLE (its tests restart);
+           one coming back after an outage longer than the timeout is judged like an excluded one.
+        2. Carry-forward (:meth:`_gps_innovation`): the epoch moved to the filter's time, y = z − h(x̂)
+           and R.
+        3. Gates: the position and velocity NIS, the GPS-VO velocity statistic
+           (:meth:`_vo_velocity_statistic`).
+        4. While EXCLUDED, readmission (:meth:`_gps_readmission`); while OK, the three CUSUMs
+           (:meth:`_gps_sequential_tests`) and the single-epoch gates decide on exclusion
+           (:meth:`_gps_consistency`).
+        5. Fusion of the rows whose gate passed (:meth:`_fuse_gps`)."""
         cfg = self.cfg
         t = gps.t_s
-        if gps.fix_type < cfg.gps_min_fix_type or gps.satellites < cfg.gps_min_satellites:
-            if self.gps_status is not GpsStatus.UNUSABLE:
+        usable = gps.fix_type >= cfg.gps_min_fix_type and gps.satellites >= cfg.gps_min_satellites
+        fused_t = self._gps_pos_fused_t
+        recent = fused_t is not None and self._t - fused_t <= cfg.gps_timeout_s
+        status = gps_admission(self.gps_status, usable, recent, fused_t is not None)
+        if status is not self.gps_status:
+            if status is GpsStatus.UNUSABLE:
                 text = f"fix_type={gps.fix_type} satellites={gps.satellites}"
                 self._emit(
                     NavEventKind.LOST, "gps", gps.satellites, cfg.gps_min_satellites, "satellites", text
                 )
-                self.gps_status = GpsStatus.UNUSABLE
-                self._gps_cusum = 0.0
-                self._gps_wcusum = 0.0
-                self._gps_vcusum = 0.0
-                self._gps_window.clear()
-            return None
-        recent = self._gps_pos_fused_t is not None and self._t - self._gps_pos_fused_t <= cfg.gps_timeout_s
-        reacquired = self.gps_status is GpsStatus.UNUSABLE or (
-            self.gps_status is GpsStatus.OK and self._gps_pos_fused_t is not None and not recent
-        )
-        if reacquired:
-            # a receiver coming back after an outage longer than the timeout is judged like an excluded
-            # one: it must agree with the VO/INS-propagated estimate for gps_readmit_s before it is trusted
-            first = self._gps_pos_fused_t is None  # first acquisition: judged by the gates only
-            self.gps_status = GpsStatus.OK if recent or first else GpsStatus.EXCLUDED
-            self._gps_agree_since = None
-        self._gps_seen_usable_t = t
-        self._follow_receiver(gps)
-        # the white part of the receiver's error; the slowly wandering part is the bias state
-        sig_h = max(gps.eph_m * cfg.gps_white_fraction, cfg.gps_pos_sigma_floor_m)
-        sig_v = max(gps.epv_m * cfg.gps_white_fraction, cfg.gps_pos_sigma_floor_m)
-        z = np.array([*gps.pos_ned_m, *gps.vel_ned_mps])
-        # A receiver's sample is valid at its t_s and arrives later (~0.1 s): carry it forward to the
-        # filter's time with the filter's velocity and acceleration (a first-order stand-in for a delayed
-        # filter horizon), and add the variance that carrying costs.
-        lag = min(max(0.0, self._t - t), cfg.gps_max_lag_s)
-        a_n = np.array(quat_rotate(self._q, tuple(np.subtract(self._last_accel, self._ba)))) + self._g
-        z[:3] += self._v * lag + 0.5 * a_n * lag * lag
-        z[3:] += a_n * lag
-        P = self.kf.P
-        lag_var_p = float(max(P[3, 3], P[4, 4], P[5, 5])) * lag * lag
-        lag_var_v = (cfg.accel_noise_mps2_rthz**2 / max(lag, 1e-3) + 1.0) * lag * lag  # 1 m/s² of jerk margin
-        hx = np.concatenate([self._p + self._b_gps, self._v])
-        H = _H_GPS
-        R = np.diag(
-            [sig_h**2 + lag_var_p, sig_h**2 + lag_var_p, sig_v**2 + lag_var_p]
-            + [cfg.gps_vel_sigma_mps**2 + lag_var_v] * 3
-        )
-        y, S = self._innovation(z, hx, H, R)
-        nis_p = self._nis(y[:3], S[:3, :3])
-        nis_v = self._nis(y[3:], S[3:, 3:])
-        fused_p = fused_v = False
-        s_vo = self._vo_velocity_statistic(gps, a_n)
-
-        if self.gps_status is GpsStatus.EXCLUDED:
-            vo_agrees = math.isnan(s_vo) or s_vo <= cfg.gps_readmit_gate_vo
-            if nis_p <= cfg.gps_readmit_gate_pos and nis_v <= cfg.gps_readmit_gate_vel and vo_agrees:
-                if self._gps_agree_since is None:
-                    self._gps_agree_since = t
-                if t - self._gps_agree_since >= cfg.gps_readmit_s:
-                    self.gps_status = GpsStatus.OK
-                    self._gps_cusum = 0.0
-                    self._gps_wcusum = 0.0
-                    self._gps_vcusum = 0.0
-                    self._gps_window.clear()
-                    self._gps_reject_since = None
-                    self._emit(
-                        NavEventKind.READMITTED,
-                        "gps",
-                        t - self._gps_agree_since,
-                        cfg.gps_readmit_s,
-                        "agree_s",
-                        "GPS consistent with VO+INS again",
-                    )
+                self._restart_gps_tests()
             else:
                 self._gps_agree_since = None
+            self.gps_status = status
+        if status is GpsStatus.UNUSABLE:
+            return None
+        self._gps_seen_usable_t = t
+        self._follow_receiver(gps)
+        y, r, nis_p, nis_v, lag, a_n = self._gps_innovation(gps)
+        s_vo = self._vo_velocity_statistic(gps, a_n)
+        if status is GpsStatus.EXCLUDED:
+            self._gps_readmission(t, nis_p, nis_v, s_vo)
         s_win = sig_win = math.nan
+        fused_p = fused_v = False
         if self.gps_status is GpsStatus.OK:
-            s = min((nis_p + nis_v) / 6.0, cfg.gps_cusum_clip)
-            self._gps_cusum = max(0.0, self._gps_cusum + s - cfg.gps_cusum_allowance)
-            if not math.isnan(s_vo):
-                s_c = min(s_vo, cfg.gps_cusum_clip)
-                self._gps_vcusum = max(0.0, self._gps_vcusum + s_c - cfg.gps_cusum_allowance)
-            # the mechanisation's position at the GPS time of validity (the receiver's latency: the
-            # displacement of the last `lag` seconds must not count as a disagreement in a turn)
-            dr_n = float(self._dr[0] - self._v[0] * lag + 0.5 * a_n[0] * lag * lag)
-            dr_e = float(self._dr[1] - self._v[1] * lag + 0.5 * a_n[1] * lag * lag)
-            s_win, sig_win = self._window_statistic(t, gps.pos_ned_m, dr_n, dr_e, gps.eph_m)
-            if not math.isnan(s_win):
-                s_w = min(s_win, cfg.gps_cusum_clip)
-                self._gps_wcusum = max(0.0, self._gps_wcusum + s_w - cfg.gps_cusum_allowance)
+            s_win, sig_win = self._gps_sequential_tests(gps, nis_p, nis_v, s_vo, lag, a_n)
             pos_ok = nis_p <= cfg.gps_gate_pos
             vel_ok = nis_v <= cfg.gps_gate_vel
-            if self._gps_cusum > cfg.gps_cusum_threshold:
-                self._exclude_gps(
-                    t,
-                    self._gps_cusum,
-                    cfg.gps_cusum_threshold,
-                    "cusum",
-                    "GPS innovations inconsistent with VO+INS (sequential test)",
-                )
-            elif self._gps_vcusum > cfg.gps_cusum_threshold:
-                self._exclude_gps(
-                    t,
-                    self._gps_vcusum,
-                    cfg.gps_cusum_threshold,
-                    "vo_cusum",
-                    "GPS velocity disagrees with VO (cross-check sequential test)",
-                )
-            elif self._gps_wcusum > cfg.gps_cusum_threshold:
-                self._exclude_gps(
-                    t,
-                    self._gps_wcusum,
-                    cfg.gps_cusum_threshold,
-                    "window_cusum",
-                    "GPS displacement disagrees with VO+INS (windowed sequential test)",
-                )
-            elif not (pos_ok and vel_ok):
-                if self._gps_reject_since is None:
-                    self._gps_reject_since = t
-                    bad_p = not pos_ok
-                    self._emit(
-                        NavEventKind.REJECTED,
-                        "gps_pos" if bad_p else "gps_vel",
-                        nis_p if bad_p else nis_v,
-                        cfg.gps_gate_pos if bad_p else cfg.gps_gate_vel,
-                        "nis",
-                        "GPS epoch inconsistent",
-                    )
-                elif t - self._gps_reject_since >= cfg.gps_reject_exclude_s:
-                    self._exclude_gps(
-                        t,
-                        t - self._gps_reject_since,
-                        cfg.gps_reject_exclude_s,
-                        "rejected_s",
-                        "GPS persistently inconsistent",
-                    )
-            else:
-                self._gps_reject_since = None
+            self._gps_consistency(t, pos_ok, vel_ok, nis_p, nis_v)
             if self.gps_status is GpsStatus.OK:
-                idx = [
-                    i
-                    for i, ok in (
-                        (0, pos_ok),
-                        (1, pos_ok),
-                        (2, pos_ok),
-                        (3, vel_ok),
-                        (4, vel_ok),
-                        (5, vel_ok),
-                    )
-                    if ok
-                ]
-                if idx:
-                    self._fuse(z[idx], hx[idx], H[idx], R[np.ix_(idx, idx)])
-                    fused_p, fused_v = pos_ok, vel_ok
-                    self._aid_t = self._t
-                    if pos_ok:
-                        self._gps_pos_fused_t = self._t
+                fused_p, fused_v = self._fuse_gps(y, r, pos_ok, vel_ok)
         check = GpsCheck(
             t,
             nis_p,
             nis_v,
-            self._gps_cusum,
+            self._cusum_innov.value,
             s_win,
-            self._gps_wcusum,
+            self._cusum_window.value,
             fused_p,
             fused_v,
             self.gps_status,
             s_vo,
-            self._gps_vcusum,
+            self._cusum_vo.value,
             sig_win,
         )
         self.last_gps = check
         self._update_mode()
         return check
+
+    def _gps_innovation(
+        self, gps: GpsSample
+    ) -> tuple[np.ndarray, np.ndarray, float, float, float, tuple[float, float, float]]:
+        """y = z − h(x̂) with h(x̂) = [p̂ + b̂_gps, v̂] (H = ``_H_GPS``), R's diagonal, the position and
+        velocity NIS, the lag and the NED acceleration used to carry the epoch forward.
+
+        A receiver's sample is valid at its t_s and arrives later (~0.1 s): it is carried forward to the
+        filter's time with the filter's velocity and acceleration a = R(q̂)(f − b̂_a) + g (a first-order
+        stand-in for a delayed filter horizon): z_p += v̂ lag + a lag²/2, z_v += a lag. R grows by what
+        carrying costs: max(P_vv) lag² on the position, (σ_a²/lag + 1 m²/s⁴) lag² on the velocity (1 m/s²
+        of jerk margin). The white part of the receiver's error, gps_white_fraction of its eph and epv, is
+        in R; the slowly wandering part is the bias state. Evaluated in one kernel
+        (``kernels.gps_innovation``)."""
+        cfg = self.cfg
+        lag = min(max(0.0, self._t - gps.t_s), cfg.gps_max_lag_s)
+        sig_h = max(gps.eph_m * cfg.gps_white_fraction, cfg.gps_pos_sigma_floor_m)
+        sig_v = max(gps.epv_m * cfg.gps_white_fraction, cfg.gps_pos_sigma_floor_m)
+        lag_var_v = (cfg.accel_noise_mps2_rthz**2 / max(lag, 1e-3) + 1.0) * lag * lag
+        pn, pe, pd = gps.pos_ned_m
+        vn, ve, vd = gps.vel_ned_mps
+        la = self._last_accel
+        y = np.empty(6)
+        r = np.empty(6)
+        nis_p, nis_v, an, ae, ad = kernels.gps_innovation(
+            self._s,
+            self.kf.P,
+            _H_GPS,
+            float(pn),
+            float(pe),
+            float(pd),
+            float(vn),
+            float(ve),
+            float(vd),
+            float(lag),
+            float(la[0]),
+            float(la[1]),
+            float(la[2]),
+            cfg.gravity_mps2,
+            sig_h**2,
+            sig_v**2,
+            cfg.gps_vel_sigma_mps**2 + lag_var_v,
+            y,
+            r,
+        )
+        return y, r, float(nis_p), float(nis_v), lag, (an, ae, ad)
+
+    def _gps_readmission(self, t: float, nis_p: float, nis_v: float, s_vo: float) -> None:
+        """An excluded receiver is readmitted once its epochs have passed the readmission gates (and agreed
+        with VO, when there is VO) for gps_readmit_s without a break."""
+        cfg = self.cfg
+        vo_agrees = math.isnan(s_vo) or s_vo <= cfg.gps_readmit_gate_vo
+        if not (nis_p <= cfg.gps_readmit_gate_pos and nis_v <= cfg.gps_readmit_gate_vel and vo_agrees):
+            self._gps_agree_since = None
+            return
+        if self._gps_agree_since is None:
+            self._gps_agree_since = t
+        if t - self._gps_agree_since >= cfg.gps_readmit_s:
+            self.gps_status = GpsStatus.OK
+            self._restart_gps_tests()
+            self._gps_reject_since = None
+            self._emit(
+                NavEventKind.READMITTED,
+                "gps",
+                t - self._gps_agree_since,
+                cfg.gps_readmit_s,
+                "agree_s",
+                "GPS consistent with VO+INS again",
+            )
+
+    def _gps_sequential_tests(
+        self,
+        gps: GpsSample,
+        nis_p: float,
+        nis_v: float,
+        s_vo: float,
+        lag: float,
+        a_n: tuple[float, float, float],
+    ) -> tuple[float, float]:
+        """Feed the three CUSUMs of an admitted epoch: the innovation energy (NIS per degree of freedom),
+        the GPS-VO velocity statistic, and the windowed displacement test; returns the window statistic and
+        its 1-sigma (nan until the window fills)."""
+        self._cusum_innov.add((nis_p + nis_v) / 6.0)
+        if not math.isnan(s_vo):
+            self._cusum_vo.add(s_vo)
+        # the mechanisation's position at the GPS time of validity (the receiver's latency: the
+        # displacement of the last `lag` seconds must not count as a disagreement in a turn)
+        sv = self._s
+        dr_n = float(sv[24] - sv[3] * lag + 0.5 * a_n[0] * lag * lag)
+        dr_e = float(sv[25] - sv[4] * lag + 0.5 * a_n[1] * lag * lag)
+        s_win, sig_win = self._window_statistic(gps.t_s, gps.pos_ned_m, dr_n, dr_e, gps.eph_m)
+        if not math.isnan(s_win):
+            self._cusum_window.add(s_win)
+        return s_win, sig_win
+
+    def _gps_consistency(self, t: float, pos_ok: bool, vel_ok: bool, nis_p: float, nis_v: float) -> None:
+        """Exclude the receiver when a CUSUM crosses its threshold (innovation, then GPS-VO, then window), or
+        when its epochs have failed their single-epoch gates for gps_reject_exclude_s; the first failing
+        epoch of a run is reported as REJECTED."""
+        cfg = self.cfg
+        if self._cusum_innov.alarm:
+            self._exclude_gps(
+                self._cusum_innov.value,
+                cfg.gps_cusum_threshold,
+                "cusum",
+                "GPS innovations inconsistent with VO+INS (sequential test)",
+            )
+        elif self._cusum_vo.alarm:
+            self._exclude_gps(
+                self._cusum_vo.value,
+                cfg.gps_cusum_threshold,
+                "vo_cusum",
+                "GPS velocity disagrees with VO (cross-check sequential test)",
+            )
+        elif self._cusum_window.alarm:
+            self._exclude_gps(
+                self._cusum_window.value,
+                cfg.gps_cusum_threshold,
+                "window_cusum",
+                "GPS displacement disagrees with VO+INS (windowed sequential test)",
+            )
+        elif not (pos_ok and vel_ok):
+            if self._gps_reject_since is None:
+                self._gps_reject_since = t
+                bad_p = not pos_ok
+                self._emit(
+                    NavEventKind.REJECTED,
+                    "gps_pos" if bad_p else "gps_vel",
+                    nis_p if bad_p else nis_v,
+                    cfg.gps_gate_pos if bad_p else cfg.gps_gate_vel,
+                    "nis",
+                    "GPS epoch inconsistent",
+                )
+            elif t - self._gps_reject_since >= cfg.gps_reject_exclude_s:
+                self._exclude_gps(
+                    t - self._gps_reject_since,
+                    cfg.gps_reject_exclude_s,
+                    "rejected_s",
+                    "GPS persistently inconsistent",
+                )
+        else:
+            self._gps_reject_since = None
+
+    def _fuse_gps(self, y: np.ndarray, r: np.ndarray, pos_ok: bool, vel_ok: bool) -> tuple[bool, bool]:
+        """Fuse the position and velocity rows whose gate passed; returns which were fused."""
+        if pos_ok and vel_ok:
+            self._fuse(y, _H_GPS, r)
+        elif pos_ok:
+            self._fuse(y[:3], _H_GPS[:3], r[:3])
+        elif vel_ok:
+            self._fuse(y[3:], _H_GPS[3:], r[3:])
+        else:
+            return False, False
+        self._aid_t = self._t
+        if pos_ok:
+            self._gps_pos_fused_t = self._t
+        return pos_ok, vel_ok
+
+    def _restart_gps_tests(self) -> None:
+        self._cusum_innov.reset()
+        self._cusum_window.reset()
+        self._cusum_vo.reset()
+        self._gps_window.clear()
 
     def _follow_receiver(self, gps: GpsSample) -> None:
         """Model the receiver's slowly wandering error with the accuracy it reports now: stationary
@@ -548,7 +578,7 @@ class NavEstimator:
         smaller one the modelled variance relaxes towards it with the process's own time constant
         (σ² ← σ² e^(−2Δt/τ) + σ_new² (1 − e^(−2Δt/τ))), so a jittering eph does not ratchet the variance up."""
         cfg = self.cfg
-        if self._pend_n:  # the interval before this fix is propagated with the model it had
+        if self._every_n > 1:  # the interval before this fix is propagated with the model it had
             self._predict_covariance()
         var_h = max(cfg.gps_bias_sigma_h_m, cfg.gps_bias_eph_ratio * gps.eph_m) ** 2
         var_v = max(cfg.gps_bias_sigma_v_m, cfg.gps_bias_epv_ratio * gps.epv_m) ** 2
@@ -590,30 +620,39 @@ class NavEstimator:
         var = sigma_w * sigma_w + max(P[3, 3], P[4, 4]) * w * w
         return float((d_n * d_n + d_e * d_e) / var / 2.0), math.sqrt(var)
 
-    def _vo_velocity_statistic(self, gps: GpsSample, a_ned: np.ndarray) -> float:
+    def _vo_velocity_statistic(self, gps: GpsSample, a_ned: tuple[float, float, float]) -> float:
         """s = dᵀ C⁻¹ d / 2 for d = (GPS − VO) horizontal velocity, with the VO sample nearest the GPS time
         of validity; C = σ²_gps,v + the VO variance + (|a| Δt)² for the time between the two. nan when no
         quality-accepted VO sample is within ``gps_vo_match_s`` (or the check is off)."""
         cfg = self.cfg
         if not cfg.gps_vo_check or not self._vo_recent:
             return math.nan
-        best = min(self._vo_recent, key=lambda r: abs(r[0] - gps.t_s))
-        dt = abs(best[0] - gps.t_s)
-        if dt > cfg.gps_vo_match_s:
+        # the samples are in time order, so |t_vo − t_gps| falls then rises: walk back from the newest
+        # while it does not rise (ties go to the earlier sample)
+        t_gps = gps.t_s
+        best = None
+        dt = math.inf
+        for rec in reversed(self._vo_recent):
+            d = abs(rec[0] - t_gps)
+            if d > dt:
+                break
+            best, dt = rec, d
+        if best is None or dt > cfg.gps_vo_match_s:
             return math.nan
-        skew_var = (float(np.hypot(a_ned[0], a_ned[1])) * dt) ** 2
+        skew_var = (math.hypot(a_ned[0], a_ned[1]) * dt) ** 2
         base = cfg.gps_vel_sigma_mps**2 + skew_var
         d_n = gps.vel_ned_mps[0] - best[1]
         d_e = gps.vel_ned_mps[1] - best[2]
         return 0.5 * (d_n * d_n / (base + best[3]) + d_e * d_e / (base + best[4]))
 
-    def _exclude_gps(self, t: float, stat: float, limit: float, parameter: str, text: str) -> None:
+    def _exclude_gps(self, stat: float, limit: float, parameter: str, text: str) -> None:
+        # the innovation CUSUM is kept: it restarts on readmission, or when the receiver becomes unusable
         self.gps_status = GpsStatus.EXCLUDED
         self._gps_agree_since = None
         self._gps_reject_since = None
         self._gps_window.clear()
-        self._gps_wcusum = 0.0
-        self._gps_vcusum = 0.0
+        self._cusum_window.reset()
+        self._cusum_vo.reset()
         self._emit(NavEventKind.EXCLUDED, "gps", stat, limit, parameter, text)
 
     def update_vo(self, vo: VoSample) -> Check | None:
@@ -648,15 +687,16 @@ class NavEstimator:
         self._vo_recent.append((vo.t_s, vo.vel_ned_mps[0], vo.vel_ned_mps[1], var[0], var[1]))
         # Horizontal only: the vertical velocity, from the change of image scale between frames, is a
         # weak and coloured measurement (docs/navigation.md, "VO"); the height is the barometer's and GPS's.
-        z = np.array(vo.vel_ned_mps[:2], dtype=float)
-        hx = self._v[:2].copy()
+        if self._every_n > 1:  # applied at the filter's time
+            self._predict_covariance()
+        v = self._v
+        y = np.array((vo.vel_ned_mps[0] - v[0], vo.vel_ned_mps[1] - v[1]))  # z − h(x̂), h(x̂) = v̂_h
         H = self._vo_jacobian()
-        R = np.diag(var[:2])
-        y, S = self._innovation(z, hx, H, R)
-        nis = self._nis(y, S)
+        r = np.array(var[:2])
+        nis = self._nis(H, r, y)
         fused = nis <= cfg.vo_gate
         if fused:
-            self._fuse(z, hx, H, R)
+            self._fuse(y, H, r)
             self._vo_fused_t = self._t
             self._aid_t = self._t
             if self._vo_lost_reported:
@@ -680,18 +720,8 @@ class NavEstimator:
         h (−(R δb_g)_e, (R δb_g)_n). Hence, for the horizontal velocity that is fused,
         H = [v_h/h along δp_d, I₂ along δv_h, (v_e, −v_n) along δθ_d, h [−R₂; R₁] along δb_g] (R_i the rows
         of R)."""
-        H = np.zeros((2, N_ERR))
-        H[0, 3] = H[1, 4] = 1.0
-        if self.cfg.vo_model_coupling:
-            v = self._v
-            H[0, 8] = v[1]
-            H[1, 8] = -v[0]
-            h = -self._p[2]
-            if h > 1.0:
-                H[:, 2] = v[:2] / h
-                R = quat_to_dcm(self._q)
-                H[0, 9:12] = -h * R[1, :]
-                H[1, 9:12] = h * R[0, :]
+        H = self._H_vo  # a buffer: used at once by update_vo
+        kernels.vo_jacobian_into(self._s, H, self.cfg.vo_model_coupling)
         return H
 
     def update_baro(self, baro: BaroSample) -> Check:
@@ -703,12 +733,12 @@ class NavEstimator:
         cfg = self.cfg
         z = np.array([baro.alt_m])
         hx = np.array([-self._p[2] + self._b_baro])
-        R = np.array([[cfg.baro_sigma_m**2]])
-        y, S = self._innovation(z, hx, _H_BARO, R)
-        nis = self._nis(y, S)
+        r = np.array((cfg.baro_sigma_m**2,))
+        y = self._residual(z, hx)
+        nis = self._nis(_H_BARO, r, y)
         fused = nis <= cfg.baro_gate
         if fused:
-            self._fuse(z, hx, _H_BARO, R)
+            self._fuse(y, _H_BARO, r)
         else:
             self._emit(NavEventKind.REJECTED, "baro", nis, cfg.baro_gate, "nis", "baro altitude inconsistent")
         self.last_baro = Check(baro.t_s, nis, fused)
@@ -736,24 +766,25 @@ class NavEstimator:
         heading, strength = _mag_heading(mag.field_frd_gauss, roll, pitch, cfg.mag_declination_rad)
         if strength < cfg.mag_min_horizontal_gauss:
             return None
-        H = np.zeros((1, N_ERR))
         if cfg.mag_fusion == "tilt_coupled":
+            H = np.zeros((1, N_ERR))
             H[0, 6:9] = mag_heading_jacobian(quat_rotate(self._q, mag.field_frd_gauss))
         elif cfg.mag_fusion == "euler_yaw":
+            H = np.zeros((1, N_ERR))
             H[0, 6:9] = yaw_jacobian_global(quat_to_dcm(self._q))
         else:
-            H[0, 8] = 1.0
-        z = np.array([heading])
-        hx = np.array([yaw])
-        R = np.array([[cfg.mag_heading_sigma_rad**2]])
-        y, S = self._innovation(z, hx, H, R, angle=True)
-        nis = self._nis(y, S)
+            H = _H_HEADING
+        r = np.array((cfg.mag_heading_sigma_rad**2,))
+        if self._every_n > 1:  # applied at the filter's time
+            self._predict_covariance()
+        y = np.array((wrap_pi(heading - yaw),))  # z − h(x̂), h(x̂) = ψ̂, wrapped
+        nis = self._nis(H, r, y)
         fused = nis <= cfg.mag_gate
         if fused:
             if cfg.mag_fusion == "heading":
-                self._fuse_heading_only(z, hx, H, R)
+                self._fuse_heading_only(y, H, r)
             else:
-                self._fuse(z, hx, H, R, angle=True)
+                self._fuse(y, H, r)
         else:
             self._emit(
                 NavEventKind.REJECTED, "mag", nis, cfg.mag_gate, "nis", "magnetic heading inconsistent"
@@ -774,8 +805,14 @@ class NavEstimator:
         return self._vo_fused_t is not None and self._t - self._vo_fused_t <= self.cfg.vo_timeout_s
 
     def _update_mode(self) -> None:
+        # called after every IMU sample: _gps_ok and _vo_ok inlined, the sigma only computed when the mode
+        # depends on it
         cfg = self.cfg
-        gps_ok, vo_ok = self._gps_ok(), self._vo_ok()
+        t = self._t
+        fused_t = self._gps_pos_fused_t
+        gps_ok = self.gps_status is GpsStatus.OK and fused_t is not None and t - fused_t <= cfg.gps_timeout_s
+        vo_t = self._vo_fused_t
+        vo_ok = vo_t is not None and t - vo_t <= cfg.vo_timeout_s
         if not gps_ok and self.gps_status is GpsStatus.OK and not self._gps_lost_reported:
             if self._gps_pos_fused_t is not None:
                 self._gps_lost_reported = True
@@ -800,9 +837,19 @@ class NavEstimator:
                 "since_fused_s",
                 "no accepted VO",
             )
-        mode = select_mode(
-            gps_ok, vo_ok, self.inertial_s, self.pos_sigma_h_m, cfg.inertial_time_limit_s, cfg.lost_sigma_h_m
-        )
+        if gps_ok:
+            mode = NavMode.GPS
+        elif vo_ok:
+            mode = NavMode.VO
+        else:
+            mode = select_mode(
+                gps_ok,
+                vo_ok,
+                self.inertial_s,
+                self.pos_sigma_h_m,
+                cfg.inertial_time_limit_s,
+                cfg.lost_sigma_h_m,
+            )
         if mode is not self._mode:
             self._events.append(
                 NavEvent(
@@ -851,7 +898,7 @@ class NavEstimator:
         (without it a correct isolation of a 1.47 m/s^2 accelerometer bias was followed by a GPS exclusion
         1.8 s later; tests/nav/test_nav_estimator.py pins the widening). PX4 and ArduPilot avoid the step by
         running one filter per IMU."""
-        if self._pend_n:
+        if self._every_n > 1:  # with every_n = 1 nothing is ever pending after predict()
             self._predict_covariance()
         P = self.kf.P
         for i in range(3):
@@ -878,20 +925,20 @@ class NavEstimator:
 
     @property
     def covariance(self) -> np.ndarray:
-        if self._pend_n:
+        if self._every_n > 1:  # with every_n = 1 nothing is ever pending after predict()
             self._predict_covariance()
         P: np.ndarray = np.array(self.kf.P, dtype=float)
         return P
 
     def state(self) -> VehicleState:
-        p, v, bg, ba = self._p, self._v, self._bg, self._ba
+        s = self._s.tolist()  # one conversion: the state is read every tick
         g, a = self._last_gyro, self._last_accel
         return VehicleState(
-            pos_ned_m=(float(p[0]), float(p[1]), float(p[2])),
-            vel_ned_mps=(float(v[0]), float(v[1]), float(v[2])),
-            att_rpy_rad=quat_to_euler(self._q),
-            rates_frd_radps=(g[0] - float(bg[0]), g[1] - float(bg[1]), g[2] - float(bg[2])),
-            accel_frd_mps2=(a[0] - float(ba[0]), a[1] - float(ba[1]), a[2] - float(ba[2])),
+            pos_ned_m=(s[0], s[1], s[2]),
+            vel_ned_mps=(s[3], s[4], s[5]),
+            att_rpy_rad=quat_to_euler((s[6], s[7], s[8], s[9])),
+            rates_frd_radps=(g[0] - s[14], g[1] - s[15], g[2] - s[16]),
+            accel_frd_mps2=(a[0] - s[17], a[1] - s[18], a[2] - s[19]),
             pos_sigma_h_m=self.pos_sigma_h_m,
             pos_sigma_v_m=self.pos_sigma_v_m,
             nav_mode=self._mode,
@@ -966,18 +1013,19 @@ def vo_noise_scale(quality: VoQuality, cfg: NavConfig) -> float | None:
     repetition score (whichever is worst)."""
     if vo_quality_problem(quality, cfg) is not None:
         return None
-
-    def badness(value: float, worst: float, good: float) -> float:
-        if good <= worst:
-            return 0.0
-        return min(1.0, max(0.0, (good - value) / (good - worst)))
-
     b = max(
-        badness(quality.features, cfg.vo_min_features, cfg.vo_good_features),
-        badness(quality.inlier_ratio, cfg.vo_min_inlier_ratio, cfg.vo_good_inlier_ratio),
-        badness(-quality.repetition, -cfg.vo_max_repetition, -cfg.vo_good_repetition),
+        _badness(quality.features, cfg.vo_min_features, cfg.vo_good_features),
+        _badness(quality.inlier_ratio, cfg.vo_min_inlier_ratio, cfg.vo_good_inlier_ratio),
+        _badness(-quality.repetition, -cfg.vo_max_repetition, -cfg.vo_good_repetition),
     )
     return 1.0 + b * (cfg.vo_max_noise_scale - 1.0)
+
+
+def _badness(value: float, worst: float, good: float) -> float:
+    """0 at "good", 1 at the acceptance limit "worst", linear between (vo_noise_scale)."""
+    if good <= worst:
+        return 0.0
+    return min(1.0, max(0.0, (good - value) / (good - worst)))
 
 
 def _angle_residual(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -996,6 +1044,9 @@ _H_VEL[:, 3:6] = np.eye(3)
 _H_BARO = np.zeros((1, N_ERR))
 _H_BARO[0, 2] = -1.0
 _H_BARO[0, BBARO] = 1.0
+_H_HEADING = np.zeros((1, N_ERR))
+_H_HEADING[0, 8] = 1.0  # a rotation of the global error about the NED down axis is a heading change
+_H_HEADING.setflags(write=False)
 _H_GPS.setflags(write=False)
 _H_VEL.setflags(write=False)
 _H_BARO.setflags(write=False)

@@ -342,6 +342,11 @@ class LaneNavigation:
         self.states: list[VehicleState] = [VehicleState()] * N_LANES
         self.last_seen: list[dict[str, float]] = [{} for _ in range(N_LANES)]
         self.events: list[dict[str, Any]] = []
+        # per lane: one of its own magnetometer, barometer or GPS units isolated by the sensor voter (with
+        # three of each). PX4's sensors-healthy condition, the thesis's sensors_initialized, falls the same
+        # way when its own sensor checks fail (seed 000 §5.3.2: instance 0's stuck magnetometers);
+        # examples/scenarios/seed000_mag_failure_thesis.yaml pins it
+        self.units_isolated: tuple[bool, ...] = (False,) * N_LANES
 
     def _unit(self, frame: Any, name: str, lane: int) -> Any:
         lanes = getattr(frame, f"{name}_lanes")
@@ -382,8 +387,8 @@ class LaneNavigation:
         sensors and the vehicle-wide ``ctx``."""
         st = self.states[lane]
         seen = self.last_seen[lane]
-        sensors_ok = all(k in seen and t - seen[k] <= _SENSOR_TIMEOUT_S[k] + 1e-9
-                         for k in ("imu", "mag", "baro", "gps"))
+        sensors_ok = not self.units_isolated[lane] and all(k in seen and t - seen[k] <= _SENSOR_TIMEOUT_S[k] + 1e-9
+                                                           for k in ("imu", "mag", "baro", "gps"))
         gyro_ok = imu is not None and not imu_isolated and all(math.isfinite(v) for v in imu.gyro_frd_radps) \
             and "imu" in seen and t - seen["imu"] <= _SENSOR_TIMEOUT_S["imu"] + 1e-9
         aided = st.nav_mode is NavMode.GPS or st.nav_mode is NavMode.VO or (
@@ -753,6 +758,10 @@ class VehicleRedundancy:
         assert self.lanes is not None
         if voted is not None:
             imu, iso = voted.imu_lanes, voted.imu_isolated
+            if self.voter is not None and self.lane_nav is not None and self.aux_voted:
+                self.lane_nav.units_isolated = tuple(
+                    any(self.voter.channel_lanes(ch)[i].isolated for ch in ("mag", "baro", "gps"))
+                    for i in range(N_LANES))
         else:
             imu = tuple(frame.imu) if frame.imu and len(frame.imu) == N_LANES else (None, None, None)
             iso = (False, False, False)

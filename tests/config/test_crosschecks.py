@@ -96,6 +96,11 @@ CASES: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
       "trusted": {"mission_ned_m": [[60.0, 0.0, -20.0], [60.0, 100.0, -20.0]]}}),
     # a position setpoint 10 m up is flown at the climb clamp: 5 m/s against the -3 m/s vel_d limit
     ("XC024", {"vehicle": {"max_speed_up_mps": 5.0}}, {"vehicle": {"max_speed_up_mps": 3.0}}),
+    # a fixed wing granted from 10 m, below the floor plus the recovery's bound; unset, the derived height
+    ("XC025", {"vehicle": {"type": "fixed_wing"}, "handover": {"min_grant_height_m": 10.0}},
+     {"vehicle": {"type": "fixed_wing"}}),
+    # no grant below 150 m with the ceiling at 120 m
+    ("XC026", {"handover": {"min_grant_height_m": 150.0}}, {"handover": {"min_grant_height_m": 10.0}}),
 ]
 
 

@@ -592,6 +592,33 @@ def test_goto_with_the_fence_disabled_is_not_judged_against_it() -> None:
     assert events_of(d, EventKind.COMMAND_ACK)[0].accepted and d.behavior is Behavior.HOLD
 
 
+# ---------------------------------------------------------------------------------- minimum grant height
+
+
+def test_a_request_below_the_minimum_grant_height_is_denied_with_the_height_and_the_limit() -> None:
+    """Below ``handover.min_grant_height_m`` a revocation could not recover above the floor: the request is
+    denied naming the height and the limit; at the limit it is granted."""
+    cfg = _cfg(handover=HandoverConfig(min_grant_height_m=12.0))
+    h = Harness(cfg=cfg)
+    h.airborne()  # hovering at 10 m
+    d = h.request()
+    (denied,) = events_of(d, EventKind.DENIED)
+    r = denied.reason
+    assert (r.code, r.monitor, r.parameter, r.value, r.limit) == (ReasonCode.PRECONDITION, "arbiter", "altitude_m",
+                                                                  10.0, 12.0)
+    assert "minimum grant height 12.0 m" in r.text and not events_of(d, EventKind.GRANTED)
+    h.state = replace(HOVER_10M, pos_ned_m=(0.0, 0.0, -12.0))
+    h.grant()
+
+
+def test_the_grant_height_precondition_refuses_a_height_that_is_not_a_number() -> None:
+    from merlin.core.config import HandoverParams
+
+    assert arbiter.grant_height_block(HandoverParams(), 0.0) is None  # no limit
+    limited = HandoverParams(min_grant_height_m=50.0)
+    assert arbiter.grant_height_block(limited, 50.0) is None
+    assert arbiter.grant_height_block(limited, 49.9) is not None
+    assert arbiter.grant_height_block(limited, math.nan) is not None
 def test_a_behaviour_completed_on_the_previous_tick_hands_over_to_what_follows_it() -> None:
     """Take-off completion reaches the next tick's arbiter as data: TAKEOFF hands over to what it was started
     for; a flown MISSION to ``trusted.mission_end``, and with HOLD there it stays MISSION (holding at its last

@@ -296,3 +296,20 @@ def test_seed_004_lap_in_wind(wind_ned_mps: tuple[float, float, float]) -> None:
     assert max(abs(t.alt_m - 160.0) for t in after) <= HEIGHT_TOL_M
     assert max(abs(t.airspeed_mps - 22.0) for t in after) <= AIRSPEED_TOL_MPS
     assert all(-60.0 < t.pos_ned_m[0] < 560.0 and -60.0 < t.pos_ned_m[1] < 560.0 for t in after)
+
+
+def test_the_angle_of_attack_cap_follows_the_air_path_not_the_ground_path() -> None:
+    """Sinking 10 m/s at 30 m/s airspeed into an 18 m/s headwind, banked at the limit, in a recovery: the cap
+    on the pitch (flight path + the angle-of-attack margin) is the air path's, -19.5 deg + 14 deg, not the far
+    steeper ground path's (-29 deg), which held the nose down in a dive at 3 deg of angle of attack."""
+    cp = fc.FixedWingControlParams()
+    s = VehicleState(pos_ned_m=(0.0, 0.0, -40.0), vel_ned_mps=(12.0, 0.0, 10.0), airspeed_mps=30.0,
+                     att_rpy_rad=(math.radians(35.0), math.radians(-15.0), 0.0), landed=False)
+    state = fc.reset_from_state(cp, s, fc.SurfaceCommand(0.0, 0.3, 0.0, 0.7))
+    targets = fc.FixedWingTargets(airspeed_mps=23.0, height_m=100.0, roll_rad=math.radians(35.0))
+    for _ in range(300):  # 3 s of the pitch setpoint's 30 deg/s slew: it settles at the cap
+        state, _out = fc.control_step(cp, state, s, targets, 0.01)
+    gamma_air = math.asin(-10.0 / 30.0)
+    cap = gamma_air + cp.alpha_protect_rad * math.cos(math.radians(35.0))
+    assert state.recovering
+    assert state.pitch_sp_rad == pytest.approx(cap, abs=math.radians(0.5))

@@ -20,12 +20,14 @@ def _run(name: str):  # type: ignore[no-untyped-def]
 
 
 def test_floor_trip_near_the_south_edge_turns_the_clear_way() -> None:
-    """A floor revocation 113 m from the south edge, heading south-west in a tailwind: RTL's first turn goes
-    the side the fence projection finds clear (right, away from the edge), not guidance's short way."""
+    """A revocation 113 m from the south edge, heading south-west in a tailwind: RTL's first turn goes the
+    side the fence projection finds clear (right, away from the edge), not guidance's short way. (The floor
+    revoked it; since the projection models the escape as the loops fly it -- the slow aircraft regains
+    speed before it turns -- the inclusion boundary revokes it first, at 4.0 s.)"""
     r, results = _run("fw_adv_floor_trip_south_edge.yaml")
     assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
     revoked = [e for e in r.events if e["type"] == "revoked"]
-    assert revoked and revoked[0]["reason_detail"]["parameter"] == "floor"
+    assert revoked and revoked[0]["reason_detail"]["parameter"] == "inclusion"
     t_rev = revoked[0]["t"]
     escapes = [e for e in r.events if e["type"] == "fixed_wing_escape_turn" and e["t"] >= t_rev]
     assert escapes and escapes[0]["t"] == t_rev and escapes[0]["side"] == "right"
@@ -40,3 +42,29 @@ def test_escape_turn_is_not_cut_short_by_a_flickering_monitor() -> None:
     end = next(e for e in r.events if e["type"] == "fixed_wing_escape_turn_end")
     assert end["t"] - start["t"] > 1.0
     assert end["turned_deg"] > 20.0
+
+
+def test_a_slow_pull_up_in_a_strong_wind_is_revoked_for_the_turn_the_loops_fly() -> None:
+    """A pull-up bleeding the airspeed to 19 m/s, 245 m from the west edge in a 12 m/s wind: the projection's
+    escape regains the speed before the turn and turns at the escape airspeed (it turned at 19 m/s at once,
+    revoked at 4.3 s and the aircraft left the range by 48.6 m). It revokes earlier, and the escape turn is
+    flown at the airspeed the projection assumed."""
+    r, results = _run("fw_adv_slow_pullup_west_wind.yaml")
+    assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
+    revoked = [e for e in r.events if e["type"] == "revoked"]
+    assert revoked[0]["t"] < 4.0 and revoked[0]["reason_detail"]["parameter"] == "inclusion"
+
+
+def test_a_slow_steep_climb_towards_the_notch_wall_stays_inside() -> None:
+    _r, results = _run("fw_adv_slow_climb_notch.yaml")
+    assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
+
+
+def test_a_request_below_the_minimum_grant_height_is_refused_with_its_reason() -> None:
+    """The fixed-wing default derives its minimum grant height from the stall recovery's bound (53.8 m): the
+    push-before-stall adversary asking at 45 m is refused, naming the height and the limit."""
+    r, results = _run("fw_adv_grant_below_recovery_height.yaml")
+    assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
+    denied = [e for e in r.events if e["type"] == "denied"]
+    assert denied and denied[0]["reason_detail"]["parameter"] == "altitude_m"
+    assert denied[0]["reason_detail"]["limit"] > 53.0

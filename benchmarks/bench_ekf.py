@@ -1,0 +1,352 @@
+"""Cost of the fusion EKF's steps beside filterpy's reference implementation of the same step, and the
+closed loop's real-time factor with the full navigation stack.
+
+``--part steps``: a synthetic 400 Hz flight (``merlin/nav/synthetic.py``: GPS 10 Hz, baro and
+magnetometer 25 Hz, VO 20 Hz) replayed through this tree's ``NavEstimator``; every call is timed with
+the calling thread's CPU time (one core; a shared machine's waiting is not counted) and the timer's own
+cost is subtracted. Beside it, filterpy's ``ExtendedKalmanFilter`` doing the matrix part of the same
+step on the same 19-state covariance: ``predict()`` with the dense F and Q (``kernels.transition``), and
+``update()`` (its Joseph form) with the step's H and R followed by the injection and reset in numpy:
+the reference the kernels are tested against (tests/nav/test_nav_kernels.py).
+
+``--part loop``: whole scenarios through ``sims.runner.run_scenario``, process CPU time, the process
+pinned to one core: nominal with the stand-in estimator (reference), nominal with the EKF, nominal with
+the EKF and the camera + VO (grass, 15 frames/s), three autopilot lanes each with its own EKF
+(``autopilot_lane_own_sensors``), the fixed wing with the EKF (``fw_gps_jump_ekf``). With
+``--baseline-tree DIR`` every configuration is also flown by another checkout of the project (e.g. the
+commit before a change, ``git archive REV | tar -x -C DIR``), interleaved run by run with this one, so
+the old figure and the new come from the same minutes of the same machine.
+
+    .venv/bin/python benchmarks/bench_ekf.py --part steps [--runs 5]
+    nice -n 5 .venv/bin/python benchmarks/bench_ekf.py --part loop [--runs 3] [--baseline-tree DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+STEP_NAMES = {
+    "ImuSample": "predict",
+    "GpsSample": "update_gps",
+    "VoSample": "update_vo",
+    "MagSample": "update_mag (heading)",
+    "BaroSample": "update_baro",
+}
+TARGET_US = {"predict": 5.0, "update_gps": 25.0, "update_vo": 15.0, "update_mag (heading)": 15.0}
+
+
+def _timer_cost_s() -> float:
+    tt = time.thread_time
+    samples = []
+    for _ in range(2000):
+        t0 = tt()
+        samples.append(tt() - t0)
+    return float(np.median(samples))
+
+
+def bench_steps(runs: int) -> dict[str, list[float]]:
+    """µs per call of each estimator step, one mean per run."""
+    from merlin.measurements import ImuSample
+    from merlin.nav.config import NavConfig
+    from merlin.nav.estimator import NavEstimator, NavInit
+    from merlin.nav.quaternion import quat_to_euler
+    from merlin.nav.synthetic import synthesize, waypoint_trajectory
+
+    traj = waypoint_trajectory(
+        [(150.0, 0.0, -30.0), (150.0, 150.0, -30.0), (0.0, 150.0, -30.0)], speed_mps=10.0, imu_rate_hz=400.0
+    )
+    samples = synthesize(traj, np.random.default_rng(0))
+    overhead = _timer_cost_s()
+    tt = time.thread_time
+    out: dict[str, list[float]] = {}
+    for _ in range(runs + 1):  # the first run warms the compiled kernels' cache and is dropped
+        est = NavEstimator(
+            NavConfig(),
+            NavInit(
+                t_s=float(traj.t_s[0]),
+                pos_ned_m=tuple(traj.pos_ned_m[0]),
+                att_rpy_rad=quat_to_euler(tuple(traj.quat[0])),
+            ),
+        )
+        calls = {
+            "ImuSample": est.predict,
+            "GpsSample": est.update_gps,
+            "VoSample": est.update_vo,
+            "MagSample": est.update_mag,
+            "BaroSample": est.update_baro,
+        }
+        acc: dict[str, float] = {}
+        cnt: dict[str, int] = {}
+        for s in samples:
+            k = type(s).__name__
+            f = calls[k]
+            t0 = tt()
+            f(s)
+            dt = tt() - t0 - overhead
+            acc[k] = acc.get(k, 0.0) + dt
+            cnt[k] = cnt.get(k, 0) + 1
+        if _ == 0:
+            continue
+        for k in acc:
+            out.setdefault(STEP_NAMES[k], []).append(1e6 * acc[k] / cnt[k])
+        assert isinstance(samples[0], ImuSample)
+    return out
+
+
+def bench_hot(runs: int, n: int = 2000) -> dict[str, list[float]]:
+    """µs per call of each update repeated on one mid-flight state with the same sample (caches warm, as
+    filterpy's reference is timed); ``predict`` on the flight's next IMU samples."""
+    from merlin.nav.config import NavConfig
+    from merlin.nav.estimator import NavEstimator, NavInit
+    from merlin.nav.quaternion import quat_to_euler
+    from merlin.nav.synthetic import synthesize, waypoint_trajectory
+
+    traj = waypoint_trajectory(
+        [(150.0, 0.0, -30.0), (150.0, 150.0, -30.0), (0.0, 150.0, -30.0)], speed_mps=10.0, imu_rate_hz=400.0
+    )
+    samples = synthesize(traj, np.random.default_rng(0))
+    half = len(samples) // 2
+    tt = time.thread_time
+    out: dict[str, list[float]] = {}
+    for _ in range(runs):
+        est = NavEstimator(
+            NavConfig(),
+            NavInit(
+                t_s=float(traj.t_s[0]),
+                pos_ned_m=tuple(traj.pos_ned_m[0]),
+                att_rpy_rad=quat_to_euler(tuple(traj.quat[0])),
+            ),
+        )
+        calls = {
+            "ImuSample": est.predict,
+            "GpsSample": est.update_gps,
+            "VoSample": est.update_vo,
+            "MagSample": est.update_mag,
+            "BaroSample": est.update_baro,
+        }
+        last: dict[str, Any] = {}
+        for s in samples[:half]:
+            calls[type(s).__name__](s)
+            last[type(s).__name__] = s
+        imus = [s for s in samples[half:] if type(s).__name__ == "ImuSample"][:n]
+        t0 = tt()
+        for s in imus:
+            est.predict(s)
+        out.setdefault("predict", []).append(1e6 * (tt() - t0) / len(imus))
+        for k, s in last.items():
+            if k == "ImuSample":
+                continue
+            f = calls[k]
+            t0 = tt()
+            for _i in range(n):
+                f(s)
+            out.setdefault(STEP_NAMES[k], []).append(1e6 * (tt() - t0) / n)
+    return out
+
+
+def bench_filterpy(runs: int, n: int = 2000) -> dict[str, list[float]]:
+    """µs per call of filterpy's reference for the matrix part of each step (19 states)."""
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    from merlin.nav import kernels
+    from merlin.nav.estimator import _H_BARO, _H_GPS
+    from merlin.nav.quaternion import quat_exp, quat_mul, quat_normalize, skew
+
+    rng = np.random.default_rng(0)
+    A = rng.normal(0.0, 0.1, (19, 19))
+    P0 = A @ A.T + 0.01 * np.eye(19)
+    s = np.zeros(kernels.N_STATE)
+    s[6] = s[10] = 1.0
+    s[kernels.S_PF] = (0.01, 0.02, -9.81 * 0.0025)
+    s[kernels.I_PDT] = 0.0025
+    q_density = np.full(19, 1e-4)
+    vo = np.zeros((2, 19))
+    vo[0, 3] = vo[1, 4] = 1.0
+    vo[:, 2] = 0.3
+    vo[:, 8] = (1.0, -2.0)
+    vo[:, 9:12] = 10.0
+    heading = np.zeros((1, 19))
+    heading[0, 8] = 1.0
+    cases = {"update_gps": _H_GPS, "update_vo": vo, "update_mag (heading)": heading, "update_baro": _H_BARO}
+    overhead = _timer_cost_s()
+    tt = time.thread_time
+
+    def inject_reset(kf: ExtendedKalmanFilter, q: tuple[float, float, float, float]) -> None:
+        dx = kf.x[:, 0]
+        quat_normalize(quat_mul(quat_exp(dx[6], dx[7], dx[8]), q))
+        G = np.eye(19)
+        G[6:9, 6:9] += skew(0.5 * dx[6:9])
+        kf.P = G @ kf.P @ G.T
+        kf.x[:] = 0.0
+
+    out: dict[str, list[float]] = {}
+    for _ in range(runs):
+        kf = ExtendedKalmanFilter(dim_x=19, dim_z=3)
+        kf.x = np.zeros((19, 1))
+        kf.P = P0.copy()
+        t0 = tt()
+        for _i in range(n):
+            kf.F = kernels.transition(s, 0.0025, 60.0)
+            kf.Q = np.diag(q_density * 0.0025)
+            kf.predict()
+        out.setdefault("predict", []).append(1e6 * ((tt() - t0) / n - overhead / n))
+        for name, H in cases.items():
+            m = H.shape[0]
+            R = np.diag(np.full(m, 0.5))
+            z = np.full((m, 1), 0.1)
+            t0 = tt()
+            for _i in range(n):
+                kf.P = P0.copy()
+                kf.update(z, HJacobian=lambda _x, H=H: H, Hx=lambda _x, m=m: np.zeros((m, 1)), R=R)
+                inject_reset(kf, (1.0, 0.0, 0.0, 0.0))
+            out.setdefault(name, []).append(1e6 * (tt() - t0) / n)
+    return out
+
+
+# ------------------------------------------------------------------------------------------ closed loop
+
+LOOP_CASES = (
+    "nominal_stand_in",
+    "nominal_ekf",
+    "nominal_ekf_camera",
+    "one_lane_ekf",
+    "three_lanes_ekf",
+    "fixed_wing_ekf",
+)
+LOOP_TARGETS = {
+    "nominal_ekf": 60.0,
+    "nominal_ekf_camera": 25.0,
+    "three_lanes_ekf": 25.0,
+    "fixed_wing_ekf": 50.0,
+}
+
+
+def _loop_scenario(case: str) -> tuple[Any, Any]:
+    from sims.scenario import Camera, load_scenario
+
+    scen = ROOT / "examples" / "scenarios"
+    if case.startswith("nominal"):
+        sc, cfg = load_scenario(scen / "nominal.yaml")
+        if case == "nominal_ekf":
+            sc = sc.model_copy(update={"estimator": "ekf"})
+        elif case == "nominal_ekf_camera":
+            sc = sc.model_copy(update={"estimator": "ekf", "camera": Camera(texture="grass", rate_hz=15.0)})
+    elif case == "three_lanes_ekf":
+        sc, cfg = load_scenario(scen / "autopilot_lane_own_sensors.yaml")
+    elif case == "one_lane_ekf":  # the same flight, sensors and faults with one lane and one filter
+        sc, cfg = load_scenario(scen / "autopilot_lane_own_sensors.yaml")
+        red = sc.redundancy.model_copy(update={"autopilot_lanes": 1, "lane_navigation": "shared"})
+        sc = sc.model_copy(update={"redundancy": red})
+    elif case == "fixed_wing_ekf":
+        sc, cfg = load_scenario(scen / "fw_gps_jump_ekf.yaml")
+    else:
+        raise SystemExit(f"unknown case {case!r}; allowed: {LOOP_CASES}")
+    return sc, cfg
+
+
+def loop_once(case: str) -> dict[str, float]:
+    """Fly one case once in this process; its simulated duration and process CPU time."""
+    from sims.runner import run_scenario
+
+    sc, cfg = _loop_scenario(case)
+    c0 = time.process_time()
+    run_scenario(sc, cfg)
+    cpu = time.process_time() - c0
+    return {"sim_s": float(sc.duration_s), "cpu_s": cpu}
+
+
+def _child(case: str, tree: Path) -> dict[str, float]:
+    env = dict(os.environ, PYTHONPATH=str(tree), MERLIN_USE_SOURCES="1")
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--child", case]
+    res = subprocess.run(cmd, env=env, cwd=str(tree), capture_output=True, text=True, check=True)
+    return dict(json.loads(res.stdout.strip().splitlines()[-1]))
+
+
+def bench_loop(runs: int, cases: list[str], baseline: Path | None) -> None:
+    trees = [("this tree", ROOT)] + ([("baseline", baseline)] if baseline is not None else [])
+    print("| case | tree | real-time factor (CPU), median | spread | target | runs |")
+    print("|---|---|---|---|---|---|")
+    for case in cases:
+        rtf: dict[str, list[float]] = {name: [] for name, _ in trees}
+        for _name, tree in trees:  # warm-up (numba's cache, imports), not counted
+            _child(case, tree)
+        for _ in range(runs):
+            for name, tree in trees:
+                r = _child(case, tree)
+                rtf[name].append(r["sim_s"] / r["cpu_s"])
+        for name, _ in trees:
+            v = rtf[name]
+            target = LOOP_TARGETS.get(case)
+            print(
+                f"| {case} | {name} | {statistics.median(v):.1f}× | {min(v):.1f}–{max(v):.1f} |"
+                f" {f'≥ {target:g}×' if target else '—'} | {len(v)} |",
+                flush=True,
+            )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--part", choices=["steps", "loop", "all"], default="steps")
+    ap.add_argument("--runs", type=int, default=5)
+    ap.add_argument("--cases", nargs="*", default=list(LOOP_CASES))
+    ap.add_argument("--baseline-tree", type=Path, default=None)
+    ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})  # one core
+    if a.child == "steps":
+        print(json.dumps(bench_steps(a.runs)))
+        return
+    if a.child:
+        print(json.dumps(loop_once(a.child)))
+        return
+    from merlin.nav import kernels
+
+    print(f"load average {os.getloadavg()}; numba kernels compiled: {kernels.JIT}")
+    if a.part in ("steps", "all"):
+        mine = bench_steps(a.runs)
+        hot = bench_hot(a.runs)
+        ref = bench_filterpy(a.runs)
+        old: dict[str, list[float]] = {}
+        if a.baseline_tree is not None:
+            env = dict(os.environ, PYTHONPATH=str(a.baseline_tree), MERLIN_USE_SOURCES="1")
+            cmd = [sys.executable, str(Path(__file__).resolve()), "--child", "steps", "--runs", str(a.runs)]
+            res = subprocess.run(
+                cmd, env=env, cwd=str(a.baseline_tree), capture_output=True, text=True, check=True
+            )
+            old = json.loads(res.stdout.strip().splitlines()[-1])
+        print(
+            "| step | Merlin in flight µs, median | spread | baseline tree in flight µs, median | spread |"
+            " Merlin repeated µs, median | spread | filterpy reference repeated µs, median | spread | target |"
+        )
+        print("|---|---|---|---|---|---|---|---|---|---|")
+        for k, v in mine.items():
+            cells = []
+            for src in (old.get(k, []), hot.get(k, []), ref.get(k, [])):
+                cells.append(
+                    f"{statistics.median(src):.1f} | {min(src):.1f}–{max(src):.1f}" if src else "— | —"
+                )
+            t = TARGET_US.get(k)
+            print(
+                f"| {k} | {statistics.median(v):.2f} | {min(v):.2f}–{max(v):.2f} | {cells[0]} | {cells[1]} |"
+                f" {cells[2]} |"
+                f" {f'≤ {t:g}' if t else '—'} |"
+            )
+    if a.part in ("loop", "all"):
+        bench_loop(a.runs, a.cases, a.baseline_tree)
+
+
+if __name__ == "__main__":
+    main()
