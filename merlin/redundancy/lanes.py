@@ -61,6 +61,7 @@ from merlin.core.types import (
     Command,
     CommandKind,
     Decision,
+    MonitorId,
     NavMode,
     RedundancyReport,
     VehicleState,
@@ -303,7 +304,7 @@ def lane_context(decision: Decision, core_cfg: CoreConfig, battery_frac: float) 
     for m in decision.monitors:
         if not m.tripped:
             continue
-        if m.name == "gcs_link":
+        if m.name == MonitorId.GCS_LINK:
             link_ok = False
         row = rows.get(m.name)
         if row is not None and column(row, decision.authority) > Action.WARN:
