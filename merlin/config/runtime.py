@@ -70,6 +70,16 @@ def min_grant_height_m(cfg: MerlinConfig) -> float | None:
     from merlin.autopilot import fixedwing_recovery
 
     return fixedwing_recovery.min_grant_height_m(cfg)
+def _recovery_height_m(cfg: MerlinConfig) -> float:
+    """A fixed wing's stall-recovery height bound, which the fence's floor projection counts
+    (:func:`merlin.autopilot.fixedwing_recovery.recovery_height_bound_m`); 0 for a multirotor."""
+    if cfg.vehicle.type.value != "fixed_wing":
+        return 0.0
+    from merlin.autopilot import fixedwing_recovery
+
+    return fixedwing_recovery.recovery_height_bound_m(cfg)
+
+
 def _takeover(monitor: MonitorId, oversight_envelope: bool, oversight_geofence: bool) -> Takeover:
     """The table's takeover column: a pilot who takes over during an envelope or geofence trip is given the
     override grace to fly out of it (or is not judged by it at all when its oversight is switched off);
@@ -96,7 +106,8 @@ def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig
         # nav_redundancy exists only on a vehicle that reports its redundancy (redundancy.enabled)
         if name != MonitorId.NAV_REDUNDANCY or cfg.redundancy.enabled
     )
-    fence = build_fence(cfg.geofence, cfg.home, cfg.vehicle, source=source) if cfg.geofence.enabled else None
+    fence = (build_fence(cfg.geofence, cfg.home, cfg.vehicle, source=source,
+                         recovery_height_m=_recovery_height_m(cfg)) if cfg.geofence.enabled else None)
     return CoreConfig(
         envelope=envelope_limits(cfg),
         rules=rules,

@@ -68,3 +68,16 @@ def test_a_request_below_the_minimum_grant_height_is_refused_with_its_reason() -
     denied = [e for e in r.events if e["type"] == "denied"]
     assert denied and denied[0]["reason_detail"]["parameter"] == "altitude_m"
     assert denied[0]["reason_detail"]["limit"] > 53.0
+
+
+def test_a_dive_after_a_grant_above_the_minimum_height_is_revoked_above_the_recovery_height() -> None:
+    """Granted at 62 m (above the 53.8 m minimum grant height), the adversary sinks and dives: the floor's
+    projection counts the stall recovery's height bound, so it revokes while the recovery still keeps the
+    floor (it revoked at 47.7 m and went 6.7 m through the floor when it counted only the sink's braking)."""
+    r, results = _run("fw_adv_descend_after_grant.yaml")
+    assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
+    revoked = [e for e in r.events if e["type"] == "revoked"]
+    assert revoked and revoked[0]["reason_detail"]["parameter"] == "floor"
+    h = -r.log["truth_d"]
+    assert h.min() > 30.0 + 5.0  # the floor and its margin
+
