@@ -81,3 +81,15 @@ def test_a_dive_after_a_grant_above_the_minimum_height_is_revoked_above_the_reco
     h = -r.log["truth_d"]
     assert h.min() > 30.0 + 5.0  # the floor and its margin
 
+
+def test_an_escape_that_ends_heading_at_the_edge_in_a_tailwind_turns_again() -> None:
+    """The half turn after the airspeed revocation ends heading south-west at the south edge with the wind
+    behind it and the fence still tripped: a new escape turn starts on the side the fence projection finds
+    better (right, into the wind), and RTL takes over only once the course opens from the edge (RTL's
+    cruise turn left the range by 144.9 m)."""
+    r, results = _run("fw_adv_escape_ends_tailwind.yaml")
+    assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
+    escapes = [e for e in r.events if e["type"] == "fixed_wing_escape_turn" and e["t"] > 11.0]
+    assert [e["side"] for e in escapes[:2]] == ["left", "right"], escapes
+    assert escapes[1].get("after") == "half turn with the fence still tripped"
+    assert r.metrics["min_fence_margin_m"] > 5.0
