@@ -42,6 +42,7 @@ COMPILED_MODULES = (
     "merlin/core/config.py",
     "merlin/core/envelope.py",
     "merlin/core/watchdog.py",
+    "merlin/core/kinematics.py",
     "merlin/core/arbiter.py",
     "merlin/autopilot/guidance.py",
     "merlin/core/shaping.py",

@@ -26,6 +26,7 @@ COMPILED_MODULES: tuple[str, ...] = (
     "merlin.core.config",
     "merlin.core.envelope",
     "merlin.core.watchdog",
+    "merlin.core.kinematics",
     "merlin.core.arbiter",
     "merlin.autopilot.guidance",
     "merlin.core.shaping",
