@@ -71,13 +71,22 @@ def min_grant_height_m(cfg: MerlinConfig) -> float | None:
 
     return fixedwing_recovery.min_grant_height_m(cfg)
 def _recovery_height_m(cfg: MerlinConfig) -> float:
-    """A fixed wing's stall-recovery height bound, which the fence's floor projection counts
-    (:func:`merlin.autopilot.fixedwing_recovery.recovery_height_bound_m`); 0 for a multirotor."""
+    """The height a fixed wing's stall recovery may lose, which the fence's floor projection counts: the same
+    number the minimum grant height adds to the floor (:func:`merlin.autopilot.fixedwing_recovery.
+    recovery_height_bound_m`), so that the floor trips where a grant would be refused. A configuration that
+    sets ``handover.min_grant_height_m`` below the derived height (cross-check XC025 warns) accepts that much
+    less room above the floor for the floor's trip too (``fixedwing_low_grant.yaml``: none). 0 for a
+    multirotor."""
     if cfg.vehicle.type.value != "fixed_wing":
         return 0.0
     from merlin.autopilot import fixedwing_recovery
 
-    return fixedwing_recovery.recovery_height_bound_m(cfg)
+    bound = fixedwing_recovery.recovery_height_bound_m(cfg)
+    configured = cfg.handover.min_grant_height_m
+    if configured is None:
+        return bound
+    floor = fixedwing_recovery.min_grant_height_m(cfg) - bound
+    return min(bound, max(0.0, float(configured) - floor))
 
 
 def _takeover(monitor: MonitorId, oversight_envelope: bool, oversight_geofence: bool) -> Takeover:

@@ -342,6 +342,9 @@ def test_the_fixed_wing_core_fence_carries_the_derived_recovery_height() -> None
     assert fence.params.recovery_height_m == pytest.approx(recovery_height_bound_m(fw)) and fence.params.recovery_height_m > 10.0
     mr = build_core_config(load_config(root / "default.yaml")).fence
     assert mr is not None and mr.params.recovery_height_m == 0.0
+    # a configured minimum grant height below the derived one (30 m: the floor itself) leaves no room for it
+    low = build_core_config(load_config(root / "fixedwing_low_grant.yaml")).fence
+    assert low is not None and low.params.recovery_height_m == 0.0
 
 
 def test_position_only_altitude_limits() -> None:
