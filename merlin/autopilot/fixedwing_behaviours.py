@@ -135,6 +135,16 @@ def _turn_blocked(fence: geofence.Fence, s: VehicleState) -> bool:
     return not (right > 0.0 and left > 0.0)
 
 
+def _closing_on_hazard(fence: geofence.Fence, s: VehicleState) -> bool:
+    """Whether the course over the ground closes on the nearest horizontal hazard (wind included: it is the
+    ground velocity)."""
+    near = geofence.nearest_boundary_ne(fence, s.pos_ned_m[0], s.pos_ned_m[1])
+    if near is None:
+        return False
+    _d, un, ue = near
+    return s.vel_ned_mps[0] * un + s.vel_ned_mps[1] * ue > 0.0
+
+
 def _side_towards(s: VehicleState, target_ne: tuple[float, float]) -> float:
     """+1 when the short turn towards ``target_ne`` is to the right, -1 to the left."""
     vn, ve = s.vel_ned_mps[0], s.vel_ned_mps[1]
@@ -448,6 +458,21 @@ class FixedWingBehaviours:
         # take its short way) and the aircraft heads home, or at the half turn. The monitor alone clearing
         # is not enough: it flickers at its threshold, and the first tick after the trip would hand the
         # aircraft to guidance's short way through the blocked side (scenario ``fw_adv_notch_west_wall``).
+        if half_turn_done and fence_tripped and self.fence is not None and _closing_on_hazard(self.fence, s):
+            # The half turn the projection covered is flown, but the fence is still tripped from where it
+            # leaves the aircraft and the course over the ground closes on the nearest boundary (heading back
+            # at the edge it escaped, the wind behind it): guidance's route would go on turning at its cruise
+            # bank, the way the half turn went, and out of the range (scenario fw_adv_escape_ends_tailwind:
+            # 144.9 m). A new escape turn starts instead, its side chosen again on the fence's measure of both
+            # turns from here, in the model the projection uses. A course that opens from the nearest boundary
+            # is handed to guidance: turning on would only bring it back.
+            self.notes.append({"t": t, "type": "fixed_wing_escape_turn_end",
+                               "turned_deg": math.degrees(self._escape_turned_rad),
+                               "fence_tripped": fence_tripped})
+            self._start_escape(t, self.fence, s)
+            self.notes[-1]["after"] = "half turn with the fence still tripped"
+            return replace(targets, roll_rad=self.escape_side * fc.bank_limit_rad(self.cp),
+                           airspeed_mps=fc.escape_airspeed_mps(self.cp))
         if (not fence_tripped and homeward and (self.fence is None or not _turn_blocked(self.fence, s))) or half_turn_done:
             self.notes.append({"t": t, "type": "fixed_wing_escape_turn_end",
                                "turned_deg": math.degrees(self._escape_turned_rad),

@@ -32,8 +32,11 @@ from merlin.core.geofence import (
 from merlin.geodesy import LocalFrame
 
 
-def build_fence_params(geofence_cfg: GeofenceConfig, vehicle_cfg: VehicleLimits) -> FenceParams:
-    """The core's fence parameters (SI units, radians) from the configuration."""
+def build_fence_params(geofence_cfg: GeofenceConfig, vehicle_cfg: VehicleLimits,
+                       recovery_height_m: float = 0.0) -> FenceParams:
+    """The core's fence parameters (SI units, radians) from the configuration. ``recovery_height_m``: a fixed
+    wing's stall-recovery height bound, which needs the envelope (:func:`merlin.config.runtime.build_core_config`
+    passes :func:`merlin.autopilot.fixedwing_recovery.recovery_height_bound_m`)."""
     mode: FenceModeName = (
         "position_only" if geofence_cfg.mode.value == "position_only" else "velocity_projection"
     )
@@ -47,7 +50,8 @@ def build_fence_params(geofence_cfg: GeofenceConfig, vehicle_cfg: VehicleLimits)
         cp = fc.FixedWingControlParams()
         turn = {"full_bank_airspeed_mps": fc.full_bank_airspeed_mps(cp),
                 "turn_airspeed_mps": fc.escape_airspeed_mps(cp),
-                "turn_speed_gain_per_s": cp.speed_gain_per_s}
+                "turn_speed_gain_per_s": cp.speed_gain_per_s,
+                "recovery_height_m": recovery_height_m}
     return FenceParams(
         mode=mode,
         margin_m=geofence_cfg.margin_m,
@@ -130,6 +134,7 @@ def build_fence(
     source: str = "<config>",
     *,
     grid_cells: int | None = None,
+    recovery_height_m: float = 0.0,
 ) -> Fence:
     """The core fence, in the local frame about home. Raises :class:`ConfigError` naming bad geometry."""
     frame = LocalFrame(home_cfg.lat_deg, home_cfg.lon_deg, home_cfg.alt_amsl_m)
@@ -152,7 +157,7 @@ def build_fence(
     ]
     if problems:
         raise ConfigError(source, problems)
-    params = build_fence_params(geofence_cfg, vehicle_cfg)
+    params = build_fence_params(geofence_cfg, vehicle_cfg, recovery_height_m)
     kwargs = {} if grid_cells is None else {"grid_cells": grid_cells}
     try:
         return Fence(

@@ -70,6 +70,25 @@ def min_grant_height_m(cfg: MerlinConfig) -> float | None:
     from merlin.autopilot import fixedwing_recovery
 
     return fixedwing_recovery.min_grant_height_m(cfg)
+def _recovery_height_m(cfg: MerlinConfig) -> float:
+    """The height a fixed wing's stall recovery may lose, which the fence's floor projection counts: the same
+    number the minimum grant height adds to the floor (:func:`merlin.autopilot.fixedwing_recovery.
+    recovery_height_bound_m`), so that the floor trips where a grant would be refused. A configuration that
+    sets ``handover.min_grant_height_m`` below the derived height (cross-check XC025 warns) accepts that much
+    less room above the floor for the floor's trip too (``fixedwing_low_grant.yaml``: none). 0 for a
+    multirotor."""
+    if cfg.vehicle.type.value != "fixed_wing":
+        return 0.0
+    from merlin.autopilot import fixedwing_recovery
+
+    bound = fixedwing_recovery.recovery_height_bound_m(cfg)
+    configured = cfg.handover.min_grant_height_m
+    if configured is None:
+        return bound
+    floor = fixedwing_recovery.min_grant_height_m(cfg) - bound
+    return min(bound, max(0.0, float(configured) - floor))
+
+
 def _takeover(monitor: MonitorId, oversight_envelope: bool, oversight_geofence: bool) -> Takeover:
     """The table's takeover column: a pilot who takes over during an envelope or geofence trip is given the
     override grace to fly out of it (or is not judged by it at all when its oversight is switched off);
@@ -96,7 +115,8 @@ def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig
         # nav_redundancy exists only on a vehicle that reports its redundancy (redundancy.enabled)
         if name != MonitorId.NAV_REDUNDANCY or cfg.redundancy.enabled
     )
-    fence = build_fence(cfg.geofence, cfg.home, cfg.vehicle, source=source) if cfg.geofence.enabled else None
+    fence = (build_fence(cfg.geofence, cfg.home, cfg.vehicle, source=source,
+                         recovery_height_m=_recovery_height_m(cfg)) if cfg.geofence.enabled else None)
     return CoreConfig(
         envelope=envelope_limits(cfg),
         rules=rules,

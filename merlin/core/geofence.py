@@ -137,6 +137,11 @@ class FenceParams:
     full_bank_airspeed_mps: float = 0.0
     turn_airspeed_mps: float = 0.0
     turn_speed_gain_per_s: float = 0.6
+    # Fixed wing: the most height the stall recovery may lose after a revocation (derived from the aircraft
+    # and the envelope: merlin.autopilot.fixedwing_recovery.recovery_height_bound_m). The floor projection
+    # counts it beyond the reaction time's sink, so that a controller granted above the minimum grant height
+    # is revoked while the recovery still keeps the floor. 0: no recovery to allow for (a multirotor brakes).
+    recovery_height_m: float = 0.0
 
     def __post_init__(self) -> None:
         problems: list[str] = []
@@ -144,7 +149,7 @@ class FenceParams:
             problems.append(f"mode {self.mode!r} is not 'velocity_projection' or 'position_only'")
         if self.vehicle not in ("multirotor", "fixed_wing"):
             problems.append(f"vehicle {self.vehicle!r} is not 'multirotor' or 'fixed_wing'")
-        for name in ("margin_m", "sigma_k", "reaction_time_s"):
+        for name in ("margin_m", "sigma_k", "reaction_time_s", "recovery_height_m"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 problems.append(f"{name}={v!r} must be finite and >= 0")
@@ -650,6 +655,17 @@ def _check_position_only(fence: Fence, n: float, e: float, h: float, airborne: b
     return _CLEAR_POSITION_ONLY
 
 
+def _floor_drop_m(prm: FenceParams, vd: float) -> float:
+    """The height the vehicle may still lose after a floor trip from sink ``vd`` (down positive): the sink
+    over the reaction time, then the multirotor's braking at ``max_v_decel_mps2``, or for a fixed wing the
+    larger of that and the stall recovery's height loss ``recovery_height_m`` (the bound from any state the
+    envelope allows, so that the floor trips before a descent leaves the recovery too little room: scenario
+    ``fw_adv_descend_after_grant``)."""
+    down = vd if vd > 0.0 else 0.0
+    stop = down * down / (2.0 * prm.max_v_decel_mps2)
+    return down * prm.reaction_time_s + (stop if stop > prm.recovery_height_m else prm.recovery_height_m)
+
+
 def _verdict(
     fence: Fence, n: float, e: float, h: float, vn: float, ve: float, vd: float, v: float, d: float, leg: float,
     radius: float, w: float, sag: float, reach: float, turn: FixedWingTurn | None, wind: tuple[float, float],
@@ -681,8 +697,7 @@ def _verdict(
         dv_up = up * tr + up * up / (2.0 * prm.max_v_decel_mps2)
         trip_c = h + dv_up + wv >= ceiling
     if airborne and floor is not None:
-        down = vd if vd > 0.0 else 0.0
-        dv_down = down * tr + down * down / (2.0 * prm.max_v_decel_mps2)
+        dv_down = _floor_drop_m(prm, vd)
         trip_f = h - dv_down - wv <= floor
 
     if not (trip_h or trip_c or trip_f):
@@ -1363,7 +1378,8 @@ FLOOR_CLEAR_HYSTERESIS_M = 1.0
 
 def clear_of_floor(fence: Fence, pos_ned_m: Sequence[float], sigma_v_m: float) -> bool:
     """True when the vehicle is above the floor by what :func:`check` keeps clear of it (``margin_m +
-    sigma_k * sigma_v`` with a projection, nothing in position-only mode) plus
+    sigma_k * sigma_v`` with a projection, and a fixed wing's ``recovery_height_m``, nothing in position-only
+    mode) plus
     :data:`FLOOR_CLEAR_HYSTERESIS_M`, or when there is no floor.
 
     The core applies the floor from the first tick this holds after leaving the ground (and until the
@@ -1377,7 +1393,7 @@ def clear_of_floor(fence: Fence, pos_ned_m: Sequence[float], sigma_v_m: float) -
     h = -pos_ned_m[2] - FLOOR_CLEAR_HYSTERESIS_M
     if prm.mode == "position_only":
         return h > floor
-    return h - (prm.margin_m + prm.sigma_k * sigma_v_m) > floor
+    return h - (prm.margin_m + prm.sigma_k * sigma_v_m) - prm.recovery_height_m > floor
 
 
 def nearest_boundary_ne(fence: Fence, n: float, e: float) -> tuple[float, float, float] | None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 from functools import cache
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -36,6 +37,7 @@ from merlin.core.geofence import (
     PolygonNE,
     check,
     circle_polygon_ne,
+    clear_of_floor,
     contains,
     signed_margin_m,
     signed_margins_m,
@@ -301,6 +303,48 @@ def test_floor_applies_only_when_airborne() -> None:
     assert r.tripped and r.kind == "floor" and r.stopping_distance_m == pytest.approx(2.4)
     assert r.clearance_m == pytest.approx(18.2 - 10.0 - W)
     assert not at(f, 0.0, 0.0, alt=18.2, vd=-1.0).tripped  # climbing away from the floor
+
+
+def test_a_fixed_wing_floor_counts_the_stall_recovery_height() -> None:
+    """Scenario fw_adv_descend_after_grant: a fixed wing revoked at the floor recovers from its stall, which
+    loses up to ``recovery_height_m``; the floor trips early enough for it, beyond the reaction time's sink."""
+    p = FenceParams(vehicle="fixed_wing", altitude_floor_m=30.0, reaction_time_s=1.0, recovery_height_m=18.8)
+    f = square_fence().with_params(p)
+    # sinking 8 m/s: 8 m over the reaction time, then the recovery's 18.8 m (more than 64 / 6 of braking)
+    assert not at(f, 0.0, 0.0, alt=62.9, vd=8.0).tripped
+    r = at(f, 0.0, 0.0, alt=62.7, vd=8.0)
+    assert r.tripped and r.kind == "floor" and r.stopping_distance_m == pytest.approx(26.8)
+    # level: the recovery's height alone
+    assert not at(f, 0.0, 0.0, alt=54.9).tripped
+    assert at(f, 0.0, 0.0, alt=54.7).kind == "floor"
+    # without a recovery height (a multirotor's braking): the same sink trips 8.1 m lower
+    g = square_fence().with_params(FenceParams(vehicle="fixed_wing", altitude_floor_m=30.0, reaction_time_s=1.0))
+    assert not at(g, 0.0, 0.0, alt=54.8, vd=8.0).tripped
+    # the floor starts to apply (after a take-off) only above the height at which it would not trip at once
+    assert not clear_of_floor(f, (0.0, 0.0, -55.5), SIG)
+    assert clear_of_floor(f, (0.0, 0.0, -55.9), SIG)
+    assert not at(f, 0.0, 0.0, alt=55.9).tripped
+    with pytest.raises(ValueError, match="recovery_height_m"):
+        FenceParams(vehicle="fixed_wing", recovery_height_m=-1.0)
+
+
+def test_the_fixed_wing_core_fence_carries_the_derived_recovery_height() -> None:
+    """The core's fence for the fixed-wing default counts the bound the minimum grant height uses; a
+    multirotor's counts none."""
+    from merlin.autopilot.fixedwing_recovery import recovery_height_bound_m
+    from merlin.config.loader import load_config
+    from merlin.config.runtime import build_core_config
+
+    root = Path(__file__).resolve().parents[2] / "examples" / "configs"
+    fw = load_config(root / "fixedwing_default.yaml")
+    fence = build_core_config(fw).fence
+    assert fence is not None
+    assert fence.params.recovery_height_m == pytest.approx(recovery_height_bound_m(fw)) and fence.params.recovery_height_m > 10.0
+    mr = build_core_config(load_config(root / "default.yaml")).fence
+    assert mr is not None and mr.params.recovery_height_m == 0.0
+    # a configured minimum grant height below the derived one (30 m: the floor itself) leaves no room for it
+    low = build_core_config(load_config(root / "fixedwing_low_grant.yaml")).fence
+    assert low is not None and low.params.recovery_height_m == 0.0
 
 
 def test_position_only_altitude_limits() -> None:

@@ -193,7 +193,9 @@ def altitude_case(params: geofence.FenceParams, limit: str, speed_mps: float, cl
     if limit not in ("ceiling", "floor"):
         raise ValueError(f"limit must be 'ceiling' or 'floor', got {limit!r}")
     up = limit == "ceiling"
-    start_h = CEILING_M - ALTITUDE_LEAD_M if up else FLOOR_M + ALTITUDE_LEAD_M
+    # above the floor, the lead starts above where the floor trips when level: the fixed wing's floor counts
+    # its stall recovery's height bound (FenceParams.recovery_height_m), so the descent still spans the lead
+    start_h = CEILING_M - ALTITUDE_LEAD_M if up else FLOOR_M + ALTITUDE_LEAD_M + math.ceil(params.recovery_height_m)
     rate = climb_mps if up else -climb_mps
     rate_name = f"{climb_mps:g}".replace(".", "p")
     return Scenario(

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from sims.expectations import evaluate_all
 from sims.runner import run_scenario
 from sims.scenario import load_scenario
@@ -66,5 +68,35 @@ def test_a_request_below_the_minimum_grant_height_is_refused_with_its_reason() -
     r, results = _run("fw_adv_grant_below_recovery_height.yaml")
     assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
     denied = [e for e in r.events if e["type"] == "denied"]
-    assert denied and denied[0]["reason_detail"]["parameter"] == "altitude_m"
-    assert denied[0]["reason_detail"]["limit"] > 53.0
+    # the floor's projection counts the same recovery bound: at 45 m the floor is tripped and Merlin climbs
+    assert denied and denied[0]["reason_detail"]["parameter"] == "floor"
+    granted = [e for e in r.events if e["type"] == "granted"]
+    if granted:
+        h = -r.log["truth_d"]
+        k = int(np.searchsorted(r.log["t"], granted[0]["t"]))
+        assert h[k] > 53.8
+
+
+def test_a_dive_after_a_grant_above_the_minimum_height_is_revoked_above_the_recovery_height() -> None:
+    """Granted at 62 m (above the 53.8 m minimum grant height), the adversary sinks and dives: the floor's
+    projection counts the stall recovery's height bound, so it revokes while the recovery still keeps the
+    floor (it revoked at 47.7 m and went 6.7 m through the floor when it counted only the sink's braking)."""
+    r, results = _run("fw_adv_descend_after_grant.yaml")
+    assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
+    revoked = [e for e in r.events if e["type"] == "revoked"]
+    assert revoked and revoked[0]["reason_detail"]["parameter"] == "floor"
+    h = -r.log["truth_d"]
+    assert h.min() > 30.0 + 5.0  # the floor and its margin
+
+
+def test_an_escape_that_ends_heading_at_the_edge_in_a_tailwind_turns_again() -> None:
+    """The half turn after the airspeed revocation ends heading south-west at the south edge with the wind
+    behind it and the fence still tripped: a new escape turn starts on the side the fence projection finds
+    better (right, into the wind), and RTL takes over only once the course opens from the edge (RTL's
+    cruise turn left the range by 144.9 m)."""
+    r, results = _run("fw_adv_escape_ends_tailwind.yaml")
+    assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
+    escapes = [e for e in r.events if e["type"] == "fixed_wing_escape_turn" and e["t"] > 11.0]
+    assert [e["side"] for e in escapes[:2]] == ["left", "right"], escapes
+    assert escapes[1].get("after") == "half turn with the fence still tripped"
+    assert r.metrics["min_fence_margin_m"] > 5.0
