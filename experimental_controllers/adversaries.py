@@ -22,7 +22,26 @@ from experimental_controllers.api import ControllerOutput, ExperimentalControlle
 from merlin.core.types import Setpoint, SetpointKind
 
 
-class VelocityStep(ExperimentalController):
+class VelocityTarget(ExperimentalController):
+    """The velocity adversaries' common parameters: ``speed_mps`` towards ``heading_deg`` and ``climb_mps``
+    (positive up), reached by a step (``accel_mps2`` 0) or a ramp. Used by :class:`VelocityStep` and
+    ``adversaries_search.SearchVelocity``; how each ramps is its own."""
+
+    def __init__(self, **params: Any) -> None:
+        super().__init__(**params)
+        if float(self.params["speed_mps"]) < 0.0 or float(self.params["accel_mps2"]) < 0.0:
+            raise ParamError(f"speed_mps and accel_mps2 of {self.name!r} must be >= 0, got "
+                             f"{self.params['speed_mps']!r}, {self.params['accel_mps2']!r}")
+        self.cmd: tuple[float, float, float] | None = None
+
+    def target(self) -> tuple[float, float, float]:
+        """The commanded velocity once the step is done (NED, m/s)."""
+        h = math.radians(float(self.params["heading_deg"]))
+        v = float(self.params["speed_mps"])
+        return (v * math.cos(h), v * math.sin(h), -float(self.params["climb_mps"]))
+
+
+class VelocityStep(VelocityTarget):
     """Holds the vehicle's velocity until ``start_at_s``, then steps (or ramps) to a fixed velocity."""
 
     name = "velocity_step"
@@ -33,17 +52,6 @@ class VelocityStep(ExperimentalController):
         "climb_mps": 0.0,
         "accel_mps2": 0.0,  # 0: a step; otherwise the command's ramp rate towards the target
     }
-
-    def __init__(self, **params: Any) -> None:
-        super().__init__(**params)
-        if float(self.params["speed_mps"]) < 0.0 or float(self.params["accel_mps2"]) < 0.0:
-            raise ParamError("speed_mps and accel_mps2 of velocity_step must be >= 0")
-        self.cmd: tuple[float, float, float] | None = None
-
-    def target(self) -> tuple[float, float, float]:
-        h = math.radians(float(self.params["heading_deg"]))
-        v = float(self.params["speed_mps"])
-        return (v * math.cos(h), v * math.sin(h), -float(self.params["climb_mps"]))
 
     def command(self, obs: Observation) -> ControllerOutput:
         s = obs.state

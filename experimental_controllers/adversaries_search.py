@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 from typing import Any, ClassVar
 
+from experimental_controllers.adversaries import VelocityTarget
 from experimental_controllers.api import ControllerOutput, ExperimentalController, Observation, ParamError
 from merlin.core.types import Setpoint, SetpointKind
 
@@ -80,7 +81,7 @@ class _Adversary(ExperimentalController):
         return ControllerOutput(None, heartbeat=self.params["end_mode"] == "hang")
 
 
-class SearchVelocity(_Adversary):
+class SearchVelocity(_Adversary, VelocityTarget):
     """A velocity setpoint, stepped or ramped, towards any heading at any speed and climb."""
 
     name = "search_velocity"
@@ -95,16 +96,7 @@ class SearchVelocity(_Adversary):
 
     def __init__(self, **params: Any) -> None:
         super().__init__(**params)
-        if float(self.params["speed_mps"]) < 0.0 or float(self.params["accel_mps2"]) < 0.0:
-            raise ParamError(f"speed_mps and accel_mps2 of {self.name!r} must be >= 0, got "
-                             f"{self.params['speed_mps']!r}, {self.params['accel_mps2']!r}")
-        self.cmd: tuple[float, float, float] | None = None
         self.last_t_s: float | None = None
-
-    def target(self) -> tuple[float, float, float]:
-        h = math.radians(float(self.params["heading_deg"]))
-        v = float(self.params["speed_mps"])
-        return (v * math.cos(h), v * math.sin(h), -float(self.params["climb_mps"]))
 
     def command(self, obs: Observation) -> ControllerOutput:
         s = obs.state

@@ -25,8 +25,7 @@ the contract (``docs/architecture.md``); RotorPy's ``simulate`` loop has the sam
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 from merlin.core.config import CoreConfig
 from merlin.core.step import TrustedCore
@@ -131,11 +130,11 @@ class ActuatorStage(Protocol):
              frame: Any) -> Any: ...
 
 
-@dataclass(frozen=True, slots=True)
-class Sensed:
+class Sensed(NamedTuple):
     """What :meth:`VehicleTick.sense` hands to :meth:`VehicleTick.act`: the tick's time, sensor samples
     (None when nothing reads them), the voter's output (None: no voter, or it votes after the core) and the
-    state estimate the core will see."""
+    state estimate the core will see. A NamedTuple, as the core's per-tick records: built every tick, at a
+    fraction of a frozen dataclass's cost (docs/architecture.md, "Cost of the tick")."""
 
     t: float
     frame: Any

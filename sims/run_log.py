@@ -15,7 +15,7 @@ from merlin.config.loader import config_sha256
 from merlin.config.models import MerlinConfig
 from merlin.core import geofence
 from merlin.core.envelope import envelope_values
-from merlin.core.types import Authority, CommandKind, Decision, EventKind, Setpoint, VehicleState
+from merlin.core.types import Authority, CommandKind, Decision, EventKind, MonitorId, Setpoint, VehicleState
 from sims.scenario import Scenario
 
 _CMD_VELOCITY = CommandKind.VELOCITY
@@ -185,7 +185,7 @@ class RunRecorder:
         cmd = decision.command
         for e in decision.events:
             self.events.append(e.to_dict())
-            if e.reason.monitor.startswith("geofence") and e.kind in (EventKind.REVOKED, EventKind.MONITOR_TRIPPED):
+            if e.reason.monitor.startswith(MonitorId.GEOFENCE) and e.kind in (EventKind.REVOKED, EventKind.MONITOR_TRIPPED):
                 self.fence_triggers.append((t, state.pos_ned_m[0], state.pos_ned_m[1]))
         # command continuity at authority changes (what bumpless transfer must keep small)
         if cmd.kind is _CMD_VELOCITY:

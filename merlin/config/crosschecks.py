@@ -203,39 +203,46 @@ def _home_inside_keep_out(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
                      f"home is {d:.1f} m inside a keep-out zone: arming is refused there and RTL lands in it")
 
 
+def _multirotor_capability(inp: CheckInput) -> VehicleCapability | None:
+    """The vehicle's derived capability where the capability checks apply: a multirotor whose airframe is
+    known (the capability model is a multirotor's: thrust, mass, tilt limit)."""
+    return inp.vehicle if inp.vehicle is not None and inp.cfg.vehicle.type.value == "multirotor" else None
+
+
+def _decel_beyond(c: CrossCheck, cap: VehicleCapability, axis: str, configured: float, capable: float,
+                  assumes: str, consequence: str = "") -> Iterator[Finding]:
+    """The finding of a configured braking (``vehicle.max_<axis>_decel_mps2``) above what the vehicle holds."""
+    if configured > capable + 1e-9:
+        yield c.make((f"vehicle.max_{axis}_decel_mps2",), {"configured_mps2": configured, "vehicle_mps2": capable},
+                     f"{assumes.format(configured)}, the vehicle {cap.source} can hold {capable:.2f} m/s^2 "
+                     f"({cap.derivation}){consequence}")
+
+
 @cross_check("XC003", "horizontal-decel-beyond-vehicle", Severity.ERROR,
              "the fence projection brakes harder than the vehicle can (thrust, mass, tilt limit)")
 def _h_decel(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
-    v, cap = inp.cfg.vehicle, inp.vehicle
-    if cap is None or v.type.value != "multirotor":
-        return
-    if v.max_horizontal_decel_mps2 > cap.max_h_decel_mps2 + 1e-9:
-        yield c.make(("vehicle.max_horizontal_decel_mps2",),
-                     {"configured_mps2": v.max_horizontal_decel_mps2, "vehicle_mps2": cap.max_h_decel_mps2},
-                     f"the fence projection assumes {v.max_horizontal_decel_mps2:g} m/s^2 of braking, the vehicle "
-                     f"{cap.source} can hold {cap.max_h_decel_mps2:.2f} m/s^2 ({cap.derivation}): it stops "
-                     "later than projected and breaches")
+    cap = _multirotor_capability(inp)
+    if cap is not None:
+        yield from _decel_beyond(c, cap, "horizontal", inp.cfg.vehicle.max_horizontal_decel_mps2,
+                                 cap.max_h_decel_mps2, "the fence projection assumes {:g} m/s^2 of braking",
+                                 ": it stops later than projected and breaches")
 
 
 @cross_check("XC004", "vertical-decel-beyond-vehicle", Severity.ERROR,
              "the ceiling/floor projection brakes a climb or descent harder than the vehicle can")
 def _v_decel(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
-    v, cap = inp.cfg.vehicle, inp.vehicle
-    if cap is None or v.type.value != "multirotor":
-        return
-    if v.max_vertical_decel_mps2 > cap.max_v_decel_mps2 + 1e-9:
-        yield c.make(("vehicle.max_vertical_decel_mps2",),
-                     {"configured_mps2": v.max_vertical_decel_mps2, "vehicle_mps2": cap.max_v_decel_mps2},
-                     f"the ceiling and floor projections assume {v.max_vertical_decel_mps2:g} m/s^2 of vertical "
-                     f"braking, the vehicle {cap.source} can hold {cap.max_v_decel_mps2:.2f} m/s^2 "
-                     f"({cap.derivation})")
+    cap = _multirotor_capability(inp)
+    if cap is not None:
+        yield from _decel_beyond(c, cap, "vertical", inp.cfg.vehicle.max_vertical_decel_mps2,
+                                 cap.max_v_decel_mps2,
+                                 "the ceiling and floor projections assume {:g} m/s^2 of vertical braking")
 
 
 @cross_check("XC005", "reaction-time-below-vehicle", Severity.ERROR,
              "the projection's reaction time is shorter than the vehicle's loops can react")
 def _reaction(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
-    v, cap = inp.cfg.vehicle, inp.vehicle
-    if cap is None or v.type.value != "multirotor":
+    v, cap = inp.cfg.vehicle, _multirotor_capability(inp)
+    if cap is None:
         return
     if v.max_horizontal_decel_mps2 > cap.max_h_decel_mps2 + 1e-9:
         return  # no reaction time delivers a braking the vehicle cannot hold: XC003 says so
@@ -276,49 +283,44 @@ def _altitude_band(inp: CheckInput) -> tuple[float | None, float | None]:
     return lo, hi
 
 
+def _height_outside_band(inp: CheckInput, c: CrossCheck, what: str, ceiling: bool, text: str) -> Iterator[Finding]:
+    """The finding of the trusted ``<what>_altitude_m`` (take-off or RTL) at or above the fence's highest
+    height (``ceiling``) or at or below its lowest; ``text`` formats ``{h}`` (the height) and ``{limit}``."""
+    lo, hi = _altitude_band(inp)
+    h, limit = getattr(inp.cfg.trusted, f"{what}_altitude_m"), (hi if ceiling else lo)
+    if limit is not None and (h >= limit if ceiling else h <= limit):
+        side = "ceiling" if ceiling else "floor"
+        yield c.make((f"trusted.{what}_altitude_m", f"geofence.altitude_{side}_m", "geofence.margin_m"),
+                     {f"{what}_m": h, "highest_m" if ceiling else "lowest_m": limit}, text.format(h=h, limit=limit))
+
+
 @cross_check("XC007", "takeoff-above-ceiling", Severity.ERROR,
              "the take-off height is at or above the fence ceiling less its margin")
 def _takeoff_ceiling(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
-    _, hi = _altitude_band(inp)
-    t = inp.cfg.trusted.takeoff_altitude_m
-    if hi is not None and t >= hi:
-        yield c.make(("trusted.takeoff_altitude_m", "geofence.altitude_ceiling_m", "geofence.margin_m"),
-                     {"takeoff_m": t, "highest_m": hi},
-                     f"take-off climbs to {t:g} m, but the ceiling trips at {hi:g} m (ceiling less margin): every "
-                     "take-off ends in the fence's action")
+    return _height_outside_band(inp, c, "takeoff", True,
+                                "take-off climbs to {h:g} m, but the ceiling trips at {limit:g} m (ceiling less "
+                                "margin): every take-off ends in the fence's action")
 
 
 @cross_check("XC008", "takeoff-below-floor", Severity.ERROR,
              "the take-off height does not clear the fence floor (floor + margin + hysteresis)")
 def _takeoff_floor(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
-    lo, _ = _altitude_band(inp)
-    t = inp.cfg.trusted.takeoff_altitude_m
-    if lo is not None and t <= lo:
-        yield c.make(("trusted.takeoff_altitude_m", "geofence.altitude_floor_m", "geofence.margin_m"),
-                     {"takeoff_m": t, "lowest_m": lo},
-                     f"take-off stops at {t:g} m, below {lo:g} m (floor + margin + 1 m): the floor never starts to "
-                     "apply and every grant is refused until the vehicle is clear of it")
+    return _height_outside_band(inp, c, "takeoff", False,
+                                "take-off stops at {h:g} m, below {limit:g} m (floor + margin + 1 m): the floor "
+                                "never starts to apply and every grant is refused until the vehicle is clear of it")
 
 
 @cross_check("XC009", "rtl-above-ceiling", Severity.ERROR, "the RTL height is at or above the ceiling less its margin")
 def _rtl_ceiling(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
-    _, hi = _altitude_band(inp)
-    r = inp.cfg.trusted.rtl_altitude_m
-    if hi is not None and r >= hi:
-        yield c.make(("trusted.rtl_altitude_m", "geofence.altitude_ceiling_m", "geofence.margin_m"),
-                     {"rtl_m": r, "highest_m": hi},
-                     f"RTL climbs to {r:g} m, but the ceiling trips at {hi:g} m (ceiling less margin)")
+    return _height_outside_band(inp, c, "rtl", True,
+                                "RTL climbs to {h:g} m, but the ceiling trips at {limit:g} m (ceiling less margin)")
 
 
 @cross_check("XC010", "rtl-below-floor", Severity.ERROR, "the RTL height is within the fence floor's margin")
 def _rtl_floor(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
-    lo, _ = _altitude_band(inp)
-    r = inp.cfg.trusted.rtl_altitude_m
-    if lo is not None and r <= lo:
-        yield c.make(("trusted.rtl_altitude_m", "geofence.altitude_floor_m", "geofence.margin_m"),
-                     {"rtl_m": r, "lowest_m": lo},
-                     f"RTL returns at {r:g} m, below {lo:g} m (floor + margin + 1 m): the return flies inside "
-                     "the floor's margin")
+    return _height_outside_band(inp, c, "rtl", False,
+                                "RTL returns at {h:g} m, below {limit:g} m (floor + margin + 1 m): the return "
+                                "flies inside the floor's margin")
 
 
 @cross_check("XC011", "blend-longer-than-reaction", Severity.WARNING,

@@ -480,9 +480,53 @@ def reference_markdown() -> str:
     return "\n".join(lines)
 
 
+#: What mypyc puts in ``__doc__`` of a class it compiled (``merlin.core``'s enums are compiled).
+MYPYC_FILLER_DOC = "mypyc filler docstring"
+
+
+def _source_docstring(cls: type) -> str | None:
+    """``cls``'s docstring read from its module's ``.py`` source: a compiled class has lost it, and the
+    schema must not depend on which build generated it (``config-docs --check`` runs on either)."""
+    import ast
+    import importlib.util
+
+    spec = importlib.util.find_spec(cls.__module__)
+    if spec is None or spec.origin is None:
+        return None
+    origin = Path(spec.origin)
+    source = origin.with_name(origin.name.split(".", 1)[0] + ".py")
+    if not source.is_file():
+        return None
+    for node in ast.walk(ast.parse(source.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ClassDef) and node.name == cls.__name__:
+            return ast.get_docstring(node)
+    return None
+
+
+def _restore_compiled_docs(schema: dict[str, Any]) -> None:
+    """Replace mypyc's filler description of a compiled enum in ``$defs`` by the source's docstring."""
+    for name, definition in schema.get("$defs", {}).items():
+        if definition.get("description") != MYPYC_FILLER_DOC:
+            continue
+        cls = next((c for c in _compiled_enums() if c.__name__ == name), None)
+        doc = _source_docstring(cls) if cls is not None else None
+        if doc is None:
+            raise RuntimeError(f"config docs: no source docstring for compiled enum {name!r}")
+        definition["description"] = doc
+
+
+def _compiled_enums() -> list[type]:
+    from merlin.core import config as core_config
+    from merlin.core import types as core_types
+
+    return [v for m in (core_config, core_types) for v in vars(m).values()
+            if isinstance(v, type) and issubclass(v, Enum)]
+
+
 def schema_text() -> str:
     """The JSON schema of :class:`MerlinConfig`, keys sorted, two-space indent, trailing newline."""
     schema = {"$schema": SCHEMA_DIALECT, **MerlinConfig.model_json_schema()}
+    _restore_compiled_docs(schema)
     return json.dumps(schema, indent=2, sort_keys=True, ensure_ascii=False, allow_nan=False) + "\n"
 
 

@@ -102,6 +102,9 @@ _M_NAV_LOST: Final = MonitorId.NAV_LOST
 _M_BATTERY_LOW: Final = MonitorId.BATTERY_LOW
 _M_BATTERY_CRITICAL: Final = MonitorId.BATTERY_CRITICAL
 _M_NAV_REDUNDANCY: Final = MonitorId.NAV_REDUNDANCY
+# The names SHADOW's reasons carry: the monitor's own name, marked as judged on the commanded values.
+_SHADOW_ENVELOPE_NAME: Final = f"{MonitorId.ENVELOPE.value} (commanded)"
+_SHADOW_GEOFENCE_NAME: Final = f"{MonitorId.GEOFENCE.value} (commanded)"
 #: The watchdogs (and the state's validity) that refuse a grant before anything else is looked at.
 _GRANT_WATCHDOGS: Final = (_M_STATE_INVALID, _M_CONTROLLER_HEARTBEAT, _M_SETPOINT_STALE, _M_SETPOINT_INVALID)
 
@@ -656,13 +659,13 @@ def _shadow_monitors(cfg: CoreConfig, since: tuple[float | None, ...], now: floa
         return shadow, since
     senv = envelope.update(cfg.envelope, since, envelope.commanded_values(sp, s), now, skip_nan=True)
     if senv.reason is not None:
-        shadow[_M_ENVELOPE] = replace(senv.reason, monitor="envelope (commanded)")
+        shadow[_M_ENVELOPE] = replace(senv.reason, monitor=_SHADOW_ENVELOPE_NAME)
     if cfg.fence is not None and sp.kind is not SetpointKind.ATTITUDE:
         cmd = setpoint_to_command(sp, s, _SHADOW, cfg.trusted)
         fr = geofence.check(cfg.fence, s.pos_ned_m, cmd.vel_ned_mps, s.pos_sigma_h_m, s.pos_sigma_v_m,
                             floor_reached, wind_ne)
         if fr.tripped:
-            shadow[_M_GEOFENCE] = _fence_reason(fr, "geofence (commanded)")
+            shadow[_M_GEOFENCE] = _fence_reason(fr, _SHADOW_GEOFENCE_NAME)
     return shadow, senv.since
 
 

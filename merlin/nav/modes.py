@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
-from merlin.core.types import NavMode
+from merlin.core.types import MonitorId, NavMode
 
 if TYPE_CHECKING:
     from merlin.config.models import Rule
@@ -42,11 +42,11 @@ def select_mode(
 #: trusted (VO, INERTIAL) trips ``nav_gps_lost``; INERTIAL also trips ``nav_inertial_timeout`` once LAND is
 #: due to be down by the inertial time limit; LOST trips ``nav_lost``. What each does is the configured
 #: rule table's (``arbiter.rules``), never a second table here.
-MODE_MONITORS: dict[NavMode, tuple[str, ...]] = {
+MODE_MONITORS: dict[NavMode, tuple[MonitorId, ...]] = {
     NavMode.GPS: (),
-    NavMode.VO: ("nav_gps_lost",),
-    NavMode.INERTIAL: ("nav_gps_lost", "nav_inertial_timeout"),
-    NavMode.LOST: ("nav_lost",),
+    NavMode.VO: (MonitorId.NAV_GPS_LOST,),
+    NavMode.INERTIAL: (MonitorId.NAV_GPS_LOST, MonitorId.NAV_INERTIAL_TIMEOUT),
+    NavMode.LOST: (MonitorId.NAV_LOST,),
 }
 
 

@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
@@ -129,9 +129,9 @@ def _event(r: FaultReport) -> dict[str, Any]:
 # ------------------------------------------------------------------------------------------ IMU voter
 
 
-@dataclass(frozen=True, slots=True)
-class VotedSensors:
-    """What the voter stage hands the estimator and the autopilot lanes at one tick."""
+class VotedSensors(NamedTuple):
+    """What the voter stage hands the estimator and the autopilot lanes at one tick (a NamedTuple: built
+    every tick)."""
 
     #: the voted IMU sample (None before the first one)
     imu: ImuSample | None

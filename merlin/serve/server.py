@@ -55,6 +55,7 @@ from merlin.core.types import (
     EventKind,
     GcsCommand,
     GcsCommandKind,
+    MonitorId,
     NavMode,
     OperatorInput,
     ReasonCode,
@@ -1108,7 +1109,7 @@ class Server:
             elapsed: dict[str, float] = {}
             if d is not None:
                 for mon in d.monitors:
-                    if mon.name == "envelope":
+                    if mon.name == MonitorId.ENVELOPE:
                         elapsed = dict(mon.detail)
             return list(o.envelope_status_from(ms, s, self.limits, self.cfg.envelope.active_stage, elapsed))
         return []

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from merlin.core.types import Authority, Behavior, SetpointKind
+from merlin.core.types import Authority, Behavior, MonitorId, SetpointKind
 from merlin.geodesy import LocalFrame
 from merlin.ulog.format import Format, ULogWriter
 from merlin.ulog.topics import (
@@ -438,7 +438,7 @@ class FlightRecorder:
                 mons[j] = 1.0 if ms.tripped else 0.0
             for dk, dv in ms.detail:  # the envelope monitor's: how long each parameter has been outside
                 i = self._timer_pos.get(dk)
-                if i is not None and ms.name == "envelope":
+                if i is not None and ms.name == MonitorId.ENVELOPE:
                     timers[i] = dv
         row += timers
         row += mons

@@ -2,10 +2,12 @@
 
 Each program makes the calls of the example of the same name in MAVSDK-Python's ``examples/`` folder
 (mavlink/MAVSDK-Python), in the same order and with the same waits, and uses its hard-coded coordinates
-(PX4 SITL's default home, Zurich). Only the import differs: ``mavsdk_grpc`` is the gRPC MAVSDK-Python
-(``mavsdk<4``'s API) and the connection address is the test's port. A program prints what it does; it ends
-with ``EXAMPLE FINISHED`` when it ran to its end, and any error a call raises ends it with a traceback,
-as the original would.
+(PX4 SITL's default home, Zurich). The flows are written once, against the gRPC MAVSDK-Python's API
+(``mavsdk_grpc``, ``mavsdk<4``): the binding's types and error codes come from a :class:`Binding`, and
+:mod:`tests.serve.px4_examples_native` runs the same flows on the native ``mavsdk`` 4.x binding through an
+adapter. The connection address is the test's port. A program prints what it does; it ends with
+``EXAMPLE FINISHED`` when it ran to its end, and any error a call raises ends it with a traceback, as the
+original would.
 
 Run: ``python -m tests.serve.px4_examples NAME udpin://0.0.0.0:PORT GRPC_PORT``.
 """
@@ -16,13 +18,46 @@ import asyncio
 import contextlib
 import math
 import sys
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 #: PX4 SITL's default home (PX4_HOME_LAT / PX4_HOME_LON / PX4_HOME_ALT), where the examples' coordinates are.
 PX4_HOME = (47.397742, 8.545594, 488.0)
 
-Program = Callable[[Any], Awaitable[None]]
+
+@dataclass(frozen=True)
+class Binding:
+    """What the flows take from a MAVSDK binding besides the vehicle's plugins: the offboard setpoint types,
+    the offboard error and how it names its result, the orbit's yaw behaviour, and the examples' mission item
+    (25 m up, 10 m/s, fly-through, nothing else set) and plan."""
+
+    VelocityNedYaw: Any
+    PositionNedYaw: Any
+    VelocityBodyYawspeed: Any
+    Attitude: Any
+    OffboardError: type[Exception]
+    OrbitYawBehavior: Any
+    error_code: Callable[[Any], Any]
+    mission_item: Callable[[float, float], Any]
+    mission_plan: Callable[[Sequence[Any]], Any]
+
+
+def grpc_binding() -> Binding:
+    """The gRPC MAVSDK-Python (``mavsdk_grpc``): positional constructors, the result under ``_result``."""
+    from mavsdk_grpc import action, mission, offboard
+
+    nan = math.nan
+    item = mission.MissionItem
+    return Binding(
+        offboard.VelocityNedYaw, offboard.PositionNedYaw, offboard.VelocityBodyYawspeed, offboard.Attitude,
+        offboard.OffboardError, action.OrbitYawBehavior, lambda error: error._result.result,
+        lambda lat, lon: item(lat, lon, 25, 10, True, nan, nan, item.CameraAction.NONE, nan, nan, nan, nan, nan,
+                              item.VehicleAction.NONE),
+        lambda items: mission.MissionPlan(list(items)))
+
+
+Program = Callable[[Any, Binding], Awaitable[None]]
 PROGRAMS: dict[str, Program] = {}
 
 
@@ -47,41 +82,38 @@ async def _global_position_ok(drone: Any, home_too: bool = True) -> None:
             break
 
 
-async def _start_offboard(drone: Any, offboard: Any) -> bool:
+async def _start_offboard(drone: Any, b: Binding) -> bool:
     print("-- Starting offboard")
     try:
         await drone.offboard.start()
-    except offboard.OffboardError as error:
-        print(f"Starting offboard mode failed with error code: {error._result.result}")
+    except b.OffboardError as error:
+        print(f"Starting offboard mode failed with error code: {b.error_code(error)}")
         print("-- Disarming")
         await drone.action.disarm()
         return False
     return True
 
 
-async def _stop_offboard(drone: Any, offboard: Any) -> None:
+async def _stop_offboard(drone: Any, b: Binding) -> None:
     print("-- Stopping offboard")
     try:
         await drone.offboard.stop()
-    except offboard.OffboardError as error:
-        print(f"Stopping offboard mode failed with error code: {error._result.result}")
+    except b.OffboardError as error:
+        print(f"Stopping offboard mode failed with error code: {b.error_code(error)}")
 
 
 # ------------------------------------------------------------------------------------------- offboard
 
 
 @program
-async def offboard_velocity_ned(drone: Any) -> None:
-    from mavsdk_grpc import offboard
-    from mavsdk_grpc.offboard import VelocityNedYaw
-
+async def offboard_velocity_ned(drone: Any, b: Binding) -> None:
     await _connected(drone)
     await _global_position_ok(drone)
     print("-- Arming")
     await drone.action.arm()
     print("-- Setting initial setpoint")
-    await drone.offboard.set_velocity_ned(VelocityNedYaw(0.0, 0.0, 0.0, 0.0))
-    if not await _start_offboard(drone, offboard):
+    await drone.offboard.set_velocity_ned(b.VelocityNedYaw(0.0, 0.0, 0.0, 0.0))
+    if not await _start_offboard(drone, b):
         return
     for text, sp, wait_s in (
         ("Go up 2 m/s", (0.0, 0.0, -2.0, 0.0), 4),
@@ -93,22 +125,19 @@ async def offboard_velocity_ned(drone: Any) -> None:
         ("Go down 1 m/s, turn to face North", (0.0, 0.0, 1.0, 0.0), 4),
     ):
         print(f"-- {text}")
-        await drone.offboard.set_velocity_ned(VelocityNedYaw(*sp))
+        await drone.offboard.set_velocity_ned(b.VelocityNedYaw(*sp))
         await asyncio.sleep(wait_s)
-    await _stop_offboard(drone, offboard)
+    await _stop_offboard(drone, b)
 
 
 @program
-async def offboard_position_ned(drone: Any) -> None:
-    from mavsdk_grpc import offboard
-    from mavsdk_grpc.offboard import PositionNedYaw
-
+async def offboard_position_ned(drone: Any, b: Binding) -> None:
     # (this example neither waits for the connection nor for the position estimate before arming)
     print("-- Arming")
     await drone.action.arm()
     print("-- Setting initial setpoint")
-    await drone.offboard.set_position_ned(PositionNedYaw(0.0, 0.0, 0.0, 0.0))
-    if not await _start_offboard(drone, offboard):
+    await drone.offboard.set_position_ned(b.PositionNedYaw(0.0, 0.0, 0.0, 0.0))
+    if not await _start_offboard(drone, b):
         return
     for text, sp, wait_s in (
         ("Go 0m North, 0m East, -5m Down", (0.0, 0.0, -5.0, 0.0), 10),
@@ -117,23 +146,20 @@ async def offboard_position_ned(drone: Any) -> None:
         ("Go 0m North, 10m East, 0m Down, turn to face South", (0.0, 10.0, 0.0, 180.0), 10),
     ):
         print(f"-- {text}")
-        await drone.offboard.set_position_ned(PositionNedYaw(*sp))
+        await drone.offboard.set_position_ned(b.PositionNedYaw(*sp))
         await asyncio.sleep(wait_s)
-    await _stop_offboard(drone, offboard)
+    await _stop_offboard(drone, b)
 
 
 @program
-async def offboard_velocity_body(drone: Any) -> None:
-    from mavsdk_grpc import offboard
-    from mavsdk_grpc.offboard import VelocityBodyYawspeed
-
+async def offboard_velocity_body(drone: Any, b: Binding) -> None:
     await _connected(drone)
     await _global_position_ok(drone)
     print("-- Arming")
     await drone.action.arm()
     print("-- Setting initial setpoint")
-    await drone.offboard.set_velocity_body(VelocityBodyYawspeed(0.0, 0.0, 0.0, 0.0))
-    if not await _start_offboard(drone, offboard):
+    await drone.offboard.set_velocity_body(b.VelocityBodyYawspeed(0.0, 0.0, 0.0, 0.0))
+    if not await _start_offboard(drone, b):
         return
     for text, sp, wait_s in (
         ("Turn clock-wise and climb", (0.0, 0.0, -1.0, 60.0), 5),
@@ -145,22 +171,19 @@ async def offboard_velocity_body(drone: Any) -> None:
         ("Wait for a bit", (0.0, 0.0, 0.0, 0.0), 8),
     ):
         print(f"-- {text}")
-        await drone.offboard.set_velocity_body(VelocityBodyYawspeed(*sp))
+        await drone.offboard.set_velocity_body(b.VelocityBodyYawspeed(*sp))
         await asyncio.sleep(wait_s)
-    await _stop_offboard(drone, offboard)
+    await _stop_offboard(drone, b)
 
 
 @program
-async def offboard_attitude(drone: Any) -> None:
-    from mavsdk_grpc import offboard
-    from mavsdk_grpc.offboard import Attitude
-
+async def offboard_attitude(drone: Any, b: Binding) -> None:
     await _connected(drone)
     print("-- Arming")
     await drone.action.arm()
     print("-- Setting initial setpoint")
-    await drone.offboard.set_attitude(Attitude(0.0, 0.0, 0.0, 0.0))
-    if not await _start_offboard(drone, offboard):
+    await drone.offboard.set_attitude(b.Attitude(0.0, 0.0, 0.0, 0.0))
+    if not await _start_offboard(drone, b):
         return
     for text, sp in (
         ("Go up at 70% thrust", (0.0, 0.0, 0.0, 0.7)),
@@ -169,24 +192,21 @@ async def offboard_attitude(drone: Any) -> None:
         ("Hover at 60% thrust", (0.0, 0.0, 0.0, 0.6)),
     ):
         print(f"-- {text}")
-        await drone.offboard.set_attitude(Attitude(*sp))
+        await drone.offboard.set_attitude(b.Attitude(*sp))
         await asyncio.sleep(2)
-    await _stop_offboard(drone, offboard)
+    await _stop_offboard(drone, b)
     await drone.action.land()
 
 
 @program
-async def offboard_position_velocity_ned(drone: Any) -> None:
-    from mavsdk_grpc import offboard
-    from mavsdk_grpc.offboard import PositionNedYaw, VelocityNedYaw
-
+async def offboard_position_velocity_ned(drone: Any, b: Binding) -> None:
     await _connected(drone)
     await _global_position_ok(drone)
     print("-- Arming")
     await drone.action.arm()
     print("-- Setting initial setpoint")
-    await drone.offboard.set_position_ned(PositionNedYaw(0.0, 0.0, 0.0, 0.0))
-    if not await _start_offboard(drone, offboard):
+    await drone.offboard.set_position_ned(b.PositionNedYaw(0.0, 0.0, 0.0, 0.0))
+    if not await _start_offboard(drone, b):
         return
 
     async def print_z_velocity() -> None:
@@ -195,15 +215,15 @@ async def offboard_position_velocity_ned(drone: Any) -> None:
 
     tasks = {asyncio.create_task(print_z_velocity())}
     print("-- Go 0m North, 0m East, -10m Down")
-    await drone.offboard.set_position_velocity_ned(PositionNedYaw(0.0, 0.0, -10.0, 0.0),
-                                                   VelocityNedYaw(0.0, 0.0, -1.0, 0.0))
+    await drone.offboard.set_position_velocity_ned(b.PositionNedYaw(0.0, 0.0, -10.0, 0.0),
+                                                   b.VelocityNedYaw(0.0, 0.0, -1.0, 0.0))
     await asyncio.sleep(10)
     print("-- Go 50m North, 0m East, -10m Down")
-    await drone.offboard.set_position_velocity_ned(PositionNedYaw(50.0, 0.0, -10.0, 0.0),
-                                                   VelocityNedYaw(1.0, 0.0, 0.0, 0.0))
+    await drone.offboard.set_position_velocity_ned(b.PositionNedYaw(50.0, 0.0, -10.0, 0.0),
+                                                   b.VelocityNedYaw(1.0, 0.0, 0.0, 0.0))
     await asyncio.sleep(20)
     await drone.action.land()
-    await _stop_offboard(drone, offboard)
+    await _stop_offboard(drone, b)
     for task in tasks:
         task.cancel()
 
@@ -212,7 +232,7 @@ async def offboard_position_velocity_ned(drone: Any) -> None:
 
 
 @program
-async def takeoff_and_land(drone: Any) -> None:
+async def takeoff_and_land(drone: Any, b: Binding) -> None:
     async def print_status_text() -> None:
         try:
             async for status_text in drone.telemetry.status_text():
@@ -248,7 +268,7 @@ async def _observe_is_in_air(drone: Any, running: list[asyncio.Future[Any]]) -> 
 
 
 @program
-async def telemetry_takeoff_and_land(drone: Any) -> None:
+async def telemetry_takeoff_and_land(drone: Any, b: Binding) -> None:
     async def print_altitude() -> None:
         previous = None
         async for position in drone.telemetry.position():
@@ -263,7 +283,6 @@ async def telemetry_takeoff_and_land(drone: Any) -> None:
             if flight_mode != previous:
                 previous = flight_mode
                 print(f"Flight mode: {flight_mode}")
-
     await _connected(drone)
     running = [asyncio.ensure_future(print_altitude()), asyncio.ensure_future(print_flight_mode())]
     termination = asyncio.ensure_future(_observe_is_in_air(drone, running))
@@ -283,7 +302,7 @@ async def telemetry_takeoff_and_land(drone: Any) -> None:
 
 
 @program
-async def goto(drone: Any) -> None:
+async def goto(drone: Any, b: Binding) -> None:
     await _connected(drone)
     await _global_position_ok(drone, home_too=False)
     print("Fetching amsl altitude at home location....")
@@ -301,9 +320,7 @@ async def goto(drone: Any) -> None:
 
 
 @program
-async def do_orbit(drone: Any) -> None:
-    from mavsdk_grpc.action import OrbitYawBehavior
-
+async def do_orbit(drone: Any, b: Binding) -> None:
     await _connected(drone)
     await _global_position_ok(drone)
     position = await drone.telemetry.position().__aiter__().__anext__()
@@ -314,7 +331,7 @@ async def do_orbit(drone: Any) -> None:
     await drone.action.takeoff()
     await asyncio.sleep(10)
     print("Do orbit at 10m height from the ground")
-    await drone.action.do_orbit(radius_m=10, velocity_ms=2, yaw_behavior=OrbitYawBehavior.HOLD_FRONT_TO_CIRCLE_CENTER,
+    await drone.action.do_orbit(radius_m=10, velocity_ms=2, yaw_behavior=b.OrbitYawBehavior.HOLD_FRONT_TO_CIRCLE_CENTER,
                                 latitude_deg=47.398036222362471, longitude_deg=8.5450146439425509,
                                 absolute_altitude_m=orbit_height)
     await asyncio.sleep(60)
@@ -326,9 +343,7 @@ async def do_orbit(drone: Any) -> None:
 
 
 @program
-async def mission(drone: Any) -> None:
-    from mavsdk_grpc.mission import MissionItem, MissionPlan
-
+async def mission(drone: Any, b: Binding) -> None:
     await _connected(drone)
 
     async def print_mission_progress() -> None:
@@ -337,14 +352,10 @@ async def mission(drone: Any) -> None:
 
     running = [asyncio.ensure_future(print_mission_progress())]
     termination = asyncio.ensure_future(_observe_is_in_air(drone, running))
-    nan = float("nan")
 
-    def item(lat: float, lon: float) -> Any:  # 25 m up, 10 m/s, fly-through, nothing else set
-        return MissionItem(lat, lon, 25, 10, True, nan, nan, MissionItem.CameraAction.NONE, nan, nan, nan, nan, nan,
-                           MissionItem.VehicleAction.NONE)
-
-    plan = MissionPlan([item(47.398039859999997, 8.5455725400000002), item(47.398036222362471, 8.5450146439425509),
-                        item(47.397825620791885, 8.5450092830163271)])
+    item = b.mission_item  # 25 m up, 10 m/s, fly-through, nothing else set
+    plan = b.mission_plan([item(47.398039859999997, 8.5455725400000002), item(47.398036222362471, 8.5450146439425509),
+                           item(47.397825620791885, 8.5450092830163271)])
     await drone.mission.set_return_to_launch_after_mission(True)
     print("-- Uploading mission")
     await drone.mission.upload_mission(plan)
@@ -360,14 +371,14 @@ async def mission(drone: Any) -> None:
 
 
 @program
-async def firmware_version(drone: Any) -> None:
+async def firmware_version(drone: Any, b: Binding) -> None:
     await _connected(drone)
     info = await drone.info.get_version()
     print(info)
 
 
 @program
-async def all_params(drone: Any) -> None:
+async def all_params(drone: Any, b: Binding) -> None:
     await _connected(drone)
     params = await drone.param.get_all_params()
     for p in params.int_params:
@@ -381,7 +392,7 @@ async def _main(name: str, url: str, grpc_port: int) -> None:
 
     drone = System(port=grpc_port)
     await drone.connect(system_address=url)
-    await PROGRAMS[name](drone)
+    await PROGRAMS[name](drone, grpc_binding())
     print("EXAMPLE FINISHED", flush=True)
 
 

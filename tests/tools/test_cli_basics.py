@@ -25,14 +25,14 @@ def test_version(capsys: pytest.CaptureFixture[str]) -> None:
     assert capsys.readouterr().out.strip() == f"merlin {merlin.__version__}"
 
 
-def test_shipped_examples_by_name(tmp_path: Path) -> None:
+def test_shipped_examples_by_name(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     assert examples_dir() == ROOT / "examples" and schema_path() == ROOT / "docs" / "config.schema.json"
     assert shipped("nominal", "scenarios") == ROOT / "examples" / "scenarios" / "nominal.yaml"
     assert shipped("default", "configs") == ROOT / "examples" / "configs" / "default.yaml"
     assert shipped("no_such_thing", "scenarios") == Path("no_such_thing")  # the command then says not found
     mine = tmp_path / "nominal"
     mine.write_text("x")
-    os.chdir(tmp_path)
+    monkeypatch.chdir(tmp_path)  # restored after the test: later tests load scenarios by relative path
     assert shipped("nominal", "scenarios") == Path("nominal")  # a file of that name wins
 
 

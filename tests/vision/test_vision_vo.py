@@ -9,7 +9,7 @@ import pytest
 
 from merlin.nav.config import NavConfig
 from merlin.vision.camera_model import CameraModel
-from merlin.vision.vo import VisualOdometry, noise_sigma
+from merlin.vision.vo import VisualOdometry, VoConfig, noise_sigma
 from sims.camera import CameraEffects, DownwardCamera, load_texture
 
 SMALL = CameraModel(width_px=160, height_px=120)
@@ -171,3 +171,31 @@ def test_noise_sigma_reads_the_additive_noise_of_a_smooth_image(sigma):
     smooth = 100.0 + 0.3 * xx + 0.2 * yy  # locally linear: cancelled by the estimator's kernel
     img = np.clip(smooth + rng.normal(0.0, sigma, smooth.shape), 0, 255).astype(np.uint8)
     assert noise_sigma(img) == pytest.approx(sigma, rel=0.15)
+
+
+def test_tracked_corners_are_capped_round_by_round_over_the_grid():
+    """Grass gives hundreds of FAST corners: at most ``max_tracked`` are tracked, the strongest of every
+    occupied cell before any cell's second; a sparse scene (the brick from 10 m) keeps all it has."""
+    cam = DownwardCamera(load_texture("grass"), CameraModel(), CameraEffects(), np.random.default_rng(0))
+    img = cam.render((0.0, 0.0, -30.0), (0.0, 0.0, 0.4))
+    capped = VisualOdometry(CameraModel())
+    uncapped = VisualOdometry(CameraModel(), VoConfig(max_tracked=10_000))
+    pts, score = capped._detect(img)
+    all_pts, score_all = uncapped._detect(img)
+    cfg = capped.cfg
+    assert len(pts) == cfg.max_tracked < len(all_pts) and score == score_all
+    h, w = img.shape
+    cells = {
+        (min(int(y * cfg.grid_rows / h), cfg.grid_rows - 1), min(int(x * cfg.grid_cols / w), cfg.grid_cols - 1))
+        for x, y in pts.reshape(-1, 2)
+    }
+    all_cells = {
+        (min(int(y * cfg.grid_rows / h), cfg.grid_rows - 1), min(int(x * cfg.grid_cols / w), cfg.grid_cols - 1))
+        for x, y in all_pts.reshape(-1, 2)
+    }
+    assert cells == all_cells  # no occupied cell lost its strongest corner
+    brick = DownwardCamera(load_texture("brick"), SMALL, CameraEffects(), np.random.default_rng(0))
+    img = brick.render((0.0, 0.0, -10.0), (0.0, 0.0, 0.4))
+    a, _ = VisualOdometry(SMALL)._detect(img)
+    b, _ = VisualOdometry(SMALL, VoConfig(max_tracked=10_000))._detect(img)
+    assert len(a) == len(b) <= VoConfig().max_tracked
