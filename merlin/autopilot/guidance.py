@@ -54,6 +54,9 @@ ROUTE_ACCEL_FRACTION = 0.5
 #: :attr:`GuidanceState.fallback`: RTL found no route home and flies HOLD or LAND instead.
 FALLBACK_NONE, FALLBACK_HOLD, FALLBACK_LAND = 0, 1, 2
 
+#: A command slower than this horizontally has nothing to brake: the behaviour flies as asked at once.
+BRAKE_MIN_SPEED_MPS = 0.1
+
 # Enum members read on every tick, bound once (``merlin.core.types``, "Enum members on the hot path").
 _HOLD: Final = Behavior.HOLD
 _TAKEOFF: Final = Behavior.TAKEOFF
@@ -63,6 +66,17 @@ _MISSION: Final = Behavior.MISSION
 _NAV_INERTIAL: Final = NavMode.INERTIAL
 _NAV_LOST: Final = NavMode.LOST
 _SP_VELOCITY: Final = SetpointKind.VELOCITY
+#: The escapes a takeover flies: they brake straight before they turn (see :func:`step`).
+_BRAKING_BEHAVIORS: Final = (Behavior.HOLD, Behavior.RTL, Behavior.LAND)
+
+
+def brake_direction(vel_cmd: Vec3) -> tuple[float, float] | None:
+    """The unit horizontal direction of ``vel_cmd`` that a takeover's escape brakes along first, or None when
+    the command is (nearly) still horizontally or not finite."""
+    h = math.hypot(vel_cmd[0], vel_cmd[1])
+    if not math.isfinite(h) or h < BRAKE_MIN_SPEED_MPS:
+        return None
+    return (vel_cmd[0] / h, vel_cmd[1] / h)
 
 
 class GuidanceState(NamedTuple):
@@ -79,6 +93,9 @@ class GuidanceState(NamedTuple):
     fallback: int = FALLBACK_NONE
     note: str = ""  # why the behaviour does not fly as asked (no route, a moved hold point): for an event
     goto_ned_m: Vec3 | None = None  # the commanded point (GOTO, ORBIT's centre) this state answers, flown or not
+    # while braking after a takeover: the unit (north, east) direction the command was moving in when the
+    # behaviour was entered (see :func:`step`); None once the command has stopped along it
+    brake_ne: tuple[float, float] | None = None
 
 
 def enter(behavior: Behavior, s: VehicleState, cfg: TrustedParams, fence: Fence | None = None) -> GuidanceState:
@@ -98,6 +115,8 @@ def enter(behavior: Behavior, s: VehicleState, cfg: TrustedParams, fence: Fence 
     v = s.vel_ned_mps
     v0 = v if all(math.isfinite(x) for x in v) else (0.0, 0.0, 0.0)
     g = GuidanceState(behavior=behavior, anchor_ned_m=anchor, yaw_rad=yaw, phase=phase, vel_cmd=v0)
+    if behavior in _BRAKING_BEHAVIORS:
+        g = g._replace(brake_ne=brake_direction(v0))
     if (
         fence is None
         or behavior not in (Behavior.HOLD, Behavior.RTL, Behavior.LAND)
@@ -322,14 +341,28 @@ def step(g: GuidanceState, s: VehicleState, cfg: TrustedParams, dt: float) -> tu
     trajectory generator).
     """
     g2, sp = _target(g, s, cfg)
-    v = limit_velocity_change(
-        g2.vel_cmd, sp.vel_ned_mps, cfg.max_horizontal_decel_mps2 * dt, cfg.max_vertical_decel_mps2 * dt
-    )
+    want = sp.vel_ned_mps
+    brake = g2.brake_ne
+    if brake is not None:
+        # Braking after a takeover: the fence projection counted on the velocity along its direction falling
+        # at the full braking deceleration until the stop. A turn (RTL towards home, a route to a safe point)
+        # changing the whole command at that rate would spend part of it sideways and brake less along the
+        # velocity (in a crosswind the vehicle then ran past the projected stop: scenario
+        # adv_rtl_turn_while_braking_wind). So until the command's component along that direction is down to
+        # the target's (never below zero), the target is only that component, and the turn follows.
+        c = g2.vel_cmd
+        along_cmd = c[0] * brake[0] + c[1] * brake[1]
+        along_want = max(want[0] * brake[0] + want[1] * brake[1], 0.0)
+        if along_cmd > along_want + 1e-9:
+            want = (along_want * brake[0], along_want * brake[1], want[2])
+        else:
+            brake = None
+    v = limit_velocity_change(g2.vel_cmd, want, cfg.max_horizontal_decel_mps2 * dt, cfg.max_vertical_decel_mps2 * dt)
     # g2 with vel_cmd=v and sp with vel_ned_mps=v (built directly: this runs every tick)
     return (
         GuidanceState(
             g2.behavior, g2.anchor_ned_m, g2.yaw_rad, g2.phase, g2.mission_index, g2.done, v, g2.path_ne_m,
-            g2.leg, g2.fallback, g2.note, g2.goto_ned_m,
+            g2.leg, g2.fallback, g2.note, g2.goto_ned_m, brake,
         ),
         Setpoint(sp.kind, sp.pos_ned_m, v, sp.yaw_rad, sp.yaw_rate_radps, sp.att_rpy_rad, sp.thrust),
     )
@@ -514,6 +547,8 @@ class MultirotorGuidance:
             # behaviour's acceleration-limited command was doing, from where that command is: restarting
             # it from the measured velocity would undo braking the fence projection already counted on.
             g = g._replace(vel_cmd=prev.vel_cmd)
+            if behavior in _BRAKING_BEHAVIORS:
+                g = g._replace(brake_ne=prev.brake_ne or brake_direction(prev.vel_cmd))
         if behavior is _TAKEOFF:
             g = g._replace(anchor_ned_m=(g.anchor_ned_m[0], g.anchor_ned_m[1], -takeoff_alt_m))
         elif behavior is _MISSION and mission_index <= len(tp.mission_ned_m):

@@ -9,6 +9,7 @@ import itertools
 import math
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from hypothesis import HealthCheck, example, given, settings
@@ -79,6 +80,48 @@ def test_a_velocity_step_stops_no_deeper_than_projected(speed: float, heading: f
     u = v0 / np.hypot(*v0)
     along = (log["truth_n"][i:] - log["truth_n"][i]) * u[0] + (log["truth_e"][i:] - log["truth_e"][i]) * u[1]
     assert float(np.max(along)) <= float(trip["reason_detail"]["value"]) + 1.0
+
+
+def _achieved_past_projected_m(r: Any) -> float:
+    """How far past the fence's first projected stop the vehicle went, along its velocity at the trip."""
+    log = r.log
+    trip = next(e for e in r.events if e["type"] == "monitor_tripped" and e["reason_detail"]["monitor"] == "geofence")
+    i = int(np.searchsorted(log["t"], trip["t"]))
+    v0 = np.array([log["truth_vn"][i], log["truth_ve"][i]])
+    u = v0 / np.hypot(*v0)
+    along = (log["truth_n"][i:] - log["truth_n"][i]) * u[0] + (log["truth_e"][i:] - log["truth_e"][i]) * u[1]
+    return float(np.max(along)) - float(trip["reason_detail"]["value"])
+
+
+@settings(max_examples=6, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+@given(
+    speed=st.floats(20.0, 100.0),
+    heading=st.floats(-60.0, 60.0),
+    dist=st.floats(30.0, 120.0),
+    side=st.floats(-250.0, 250.0),
+    wind_n=st.floats(-10.0, 10.0),
+    wind_e=st.floats(-10.0, 10.0),
+)
+# the shape of adv_rtl_turn_while_braking_wind: home far off to one side, a crosswind against the step
+@example(speed=60.0, heading=-40.0, dist=60.0, side=200.0, wind_n=-2.0, wind_e=9.0)
+def test_a_revocation_to_rtl_in_wind_stops_no_deeper_than_projected(
+    speed: float, heading: float, dist: float, side: float, wind_n: float, wind_e: float
+) -> None:
+    """Above the RTL height (so RTL turns home at once, along its route) and flying away from home in a
+    steady wind: RTL brakes along the velocity first, so the stop is still the projected one (+1 m)."""
+    sc = Scenario.model_validate({
+        "name": "step_rtl_wind", "duration_s": 1.5 + dist / 10.0 + 10.0, "seed": 5,
+        "initial": {"pos_ned_m": [HALF - dist, side, -35.0]},
+        "wind": {"steady_ned_mps": [wind_n, wind_e, 0.0]},
+        "gcs": [{"t": 0.0, "command": "arm"}, {"t": 0.0, "command": "hold"}],
+        "controller": {"type": "experimental_controllers.adversaries:VelocityStep",
+                       "params": {"request_at_s": 0.5, "start_at_s": 1.0, "heading_deg": heading, "speed_mps": speed}},
+        "log_rate_hz": 400.0,
+    })
+    r = run_scenario(sc, CFG)
+    assert float(np.nanmin(r.log["fence_margin"])) > 0.0  # never outside the range
+    assert any(e["type"] == "behavior" and e["behavior"] == "RTL" for e in r.events)  # the escape is RTL
+    assert _achieved_past_projected_m(r) <= 1.0
 
 
 def test_the_clamp_limits_speed_climb_and_tilt_and_passes_what_is_within() -> None:
