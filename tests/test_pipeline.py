@@ -16,6 +16,7 @@ from merlin.core.types import (
     Inputs,
     OperatorInput,
     RedundancyReport,
+    RequestKind,
     Setpoint,
     SetpointKind,
     VehicleState,
@@ -43,7 +44,7 @@ def test_unchanged_parts_are_handed_over_as_the_same_objects() -> None:
 
 def test_requests_are_delivered_once() -> None:
     b = InputBuilder()
-    req = AuthorityRequest(1)
+    req = AuthorityRequest(RequestKind.REQUEST_SHADOW)
     b.request((req,))
     assert b.build(STATE).experimental.requests == (req,)
     assert b.build(STATE).experimental.requests == ()
@@ -81,7 +82,7 @@ def test_the_inputs_always_equal_what_arrived_last(arrivals: list[tuple[str, flo
             sp, sp_t = Setpoint(SetpointKind.VELOCITY, vel_ned_mps=(v, 0.0, 0.0)), v
             b.setpoint(sp, v)
         elif kind == "req":
-            r = AuthorityRequest(int(v) + 1)
+            r = AuthorityRequest(RequestKind.ACK, seq=int(v) + 1)  # distinct requests, typed as the core demands
             pending += (r,)
             b.request((r,))
         elif kind == "gcs":

@@ -60,7 +60,9 @@ def test_schema_is_the_models_schema_with_sorted_keys() -> None:
     schema = json.loads(text)
     assert schema["$schema"] == docs.SCHEMA_DIALECT
     del schema["$schema"]
-    assert schema == json.loads(json.dumps(MerlinConfig.model_json_schema()))
+    models = json.loads(json.dumps(MerlinConfig.model_json_schema()))
+    docs._restore_compiled_docs(models)  # a compiled core enum's docstring is read from its source
+    assert schema == models
     assert text == json.dumps(json.loads(text), indent=2, sort_keys=True, ensure_ascii=False) + "\n"
 
 

@@ -481,8 +481,9 @@ def test_on_request_latch_cleared_by_a_mode_command() -> None:
 
 def test_column_reads_the_table_per_authority() -> None:
     from merlin.core.config import RuleRow
+    from merlin.core.types import MonitorId
 
-    row = RuleRow("x", Action.RTL, Action.WARN, Action.HOLD)
+    row = RuleRow(MonitorId.ENVELOPE, Action.RTL, Action.WARN, Action.HOLD)  # typed: the compiled core checks it
     assert arbiter.column(row, Authority.EXPERIMENTAL) is Action.RTL
     assert arbiter.column(row, Authority.OPERATOR) is Action.WARN
     assert arbiter.column(row, Authority.TRUSTED) is Action.HOLD
