@@ -59,9 +59,6 @@ def _timer_cost_s() -> float:
 def bench_steps(runs: int) -> dict[str, list[float]]:
     """µs per call of each estimator step, one mean per run."""
     from merlin.measurements import ImuSample
-    from merlin.nav.config import NavConfig
-    from merlin.nav.estimator import NavEstimator, NavInit
-    from merlin.nav.quaternion import quat_to_euler
     from merlin.nav.synthetic import synthesize, waypoint_trajectory
 
     traj = waypoint_trajectory(
@@ -72,21 +69,7 @@ def bench_steps(runs: int) -> dict[str, list[float]]:
     tt = time.thread_time
     out: dict[str, list[float]] = {}
     for _ in range(runs + 1):  # the first run warms the compiled kernels' cache and is dropped
-        est = NavEstimator(
-            NavConfig(),
-            NavInit(
-                t_s=float(traj.t_s[0]),
-                pos_ned_m=tuple(traj.pos_ned_m[0]),
-                att_rpy_rad=quat_to_euler(tuple(traj.quat[0])),
-            ),
-        )
-        calls = {
-            "ImuSample": est.predict,
-            "GpsSample": est.update_gps,
-            "VoSample": est.update_vo,
-            "MagSample": est.update_mag,
-            "BaroSample": est.update_baro,
-        }
+        _, calls = _estimator_and_calls(traj)
         acc: dict[str, float] = {}
         cnt: dict[str, int] = {}
         for s in samples:
@@ -105,12 +88,33 @@ def bench_steps(runs: int) -> dict[str, list[float]]:
     return out
 
 
-def bench_hot(runs: int, n: int = 2000) -> dict[str, list[float]]:
-    """µs per call of each update repeated on one mid-flight state with the same sample (caches warm, as
-    filterpy's reference is timed); ``predict`` on the flight's next IMU samples."""
+def _estimator_and_calls(traj: Any) -> tuple[Any, dict[str, Any]]:
+    """A fresh estimator at the trajectory's start, and its update method per sample type."""
     from merlin.nav.config import NavConfig
     from merlin.nav.estimator import NavEstimator, NavInit
     from merlin.nav.quaternion import quat_to_euler
+
+    est = NavEstimator(
+        NavConfig(),
+        NavInit(
+            t_s=float(traj.t_s[0]),
+            pos_ned_m=tuple(traj.pos_ned_m[0]),
+            att_rpy_rad=quat_to_euler(tuple(traj.quat[0])),
+        ),
+    )
+    calls = {
+        "ImuSample": est.predict,
+        "GpsSample": est.update_gps,
+        "VoSample": est.update_vo,
+        "MagSample": est.update_mag,
+        "BaroSample": est.update_baro,
+    }
+    return est, calls
+
+
+def bench_hot(runs: int, n: int = 2000) -> dict[str, list[float]]:
+    """µs per call of each update repeated on one mid-flight state with the same sample (caches warm, as
+    filterpy's reference is timed); ``predict`` on the flight's next IMU samples."""
     from merlin.nav.synthetic import synthesize, waypoint_trajectory
 
     traj = waypoint_trajectory(
@@ -121,21 +125,7 @@ def bench_hot(runs: int, n: int = 2000) -> dict[str, list[float]]:
     tt = time.thread_time
     out: dict[str, list[float]] = {}
     for _ in range(runs):
-        est = NavEstimator(
-            NavConfig(),
-            NavInit(
-                t_s=float(traj.t_s[0]),
-                pos_ned_m=tuple(traj.pos_ned_m[0]),
-                att_rpy_rad=quat_to_euler(tuple(traj.quat[0])),
-            ),
-        )
-        calls = {
-            "ImuSample": est.predict,
-            "GpsSample": est.update_gps,
-            "VoSample": est.update_vo,
-            "MagSample": est.update_mag,
-            "BaroSample": est.update_baro,
-        }
+        est, calls = _estimator_and_calls(traj)
         last: dict[str, Any] = {}
         for s in samples[:half]:
             calls[type(s).__name__](s)
