@@ -830,7 +830,7 @@ def _statuses(cfg: CoreConfig, st: CoreState, now: float, authority: Authority, 
         action = arbiter.column(row, authority) if reason is not None else _NO_ACTION
         if action > failsafe:
             failsafe = action
-        if action is not _NO_ACTION:
+        if reason is not None and action is not _NO_ACTION:
             reported.add(name)
             if name not in was_reported:
                 events.append(Event(now, EventKind.MONITOR_TRIPPED, reason=reason))
