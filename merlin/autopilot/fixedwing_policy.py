@@ -14,8 +14,10 @@ fixed wing's own rules, not a multirotor's:
 * **The command** under a trusted behaviour is the aircraft's own velocity (course, groundspeed, climb):
   the stage does not fly it, and a transfer to another source starts from it (a fixed wing cannot be
   commanded to stop, so there is no braking command to carry over as a multirotor's escape has).
-* **LAND**'s duration for ``nav_inertial_timeout`` is still the multirotor's profile
-  (:func:`merlin.autopilot.guidance.land_duration_s`).
+* **LAND** has no touchdown: the stage loiters over home down to its loiter height
+  (:func:`merlin.autopilot.fixedwing_behaviours.land_height_m`) at the inner loops' sink limit. The
+  ``nav_inertial_timeout`` monitor times that descent (:meth:`FixedWingGuidance.land_duration_s`): LAND is
+  due when the inertial-only time at the end of the descent would reach the limit.
 
 Routes and safe points are the stage's (:mod:`merlin.autopilot.fixedwing_route`), so this policy plans none
 and never adds a note.
@@ -28,7 +30,6 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 from merlin.autopilot import fixedwing_guidance as fg
-from merlin.autopilot import guidance
 from merlin.core.config import TrustedParams
 from merlin.core.geofence import Fence
 from merlin.core.types import Behavior, Setpoint, SetpointKind, Vec3, VehicleState
@@ -54,9 +55,12 @@ class FixedWingMemory(NamedTuple):
 
 @dataclass(frozen=True, slots=True)
 class FixedWingGuidance:
-    """The fixed wing's policy (module docstring). ``guidance``: the stage's L1 parameters (its waypoint
-    switch)."""
+    """The fixed wing's policy (module docstring). ``land_height_m``: the height above home LAND's loiter
+    descends to; ``sink_mps``: the inner loops' sink limit it descends at; ``guidance``: the stage's L1
+    parameters (its waypoint switch)."""
 
+    land_height_m: float
+    sink_mps: float
     guidance: fg.GuidanceParams = field(default_factory=fg.GuidanceParams)
 
     def enter(self, behavior: Behavior, s: VehicleState, tp: TrustedParams, fence: Fence | None,
@@ -86,7 +90,11 @@ class FixedWingGuidance:
         return g, _own_velocity(s)  # the stage flies the loiter circle (fixedwing_mission.reposition)
 
     def land_duration_s(self, height_m: float, vel_down_mps: float, tp: TrustedParams) -> float:
-        return guidance.land_duration_s(height_m, vel_down_mps, tp)
+        """The descent of LAND's loiter to :attr:`land_height_m` at :attr:`sink_mps` (0 at or below it; a
+        non-finite height: infinite, due now)."""
+        if not math.isfinite(height_m):
+            return math.inf
+        return max(height_m - self.land_height_m, 0.0) / self.sink_mps
 
     def _mission(self, g: FixedWingMemory, s: VehicleState, wps: tuple[Vec3, ...]) -> FixedWingMemory:
         """The stage's waypoint switch (:func:`merlin.autopilot.fixedwing_guidance.guidance_step`): within

@@ -106,12 +106,15 @@ def _takeover(monitor: MonitorId, oversight_envelope: bool, oversight_geofence: 
 def guidance_policy(cfg: MerlinConfig, fence: Fence | None) -> GuidancePolicy[Any]:
     """The vehicle's trusted behaviours as the core flies them (:mod:`merlin.core.guidance_policy`): the
     multirotor's (:class:`merlin.autopilot.guidance.MultirotorGuidance`), or the fixed wing's
-    (:class:`merlin.autopilot.fixedwing_policy.FixedWingGuidance`)."""
+    (:class:`merlin.autopilot.fixedwing_policy.FixedWingGuidance`: LAND's loiter height over home from the
+    fence, its descent at the inner loops' sink limit)."""
     if cfg.vehicle.type.value != "fixed_wing":
         return MultirotorGuidance()
+    from merlin.autopilot.fixedwing_behaviours import land_height_m
+    from merlin.autopilot.fixedwing_control import FixedWingControlParams
     from merlin.autopilot.fixedwing_policy import FixedWingGuidance
 
-    return FixedWingGuidance()
+    return FixedWingGuidance(land_height_m(fence), FixedWingControlParams().sink_max_mps)
 
 
 def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig:
