@@ -1,5 +1,5 @@
 """MAVSDK-Python's offboard example program, unchanged, through ``merlin guard`` in front of ``merlin serve``
-standing in for PX4 SITL (tests/guard/serve_autopilot.yaml, at PX4 SITL's home where the example's
+standing in for PX4 SITL (``merlin serve --autopilot-only``, at PX4 SITL's home where the example's
 coordinates are). The program is tests/serve/px4_examples.py's ``offboard_velocity_ned`` (the calls, order
 and waits of MAVSDK-Python's example). It starts OFFBOARD right after its first setpoint, on the ground,
 as PX4 accepts: the guard holds the request (COMMAND_ACK IN_PROGRESS) until the controller's liveness rule
@@ -17,7 +17,6 @@ from pathlib import Path
 import pytest
 
 from tests.guard.test_guard_flight import ROOT, free_port
-from tests.guard.test_guard_serve import SERVE_CONFIG
 from tests.serve.px4_examples import PX4_HOME
 
 pytest.importorskip("mavsdk_grpc", reason="the gRPC MAVSDK-Python (pip install mavsdk-grpc) runs the example")
@@ -34,15 +33,14 @@ def _free_tcp_port() -> int:
 
 def test_mavsdk_offboard_velocity_ned_runs_unchanged_through_the_guard(tmp_path: Path) -> None:
     serve_cfg = tmp_path / "serve.yaml"
-    serve_cfg.write_text("\n".join(x for x in SERVE_CONFIG.read_text().splitlines() if not x.startswith("home:"))
-                         + "\n" + HOME)
+    serve_cfg.write_text(HOME)
     guard_cfg = tmp_path / "guard.yaml"
     guard_cfg.write_text(HOME + "geofence:\n  inclusion_circles:\n    - {name: t, center_ne_m: [0.0, 0.0], radius_m: 60.0}\n")
     ap, ctl, gcs = free_port(), free_port(), free_port()
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     procs = [
-        subprocess.Popen([sys.executable, "-m", "merlin.cli", "serve", "--config", str(serve_cfg), "--gcs-port", str(gcs),
-                          "--gcs-bind-port", "0", "--offboard-port", str(ap), "--offboard-bind-port", "0",
+        subprocess.Popen([sys.executable, "-m", "merlin.cli", "serve", "--autopilot-only", "--config", str(serve_cfg),
+                          "--gcs-port", str(gcs), "--gcs-bind-port", "0", "--offboard-port", str(ap), "--offboard-bind-port", "0",
                           "--out", str(tmp_path / "serve"), "--duration", "200", "--quiet"],
                          cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env),
         subprocess.Popen([sys.executable, "-m", "merlin.cli", "guard", "--autopilot", f"udpin:127.0.0.1:{ap}",
