@@ -29,7 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum, IntEnum
 
-from merlin.core.types import Behavior
+from merlin.core.types import Behavior, GcsCommandKind
 from merlin.link.px4_modes import Px4AutoSubMode, Px4MainMode, Px4Mode
 
 # MAV_AUTOPILOT (common.xml)
@@ -175,8 +175,10 @@ class ModeTable:
     offboard: int  # the mode that flies external setpoints (PX4 OFFBOARD, ArduPilot GUIDED)
     names: dict[int, str]
     fallback: dict[FallbackMode, int]
-    # modes an experimental controller may leave OFFBOARD/GUIDED for (the autopilot's own safe behaviours)
-    release_modes: frozenset[int]
+    # modes an experimental controller may leave OFFBOARD/GUIDED for (the autopilot's own safe behaviours),
+    # with the trusted behaviour each asks for while Merlin's trusted autopilot flies (as merlin serve flies a
+    # controller's hold, return or land after a revocation)
+    release_modes: dict[int, GcsCommandKind]
     # what HEARTBEAT shows the controller while Merlin's trusted autopilot flies through the offboard mode
     behaviour_modes: dict[Behavior, int]
     # setpoint streaming is not how this vehicle is flown by the guard: it falls back to the autopilot's modes
@@ -221,7 +223,8 @@ def _px4_table() -> ModeTable:
         Dialect.PX4, _px4(Px4MainMode.OFFBOARD), names,
         {FallbackMode.HOLD: loiter, FallbackMode.BRAKE: loiter, FallbackMode.RTL: rtl, FallbackMode.SMART_RTL: rtl,
          FallbackMode.LAND: land},
-        frozenset({loiter, rtl, land, _px4(Px4MainMode.AUTO, Px4AutoSubMode.PRECLAND)}),
+        {loiter: GcsCommandKind.HOLD, rtl: GcsCommandKind.RTL, land: GcsCommandKind.LAND,
+         _px4(Px4MainMode.AUTO, Px4AutoSubMode.PRECLAND): GcsCommandKind.LAND},
         {Behavior.HOLD: loiter, Behavior.RTL: rtl, Behavior.LAND: land, Behavior.IDLE: loiter,
          Behavior.TAKEOFF: _px4(Px4MainMode.AUTO, Px4AutoSubMode.TAKEOFF), Behavior.MISSION: loiter,
          Behavior.ORBIT: loiter, Behavior.TERMINATE: _px4(Px4MainMode.TERMINATION)},
@@ -234,7 +237,8 @@ def _copter_table() -> ModeTable:
         Dialect.ARDUPILOT, int(c.GUIDED), {int(m): m.name for m in c},
         {FallbackMode.HOLD: int(c.LOITER), FallbackMode.BRAKE: int(c.BRAKE), FallbackMode.RTL: int(c.RTL),
          FallbackMode.SMART_RTL: int(c.SMART_RTL), FallbackMode.LAND: int(c.LAND)},
-        frozenset(int(m) for m in (c.LOITER, c.BRAKE, c.RTL, c.SMART_RTL, c.LAND, c.AUTO_RTL)),
+        {int(c.LOITER): GcsCommandKind.HOLD, int(c.BRAKE): GcsCommandKind.HOLD, int(c.RTL): GcsCommandKind.RTL,
+         int(c.SMART_RTL): GcsCommandKind.RTL, int(c.LAND): GcsCommandKind.LAND, int(c.AUTO_RTL): GcsCommandKind.RTL},
         {Behavior.HOLD: int(c.BRAKE), Behavior.RTL: int(c.RTL), Behavior.LAND: int(c.LAND), Behavior.IDLE: int(c.BRAKE),
          Behavior.TAKEOFF: int(c.GUIDED), Behavior.MISSION: int(c.AUTO), Behavior.ORBIT: int(c.CIRCLE),
          Behavior.TERMINATE: int(c.LAND)},
@@ -251,7 +255,8 @@ def _plane_table(vtol: bool) -> ModeTable:
         Dialect.ARDUPILOT, int(p.GUIDED), {int(m): m.name for m in p},
         {FallbackMode.HOLD: int(p.LOITER), FallbackMode.BRAKE: int(p.LOITER), FallbackMode.RTL: int(p.RTL),
          FallbackMode.SMART_RTL: int(p.RTL), FallbackMode.LAND: land},
-        frozenset(int(m) for m in (p.LOITER, p.RTL, p.QRTL, p.QLAND, p.QLOITER)),
+        {int(p.LOITER): GcsCommandKind.HOLD, int(p.RTL): GcsCommandKind.RTL, int(p.QRTL): GcsCommandKind.RTL,
+         int(p.QLAND): GcsCommandKind.LAND, int(p.QLOITER): GcsCommandKind.HOLD},
         {Behavior.HOLD: int(p.LOITER), Behavior.RTL: int(p.RTL), Behavior.LAND: land,
          Behavior.IDLE: int(p.LOITER), Behavior.TAKEOFF: int(p.TAKEOFF), Behavior.MISSION: int(p.AUTO),
          Behavior.ORBIT: int(p.LOITER), Behavior.TERMINATE: int(p.RTL)},
