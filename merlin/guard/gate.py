@@ -41,8 +41,8 @@ from dataclasses import dataclass
 from enum import Enum
 
 from merlin.core.types import GcsCommandKind
-from merlin.guard import wire as w
 from merlin.guard.dialects import ModeTable
+from merlin.link import autopilot_wire as w
 
 ARM_FORCE_MAGIC = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2: force (common.xml)
 # messages that rewrite the autopilot: parameters, mission/fence/rally uploads, home, origin, files, stream rates
@@ -156,7 +156,7 @@ def _command(c: w.CommandIn, ctx: GateContext) -> Verdict:
 
 def classify(msg_id: int, rec: object | None, ctx: GateContext) -> Verdict:
     """Where a frame from the controller goes. ``rec`` is the typed record for COMMAND_LONG/INT and SET_MODE
-    (:mod:`merlin.guard.wire`); for those, None means it could not be decoded, and it is dropped."""
+    (:mod:`merlin.link.autopilot_wire`); for those, None means it could not be decoded, and it is dropped."""
     if msg_id in w.SETPOINT_IDS:
         if ctx.experimental or not (ctx.autopilot_offboard or ctx.trusted_flying):
             return FORWARD

@@ -19,7 +19,8 @@ decision logic. The tests here replace it, each on its own statistic:
   - the *jump* term, for abrupt faults: both IMUs sense the same body, so between the last samples before
     the onset and now the true signal moves by at most what the airframe can do in that time
     (``common_rate`` x elapsed time, a Gaussian prior); the IMU whose own sample moved by the disagreement
-    is the faulty one: Lambda_jump = sum_axes (D1^2 - D2^2) / (2 s^2);
+    is the faulty one: Lambda_jump = sum_axes (D1^2 - D2^2) / (2 s^2), at the onset (the CUSUM's estimate,
+    or the sample beyond the single-sample limit that alarmed) that gives it the larger magnitude;
   - the *kinematic* term, for slow ones: each IMU's filter estimate at a reference instant before the
     onset is propagated with that IMU's own gyro (seed 003 eq. 19, no measurement update) and predicts
     that IMU's accelerometer and magnetometer through h (eq. 15-16). The residual's mean since the onset,

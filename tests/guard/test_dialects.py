@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import pytest
 
-from merlin.guard import wire
 from merlin.guard.dialects import (
     CopterMode,
     Dialect,
@@ -15,6 +14,7 @@ from merlin.guard.dialects import (
     detect,
     mode_table,
 )
+from merlin.link import autopilot_wire as wire
 from merlin.link.px4_modes import Px4AutoSubMode, Px4MainMode, Px4Mode
 
 M = wire.dialect_module()

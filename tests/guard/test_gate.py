@@ -6,7 +6,6 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from merlin.core.types import GcsCommandKind
-from merlin.guard import wire as w
 from merlin.guard.dialects import (
     MAV_AUTOPILOT_ARDUPILOTMEGA,
     MAV_AUTOPILOT_PX4,
@@ -15,6 +14,7 @@ from merlin.guard.dialects import (
     mode_table,
 )
 from merlin.guard.gate import GateContext, Route, classify
+from merlin.link import autopilot_wire as w
 
 PX4 = mode_table(detect(MAV_AUTOPILOT_PX4, 2, 1, 1))  # type: ignore[arg-type]
 COPTER = mode_table(detect(MAV_AUTOPILOT_ARDUPILOTMEGA, 2, 1, 1))  # type: ignore[arg-type]

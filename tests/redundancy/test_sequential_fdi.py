@@ -246,3 +246,26 @@ def test_restart_copies_the_healthy_filters_attitude_and_recentres_the_bias():
     pf.restart_from(1, 0, np.array([0.01, -0.02, 0.03]))
     np.testing.assert_array_equal(pf.x[:4, 0], pf.x[:4, 1])
     np.testing.assert_allclose(pf.x[4:, 0].mean(axis=1), [0.01, -0.02, 0.03], atol=1e-5)
+
+
+def test_a_jump_after_noise_lifted_the_cusum_names_its_imu_at_once():
+    """Seed 003's F4 starts with a 0.9 rad/s jump on one IMU's yaw gyro. When noise had kept the CUSUM above
+    zero for a few samples before it, the CUSUM's onset estimate lies that many samples earlier; the jump
+    test must still weigh the jump against one sample of common motion and name the IMU on that sample."""
+    fdi = SequentialImuFdi(SEQUENTIAL, np.random.default_rng(0))
+    fdi.pf = _StubFilter()  # type: ignore[assignment]
+    rng = np.random.default_rng(6)
+    acc, mag = np.array([[0.0, 0.0, -9.8]] * 2), np.array([[0.27, 0.0, 0.37]] * 2)
+
+    def step(k: int, extra_yaw: float) -> FdiState:
+        g = rng.normal(0, 0.02, (2, 3))
+        g[0, 2] += extra_yaw
+        return fdi.step(k * DT, g, acc + rng.normal(0, 0.2, (2, 3)), mag + rng.normal(0, 0.004, (2, 3))).state
+
+    for k in range(200):
+        assert step(k, 0.0) is FdiState.NORMAL
+    fdi.cusum.reset(199)
+    for k in range(200, 206):  # 1.5 sigma of the difference on yaw: the CUSUM climbs, far below h
+        assert step(k, 1.5 * float(fdi.noise.sigma_d()[2])) is FdiState.NORMAL
+    assert fdi.cusum.last_zero[2] <= 200
+    assert step(206, 0.9) is FdiState.FAULT_1
