@@ -599,8 +599,10 @@ def _fence_monitor(cfg: CoreConfig, fence: geofence.Fence, last: Command | None,
     prm = fence.params
     demand = None if prm.vehicle == "fixed_wing" else demanded_velocity(flown, s, prm.reaction_time_s,
                                                                         prm.gravity_mps2)
+    # a fixed wing's escape first rolls out a bank towards the other side (geofence.fixed_wing_turn)
+    bank = s.att_rpy_rad[0] if prm.vehicle == "fixed_wing" else 0.0
     res = geofence.check(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, s.pos_sigma_v_m, floor_reached,
-                         wind_ne, demand)
+                         wind_ne, demand, bank)
     return _fence_reason(res) if res.tripped else None
 
 
