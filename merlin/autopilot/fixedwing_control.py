@@ -252,10 +252,17 @@ class _Energy:
 
 
 def _speed_rate(s: VehicleState) -> float:
-    """dV/dt along the velocity: the accelerometer's specific force rotated to NED, plus gravity.
+    """dV/dt of the airspeed: the accelerometer's specific force rotated to NED, plus gravity, along the air
+    velocity.
 
     Body-x specific force alone is not enough: at an angle of attack alpha it carries L sin(alpha) of the
     lift, which would read as an acceleration of about alpha g and destabilise the energy balance.
+    Along the air velocity, not the ground velocity: in a steady wind the two accelerate alike, but in a turn
+    the groundspeed swings by the wind times the turn rate (2.7 m/s^2 in an 11.9 m/s wind at 13 deg/s) while
+    the airspeed holds, and TECS traded that phantom speed for a pitch-up, then a push to an angle of attack
+    near zero that unloaded the wing for most of a second of an escape turn (scenario
+    ``fw_adv_pullup_reversal_tailwind``). The air velocity is the heading's at the pitot's airspeed (no
+    sideslip, no vertical wind); without a usable airspeed, the ground velocity as before.
     """
     phi, theta, psi = s.att_rpy_rad
     fx, fy, fz = s.accel_frd_mps2
@@ -267,6 +274,10 @@ def _speed_rate(s: VehicleState) -> float:
     ae = ct * sp * fx + (sf * st * sp + cf * cp) * fy + (cf * st * sp - sf * cp) * fz
     ad = -st * fx + sf * ct * fy + cf * ct * fz + G_MPS2
     vn, ve, vd = s.vel_ned_mps
+    v_air = s.airspeed_mps
+    if math.isfinite(v_air) and v_air > 3.0:
+        v_h = math.sqrt(max(v_air * v_air - vd * vd, 0.0))
+        vn, ve = v_h * cp, v_h * sp
     speed = math.sqrt(vn * vn + ve * ve + vd * vd)
     if speed < 1.0:
         return 0.0

@@ -14,6 +14,12 @@ Start-up (:meth:`Guard.start`), before anything from the controller reaches the 
    (:mod:`merlin.guard.failsafe_params`): :class:`GuardRefused` carries every refusal;
 3. request the telemetry streams (MAV_CMD_SET_MESSAGE_INTERVAL).
 
+Until the check has passed nothing is routed: the controller and the ground station do not see the
+autopilot (a MAVSDK program waits for its HEARTBEAT before it sends), and whatever they sent blind in
+the meantime is discarded once routing begins, not delivered late: a command the sender has retried or
+given up on by then must not be executed (MAVSDK-Python's examples through the guard: queued
+REQUEST_MESSAGE retries answered twice).
+
 Authority follows the ICD's standard flow for controllers that do not speak Merlin's dialect: the
 controller's request for the dialect's offboard mode (PX4 OFFBOARD, ArduPilot GUIDED) is the REQUEST; the
 guard holds the mode command until the core decides; on a grant the guard acknowledges the grant for the
@@ -163,6 +169,10 @@ class Guard:
         self.inputs = InputBuilder(rc_connected=False)
         self.alive_since: float | None = None  # start of the controller's current unbroken liveness
         self.commands: list[GcsCommand] = []
+        # behaviour requests from the controller handed to the core while Merlin flies, by the core command's
+        # seq: (sender, MAVLink command or None for SET_MODE) to answer once the core has decided
+        self._behaviour_asks: dict[int, tuple[tuple[int, int], int | None]] = {}
+        self._behaviour_seq = 0
         self.held: _Held | None = None
         self.supervising = False  # a grant happened and the autopilot has been in the offboard mode since
         self.switch_deadline: float | None = None  # after a grant: until when the autopilot may take to switch
@@ -177,6 +187,7 @@ class Guard:
         self._next_tick_t = 0.0
         self._ap_seq = 0
         self._stop = False
+        self._routing = False  # the start-up check passed: frames flow between the links
         self.out_dir = out_dir
         self.tlog: TlogWriter | None = None
         self.ap_tlog: TlogWriter | None = None
@@ -268,6 +279,10 @@ class Guard:
             self.intervals_us[s.message_id] = s.interval_us
             self._send(self.ap_link, self.enc.command_long(self.target, w.MAV_CMD_SET_MESSAGE_INTERVAL,
                                                            (float(s.message_id), s.interval_us)))
+        for link in (self.ctl_link, self.gcs_link):
+            while link is not None and (stale := self._read(link, 0.0)):
+                self.counts["dropped: sent before the start-up check passed"] += len(stale)
+        self._routing = True
         self.event({"t": self.t(), "type": "guard_started", "autopilot": ap.describe()})
         return ap
 
@@ -284,6 +299,8 @@ class Guard:
                 self.ap_mode = rec.custom_mode
                 self._ap_seq = fr.seq
                 self.telemetry.on(t, rec)
+                if not self._routing:
+                    return
                 raw = fr.raw
                 if self.gcs_link is not None:
                     self._send(self.gcs_link, raw, originated=False)
@@ -296,6 +313,8 @@ class Guard:
                 self._reader.on_value(rec.param_id, w.param_number(rec, bytewise))
         elif rec is not None and fr.system_id == self.target[0]:
             self.telemetry.on(t, rec)
+        if not self._routing:
+            return
         self._send(self.ctl_link, fr.raw, originated=False)
         if self.gcs_link is not None:
             self._send(self.gcs_link, fr.raw, originated=False)
@@ -349,6 +368,8 @@ class Guard:
             self._deny(fr, rec, v.reason, t)
         elif v.route is Route.REQUEST:
             self._on_request(fr, rec, v.reason, t)
+        elif v.route is Route.BEHAVIOUR:
+            self._on_behaviour_request(fr, rec, v.reason, v.behaviour, t)
         elif v.route is Route.ACCEPT:
             if isinstance(rec, w.CommandIn):
                 self._send(self.ctl_link, w.Encoder(*self.target).command_ack(
@@ -422,6 +443,17 @@ class Guard:
             self._denied_t[reason] = t
             self._send(self.ctl_link, self.enc.statustext(w.MAV_SEVERITY_WARNING, f"Merlin: {reason}"))
             self.event({"t": t, "type": "guard_denied", "detail": reason})
+
+    def _on_behaviour_request(self, fr: Frame, rec: object, reason: str, kind: GcsCommandKind | None,
+                              t: float) -> None:
+        """The controller asks for hold, return or land while Merlin's trusted autopilot flies: the core gets
+        it as that command (as merlin serve takes it from the controller link); the answer is the core's."""
+        assert kind is not None
+        self._behaviour_seq += 1
+        cmd = rec.command if isinstance(rec, w.CommandIn) else None
+        self._behaviour_asks[self._behaviour_seq] = ((fr.system_id, fr.component_id), cmd)
+        self.commands.append(GcsCommand(kind, seq=self._behaviour_seq))
+        self.event({"t": t, "type": "guard_behaviour_request", "detail": reason, "command": kind.name})
 
     def _on_gcs(self, fr: Frame, t: float) -> None:
         if fr.msg_id == w.HEARTBEAT:
@@ -512,6 +544,15 @@ class Guard:
                     self.held.sender, self.held.command, w.MAV_RESULT_DENIED))
             self._send(self.ctl_link, self.enc.statustext(w.MAV_SEVERITY_WARNING, f"Merlin: denied: {reason}"))
             self.held = None
+        elif kind is EventKind.COMMAND_ACK and e.seq in self._behaviour_asks:
+            sender, cmd = self._behaviour_asks.pop(e.seq)
+            if cmd is not None:
+                result = w.MAV_RESULT_ACCEPTED if e.accepted else w.MAV_RESULT_DENIED
+                self._send(self.ctl_link, w.Encoder(*self.target).command_ack(sender, cmd, result))
+            if not e.accepted:
+                self._send(self.ctl_link, self.enc.statustext(
+                    w.MAV_SEVERITY_WARNING, f"Merlin: {e.command.name if e.command else 'command'} refused: "
+                                            f"{e.reason.describe()}"))
         elif kind is EventKind.REVOKED:
             text = f"Merlin: revoked: {e.reason.describe()}"
             self._send(self.ctl_link, self.enc.statustext(w.MAV_SEVERITY_WARNING, text))

@@ -114,6 +114,8 @@ class VisualOdometry:
         self._fast = cv2.FastFeatureDetector_create(threshold=config.fast_threshold, nonmaxSuppression=True)
         self._prev: _Frame | None = None
         self._hann: np.ndarray | None = None
+        self._shift_key: tuple[int, int, int] | None = None
+        self._shift_rc: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 1), np.intp), np.zeros((1, 0), np.intp))
         self._lk = {
             "winSize": (config.lk_window_px, config.lk_window_px),
             "maxLevel": config.lk_levels,
@@ -165,7 +167,8 @@ class VisualOdometry:
         if len(chosen) > cfg.max_tracked:
             # round by round over the cells (stable: within a round, cell order)
             chosen = chosen[np.argsort(rank[keep_rank], kind="stable")[: cfg.max_tracked]]
-        score = len(np.unique(cell)) / float(cfg.grid_cols * cfg.grid_rows)
+        n_cells = cfg.grid_cols * cfg.grid_rows
+        score = np.count_nonzero(np.bincount(cell, minlength=n_cells)) / float(n_cells)
         return np.ascontiguousarray(pts[chosen], dtype=np.float32).reshape(-1, 1, 2), score
 
     def _repetition(self, image: np.ndarray) -> tuple[float, float]:
@@ -184,7 +187,10 @@ class VisualOdometry:
         if zero <= 0.0:
             return 0.0, math.inf
         r = min(self.cfg.repetition_window_px // 2, h // 2 - 1, w // 2 - 1)
-        ac = np.fft.fftshift(ac)[h // 2 - r : h // 2 + r + 1, w // 2 - r : w // 2 + r + 1] / zero
+        # shifts −r..r around zero, read with wrapped indices (the crop of np.fft.fftshift(ac), without
+        # shifting the whole array)
+        rows, cols = self._shift_index(h, w, r)
+        ac = ac[rows, cols] / zero
         _, labels = cv2.connectedComponents((ac > 0.5).astype(np.uint8))
         is_peak = ac >= cv2.dilate(ac, np.ones((3, 3), np.uint8))
         outside = (labels != labels[r, r]) & is_peak
@@ -195,6 +201,16 @@ class VisualOdometry:
         peak = float(masked.flat[k])
         dy, dx = divmod(k, 2 * r + 1)
         return peak, 2.0 * math.hypot(dy - r, dx - r)
+
+    def _shift_index(self, h: int, w: int, r: int) -> tuple[np.ndarray, np.ndarray]:
+        """Row and column indices (as an open mesh) of the shifts −r..r of an h×w circular
+        autocorrelation, cached per shape."""
+        key = (h, w, r)
+        if self._shift_key != key:
+            k = np.arange(-r, r + 1)
+            self._shift_rc = ((k % h)[:, None], (k % w)[None, :])
+            self._shift_key = key
+        return self._shift_rc
 
     @staticmethod
     def _strength(image: np.ndarray, pts: np.ndarray) -> np.ndarray:
