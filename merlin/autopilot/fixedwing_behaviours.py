@@ -75,6 +75,9 @@ TRIP_REARM_S = 1.0
 #: The RTL loiter counts as reached (note ``fixed_wing_rtl_at_home``) once the route is flown and the
 #: aircraft is within this of the loiter circle's radius.
 RTL_AT_HOME_RADIAL_M = 15.0
+#: How often an escape turn held by a blocked turn checks whether RTL's route could take over (our choice:
+#: a plan costs milliseconds; half a second is 12 m of flight, inside the route's 10 m margin and the turn).
+ROUTE_CHECK_S = 0.5
 
 
 def land_height_m(fence: geofence.Fence | None) -> float:
@@ -209,6 +212,7 @@ class FixedWingBehaviours:
         self._trip_armed = True
         self._trip_clear_since: float | None = None  # the monitor seen clear since (no escape flying)
         self._rtl_at_home_noted = False
+        self._route_checked_t = -math.inf  # when _route_takes_over last planned a route
         self.notes: list[dict[str, Any]] = [] if notes is None else notes
         self.surfaces = surfaces
         self.cstate = fc.reset_from_state(cp, s0, surfaces)
@@ -374,26 +378,10 @@ class FixedWingBehaviours:
         self._rtl_at_home_noted = False
         if fence is None or not self.rtl_routes or not fr.has_zones(fence):
             return fg.start_rtl(self.gp, self.gstate, s, height_m=height)
-        wind = state_wind_ne(s)
-        clearance = fr.route_clearance_m(fence, self.gp.rtl_airspeed_mps, math.hypot(*wind), s.pos_sigma_h_m)
-        bank = fence.params.bank_limit_rad
-        min_radius = fr.MIN_LOITER_RADIUS_TURN_RADII * fr.turn_radius_m(
-            self.gp.rtl_airspeed_mps + math.hypot(*wind), bank, fence.params.gravity_mps2)
-        loiter = fr.home_loiter(fence, (0.0, 0.0), self.gp.loiter_radius_m, clearance, min_radius)
-        if loiter.status != "home":
-            self.notes.append({"t": t, "type": "fixed_wing_rtl_loiter_moved", "status": loiter.status,
-                               "center_ne_m": list(loiter.center_ne_m), "radius_m": loiter.radius_m,
-                               "clearance_m": clearance})
         if self.escape_side:
+            loiter, clearance = self._rtl_loiter(t, s, note=True)
             return fg.start_rtl(self.gp, self.gstate, s, loiter.center_ne_m, (), loiter.radius_m, height)
-        pos = (s.pos_ned_m[0], s.pos_ned_m[1])
-        # the route starts with the turn the aircraft must fly anyway, at the fence's bank limit for the
-        # faster of its groundspeed now and the RTL airspeed plus the wind
-        vn, ve = s.vel_ned_mps[0], s.vel_ned_mps[1]
-        speed = max(math.hypot(vn, ve), self.gp.rtl_airspeed_mps + math.hypot(*wind))
-        turn_r = fr.turn_radius_m(speed, bank, fence.params.gravity_mps2)
-        route = fr.plan_route(fence, pos, loiter.center_ne_m, loiter.radius_m, clearance,
-                              course_rad=math.atan2(ve, vn), turn_radius=turn_r)
+        loiter, clearance, route = self._rtl_plan(t, s, note=True)
         if route.status == "no_route":
             self.notes.append({"t": t, "type": "fixed_wing_rtl_no_route", "clearance_m": clearance,
                                "detail": "no route home keeps the clearance from the keep-out zones: loitering"
@@ -411,6 +399,56 @@ class FixedWingBehaviours:
                                                 route.turn.exit_course_rad)
         return fg.start_rtl(self.gp, self.gstate, s, loiter.center_ne_m, route.legs_ne_m, loiter.radius_m, height,
                             turn)
+
+    def _rtl_loiter(self, t: float, s: VehicleState, note: bool) -> tuple[fr.LoiterChoice, float]:
+        """The route's clearance and the loiter over home (moved or shrunk off the keep-out zones)."""
+        fence = self.fence
+        assert fence is not None
+        wind = state_wind_ne(s)
+        clearance = fr.route_clearance_m(fence, self.gp.rtl_airspeed_mps, math.hypot(*wind), s.pos_sigma_h_m)
+        min_radius = fr.MIN_LOITER_RADIUS_TURN_RADII * fr.turn_radius_m(
+            self.gp.rtl_airspeed_mps + math.hypot(*wind), fence.params.bank_limit_rad, fence.params.gravity_mps2)
+        loiter = fr.home_loiter(fence, (0.0, 0.0), self.gp.loiter_radius_m, clearance, min_radius)
+        if note and loiter.status != "home":
+            self.notes.append({"t": t, "type": "fixed_wing_rtl_loiter_moved", "status": loiter.status,
+                               "center_ne_m": list(loiter.center_ne_m), "radius_m": loiter.radius_m,
+                               "clearance_m": clearance})
+        return loiter, clearance
+
+    def _rtl_plan(self, t: float, s: VehicleState, note: bool) -> tuple[fr.LoiterChoice, float, fr.Route]:
+        """The loiter, the clearance and the route to it from this state (:meth:`_start_rtl`)."""
+        fence = self.fence
+        assert fence is not None
+        loiter, clearance = self._rtl_loiter(t, s, note)
+        wind = state_wind_ne(s)
+        pos = (s.pos_ned_m[0], s.pos_ned_m[1])
+        # the route starts with the turn the aircraft must fly anyway, at the fence's bank limit for the
+        # faster of its groundspeed now and the RTL airspeed plus the wind
+        vn, ve = s.vel_ned_mps[0], s.vel_ned_mps[1]
+        speed = max(math.hypot(vn, ve), self.gp.rtl_airspeed_mps + math.hypot(*wind))
+        turn_r = fr.turn_radius_m(speed, fence.params.bank_limit_rad, fence.params.gravity_mps2)
+        route = fr.plan_route(fence, pos, loiter.center_ne_m, loiter.radius_m, clearance,
+                              course_rad=math.atan2(ve, vn), turn_radius=turn_r)
+        return loiter, clearance, route
+
+    def _route_takes_over(self, t: float, decision: Decision, s: VehicleState) -> bool:
+        """Whether an escape turn that the fence's measure still holds (one of the projection's turns
+        blocked) can end into RTL's (or LAND's) route: the aircraft is at least the route's clearance from
+        every hazard and the route from here starts with a planned turn (a Dubins start), so its turn, arc
+        and legs all keep that whole clearance. Held on instead, the escape turn went on round (a half turn)
+        until it headed at the keep-out, and the route from there could keep only half of what was left
+        (scenario fw_rtl_keepout_climb: 27.7 m from the mast, planned for 126 m). Checked every
+        :data:`ROUTE_CHECK_S` (a plan costs milliseconds)."""
+        fence = self.fence
+        if (fence is None or not self.rtl_routes or decision.behavior not in (Behavior.RTL, Behavior.LAND)
+                or not fr.has_zones(fence) or t - self._route_checked_t < ROUTE_CHECK_S):
+            return False
+        self._route_checked_t = t
+        _loiter, clearance = self._rtl_loiter(t, s, note=False)
+        if min(fr.class_distances_m(fence, (s.pos_ned_m[0], s.pos_ned_m[1]))) < clearance:
+            return False
+        _loiter, _c, route = self._rtl_plan(t, s, note=False)
+        return route.status == "routed" and route.turn is not None
 
     def _hold_clockwise(self, s: VehicleState) -> bool:
         """Loiter on the side whose circle keeps the larger fence margin (clockwise when no fence)."""
@@ -479,7 +517,8 @@ class FixedWingBehaviours:
             self.notes[-1]["after"] = "half turn with the fence still tripped"
             return replace(targets, roll_rad=self.escape_side * fc.bank_limit_rad(self.cp),
                            airspeed_mps=fc.escape_airspeed_mps(self.cp))
-        if (not fence_tripped and homeward and (self.fence is None or not _turn_blocked(self.fence, s))) or half_turn_done:
+        if (not fence_tripped and homeward and (self.fence is None or not _turn_blocked(self.fence, s)
+                                                or self._route_takes_over(t, decision, s))) or half_turn_done:
             self.notes.append({"t": t, "type": "fixed_wing_escape_turn_end",
                                "turned_deg": math.degrees(self._escape_turned_rad),
                                "fence_tripped": fence_tripped})
