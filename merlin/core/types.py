@@ -399,3 +399,7 @@ class Decision(NamedTuple):
     armed: bool
     pending_grant_seq: int = 0  # nonzero while a grant awaits its ACK
     revocations: int = 0
+    # the failsafe in force: the worst action the rule table gives this tick's tripped monitors under the
+    # decision's authority (NONE when none is tripped); what a vehicle-wide "failsafe" flag reads (the
+    # autopilot lanes' health, merlin.redundancy.lanes), so that nobody re-derives it from the table
+    failsafe: Action = Action.NONE
