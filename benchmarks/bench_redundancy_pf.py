@@ -1,7 +1,7 @@
 """Benchmark: seed 003's duplex particle-filter FDI — cost per step, fault set F1-F5, sensitivity sweeps.
 
 Run: .venv/bin/python benchmarks/bench_redundancy_pf.py [--part cost|faults|sweeps|all] [--seeds 3]
-     [--json out.json]
+     [--first-seed 0] [--json out.json]
 
 * cost: one 100 Hz step of both filters (4096 particles each, Table 2) on one core, wall and CPU time,
   several runs; and the scaling with Delta (the paper's Table 3 on a Raspberry Pi 3B: 68.2 ms at 4096).
@@ -96,9 +96,14 @@ def cost(runs: int, steps: int) -> dict[str, object]:
 def _run(cfg: FdiConfig, fault: str, seed: int, duration_s: float = DURATION_S) -> dict[str, object]:
     base = nominal_flight(duration_s, np.random.default_rng(1000 + seed))
     data = inject(base, fault, np.random.default_rng(2000 + seed))
-    m = metrics(run_fdi(data, cfg, np.random.default_rng(3000 + seed)))
+    run = run_fdi(data, cfg, np.random.default_rng(3000 + seed))
+    m = metrics(run)
+    # Table 8 gives e_max on one axis (F1 phi, F2 psi): the largest error on each axis, as metrics() takes it
+    err = (run.euler_out - data.euler_true + np.pi) % (2 * np.pi) - np.pi
+    axis_max = np.abs(err[data.t_s >= 1.0]).max(axis=0)
     return {"cd": m.cd_pct, "wd": m.wd_pct, "dt": m.dt_s, "rt": m.rt_s, "wrong_imu": m.wrong_imu_samples,
-            "e_max": m.e_max_rad, "e_axis": m.e_max_axis}
+            "e_max": m.e_max_rad, "e_axis": m.e_max_axis,
+            **{f"e_{a}": float(v) for a, v in zip(("phi", "theta", "psi"), axis_max, strict=True)}}
 
 
 def _fault_free(cfg: FdiConfig, seed: int) -> dict[str, float]:
@@ -122,6 +127,14 @@ def _beats(rows: list[dict[str, object]], paper: tuple[float | None, ...]) -> st
     return ", ".join(out) or "-"
 
 
+def _on_axis(rows: list[dict[str, object]], paper_emax: tuple[float, str] | None) -> str:
+    """The median largest error on the axis the paper's Table 8 reports, with its range."""
+    if paper_emax is None:
+        return ""
+    vals = [float(r[f"e_{paper_emax[1]}"]) for r in rows]  # type: ignore[arg-type]
+    return f"; on {paper_emax[1]}: {statistics.median(vals):.3f}, {min(vals):.3f}-{max(vals):.3f}"
+
+
 def _med(rows: list[dict[str, object]], key: str) -> float | None:
     vals = [r[key] for r in rows if r[key] is not None]
     return float(statistics.median(vals)) if vals else None  # type: ignore[arg-type]
@@ -132,30 +145,30 @@ def _span(rows: list[dict[str, object]], key: str) -> str:
     return f"{min(vals):.2f}-{max(vals):.2f}" if vals else "n/a"  # type: ignore[type-var]
 
 
-def faults(seeds: int, presets: list[str], faults_run: tuple[str, ...] = ("F1", "F2", "F3", "F4", "F5"),
+def faults(seeds: list[int], presets: list[str], faults_run: tuple[str, ...] = ("F1", "F2", "F3", "F4", "F5"),
            extra_rows: bool = True) -> dict[str, object]:
     out: dict[str, object] = {}
     for name in presets:
         cfg = FDI_PRESETS[name]
-        print(f"\n### preset {name}: median over {seeds} seeds (range) | paper")
+        print(f"\n### preset {name}: median over seeds {seeds[0]}-{seeds[-1]} (range) | paper")
         print("fault |  CD %  |  WD %  |  DT s  |  RT s  | healthy IMU flagged (samples, all seeds) | e_max rad "
               "| paper CD / WD / DT / RT | paper e_max")
         res = {}
         for fault in faults_run:
-            rows = [_run(cfg, fault, s) for s in range(seeds)]
+            rows = [_run(cfg, fault, s) for s in seeds]
             res[fault] = rows
             p = PAPER_FAULTS[fault]
             pe = PAPER_EMAX.get(fault)
             print(f"{fault}    | {_fmt(_med(rows, 'cd'))} | {_fmt(_med(rows, 'wd'))} | {_fmt(_med(rows, 'dt'))} | "
                   f"{_fmt(_med(rows, 'rt'))} | {sum(int(r['wrong_imu']) for r in rows):6d} | "  # type: ignore[call-overload]
-                  f"{_med(rows, 'e_max'):.3f} ({rows[0]['e_axis']}) | "
+                  f"{_med(rows, 'e_max'):.3f} ({rows[0]['e_axis']}{_on_axis(rows, pe)}) | "
                   f"{' / '.join(_fmt(x, 5).strip() for x in p)} | {'' if pe is None else f'{pe[0]} ({pe[1]})'}"
                   f"   [CD {_span(rows, 'cd')}, WD {_span(rows, 'wd')}, DT {_span(rows, 'dt')}, "
                   f"RT {_span(rows, 'rt')}] vs paper: {_beats(rows, p)}", flush=True)
         if not extra_rows:
             out[name] = res
             continue
-        free = [_fault_free(cfg, s) for s in range(seeds)]
+        free = [_fault_free(cfg, s) for s in seeds]
         res["none"] = free  # type: ignore[assignment]
         print(f"none  | flagged {statistics.median(r['flagged_pct'] for r in free):.3f} % of samples (max "
               f"{max(r['flagged_pct'] for r in free):.3f} %), alert {statistics.median(r['alert_pct'] for r in free):.3f} "
@@ -163,7 +176,7 @@ def faults(seeds: int, presets: list[str], faults_run: tuple[str, ...] = ("F1", 
         if cfg.decision == "sequential":
             tests = cfg.sequential or SequentialTests()
             blind = replace(cfg, sequential=replace(tests, stuck_samples=10**9))
-            rows = [_run(blind, "F3", s) for s in range(seeds)]
+            rows = [_run(blind, "F3", s) for s in seeds]
             res["F3_value_only"] = rows
             print(f"F3 without the frozen-axis test | {_fmt(_med(rows, 'cd'))} | {_fmt(_med(rows, 'wd'))} | "
                   f"{_fmt(_med(rows, 'dt'))} | {_fmt(_med(rows, 'rt'))} | "
@@ -192,43 +205,44 @@ def _scaled(base_cfg: FdiConfig, param: str, val: float) -> FdiConfig:
 SEQUENTIAL_OWN = ("cusum_k", "cusum_h", "shewhart_z", "isolation_h", "recovery_h", "common_rate")
 
 
-def plus_minus(seeds: int, preset: str, duration_s: float) -> dict[str, object]:
-    """F1 with each parameter at 0.75 and 1.25 of the preset's value (Delta at 3072 and 5120), beside
-    the paper's chosen row. tau_a is no parameter of the sequential tests (they never read it), so it is
+def plus_minus(seeds: list[int], preset: str, duration_s: float, fault: str = "F1") -> dict[str, object]:
+    """``fault`` (the paper's tables: F1) with each parameter at 0.75 and 1.25 of the preset's value (Delta
+    at 3072 and 5120), beside the paper's chosen row (its numbers for that fault). tau_a is no parameter of the sequential tests (they never read it), so it is
     swept only for the paper's logic."""
     base_cfg = FDI_PRESETS[preset]
     seq = base_cfg.decision == "sequential"
     params = ["delta", "omega", "nu"] + (list(SEQUENTIAL_OWN) if seq else ["tau_a"])
     out: dict[str, object] = {}
-    print(f"\n### +-25 % of one parameter (scenario F1, {duration_s:g} s, preset {preset}, median of {seeds} "
-          "seeds) | paper's chosen row 99.50 / 0.00 / 0.27 / 6.96")
+    paper = PAPER_FAULTS[fault]
+    print(f"\n### +-25 % of one parameter (scenario {fault}, {duration_s:g} s, preset {preset}, median of seeds "
+          f"{seeds[0]}-{seeds[-1]}) | paper's chosen row {' / '.join(_fmt(x, 5).strip() for x in paper)}")
     print(" parameter x scale |  CD %  |  WD %  |  DT s  |  RT s  | healthy IMU flagged | ranges | vs paper")
     for param in params:
         for val in (0.75, 1.25):
             cfg = _scaled(base_cfg, param, base_cfg.pf.n_particles * val if param == "delta" else val)
-            rows = [_run(cfg, "F1", s, duration_s) for s in range(seeds)]
+            rows = [_run(cfg, fault, s, duration_s) for s in seeds]
             out[f"{param}x{val}"] = rows
             print(f"{param} x{val:4.2f} | {_fmt(_med(rows, 'cd'))} | {_fmt(_med(rows, 'wd'))} | "
                   f"{_fmt(_med(rows, 'dt'))} | {_fmt(_med(rows, 'rt'))} | "
                   f"{sum(int(r['wrong_imu']) for r in rows):6d} | [CD {_span(rows, 'cd')}, WD {_span(rows, 'wd')}, "  # type: ignore[call-overload]
-                  f"DT {_span(rows, 'dt')}, RT {_span(rows, 'rt')}] | {_beats(rows, PAPER_FAULTS['F1'])}", flush=True)
+                  f"DT {_span(rows, 'dt')}, RT {_span(rows, 'rt')}] | {_beats(rows, paper)}", flush=True)
     return out
 
 
-def sweeps(seeds: int, max_delta: int, preset: str = "table2", duration_s: float = DURATION_S) -> dict[str, object]:
+def sweeps(seeds: list[int], max_delta: int, preset: str = "table2", duration_s: float = DURATION_S) -> dict[str, object]:
     base_cfg = FDI_PRESETS[preset]
     out: dict[str, object] = {}
     for param, table in PAPER_SWEEPS.items():
         if param == "tau_a" and base_cfg.decision == "sequential":
             continue  # the sequential tests never read tau_a: every row would be the preset's own
-        print(f"\n### sweep {param} (scenario F1, preset {preset}, median of {seeds} seeds) | paper")
+        print(f"\n### sweep {param} (scenario F1, preset {preset}, median of seeds {seeds[0]}-{seeds[-1]}) | paper")
         print(" value |  CD %  |  WD %  |  DT s  |  RT s  | healthy IMU flagged | paper CD / WD / DT / RT")
         res = {}
         for val, paper in table.items():
             if param == "delta" and val > max_delta:
                 continue
             cfg = _scaled(base_cfg, param, val)
-            rows = [_run(cfg, "F1", s, duration_s) for s in range(seeds)]
+            rows = [_run(cfg, "F1", s, duration_s) for s in seeds]
             res[str(val)] = rows
             print(f"{val:6g} | {_fmt(_med(rows, 'cd'))} | {_fmt(_med(rows, 'wd'))} | {_fmt(_med(rows, 'dt'))} | "
                   f"{_fmt(_med(rows, 'rt'))} | {sum(int(r['wrong_imu']) for r in rows):6d} | "  # type: ignore[call-overload]
@@ -240,7 +254,8 @@ def sweeps(seeds: int, max_delta: int, preset: str = "table2", duration_s: float
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--part", default="all", choices=["cost", "faults", "sweeps", "all"])
-    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--seeds", type=int, default=3, help="how many seeds")
+    ap.add_argument("--first-seed", type=int, default=0, help="the first of them (later ones: fresh flights)")
     ap.add_argument("--runs", type=int, default=7)
     ap.add_argument("--max-delta", type=int, default=32768)
     ap.add_argument("--presets", default="table2,merlin,sequential", help="comma-separated, for --part faults")
@@ -248,9 +263,11 @@ def main() -> None:
     ap.add_argument("--preset", default="table2", help="the preset the sweeps run")
     ap.add_argument("--plus-minus", action="store_true", help="sweeps: +-25 %% of each parameter instead")
     ap.add_argument("--duration", type=float, default=DURATION_S, help="sweeps: flight length, s")
+    ap.add_argument("--sweep-fault", default="F1", help="--plus-minus: the fault swept (the paper's tables: F1)")
     ap.add_argument("--json")
     args = ap.parse_args()
     report: dict[str, object] = {}
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     if args.part in ("cost", "all"):
         print("## PF cost per 100 Hz step, both filters (ms)")
         c = cost(args.runs, 100)
@@ -265,10 +282,10 @@ def main() -> None:
                   f"{max(w):.2f}); CPU median {statistics.median(cp):.2f} (min {min(cp):.2f}){extra}", flush=True)
     if args.part in ("faults", "all"):
         only = tuple(args.faults.split(",")) if args.faults else ("F1", "F2", "F3", "F4", "F5")
-        report["faults"] = faults(args.seeds, args.presets.split(","), only, extra_rows=not args.faults)
+        report["faults"] = faults(seeds, args.presets.split(","), only, extra_rows=not args.faults)
     if args.part in ("sweeps", "all"):
-        report["sweeps"] = plus_minus(args.seeds, args.preset, args.duration) if args.plus_minus \
-            else sweeps(args.seeds, args.max_delta, args.preset, args.duration)
+        report["sweeps"] = plus_minus(seeds, args.preset, args.duration, args.sweep_fault) if args.plus_minus \
+            else sweeps(seeds, args.max_delta, args.preset, args.duration)
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=2, default=str) + "\n")
 

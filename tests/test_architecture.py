@@ -221,3 +221,38 @@ def test_the_simulator_holds_no_flight_logic_module() -> None:
         assert stage in modules()
         assert [d for d in graph()[stage] if _in(d, "sims")] == []
     assert "sims.lanes" not in modules()
+
+
+#: The modules outside ``merlin.link`` allowed to import pymavlink: the example of an out-of-process
+#: controller written with pymavlink (it stands for a third party's program, which speaks MAVLink its own way).
+PYMAVLINK_OUTSIDE_THE_LINK = ("experimental_controllers.pymavlink_dialect",)
+
+
+def _third_party_imports(source: str, name: str = "<source>") -> Iterator[tuple[str, int]]:
+    """(top-level package, line) of every absolute import statement of ``source``, inside functions too."""
+    for node in ast.walk(ast.parse(source, name)):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield alias.name.partition(".")[0], node.lineno
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            yield node.module.partition(".")[0], node.lineno
+
+
+def _imports_pymavlink(module: str) -> list[int]:
+    path = modules()[module]
+    return [line for top, line in _third_party_imports(path.read_text(encoding="utf-8"), str(path))
+            if top == "pymavlink"]
+
+
+def test_only_the_link_imports_pymavlink() -> None:
+    """pymavlink is generated, global and stringly typed: it is wrapped once, at the edge (``merlin.link``),
+    behind typed messages, and nothing else imports it (STYLE.md; docs/architecture.md, "Dependency rule")."""
+    assert [m for m in modules() if _in(m, "merlin.link") and _imports_pymavlink(m)]  # the scan sees them
+    bad = [f"{modules()[m].relative_to(ROOT)}:{line}: {m} imports pymavlink" for m in modules()
+           if not _in(m, "merlin.link") and m not in PYMAVLINK_OUTSIDE_THE_LINK for line in _imports_pymavlink(m)]
+    assert bad == []
+
+
+def test_the_pymavlink_scan_sees_an_import_inside_a_function() -> None:
+    source = "def f():\n    from pymavlink.dialects.v20 import ardupilotmega\n\nimport pymavlink.mavutil\nfrom . import x\n"
+    assert sorted(_third_party_imports(source)) == [("pymavlink", 2), ("pymavlink", 4)]

@@ -35,6 +35,9 @@ def register(sub: Any) -> None:
     p.add_argument("--out", default=None, help="directory for guard.tlog and events.jsonl "
                                                "(default out/guard/<UTC time>)")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    p.add_argument("--realtime-priority", type=int, default=0, metavar="N",
+                   help="route and tick SCHED_FIFO at priority N once the start-up check passed (Linux, needs the "
+                        "privilege), as merlin serve --realtime-priority; 0 off")
     p.add_argument("--quiet", action="store_true")
     p.add_argument("--replay", default=None, metavar="DIR",
                    help="re-run a session's decisions from DIR/core_inputs.jsonl with DIR/effective_config.yaml "
@@ -82,6 +85,22 @@ def replay_session(out: Path) -> tuple[bool, str]:
     return True, f"{len(decisions)} ticks, {len(again)} core events identical"
 
 
+def _realtime(guard: Any, priority: int) -> None:
+    """SCHED_FIFO for the routing loop: a setpoint then waits for no ordinary process on the companion (the
+    guard's p99 forwarding latency on a loaded machine is the scheduler's, docs/benchmarks/guard.md). After
+    the start-up check, so that a refused start never ran real-time. Without the privilege the guard runs on
+    with the normal scheduler and says so."""
+    import os
+
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        guard.event({"t": guard.t(), "type": "realtime", "policy": "SCHED_FIFO", "priority": priority})
+    except (AttributeError, OSError) as exc:
+        print(f"merlin guard: cannot switch to SCHED_FIFO ({exc}); running with the normal scheduler",
+              file=sys.stderr)
+        guard.event({"t": guard.t(), "type": "realtime", "policy": "normal", "detail": str(exc)})
+
+
 def run(args: argparse.Namespace) -> int:
     from merlin.config.loader import ConfigError
     from merlin.guard.endpoints import EndpointError, parse_endpoint
@@ -93,6 +112,9 @@ def run(args: argparse.Namespace) -> int:
         return 0 if same else 1
     if not args.autopilot or not args.controller:
         print("merlin guard: --autopilot and --controller are required (or --replay DIR)", file=sys.stderr)
+        return 2
+    if not 0 <= args.realtime_priority <= 99:
+        print(f"merlin guard: --realtime-priority {args.realtime_priority}: allowed 0..99", file=sys.stderr)
         return 2
     try:
         ap = parse_endpoint(args.autopilot, "--autopilot")
@@ -115,6 +137,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"merlin guard: {found.describe()}: failsafe parameters checked {guard.params}; "
               f"controller {ctl.describe()}, logs in {out}", flush=True)
+    if args.realtime_priority > 0:
+        _realtime(guard, args.realtime_priority)
     try:
         guard.run(args.duration)
     finally:

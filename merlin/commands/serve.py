@@ -76,6 +76,10 @@ def register(sub: Any) -> None:
     p.add_argument("--realtime-priority", type=int, default=0, metavar="N",
                    help="run the tick scheduler SCHED_FIFO at priority N and lock the process in RAM (mlockall) "
                         "(Linux, needs the privilege); 0 off")
+    p.add_argument("--autopilot-only", action="store_true",
+                   help="behave as a plain autopilot under merlin guard: no geofence, and the envelope, geofence, "
+                        "RC, GCS-link and low-battery monitors act on nothing; the offboard-loss failsafe "
+                        "(COM_OF_LOSS_T / COM_OBL_RC_ACT) and the estimator and critical-battery failsafes stay")
     p.add_argument("--quiet", action="store_true")
     p.add_argument("--accept-risk", action="append", default=None, metavar="XCNNN[,XCNNN]",
                    help="fly despite this cross-check error (docs/crosschecks.md; repeatable); logged and written "
@@ -237,6 +241,10 @@ def options_from_args(args: argparse.Namespace) -> Any:
     cfg, config_dir = _load(args.config)
     cfg = _vehicle_config(args.vehicle, args.config, cfg)  # the fixed wing's aircraft and limits
     cfg = sitl_home(cfg, args.config, os.environ)
+    if args.autopilot_only:
+        from merlin.serve.autopilot_only import autopilot_only
+
+        cfg = autopilot_only(cfg)
     overrides = LinkOverrides(
         key_file=Path(args.signing_key) if args.signing_key else None,
         allow_unsigned_provisioning=args.allow_unsigned_provisioning,
@@ -295,7 +303,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         links = ", ".join(f"{ls.name}: {getattr(ls.endpoint.transport, 'local_address', '?')} -> "
                           f"{ls.endpoint.remote}" for ls in server.links)
-        print(f"merlin serve: {opts.rate_hz:g} Hz, {links}; logs in {opts.out_dir}", flush=True)
+        only = ", autopilot only (no geofence, no envelope, link or low-battery action)" if args.autopilot_only else ""
+        print(f"merlin serve: {opts.rate_hz:g} Hz{only}, {links}; logs in {opts.out_dir}", flush=True)
     summary = server.run()
     if not args.quiet:
         json.dump(summary["timing"], sys.stdout, indent=1)

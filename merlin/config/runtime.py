@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from merlin.autopilot.guidance import MultirotorGuidance
 from merlin.config.fence_build import build_fence
@@ -22,6 +23,8 @@ from merlin.core.config import (
     WatchdogTimeouts,
 )
 from merlin.core.envelope import PARAMETER_INDEX
+from merlin.core.geofence import Fence
+from merlin.core.guidance_policy import GuidancePolicy
 from merlin.core.types import Action, Behavior, MonitorId
 
 _DEG = math.pi / 180.0
@@ -100,6 +103,20 @@ def _takeover(monitor: MonitorId, oversight_envelope: bool, oversight_geofence: 
     return Takeover.JUDGED
 
 
+def guidance_policy(cfg: MerlinConfig, fence: Fence | None) -> GuidancePolicy[Any]:
+    """The vehicle's trusted behaviours as the core flies them (:mod:`merlin.core.guidance_policy`): the
+    multirotor's (:class:`merlin.autopilot.guidance.MultirotorGuidance`), or the fixed wing's
+    (:class:`merlin.autopilot.fixedwing_policy.FixedWingGuidance`: LAND's loiter height over home from the
+    fence, its descent at the inner loops' sink limit)."""
+    if cfg.vehicle.type.value != "fixed_wing":
+        return MultirotorGuidance()
+    from merlin.autopilot.fixedwing_behaviours import land_height_m
+    from merlin.autopilot.fixedwing_control import FixedWingControlParams
+    from merlin.autopilot.fixedwing_policy import FixedWingGuidance
+
+    return FixedWingGuidance(land_height_m(fence), FixedWingControlParams().sink_max_mps)
+
+
 def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig:
     h, o, t, v = cfg.handover, cfg.operator, cfg.trusted, cfg.vehicle
     rules = tuple(
@@ -121,7 +138,7 @@ def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig
         envelope=envelope_limits(cfg),
         rules=rules,
         fence=fence,
-        guidance=MultirotorGuidance(),
+        guidance=guidance_policy(cfg, fence),
         watchdogs=WatchdogTimeouts(
             controller_heartbeat_s=cfg.watchdogs.controller_heartbeat.timeout_s,
             setpoint_stale_s=cfg.watchdogs.setpoint_stale.timeout_s,

@@ -57,6 +57,7 @@ from merlin.core.types import (
     RequestKind,
     Setpoint,
     SetpointKind,
+    Vec3,
     VehicleState,
 )
 
@@ -599,8 +600,10 @@ def _fence_monitor(cfg: CoreConfig, fence: geofence.Fence, last: Command | None,
     prm = fence.params
     demand = None if prm.vehicle == "fixed_wing" else demanded_velocity(flown, s, prm.reaction_time_s,
                                                                         prm.gravity_mps2)
+    # a fixed wing's escape first rolls out a bank towards the other side (geofence.fixed_wing_turn)
+    bank = s.att_rpy_rad[0] if prm.vehicle == "fixed_wing" else 0.0
     res = geofence.check(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, s.pos_sigma_v_m, floor_reached,
-                         wind_ne, demand)
+                         wind_ne, demand, bank)
     return _fence_reason(res) if res.tripped else None
 
 
@@ -739,7 +742,7 @@ def _route_warning(events: list[Event], now: float, what: str, note: str) -> Non
 
 def _incoming(cfg: CoreConfig, st: CoreState, arb: ArbiterState, source: tuple[Authority, Behavior], dt: float,
               op: OperatorInput, c: Checked, floor_reached: bool, trusted_sp: Setpoint | None,
-              ) -> tuple[OperatorMemory, Command]:
+              trusted_ff: Vec3 | None = None) -> tuple[OperatorMemory, Command]:
     """The command of the source in authority, before bumpless shaping (and the operator's memory)."""
     authority, behavior = source
     s, sp = c.s, c.setpoint
@@ -760,9 +763,19 @@ def _incoming(cfg: CoreConfig, st: CoreState, arb: ArbiterState, source: tuple[A
             incoming = track_command(clamp_command(incoming, cfg.clamp), st.last_command, s, dt, cfg.clamp)
         return op_mem, incoming
     if trusted_sp is not None:
-        return op_mem, setpoint_to_command(trusted_sp, s, _TRUSTED, cfg.trusted)
+        own = setpoint_to_command(trusted_sp, s, _TRUSTED, cfg.trusted)
+        return op_mem, own if trusted_ff is None else own._replace(accel_ned_mps2=trusted_ff)
     # unreachable in practice: EXPERIMENTAL without a valid setpoint is revoked this tick
     return op_mem, Command(_CMD_VELOCITY, _TRUSTED, yaw_rad=s.att_rpy_rad[2])
+
+
+def _feedforward(memory: GuidanceMemory | None) -> Vec3 | None:
+    """The acceleration Merlin's own command follows by construction (its braking ramp), for the velocity
+    loop; None when there is none."""
+    if memory is None:
+        return None
+    a = memory.accel_ff_ned_mps2
+    return a if (a[0] != 0.0 or a[1] != 0.0 or a[2] != 0.0) else None
 
 
 def _operator_memory(st: CoreState, s: VehicleState, fenced: bool) -> OperatorMemory:
@@ -802,15 +815,24 @@ def _bumpless(cfg: CoreConfig, st: CoreState, source: tuple[Authority, Behavior]
     return shape(blend, last, incoming, now, dt, cfg.handover)
 
 
+class Statuses(NamedTuple):
+    """What the monitor stage's verdict says in the table's terms under the tick's authority."""
+
+    statuses: tuple[MonitorStatus, ...]  # every row's status (and SHADOW's commanded ones)
+    reported: frozenset[MonitorId]  # the monitors whose trip is reported and not yet cleared
+    failsafe: Action  # the worst action the table gives a tripped monitor (the decision's ``failsafe``)
+
+
 def _statuses(cfg: CoreConfig, st: CoreState, now: float, authority: Authority, report: MonitorReport,
-              events: list[Event]) -> tuple[tuple[MonitorStatus, ...], frozenset[MonitorId]]:
-    """Every row's status, and the edges of the monitors the table gives a consequence under ``authority``
-    (reported when tripped, again when cleared)."""
+              events: list[Event]) -> Statuses:
+    """Every row's status, the edges of the monitors the table gives a consequence under ``authority``
+    (reported when tripped, again when cleared), and the failsafe in force."""
     tripped, was_reported, violating = report.tripped, st.reported, report.env.violating
     if not tripped and not was_reported and not violating and not report.shadow_tripped:
-        return st.clear_statuses, _NO_MONITORS  # a quiet tick: every row clear, nothing to report
+        return Statuses(st.clear_statuses, _NO_MONITORS, _NO_ACTION)  # a quiet tick: every row clear
     statuses: list[MonitorStatus] = []
     reported: set[MonitorId] = set()
+    failsafe = _NO_ACTION
     for row, clear in zip(cfg.rules, st.clear_statuses, strict=True):
         name = row.monitor
         reason = tripped.get(name)
@@ -818,7 +840,10 @@ def _statuses(cfg: CoreConfig, st: CoreState, now: float, authority: Authority, 
             statuses.append(clear)  # clear, and not reported before: what the steps below give, cheaply
             continue
         statuses.append(_status(clear, reason, violating if name is _M_ENVELOPE else ()))
-        if reason is not None and arbiter.column(row, authority) is not _NO_ACTION:
+        action = arbiter.column(row, authority) if reason is not None else _NO_ACTION
+        if action > failsafe:
+            failsafe = action
+        if reason is not None and action is not _NO_ACTION:
             reported.add(name)
             if name not in was_reported:
                 events.append(Event(now, EventKind.MONITOR_TRIPPED, reason=reason))
@@ -829,7 +854,7 @@ def _statuses(cfg: CoreConfig, st: CoreState, now: float, authority: Authority, 
     for name, reason in report.shadow_tripped.items():
         if name is _M_ENVELOPE or name is _M_GEOFENCE:
             statuses.append(MonitorStatus(f"shadow_{name}", True, reason))
-    return tuple(statuses), frozenset(reported) if reported else _NO_MONITORS
+    return Statuses(tuple(statuses), frozenset(reported) if reported else _NO_MONITORS, failsafe)
 
 
 # -------------------------------------------------------------------------------------------------- step
@@ -860,10 +885,10 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
         events.append(Event(now, EventKind.BEHAVIOR, behavior=behavior))
     source = (authority, behavior)
     op_mem, incoming = _incoming(cfg, st, arb, source, dt, inputs.operator, checked, report.floor_reached,
-                                 trusted.setpoint)
+                                 trusted.setpoint, _feedforward(trusted.memory))
     flies_trusted = (authority is _TRUSTED or authority is _SHADOW) and arb.armed
     blend, command = _bumpless(cfg, st, source, flies_trusted, now, dt, checked.s, incoming)
-    statuses, reported = _statuses(cfg, st, now, authority, report, events)
+    statuses, reported, failsafe = _statuses(cfg, st, now, authority, report, events)
     # positional, in field order (built every tick); the names are CoreState's
     new_state = CoreState(
         now,  # t_s
@@ -891,7 +916,7 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
         trusted.completed,  # completed
     )
     decision = Decision(now, authority, behavior, command, statuses, (*arb_events, *events), arb.armed,
-                        arb.pending.seq if arb.pending is not None else 0, arb.revocations)
+                        arb.pending.seq if arb.pending is not None else 0, arb.revocations, failsafe)
     return new_state, decision
 
 

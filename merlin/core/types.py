@@ -318,6 +318,9 @@ class Command(NamedTuple):
     thrust: float = 0.0
     pos_target_ned_m: Vec3 | None = None  # the position the velocity command closes on, if any
     blend: float = 1.0  # 0 at a transfer, 1 once the incoming source is fully in command
+    # the rate at which a velocity command is changing, fed forward by the velocity loop (PX4's acceleration
+    # setpoint beside its velocity setpoint); zero for any source whose command profile is not Merlin's own
+    accel_ned_mps2: Vec3 = ZERO3
 
 
 class EventKind(Enum):
@@ -396,3 +399,7 @@ class Decision(NamedTuple):
     armed: bool
     pending_grant_seq: int = 0  # nonzero while a grant awaits its ACK
     revocations: int = 0
+    # the failsafe in force: the worst action the rule table gives this tick's tripped monitors under the
+    # decision's authority (NONE when none is tripped); what a vehicle-wide "failsafe" flag reads (the
+    # autopilot lanes' health, merlin.redundancy.lanes), so that nobody re-derives it from the table
+    failsafe: Action = Action.NONE

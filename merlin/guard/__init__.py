@@ -4,8 +4,9 @@ real PX4 or ArduPilot autopilot.
 Layers, outside in:
 
 - :mod:`~merlin.guard.endpoints`: MAVLink endpoint URLs (UDP, TCP, serial) in pymavlink/MAVSDK style.
-- :mod:`~merlin.guard.wire`: the vehicle side's MAVLink (the ardupilotmega dialect, which holds common.xml),
-  raw frames split and decoded into typed telemetry; the only module here that touches pymavlink.
+- :mod:`merlin.link.autopilot_wire`: the vehicle side's MAVLink (the ardupilotmega dialect, which holds
+  common.xml), raw frames split and decoded into typed telemetry (in :mod:`merlin.link`, the only package
+  that touches pymavlink).
 - :mod:`~merlin.guard.dialects`: the autopilot detected from its HEARTBEAT, and each dialect's mode numbers.
 - :mod:`~merlin.guard.failsafe_params`: the start-up check that the autopilot's own failsafe catches a dead
   guard.

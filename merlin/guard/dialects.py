@@ -29,7 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum, IntEnum
 
-from merlin.core.types import Behavior
+from merlin.core.types import Behavior, GcsCommandKind
 from merlin.link.px4_modes import Px4AutoSubMode, Px4MainMode, Px4Mode
 
 # MAV_AUTOPILOT (common.xml)
@@ -123,7 +123,7 @@ class FallbackMode(Enum):
     BRAKE = "brake"  # Copter BRAKE; PX4 and Plane: their hold
     RTL = "rtl"
     SMART_RTL = "smart_rtl"  # Copter SMART_RTL; elsewhere RTL
-    LAND = "land"  # PX4 AUTO.LAND, Copter LAND, Plane QLAND (VTOL) or RTL
+    LAND = "land"  # PX4 AUTO.LAND (a fixed wing: AUTO.RTL), Copter LAND, Plane QLAND (QuadPlane) or RTL
 
 
 @dataclass(frozen=True, slots=True)
@@ -133,6 +133,11 @@ class Autopilot:
     system_id: int
     component_id: int
     mav_type: int
+
+    @property
+    def vtol(self) -> bool:
+        """A VTOL (PX4 VTOL, ArduPilot QuadPlane): flown as a fixed wing, but it can land where it hovers."""
+        return self.mav_type in VTOL_TYPES
 
     def describe(self) -> str:
         return f"{self.dialect.value} {self.vehicle.value} (MAV_TYPE {self.mav_type}) system {self.system_id}"
@@ -170,8 +175,10 @@ class ModeTable:
     offboard: int  # the mode that flies external setpoints (PX4 OFFBOARD, ArduPilot GUIDED)
     names: dict[int, str]
     fallback: dict[FallbackMode, int]
-    # modes an experimental controller may leave OFFBOARD/GUIDED for (the autopilot's own safe behaviours)
-    release_modes: frozenset[int]
+    # modes an experimental controller may leave OFFBOARD/GUIDED for (the autopilot's own safe behaviours),
+    # with the trusted behaviour each asks for while Merlin's trusted autopilot flies (as merlin serve flies a
+    # controller's hold, return or land after a revocation)
+    release_modes: dict[int, GcsCommandKind]
     # what HEARTBEAT shows the controller while Merlin's trusted autopilot flies through the offboard mode
     behaviour_modes: dict[Behavior, int]
     # setpoint streaming is not how this vehicle is flown by the guard: it falls back to the autopilot's modes
@@ -216,7 +223,8 @@ def _px4_table() -> ModeTable:
         Dialect.PX4, _px4(Px4MainMode.OFFBOARD), names,
         {FallbackMode.HOLD: loiter, FallbackMode.BRAKE: loiter, FallbackMode.RTL: rtl, FallbackMode.SMART_RTL: rtl,
          FallbackMode.LAND: land},
-        frozenset({loiter, rtl, land, _px4(Px4MainMode.AUTO, Px4AutoSubMode.PRECLAND)}),
+        {loiter: GcsCommandKind.HOLD, rtl: GcsCommandKind.RTL, land: GcsCommandKind.LAND,
+         _px4(Px4MainMode.AUTO, Px4AutoSubMode.PRECLAND): GcsCommandKind.LAND},
         {Behavior.HOLD: loiter, Behavior.RTL: rtl, Behavior.LAND: land, Behavior.IDLE: loiter,
          Behavior.TAKEOFF: _px4(Px4MainMode.AUTO, Px4AutoSubMode.TAKEOFF), Behavior.MISSION: loiter,
          Behavior.ORBIT: loiter, Behavior.TERMINATE: _px4(Px4MainMode.TERMINATION)},
@@ -229,21 +237,27 @@ def _copter_table() -> ModeTable:
         Dialect.ARDUPILOT, int(c.GUIDED), {int(m): m.name for m in c},
         {FallbackMode.HOLD: int(c.LOITER), FallbackMode.BRAKE: int(c.BRAKE), FallbackMode.RTL: int(c.RTL),
          FallbackMode.SMART_RTL: int(c.SMART_RTL), FallbackMode.LAND: int(c.LAND)},
-        frozenset(int(m) for m in (c.LOITER, c.BRAKE, c.RTL, c.SMART_RTL, c.LAND, c.AUTO_RTL)),
+        {int(c.LOITER): GcsCommandKind.HOLD, int(c.BRAKE): GcsCommandKind.HOLD, int(c.RTL): GcsCommandKind.RTL,
+         int(c.SMART_RTL): GcsCommandKind.RTL, int(c.LAND): GcsCommandKind.LAND, int(c.AUTO_RTL): GcsCommandKind.RTL},
         {Behavior.HOLD: int(c.BRAKE), Behavior.RTL: int(c.RTL), Behavior.LAND: int(c.LAND), Behavior.IDLE: int(c.BRAKE),
          Behavior.TAKEOFF: int(c.GUIDED), Behavior.MISSION: int(c.AUTO), Behavior.ORBIT: int(c.CIRCLE),
          Behavior.TERMINATE: int(c.LAND)},
     )
 
 
-def _plane_table() -> ModeTable:
+def _plane_table(vtol: bool) -> ModeTable:
     p = PlaneMode
+    # Merlin's LAND on a fixed wing without gear or runway is a loiter down over home
+    # (merlin.autopilot.fixedwing_behaviours); Plane's RTL loiters over home (or lands there with RTL_AUTOLAND).
+    # Only a QuadPlane can land where it is, in QLAND.
+    land = int(p.QLAND) if vtol else int(p.RTL)
     return ModeTable(
         Dialect.ARDUPILOT, int(p.GUIDED), {int(m): m.name for m in p},
         {FallbackMode.HOLD: int(p.LOITER), FallbackMode.BRAKE: int(p.LOITER), FallbackMode.RTL: int(p.RTL),
-         FallbackMode.SMART_RTL: int(p.RTL), FallbackMode.LAND: int(p.QLAND)},
-        frozenset(int(m) for m in (p.LOITER, p.RTL, p.QRTL, p.QLAND, p.QLOITER)),
-        {Behavior.HOLD: int(p.LOITER), Behavior.RTL: int(p.RTL), Behavior.LAND: int(p.QLAND),
+         FallbackMode.SMART_RTL: int(p.RTL), FallbackMode.LAND: land},
+        {int(p.LOITER): GcsCommandKind.HOLD, int(p.RTL): GcsCommandKind.RTL, int(p.QRTL): GcsCommandKind.RTL,
+         int(p.QLAND): GcsCommandKind.LAND, int(p.QLOITER): GcsCommandKind.HOLD},
+        {Behavior.HOLD: int(p.LOITER), Behavior.RTL: int(p.RTL), Behavior.LAND: land,
          Behavior.IDLE: int(p.LOITER), Behavior.TAKEOFF: int(p.TAKEOFF), Behavior.MISSION: int(p.AUTO),
          Behavior.ORBIT: int(p.LOITER), Behavior.TERMINATE: int(p.RTL)},
         # Plane's GUIDED flies to a position and loiters there; the trusted core's velocity commands are a
@@ -252,11 +266,20 @@ def _plane_table() -> ModeTable:
     )
 
 
+def _px4_fixed_wing_table(vtol: bool) -> ModeTable:
+    """PX4 on a fixed wing or VTOL: its offboard mode takes position setpoints only, so the guard hands the
+    vehicle to PX4's own modes. AUTO.LAND on a fixed wing corkscrews down where it is, whatever the terrain
+    (PX4 user guide, "Land Mode (Fixed-Wing)": emergencies only), so Merlin's LAND is PX4's Return there;
+    a VTOL lands as a multirotor (NAV_FORCE_VT) and keeps AUTO.LAND."""
+    t = _px4_table()
+    if vtol:
+        return ModeTable(t.dialect, t.offboard, t.names, t.fallback, t.release_modes, t.behaviour_modes, False)
+    rtl = t.fallback[FallbackMode.RTL]
+    return ModeTable(t.dialect, t.offboard, t.names, {**t.fallback, FallbackMode.LAND: rtl}, t.release_modes,
+                     {**t.behaviour_modes, Behavior.LAND: rtl}, False)
+
+
 def mode_table(ap: Autopilot) -> ModeTable:
     if ap.dialect is Dialect.PX4:
-        t = _px4_table()
-        if ap.vehicle is VehicleClass.FIXED_WING:
-            # PX4's offboard on a fixed wing takes position setpoints only; the guard does not stream to it
-            return ModeTable(t.dialect, t.offboard, t.names, t.fallback, t.release_modes, t.behaviour_modes, False)
-        return t
-    return _copter_table() if ap.vehicle is VehicleClass.MULTIROTOR else _plane_table()
+        return _px4_fixed_wing_table(ap.vtol) if ap.vehicle is VehicleClass.FIXED_WING else _px4_table()
+    return _copter_table() if ap.vehicle is VehicleClass.MULTIROTOR else _plane_table(ap.vtol)

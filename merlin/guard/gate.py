@@ -17,7 +17,10 @@ sections 6 and 13, "what PX4 does and what Merlin does"), applied to a real auto
   otherwise.
 - **Leaving it for one of the autopilot's own safe modes** (hold/loiter, brake, RTL, SmartRTL, land) while
   the controller holds authority RELEASEs authority, then goes to the autopilot. While Merlin's trusted
-  autopilot flies (after a revocation), the controller cannot change the mode. **Manual modes** are the
+  autopilot flies (after a revocation), the controller cannot change the autopilot's mode: its request
+  for hold, return or land (a mode or NAV_LOITER_UNLIM / NAV_RETURN_TO_LAUNCH / NAV_LAND) goes to the core
+  as that command and Merlin's trusted autopilot flies it if the core accepts, as ``merlin serve`` does
+  (MAVSDK's ``offboard.stop()`` and ``action.land()`` after a revocation). **Manual modes** are the
   operator's (RC switch or ground station) and are DENIED, as ``merlin serve`` denies them.
 - **Arming** passes on the ground when the core's pre-arm conditions hold (inside the fence, navigation
   healthy); disarming passes on the ground; a forced disarm (MAVSDK ``kill``: param2 21196) passes in the
@@ -37,8 +40,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import Enum
 
-from merlin.guard import wire as w
+from merlin.core.types import GcsCommandKind
 from merlin.guard.dialects import ModeTable
+from merlin.link import autopilot_wire as w
 
 ARM_FORCE_MAGIC = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2: force (common.xml)
 # messages that rewrite the autopilot: parameters, mission/fence/rally uploads, home, origin, files, stream rates
@@ -54,6 +58,8 @@ REWRITE_COMMANDS = {w.MAV_CMD_DO_SET_PARAMETER: "DO_SET_PARAMETER", w.MAV_CMD_PR
                     179: "DO_SET_HOME"}
 BEHAVIOUR_COMMANDS = {w.MAV_CMD_NAV_LAND: "land", w.MAV_CMD_NAV_RETURN_TO_LAUNCH: "return",
                       w.MAV_CMD_NAV_LOITER_UNLIM: "hold"}
+BEHAVIOUR_KINDS = {w.MAV_CMD_NAV_LAND: GcsCommandKind.LAND, w.MAV_CMD_NAV_RETURN_TO_LAUNCH: GcsCommandKind.RTL,
+                   w.MAV_CMD_NAV_LOITER_UNLIM: GcsCommandKind.HOLD}
 
 
 class Route(Enum):
@@ -63,12 +69,16 @@ class Route(Enum):
     REQUEST = "request"  # an authority request: held until the core decides
     RELEASE = "release"  # the controller gives authority back, then the frame goes to the autopilot
     ACCEPT = "accept"  # answered COMMAND_ACK ACCEPTED by the guard, not forwarded (see SET_MESSAGE_INTERVAL)
+    # while Merlin's trusted autopilot flies: a request for a safe behaviour (hold, return, land) goes to the
+    # core as that command, as merlin serve takes it, and is answered with the core's decision
+    BEHAVIOUR = "behaviour"
 
 
 @dataclass(frozen=True, slots=True)
 class Verdict:
     route: Route
     reason: str = ""
+    behaviour: GcsCommandKind | None = None  # Route.BEHAVIOUR: the command the core gets
 
 
 @dataclass(frozen=True, slots=True)
@@ -93,7 +103,7 @@ def _mode(custom_mode: int, ctx: GateContext, via: str) -> Verdict:
         if ctx.experimental:
             return Verdict(Route.RELEASE, f"{via} {name}")
         if ctx.trusted_flying:
-            return Verdict(Route.DENY, f"{via} {name}: Merlin's trusted autopilot is flying")
+            return Verdict(Route.BEHAVIOUR, f"{via} {name}", ctx.modes.release_modes[custom_mode])
         return FORWARD
     return Verdict(Route.DENY, f"{via} {name}: only the autopilot's own safe modes or "
                                f"{ctx.modes.name(ctx.modes.offboard)} from the controller link (manual modes are the "
@@ -124,7 +134,7 @@ def _command(c: w.CommandIn, ctx: GateContext) -> Verdict:
         if ctx.experimental:
             return Verdict(Route.RELEASE, BEHAVIOUR_COMMANDS[cmd])
         if ctx.trusted_flying:
-            return Verdict(Route.DENY, f"{BEHAVIOUR_COMMANDS[cmd]}: Merlin's trusted autopilot is flying")
+            return Verdict(Route.BEHAVIOUR, BEHAVIOUR_COMMANDS[cmd], BEHAVIOUR_KINDS[cmd])
         return FORWARD
     if cmd in FLY_COMMANDS:
         return FORWARD if ctx.experimental else Verdict(
@@ -146,7 +156,7 @@ def _command(c: w.CommandIn, ctx: GateContext) -> Verdict:
 
 def classify(msg_id: int, rec: object | None, ctx: GateContext) -> Verdict:
     """Where a frame from the controller goes. ``rec`` is the typed record for COMMAND_LONG/INT and SET_MODE
-    (:mod:`merlin.guard.wire`); for those, None means it could not be decoded, and it is dropped."""
+    (:mod:`merlin.link.autopilot_wire`); for those, None means it could not be decoded, and it is dropped."""
     if msg_id in w.SETPOINT_IDS:
         if ctx.experimental or not (ctx.autopilot_offboard or ctx.trusted_flying):
             return FORWARD

@@ -14,6 +14,12 @@ Start-up (:meth:`Guard.start`), before anything from the controller reaches the 
    (:mod:`merlin.guard.failsafe_params`): :class:`GuardRefused` carries every refusal;
 3. request the telemetry streams (MAV_CMD_SET_MESSAGE_INTERVAL).
 
+Until the check has passed nothing is routed: the controller and the ground station do not see the
+autopilot (a MAVSDK program waits for its HEARTBEAT before it sends), and whatever they sent blind in
+the meantime is discarded once routing begins, not delivered late: a command the sender has retried or
+given up on by then must not be executed (MAVSDK-Python's examples through the guard: queued
+REQUEST_MESSAGE retries answered twice).
+
 Authority follows the ICD's standard flow for controllers that do not speak Merlin's dialect: the
 controller's request for the dialect's offboard mode (PX4 OFFBOARD, ArduPilot GUIDED) is the REQUEST; the
 guard holds the mode command until the core decides; on a grant the guard acknowledges the grant for the
@@ -53,20 +59,16 @@ from merlin.core.types import (
     AuthorityRequest,
     Decision,
     EventKind,
-    ExperimentalInput,
     GcsCommand,
     GcsCommandKind,
-    Inputs,
     MonitorId,
     NavMode,
-    OperatorInput,
     RequestKind,
     Setpoint,
     SetpointKind,
 )
 from merlin.geodesy import LocalFrame
 from merlin.guard import inputs_log
-from merlin.guard import wire as w
 from merlin.guard.config import GuardConfig
 from merlin.guard.dialects import Autopilot, Dialect, ModeTable, detect, mode_table
 from merlin.guard.endpoints import EndpointSpec, open_transport
@@ -75,8 +77,10 @@ from merlin.guard.gate import GateContext, Route, classify
 from merlin.guard.response import BrakeMeter
 from merlin.guard.telemetry import TelemetryState, stream_requests
 from merlin.guard.trusted import TrustedOutput, trusted_output
+from merlin.link import autopilot_wire as w
 from merlin.link.frames import Frame
 from merlin.link.tlog import TlogWriter
+from merlin.pipeline import InputBuilder
 
 log = logging.getLogger("merlin.guard")
 EFFECTIVE_CONFIG = "effective_config.yaml"
@@ -161,13 +165,14 @@ class Guard:
         self.params: dict[str, float] = {}
         self._reader: ParamReader | None = None
         self.decision: Decision | None = None
-        self.hb_t: float | None = None
+        #: the core's inputs, built as every driver builds them (merlin.pipeline); the guard reads no RC
+        self.inputs = InputBuilder(rc_connected=False)
         self.alive_since: float | None = None  # start of the controller's current unbroken liveness
-        self.sp: Setpoint | None = None
-        self.sp_t: float | None = None
-        self.gcs_t: float | None = None
-        self.requests: list[AuthorityRequest] = []
         self.commands: list[GcsCommand] = []
+        # behaviour requests from the controller handed to the core while Merlin flies, by the core command's
+        # seq: (sender, MAVLink command or None for SET_MODE) to answer once the core has decided
+        self._behaviour_asks: dict[int, tuple[tuple[int, int], int | None]] = {}
+        self._behaviour_seq = 0
         self.held: _Held | None = None
         self.supervising = False  # a grant happened and the autopilot has been in the offboard mode since
         self.switch_deadline: float | None = None  # after a grant: until when the autopilot may take to switch
@@ -182,6 +187,7 @@ class Guard:
         self._next_tick_t = 0.0
         self._ap_seq = 0
         self._stop = False
+        self._routing = False  # the start-up check passed: frames flow between the links
         self.out_dir = out_dir
         self.tlog: TlogWriter | None = None
         self.ap_tlog: TlogWriter | None = None
@@ -273,6 +279,10 @@ class Guard:
             self.intervals_us[s.message_id] = s.interval_us
             self._send(self.ap_link, self.enc.command_long(self.target, w.MAV_CMD_SET_MESSAGE_INTERVAL,
                                                            (float(s.message_id), s.interval_us)))
+        for link in (self.ctl_link, self.gcs_link):
+            while link is not None and (stale := self._read(link, 0.0)):
+                self.counts["dropped: sent before the start-up check passed"] += len(stale)
+        self._routing = True
         self.event({"t": self.t(), "type": "guard_started", "autopilot": ap.describe()})
         return ap
 
@@ -289,6 +299,8 @@ class Guard:
                 self.ap_mode = rec.custom_mode
                 self._ap_seq = fr.seq
                 self.telemetry.on(t, rec)
+                if not self._routing:
+                    return
                 raw = fr.raw
                 if self.gcs_link is not None:
                     self._send(self.gcs_link, raw, originated=False)
@@ -301,6 +313,8 @@ class Guard:
                 self._reader.on_value(rec.param_id, w.param_number(rec, bytewise))
         elif rec is not None and fr.system_id == self.target[0]:
             self.telemetry.on(t, rec)
+        if not self._routing:
+            return
         self._send(self.ctl_link, fr.raw, originated=False)
         if self.gcs_link is not None:
             self._send(self.gcs_link, fr.raw, originated=False)
@@ -339,12 +353,12 @@ class Guard:
         rec = self.decoder.typed(fr) if fr.msg_id in w.TYPED_IDS else None
         if fr.msg_id == w.HEARTBEAT or fr.msg_id in w.SETPOINT_IDS:
             # a setpoint stream is the controller's liveness too, as PX4's offboard loss timeout counts it
-            if self.hb_t is None or t - self.hb_t > self.cfg.watchdogs.controller_heartbeat.timeout_s:
+            hb_t = self.inputs.heartbeat_t
+            if hb_t is None or t - hb_t > self.cfg.watchdogs.controller_heartbeat.timeout_s:
                 self.alive_since = t
-            self.hb_t = t
+            self.inputs.controller_heartbeat(t)
         if fr.msg_id in w.SETPOINT_IDS:
-            self.sp_t = t
-            self.sp = _core_setpoint(rec)
+            self.inputs.setpoint(_core_setpoint(rec), t)
         v = classify(fr.msg_id, rec, self._gate_context())
         if v.route is Route.FORWARD:
             self._forward_to_autopilot(fr)
@@ -354,13 +368,15 @@ class Guard:
             self._deny(fr, rec, v.reason, t)
         elif v.route is Route.REQUEST:
             self._on_request(fr, rec, v.reason, t)
+        elif v.route is Route.BEHAVIOUR:
+            self._on_behaviour_request(fr, rec, v.reason, v.behaviour, t)
         elif v.route is Route.ACCEPT:
             if isinstance(rec, w.CommandIn):
                 self._send(self.ctl_link, w.Encoder(*self.target).command_ack(
                     (fr.system_id, fr.component_id), rec.command, w.MAV_RESULT_ACCEPTED))
             self.counts[f"answered: {v.reason}"] += 1
         elif v.route is Route.RELEASE:
-            self.requests.append(AuthorityRequest(RequestKind.RELEASE, t_s=t))
+            self.inputs.request((AuthorityRequest(RequestKind.RELEASE, t_s=t),))
             self.event({"t": t, "type": "guard_release", "detail": v.reason})
             self._forward_to_autopilot(fr)
 
@@ -377,7 +393,8 @@ class Guard:
             return
         alive = 0.0 if self.alive_since is None else t - self.alive_since
         need = self.cfg.handover.heartbeat_alive_min_s + HOLD_MARGIN_S
-        streaming = self.sp_t is not None and t - self.sp_t <= self.cfg.links.offboard_loss_timeout_s
+        sp_t = self.inputs.setpoint_t
+        streaming = sp_t is not None and t - sp_t <= self.cfg.links.offboard_loss_timeout_s
         self.held = _Held(fr.raw, cmd, sender, t)
         if streaming and alive < need and self.alive_since is not None:
             self.held.release_t = self.alive_since + need
@@ -385,7 +402,7 @@ class Guard:
             self.event({"t": t, "type": "guard_request_held", "detail": f"{reason}: controller alive {alive:.2f} s"
                         f" of handover.heartbeat_alive_min_s {self.cfg.handover.heartbeat_alive_min_s:g}"})
             return
-        self.requests.append(AuthorityRequest(RequestKind.REQUEST, t_s=t))
+        self.inputs.request((AuthorityRequest(RequestKind.REQUEST, t_s=t),))
         self.event({"t": t, "type": "guard_request", "detail": reason})
 
     def _in_progress(self, h: _Held, t: float) -> None:
@@ -397,7 +414,8 @@ class Guard:
         h = self.held
         if h is None or h.release_t is None:
             return
-        if self.hb_t is None or t - self.hb_t > self.cfg.links.offboard_loss_timeout_s:
+        hb_t = self.inputs.heartbeat_t
+        if hb_t is None or t - hb_t > self.cfg.links.offboard_loss_timeout_s:
             # the controller went silent while its request was held: PX4 would refuse OFFBOARD now
             if h.command is not None:
                 self._send(self.ctl_link, w.Encoder(*self.target).command_ack(h.sender, h.command, w.MAV_RESULT_DENIED))
@@ -406,7 +424,7 @@ class Guard:
             return
         if t >= h.release_t:
             h.release_t = None
-            self.requests.append(AuthorityRequest(RequestKind.REQUEST, t_s=t))
+            self.inputs.request((AuthorityRequest(RequestKind.REQUEST, t_s=t),))
             self.event({"t": t, "type": "guard_request", "detail": "held request passed to the core"})
         elif t >= h.next_progress_t:
             self._in_progress(h, t)
@@ -426,9 +444,20 @@ class Guard:
             self._send(self.ctl_link, self.enc.statustext(w.MAV_SEVERITY_WARNING, f"Merlin: {reason}"))
             self.event({"t": t, "type": "guard_denied", "detail": reason})
 
+    def _on_behaviour_request(self, fr: Frame, rec: object, reason: str, kind: GcsCommandKind | None,
+                              t: float) -> None:
+        """The controller asks for hold, return or land while Merlin's trusted autopilot flies: the core gets
+        it as that command (as merlin serve takes it from the controller link); the answer is the core's."""
+        assert kind is not None
+        self._behaviour_seq += 1
+        cmd = rec.command if isinstance(rec, w.CommandIn) else None
+        self._behaviour_asks[self._behaviour_seq] = ((fr.system_id, fr.component_id), cmd)
+        self.commands.append(GcsCommand(kind, seq=self._behaviour_seq))
+        self.event({"t": t, "type": "guard_behaviour_request", "detail": reason, "command": kind.name})
+
     def _on_gcs(self, fr: Frame, t: float) -> None:
         if fr.msg_id == w.HEARTBEAT:
-            self.gcs_t = t
+            self.inputs.gcs_heartbeat(t)
         self._send(self.ap_link, fr.raw, originated=False)  # the operator's link is trusted: everything passes
 
     # ---------------------------------------------------------------------------------------- tick
@@ -458,17 +487,12 @@ class Guard:
             # out of the offboard mode: the guard stops flying it, and the controller loses authority
             self.supervising = False
             if d0 is not None and d0.authority is Authority.EXPERIMENTAL:
-                self.requests.append(AuthorityRequest(RequestKind.RELEASE, t_s=t))
+                self.inputs.request((AuthorityRequest(RequestKind.RELEASE, t_s=t),))
             self.event({"t": t, "type": "guard_standby", "detail": f"autopilot in {m.name(self.ap_mode or 0) if m else '?'}"})
         self._advance_held(t)
-        inputs = Inputs(
-            state=state,
-            experimental=ExperimentalInput(self.hb_t, self.sp, self.sp_t, tuple(self.requests)),
-            operator=OperatorInput(),
-            gcs_link_t_s=self.gcs_t if self.gcs_link is not None else t,
-            gcs_commands=tuple(self.commands),
-        )
-        self.requests.clear()
+        if self.gcs_link is None:  # no ground station to watch: its link is never the reason for a failsafe
+            self.inputs.gcs_heartbeat(t)
+        inputs = self.inputs.build(state, tuple(self.commands))
         self.commands.clear()
         if self._inputs_fd is not None:
             os.write(self._inputs_fd, inputs_log.encode(t, inputs).encode())
@@ -501,7 +525,7 @@ class Guard:
     def _on_core_event(self, kind: EventKind, e: Any, t: float) -> None:
         if kind is EventKind.GRANTED:
             # the standard flow has no ACK message: the controller's mode command is its acknowledgement
-            self.requests.append(AuthorityRequest(RequestKind.ACK, seq=e.seq, t_s=t))
+            self.inputs.request((AuthorityRequest(RequestKind.ACK, seq=e.seq, t_s=t),))
         elif kind is EventKind.AUTHORITY and e.to is Authority.EXPERIMENTAL:
             # the transfer is done (the core checked the first setpoint against the vehicle): only now does the
             # autopilot get the mode command, so it never flies the controller's setpoints before the core
@@ -520,6 +544,15 @@ class Guard:
                     self.held.sender, self.held.command, w.MAV_RESULT_DENIED))
             self._send(self.ctl_link, self.enc.statustext(w.MAV_SEVERITY_WARNING, f"Merlin: denied: {reason}"))
             self.held = None
+        elif kind is EventKind.COMMAND_ACK and e.seq in self._behaviour_asks:
+            sender, cmd = self._behaviour_asks.pop(e.seq)
+            if cmd is not None:
+                result = w.MAV_RESULT_ACCEPTED if e.accepted else w.MAV_RESULT_DENIED
+                self._send(self.ctl_link, w.Encoder(*self.target).command_ack(sender, cmd, result))
+            if not e.accepted:
+                self._send(self.ctl_link, self.enc.statustext(
+                    w.MAV_SEVERITY_WARNING, f"Merlin: {e.command.name if e.command else 'command'} refused: "
+                                            f"{e.reason.describe()}"))
         elif kind is EventKind.REVOKED:
             text = f"Merlin: revoked: {e.reason.describe()}"
             self._send(self.ctl_link, self.enc.statustext(w.MAV_SEVERITY_WARNING, text))

@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 
 from merlin.core.types import NavMode, VehicleState
 from merlin.geodesy import LocalFrame
-from merlin.guard import wire as w
 from merlin.guard.dialects import Dialect
+from merlin.link import autopilot_wire as w
 
 GPS_FIX_3D = 3
 LANDED_ALT_M = 0.3

@@ -11,8 +11,9 @@ brakes from the vehicle's measured velocity). The guard flies it in one of two w
 - **the autopilot's mode** (``guard.fallback_mode``, or always on fixed wings, whose external-setpoint modes
   do not take velocity): a braking setpoint (zero velocity: the autopilot decelerates at its own limit)
   for ``guard.brake_s``, then MAV_CMD_DO_SET_MODE to the configured mode (PX4 AUTO.LOITER/RTL/LAND, Copter
-  BRAKE/LOITER/RTL/SMART_RTL/LAND, Plane LOITER/RTL/QLAND). On a fixed wing the mode is sent at once (zero
-  velocity does not brake a plane).
+  BRAKE/LOITER/RTL/SMART_RTL/LAND, Plane LOITER/RTL, QLAND on a QuadPlane). On a fixed wing the mode is sent
+  at once (zero velocity does not brake a plane), and LAND is the autopilot's return unless it is a VTOL
+  (:func:`merlin.guard.dialects.mode_table`).
 """
 
 from __future__ import annotations

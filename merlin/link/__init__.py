@@ -13,6 +13,8 @@ The interface it implements is ``icd/ICD.md`` with the dialect ``icd/merlin.xml`
   :func:`interpret_command` / :class:`OffboardModeBridge` (standard commands and the OFFBOARD flow),
   :mod:`~merlin.link.px4_modes` (HEARTBEAT custom modes).
 - :mod:`~merlin.link.dialect`: bindings generated from the XML by pymavlink's mavgen at first use.
+- :mod:`~merlin.link.autopilot_wire`: an autopilot's own MAVLink (the ardupilotmega dialect), framed, typed
+  and built for ``merlin guard``, which routes between a controller and a PX4 or ArduPilot autopilot.
 """
 
 from merlin.link.codec import MessageClass, Rejected, RejectReason

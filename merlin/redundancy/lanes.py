@@ -54,7 +54,6 @@ from merlin.autopilot.multirotor_control import (
     reset_from_state,
 )
 from merlin.config.models import RedundancyConfig
-from merlin.core.arbiter import column
 from merlin.core.config import CoreConfig
 from merlin.core.types import (
     Action,
@@ -296,20 +295,15 @@ NO_CONTEXT = LaneContext()
 
 def lane_context(decision: Decision, core_cfg: CoreConfig, battery_frac: float) -> LaneContext:
     """What every autopilot lane reads beside its own sensors after the core's ``decision``: the battery
-    reading against the configured critical level, whether the core acts on a failsafe (a tripped monitor
-    whose rule gives more than a warning under the decision's authority) and the GCS link watchdog."""
-    rows = {r.monitor: r for r in core_cfg.rules}
-    failsafe = False
+    reading against the configured critical level, whether the core acts on a failsafe (the decision's
+    ``failsafe``: a tripped monitor whose rule gives more than a warning under its authority) and the GCS
+    link watchdog."""
     link_ok = True
     for m in decision.monitors:
-        if not m.tripped:
-            continue
-        if m.name == MonitorId.GCS_LINK:
+        if m.tripped and m.name == MonitorId.GCS_LINK:
             link_ok = False
-        row = rows.get(m.name)
-        if row is not None and column(row, decision.authority) > Action.WARN:
-            failsafe = True
-    return LaneContext(battery_frac > core_cfg.battery.critical_frac, not failsafe, link_ok)
+            break
+    return LaneContext(battery_frac > core_cfg.battery.critical_frac, decision.failsafe <= Action.WARN, link_ok)
 
 # A lane's own position stops being valid after this long without a position aid (GPS or VO): PX4's
 # COM_POS_FS_DELAY default, 1 s, the delay after which the commander declares local position invalid when

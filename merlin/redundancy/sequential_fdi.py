@@ -75,6 +75,7 @@ class SequentialImuFdi:
         self._llr = 0.0
         self._t_stat = np.zeros(2)
         self._recovery: RecoveryTest | None = None
+        self._onset = 0  # the onset estimate of the alert in progress (sample index)
 
     # ------------------------------------------------------------------------------------ each sample
     def _observe(self, gyro: np.ndarray, accel: np.ndarray, mag: np.ndarray) -> tuple[Sample, np.ndarray]:
@@ -112,7 +113,8 @@ class SequentialImuFdi:
             self.noise.skip(y)
 
     # ----------------------------------------------------------------------------------- transitions
-    def _detect(self, t_s: float, s: Sample, alarm: np.ndarray, omega_dq: float) -> list[FaultReport]:
+    def _detect(self, t_s: float, s: Sample, alarm: np.ndarray, z: np.ndarray,
+                omega_dq: float) -> list[FaultReport]:
         """N -> A on any alarm or E3; the isolation evidence starts from the estimated onset."""
         if not self.noise.ready or not (alarm.any() or omega_dq > 1.0):
             return []
@@ -121,14 +123,24 @@ class SequentialImuFdi:
         axes = alarm if alarm.any() else np.ones(N_AXES, bool)
         onset = int(self.cusum.last_zero[axes].min()) if alarm.any() else s.k
         onset = min(onset, s.k)
+        self._onset = onset
         t = self.tests
         ref = self.history.since(onset - t.reference_samples)
         before = [h.b for h in self.history.since(0) if h.k < onset] or [s.b]
         self._kin = KinematicResidual(t, self._dt, self.cfg.pf.gravity_mps2,
                                       np.asarray(self.cfg.pf.earth_field_ned_gauss, float), ref, onset,
                                       np.mean(before, axis=0))
-        self._jump = jump_llr(t, self._dt, self.history.since(onset - t.jump_reference_samples), onset, s,
-                              alarm, self.noise.var)
+        # two onset estimates for the jump, the one with the stronger evidence kept (a likelihood ratio
+        # maximised over the change time): the CUSUM's (its last zero), and, when a sample beyond the
+        # single-sample limit alarmed, that sample (in NORMAL no earlier one was). The CUSUM's alone can sit
+        # samples early when noise had kept it above zero, and every such sample widens the common-motion
+        # allowance: a 0.9 rad/s jump then no longer names its IMU on its own sample
+        # (test_a_jump_after_noise_lifted_the_cusum_names_its_imu_at_once); the limit's alone is late when
+        # a step's first sample stayed under the limit (its move is then already in the reference)
+        onsets = [onset] + ([s.k] if bool(np.any(alarm & (np.abs(z) >= t.shewhart_z))) else [])
+        jumps = [jump_llr(t, self._dt, self.history.since(j - t.jump_reference_samples), j, s, alarm,
+                          self.noise.var) for j in onsets]
+        self._jump = max(jumps, key=abs)
         self._recovery = None
         ev = [FaultReport(t_s, FaultKind.ALERT, _AXIS_NAMES[a], -1, float(self.cusum.level()[a]), t.cusum_h,
                           detail=f"lanes {self.lanes[0]} and {self.lanes[1]}; onset estimate "
@@ -163,7 +175,8 @@ class SequentialImuFdi:
         if abs(self._llr) >= t.isolation_h and other_ok:
             self.state = FdiState.FAULT_1 if bad == 0 else FdiState.FAULT_2
             axes = alarm | np.any(self.stuck.frozen(), axis=0)
-            self._recovery = RecoveryTest(t, self._dt, z, axes)
+            window = np.array([self.noise.z(h.y) for h in self.history.since(self._onset + 1)])
+            self._recovery = RecoveryTest(t, self._dt, z, axes, window)
             return [FaultReport(t_s, FaultKind.FAULT_DECLARED, "imu", self.lanes[bad], abs(self._llr),
                                 t.isolation_h,
                                 detail=f"isolation LLR {self._llr:+.1f} (jump {self._jump:+.1f}, kinematic "
@@ -225,7 +238,7 @@ class SequentialImuFdi:
         omega_dq = self._omega_dq(s.q)
         events: list[FaultReport] = []
         if self.state is FdiState.NORMAL:
-            events += self._detect(t_s, s, alarm, omega_dq)
+            events += self._detect(t_s, s, alarm, z, omega_dq)
         if self.state is FdiState.ALERT:
             events += self._isolate(t_s, s, alarm, z, omega_dq)
         elif self.state in (FdiState.FAULT_1, FdiState.FAULT_2) and not any(

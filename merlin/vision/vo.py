@@ -266,47 +266,12 @@ class VisualOdometry:
         if R_gyro is not None and prev.R_gyro is not None:
             # this frame's attitude = the previous frame's, turned by the gyro's rotation in between
             R_nb = prev.R_nb @ (prev.R_gyro.T @ R_gyro)
-        if (
-            texture < cfg.min_texture_score
-            or len(prev.points) < cfg.min_features
-            or height_m < cfg.min_height_m
-        ):
-            return _invalid(t_s, VoQuality(features=len(prev.points), texture_score=texture))
-
-        if prev.repetition > cfg.max_repetition:
-            # ambiguous by a period unless the prior pins the motion well inside half a period
-            flow_sigma_px = self.model.fx_px * cfg.prior_sigma_mps * dt / max(height_m, cfg.min_height_m)
-            if vel_prior_ned_mps is None or 3.0 * flow_sigma_px > 0.5 * prev.period_px:
-                return _invalid(
-                    t_s,
-                    VoQuality(features=len(prev.points), texture_score=texture, repetition=prev.repetition),
-                )
-
-        # predicted positions: the ground point under each feature seen from the predicted new pose
+        refused = self._refused(prev, t_s, dt, texture, height_m, vel_prior_ned_mps)
+        if refused is not None:
+            return refused
         p0 = prev.points
         n0 = p0.shape[0]
-        g1 = self._unit_ground(p0, prev.R_nb) * prev.height_m
-        v = np.zeros(3) if vel_prior_ned_mps is None else np.asarray(vel_prior_ned_mps, dtype=float)
-        rel = np.column_stack([g1, np.full(n0, prev.height_m)]) - v * dt
-        rel[:, 2] = np.maximum(rel[:, 2], 0.1)
-        guess = self._project(rel, R_nb).astype(np.float32).reshape(-1, 1, 2)
-
-        p1, st, _ = cv2.calcOpticalFlowPyrLK(
-            prev.image, image, p0, guess.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk
-        )
-        h, w = image.shape
-        q = p1.reshape(-1, 2)
-        inside = (q[:, 0] >= 0) & (q[:, 1] >= 0) & (q[:, 0] < w) & (q[:, 1] < h)
-        ok = (st.ravel() == 1) & inside
-        # the backward check only for the tracks that survived the forward pass
-        fwd = np.flatnonzero(ok)
-        if len(fwd):
-            pb, stb, _ = cv2.calcOpticalFlowPyrLK(
-                image, prev.image, p1[fwd], p0[fwd], flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
-                **self._lk,
-            )
-            fb = np.linalg.norm((pb - p0[fwd]).reshape(-1, 2), axis=1)
-            ok[fwd] = (stb.ravel() == 1) & (fb < cfg.fb_max_px)
+        p1, ok = self._track(prev, image, self._predicted(prev, R_nb, vel_prior_ned_mps, dt))
         tracked = int(ok.sum())
         if tracked < max(cfg.min_features, 8):
             return _invalid(
@@ -326,10 +291,74 @@ class VisualOdometry:
         quality = VoQuality(n_in, ratio, reproj, texture, False, prev.repetition)
         if n_in < cfg.min_features or ratio < cfg.min_inlier_ratio or reproj > cfg.max_reprojection_px:
             return _invalid(t_s, quality)
+        return self._velocity(t_s, prev, R_nb, a[inl], b[inl], dt, quality)
 
-        # metric, de-rotated displacement: h1 u1 = Δ + h2 u2 (least squares over the inliers)
-        u1 = self._unit_ground(a[inl], prev.R_nb)
-        u2 = self._unit_ground(b[inl], R_nb)
+    def _refused(self, prev: _Frame, t_s: float, dt: float, texture: float, height_m: float,
+                 vel_prior_ned_mps: tuple[float, float, float] | None) -> VoSample | None:
+        """An invalid sample when the pair of frames cannot give a velocity (too little texture or too few
+        features, too low, or a repetitive texture the prior does not disambiguate); None otherwise."""
+        cfg = self.cfg
+        if (
+            texture < cfg.min_texture_score
+            or len(prev.points) < cfg.min_features
+            or height_m < cfg.min_height_m
+        ):
+            return _invalid(t_s, VoQuality(features=len(prev.points), texture_score=texture))
+
+        if prev.repetition > cfg.max_repetition:
+            # ambiguous by a period unless the prior pins the motion well inside half a period
+            flow_sigma_px = self.model.fx_px * cfg.prior_sigma_mps * dt / max(height_m, cfg.min_height_m)
+            if vel_prior_ned_mps is None or 3.0 * flow_sigma_px > 0.5 * prev.period_px:
+                return _invalid(
+                    t_s,
+                    VoQuality(features=len(prev.points), texture_score=texture, repetition=prev.repetition),
+                )
+        return None
+
+    def _predicted(self, prev: _Frame, R_nb: np.ndarray, vel_prior_ned_mps: tuple[float, float, float] | None,
+                   dt: float) -> np.ndarray:
+        """The predicted positions of the previous frame's features: the ground point under each, seen from
+        the predicted new pose (the prior's velocity, none: still)."""
+        p0 = prev.points
+        n0 = p0.shape[0]
+        g1 = self._unit_ground(p0, prev.R_nb) * prev.height_m
+        v = np.zeros(3) if vel_prior_ned_mps is None else np.asarray(vel_prior_ned_mps, dtype=float)
+        rel = np.column_stack([g1, np.full(n0, prev.height_m)]) - v * dt
+        rel[:, 2] = np.maximum(rel[:, 2], 0.1)
+        guess: np.ndarray = self._project(rel, R_nb).astype(np.float32).reshape(-1, 1, 2)
+        return guess
+
+    def _track(self, prev: _Frame, image: np.ndarray, guess: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pyramidal Lucas-Kanade from the previous frame, started at ``guess``, then back: (the tracked
+        positions, which tracks stayed in the image and came back within ``fb_max_px``)."""
+        cfg = self.cfg
+        p0 = prev.points
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(
+            prev.image, image, p0, guess.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk
+        )
+        h, w = image.shape
+        q = p1.reshape(-1, 2)
+        inside = (q[:, 0] >= 0) & (q[:, 1] >= 0) & (q[:, 0] < w) & (q[:, 1] < h)
+        ok = (st.ravel() == 1) & inside
+        # the backward check only for the tracks that survived the forward pass
+        fwd = np.flatnonzero(ok)
+        if len(fwd):
+            pb, stb, _ = cv2.calcOpticalFlowPyrLK(
+                image, prev.image, p1[fwd], p0[fwd], flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+                **self._lk,
+            )
+            fb = np.linalg.norm((pb - p0[fwd]).reshape(-1, 2), axis=1)
+            ok[fwd] = (stb.ravel() == 1) & (fb < cfg.fb_max_px)
+        return p1, ok
+
+    def _velocity(self, t_s: float, prev: _Frame, R_nb: np.ndarray, a: np.ndarray, b: np.ndarray, dt: float,
+                  quality: VoQuality) -> VoSample:
+        """The metric, de-rotated displacement of the inliers ``a`` -> ``b`` over ``dt`` as a velocity with
+        its variance: ``h1 u1 = Δ + h2 u2`` by least squares."""
+        cfg = self.cfg
+        n_in = quality.features
+        u1 = self._unit_ground(a, prev.R_nb)
+        u2 = self._unit_ground(b, R_nb)
         # rows (1, 0, u2x) and (0, 1, u2y): the normal equations in closed sums (three unknowns; the
         # general least-squares solver cost more than the rest of this step)
         rhs = prev.height_m * u1
@@ -358,7 +387,8 @@ class VisualOdometry:
         var += (cfg.height_rel_sigma * vel) ** 2
         vh2 = vel[0] ** 2 + vel[1] ** 2
         var[:2] += cfg.yaw_sigma_rad**2 * vh2
-        valid_quality = VoQuality(n_in, ratio, reproj, texture, True, prev.repetition)
+        valid_quality = VoQuality(n_in, quality.inlier_ratio, quality.reprojection_error_px, quality.texture_score,
+                                  True, quality.repetition)
         return VoSample(
             t_s,
             (float(vel[0]), float(vel[1]), float(vel[2])),

@@ -3,7 +3,7 @@ value the next tick's arbiter reads, never written into the arbiter's state afte
 
 from __future__ import annotations
 
-from merlin.core.types import Behavior, GcsCommandKind, VehicleState
+from merlin.core.types import Action, Authority, Behavior, GcsCommandKind, VehicleState
 from tests.core.harness import Harness
 
 
@@ -30,3 +30,20 @@ def test_take_off_completion_reaches_the_next_ticks_arbiter() -> None:
     d = h.tick(state=_at(height))
     assert d.behavior is Behavior.HOLD  # the next tick's arbiter handed over first
     assert h.core.state.arbiter.base is Behavior.HOLD
+
+
+def test_the_decision_carries_the_failsafe_the_table_gives_under_its_authority() -> None:
+    """The worst action of the tripped monitors under the decision's authority: a warning is not a failsafe
+    (RC loss under EXPERIMENTAL), a GCS loss is RTL's (and stays so under the TRUSTED RTL it caused)."""
+    h = Harness(rc_alive=True)
+    h.airborne()
+    assert h.tick().failsafe is Action.NONE
+    h.grant()
+    h.rc_alive = False
+    d = h.run(1.1)
+    assert d.authority is Authority.EXPERIMENTAL and d.failsafe is Action.WARN
+    h.gcs_alive = False
+    d = h.run(5.1)
+    assert d.authority is Authority.TRUSTED and d.behavior is Behavior.RTL
+    assert d.failsafe is Action.RTL
+    assert any(m.tripped and m.name == "gcs_link" for m in d.monitors)

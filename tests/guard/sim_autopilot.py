@@ -10,8 +10,8 @@ without a setpoint stream; ArduPilot's GUIDED timeout (GUID_TIMEOUT: stop) and G
 (FS_GCS_ENABLE after FS_GCS_TIMEOUT without a HEARTBEAT from MAV_GCS_SYSID: RTL/Land). Return flies
 straight home at 3 m/s, then lands; land descends at 1 m/s and disarms on the ground.
 
-Not a flight model: the issue's evidence asks for ``merlin serve`` in an arbitration-free mode; until
-that exists, this stands in (docs/guard.md, "Bench test").
+Not a flight model: ``merlin serve --autopilot-only`` is the PX4 stand-in with one; this one also speaks
+ArduPilot, which serve does not (docs/guard.md, "Bench test"). tests/guard/sim_plane.py is its Plane.
 """
 
 from __future__ import annotations
@@ -49,6 +49,8 @@ class Track:
 
 
 class SimAutopilot:
+    mav_type = mav.MAV_TYPE_QUADROTOR
+
     def __init__(self, dialect: Dialect, guard_port: int, params: dict[str, float] | None = None,
                  home: tuple[float, float, float] = (29.6516, -82.3248, 30.0), rate_hz: float = 50.0) -> None:
         self.dialect = dialect
@@ -225,7 +227,7 @@ class SimAutopilot:
         if n % int(self.rate_hz) == 0:
             base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mav.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
             ap = mav.MAV_AUTOPILOT_PX4 if self.dialect is Dialect.PX4 else mav.MAV_AUTOPILOT_ARDUPILOTMEGA
-            self.send(self.m.heartbeat_encode(mav.MAV_TYPE_QUADROTOR, ap, base, self.mode, mav.MAV_STATE_ACTIVE))
+            self.send(self.m.heartbeat_encode(self.mav_type, ap, base, self.mode, mav.MAV_STATE_ACTIVE))
             self.send(self.m.sys_status_encode(0, 0, 0, 500, 16000, -1, 80, 0, 0, 0, 0, 0, 0))
             landed = mav.MAV_LANDED_STATE_ON_GROUND if self.pos[2] > -0.1 else mav.MAV_LANDED_STATE_IN_AIR
             self.send(self.m.extended_sys_state_encode(0, landed))

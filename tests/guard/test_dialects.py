@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import pytest
 
-from merlin.guard import wire
 from merlin.guard.dialects import (
     CopterMode,
     Dialect,
@@ -15,6 +14,7 @@ from merlin.guard.dialects import (
     detect,
     mode_table,
 )
+from merlin.link import autopilot_wire as wire
 from merlin.link.px4_modes import Px4AutoSubMode, Px4MainMode, Px4Mode
 
 M = wire.dialect_module()
@@ -63,6 +63,25 @@ def test_copter_table_offboard_is_guided_and_brake_is_17() -> None:
 def test_fixed_wings_fall_back_to_the_autopilots_modes() -> None:
     plane = mode_table(detect(M.MAV_AUTOPILOT_ARDUPILOTMEGA, M.MAV_TYPE_FIXED_WING, 1, 1))  # type: ignore[arg-type]
     assert not plane.streams_setpoints and plane.offboard == M.PLANE_MODE_GUIDED
+
+
+def test_a_fixed_wing_without_vtol_lands_by_returning_home() -> None:
+    """Merlin's LAND on a fixed wing is a return over home; only a VTOL lands where it is."""
+    from merlin.core.types import Behavior
+
+    plane = mode_table(detect(M.MAV_AUTOPILOT_ARDUPILOTMEGA, M.MAV_TYPE_FIXED_WING, 1, 1))  # type: ignore[arg-type]
+    assert plane.fallback[FallbackMode.LAND] == plane.behaviour_modes[Behavior.LAND] == M.PLANE_MODE_RTL
+    qplane = mode_table(detect(M.MAV_AUTOPILOT_ARDUPILOTMEGA, M.MAV_TYPE_VTOL_QUADROTOR, 1, 1))  # type: ignore[arg-type]
+    assert qplane.fallback[FallbackMode.LAND] == qplane.behaviour_modes[Behavior.LAND] == M.PLANE_MODE_QLAND
+    rtl = Px4Mode(Px4MainMode.AUTO, Px4AutoSubMode.RTL).custom_mode
+    land = Px4Mode(Px4MainMode.AUTO, Px4AutoSubMode.LAND).custom_mode
+    px4_fw = mode_table(detect(M.MAV_AUTOPILOT_PX4, M.MAV_TYPE_FIXED_WING, 1, 1))  # type: ignore[arg-type]
+    assert px4_fw.fallback[FallbackMode.LAND] == px4_fw.behaviour_modes[Behavior.LAND] == rtl
+    assert not px4_fw.streams_setpoints
+    px4_vtol = mode_table(detect(M.MAV_AUTOPILOT_PX4, M.MAV_TYPE_VTOL_QUADROTOR, 1, 1))  # type: ignore[arg-type]
+    assert px4_vtol.fallback[FallbackMode.LAND] == px4_vtol.behaviour_modes[Behavior.LAND] == land
+    px4_mc = mode_table(detect(M.MAV_AUTOPILOT_PX4, M.MAV_TYPE_QUADROTOR, 1, 1))  # type: ignore[arg-type]
+    assert px4_mc.fallback[FallbackMode.LAND] == land and px4_mc.streams_setpoints
 
 
 def test_px4_integer_parameters_are_read_bytewise_and_ardupilots_as_cast() -> None:

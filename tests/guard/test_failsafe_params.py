@@ -51,8 +51,66 @@ def test_copter_gcs_failsafe_disabled_or_slow_guided_timeout_refused() -> None:
 
 
 def test_plane_needs_its_gcs_failsafe() -> None:
-    assert check(PLANE, {"FS_GCS_ENABL": 1, "FS_LONG_TIMEOUT": 5}, CFG) == []
-    assert check(PLANE, {"FS_GCS_ENABL": 0, "FS_LONG_TIMEOUT": 5}, CFG)[0].parameter == "FS_GCS_ENABL"
+    assert check(PLANE, {"FS_GCS_ENABL": 1, "FS_LONG_TIMEOUT": 5, "FS_LONG_ACTN": 1}, CFG) == []
+    assert check(PLANE, {"FS_GCS_ENABL": 0, "FS_LONG_TIMEOUT": 5, "FS_LONG_ACTN": 1}, CFG)[0].parameter == "FS_GCS_ENABL"
+
+
+PLANE_OK = {"FS_GCS_ENABL": 1, "FS_LONG_TIMEOUT": 5, "FS_LONG_ACTN": 1}
+
+
+def test_plane_long_failsafe_must_fly_home() -> None:
+    assert check(PLANE, {**PLANE_OK, "FS_LONG_ACTN": 5}, CFG) == []  # AUTOLAND (or RTL)
+    for act, why in ((0, "loitering at the last experimental target"), (2, "glides down"), (3, "parachute"),
+                     (4, "loaded mission")):
+        r = check(PLANE, {**PLANE_OK, "FS_LONG_ACTN": act}, CFG)
+        assert [x.parameter for x in r] == ["FS_LONG_ACTN"], act
+        assert f"= {act}" in r[0].text() and "1 ReturnToLaunch, 5 AUTOLAND" in r[0].required and why in r[0].why
+    # ArduPlane's default (0 Continue) unanswered or answered: refused either way
+    assert [x.parameter for x in check(PLANE, {"FS_GCS_ENABL": 1, "FS_LONG_TIMEOUT": 5}, CFG)] == ["FS_LONG_ACTN"]
+
+
+def test_plane_gcs_failsafe_only_in_auto_is_refused() -> None:
+    r = check(PLANE, {**PLANE_OK, "FS_GCS_ENABL": 3}, CFG)
+    assert [x.parameter for x in r] == ["FS_GCS_ENABL"] and "only in AUTO" in r[0].why
+    assert check(PLANE, {**PLANE_OK, "FS_GCS_ENABL": 2}, CFG) == []
+    assert check(PLANE, {**PLANE_OK, "FS_LONG_TIMEOUT": 20}, CFG)[0].parameter == "FS_LONG_TIMEOUT"
+
+
+@given(gcs=st.floats(allow_nan=True, allow_infinity=True), timeout=st.floats(allow_nan=True, allow_infinity=True),
+       act=st.floats(allow_nan=True, allow_infinity=True))
+def test_plane_passes_only_when_its_long_failsafe_flies_home_in_time(gcs: float, timeout: float, act: float) -> None:
+    """Safety invariant: the guard starts on a Plane only if losing its heartbeat makes the Plane, within the
+    configured time and whatever mode the controller left it in, return home (RTL or AUTOLAND)."""
+    ok = check(PLANE, {"FS_GCS_ENABL": gcs, "FS_LONG_TIMEOUT": timeout, "FS_LONG_ACTN": act}, CFG) == []
+    if ok:
+        assert int(gcs) in (1, 2)
+        assert math.isfinite(timeout) and 0 < timeout <= CFG.max_gcs_loss_s
+        assert int(act) in (1, 5)
+
+
+PX4_FW: Autopilot = detect(MAV_AUTOPILOT_PX4, 1, 1, 1)  # type: ignore[assignment]
+PX4_VTOL: Autopilot = detect(MAV_AUTOPILOT_PX4, 20, 1, 1)  # type: ignore[assignment]  # MAV_TYPE_VTOL_QUADROTOR
+
+
+def test_px4_fixed_wing_refuses_land_as_its_offboard_loss_action() -> None:
+    for act in (3, 5):
+        assert check(PX4_FW, {"COM_OF_LOSS_T": 1.0, "COM_OBL_RC_ACT": act}, CFG) == []
+    r = check(PX4_FW, {"COM_OF_LOSS_T": 1.0, "COM_OBL_RC_ACT": 4}, CFG)
+    assert [x.parameter for x in r] == ["COM_OBL_RC_ACT"] and "corkscrew" in r[0].why
+    assert "4 Land" not in r[0].required and "3 Return" in r[0].required
+    r = check(PX4_FW, {"COM_OF_LOSS_T": 1.0, "COM_OBL_RC_ACT": 5, "COM_OBL_ACT": 0}, CFG)
+    assert [x.parameter for x in r] == ["COM_OBL_ACT"] and "corkscrew" in r[0].why
+    assert check(PX4_FW, {"COM_OF_LOSS_T": 1.0, "COM_OBL_RC_ACT": 5, "COM_OBL_ACT": 1}, CFG) == []
+    # the multirotor keeps Land
+    assert check(PX4, {"COM_OF_LOSS_T": 1.0, "COM_OBL_RC_ACT": 4, "COM_OBL_ACT": 0}, CFG) == []
+
+
+def test_px4_vtol_lands_as_a_multirotor_unless_nav_force_vt_is_off() -> None:
+    assert "NAV_FORCE_VT" in requirements(PX4_VTOL).optional and "NAV_FORCE_VT" not in requirements(PX4_FW).names
+    assert check(PX4_VTOL, {"COM_OF_LOSS_T": 1.0, "COM_OBL_RC_ACT": 4}, CFG) == []
+    assert check(PX4_VTOL, {"COM_OF_LOSS_T": 1.0, "COM_OBL_RC_ACT": 4, "NAV_FORCE_VT": 1}, CFG) == []
+    r = check(PX4_VTOL, {"COM_OF_LOSS_T": 1.0, "COM_OBL_RC_ACT": 4, "NAV_FORCE_VT": 0}, CFG)
+    assert [x.parameter for x in r] == ["COM_OBL_RC_ACT"]
 
 
 def test_an_unanswered_required_parameter_is_a_refusal() -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from hypothesis import given
 from hypothesis import strategies as st
 
-from merlin.guard import wire as w
+from merlin.core.types import GcsCommandKind
 from merlin.guard.dialects import (
     MAV_AUTOPILOT_ARDUPILOTMEGA,
     MAV_AUTOPILOT_PX4,
@@ -14,6 +14,7 @@ from merlin.guard.dialects import (
     mode_table,
 )
 from merlin.guard.gate import GateContext, Route, classify
+from merlin.link import autopilot_wire as w
 
 PX4 = mode_table(detect(MAV_AUTOPILOT_PX4, 2, 1, 1))  # type: ignore[arg-type]
 COPTER = mode_table(detect(MAV_AUTOPILOT_ARDUPILOTMEGA, 2, 1, 1))  # type: ignore[arg-type]
@@ -49,12 +50,30 @@ def test_offboard_and_guided_are_requests() -> None:
 def test_leaving_for_a_safe_mode_releases_and_manual_modes_are_denied() -> None:
     hold = cmd(w.MAV_CMD_DO_SET_MODE, 1, 4, 3)  # PX4 AUTO.LOITER
     assert classify(w.COMMAND_LONG, hold, ctx(experimental=True)).route is Route.RELEASE
-    assert classify(w.COMMAND_LONG, hold, ctx(trusted=True)).route is Route.DENY  # Merlin is flying
+    # Merlin is flying: the autopilot's mode is not changed; the core gets the hold as a command
+    v = classify(w.COMMAND_LONG, hold, ctx(trusted=True))
+    assert v.route is Route.BEHAVIOUR and v.behaviour is GcsCommandKind.HOLD
     posctl = cmd(w.MAV_CMD_DO_SET_MODE, 1, 3)
     v = classify(w.COMMAND_LONG, posctl, ctx(experimental=True))
     assert v.route is Route.DENY and "POSCTL" in v.reason
     stab = w.SetModeIn(1, int(CopterMode.STABILIZE), 1)
     assert classify(w.SET_MODE, stab, ctx(COPTER, experimental=True)).route is Route.DENY
+
+
+def test_while_merlin_flies_hold_return_and_land_are_commands_to_the_core() -> None:
+    """As merlin serve takes a controller's hold, return or land after a revocation (MAVSDK's offboard.stop()
+    and action.land()): Merlin's trusted autopilot flies them if the core accepts; never forwarded."""
+    for c, kind in ((w.MAV_CMD_NAV_LAND, GcsCommandKind.LAND), (w.MAV_CMD_NAV_RETURN_TO_LAUNCH, GcsCommandKind.RTL),
+                    (w.MAV_CMD_NAV_LOITER_UNLIM, GcsCommandKind.HOLD)):
+        v = classify(w.COMMAND_LONG, cmd(c), ctx(trusted=True))
+        assert v.route is Route.BEHAVIOUR and v.behaviour is kind, c
+        assert classify(w.COMMAND_LONG, cmd(c), ctx()).route is Route.FORWARD  # nobody flies: the autopilot's
+    for mode, kind in ((CopterMode.BRAKE, GcsCommandKind.HOLD), (CopterMode.SMART_RTL, GcsCommandKind.RTL),
+                       (CopterMode.LAND, GcsCommandKind.LAND)):
+        v = classify(w.SET_MODE, w.SetModeIn(1, int(mode), 1), ctx(COPTER, trusted=True))
+        assert v.route is Route.BEHAVIOUR and v.behaviour is kind, mode
+    stab = w.SetModeIn(1, int(CopterMode.STABILIZE), 1)
+    assert classify(w.SET_MODE, stab, ctx(COPTER, trusted=True)).route is Route.DENY
 
 
 def test_arming_follows_the_cores_pre_arm_and_kill_passes() -> None:

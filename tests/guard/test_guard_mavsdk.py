@@ -1,29 +1,35 @@
-"""MAVSDK-Python's offboard example program, unchanged, through ``merlin guard`` in front of ``merlin serve``
-standing in for PX4 SITL (tests/guard/serve_autopilot.yaml, at PX4 SITL's home where the example's
-coordinates are). The program is tests/serve/px4_examples.py's ``offboard_velocity_ned`` (the calls, order
-and waits of MAVSDK-Python's example). It starts OFFBOARD right after its first setpoint, on the ground,
-as PX4 accepts: the guard holds the request (COMMAND_ACK IN_PROGRESS) until the controller's liveness rule
-is met, then the core grants it; the example flies to its end and releases with AUTO.LOITER.
+"""MAVSDK-Python's example programs, unchanged, through ``merlin guard`` in front of ``merlin serve``
+standing in for PX4 SITL (``merlin serve --autopilot-only``, at PX4 SITL's home where the examples'
+coordinates are). The programs are tests/serve/px4_examples.py's (the calls, order and waits of the
+MAVSDK-Python example of the same name), pointed at the guard's controller port instead of PX4 SITL's.
+
+``offboard_velocity_ned`` starts OFFBOARD right after its first setpoint, on the ground, as PX4 accepts: the
+guard holds the request (COMMAND_ACK IN_PROGRESS) until the controller's liveness rule is met, then the core
+grants it; the example flies to its end and releases with AUTO.LOITER.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import socket
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from tests.guard.test_guard_flight import ROOT, free_port
-from tests.guard.test_guard_serve import SERVE_CONFIG
 from tests.serve.px4_examples import PX4_HOME
 
-pytest.importorskip("mavsdk_grpc", reason="the gRPC MAVSDK-Python (pip install mavsdk-grpc) runs the example")
+pytest.importorskip("mavsdk_grpc", reason="the gRPC MAVSDK-Python (pip install mavsdk-grpc) runs the examples")
 pytestmark = pytest.mark.integration
 
 HOME = f"home: {{lat_deg: {PX4_HOME[0]}, lon_deg: {PX4_HOME[1]}, alt_amsl_m: {PX4_HOME[2]}}}\n"
+GUARD_CONFIG = HOME + "geofence:\n  inclusion_circles:\n    - {name: t, center_ne_m: [0.0, 0.0], radius_m: 60.0}\n"
+FINISHED = "EXAMPLE FINISHED"
 
 
 def _free_tcp_port() -> int:
@@ -32,35 +38,110 @@ def _free_tcp_port() -> int:
         return int(s.getsockname()[1])
 
 
-def test_mavsdk_offboard_velocity_ned_runs_unchanged_through_the_guard(tmp_path: Path) -> None:
-    serve_cfg = tmp_path / "serve.yaml"
-    serve_cfg.write_text("\n".join(x for x in SERVE_CONFIG.read_text().splitlines() if not x.startswith("home:"))
-                         + "\n" + HOME)
-    guard_cfg = tmp_path / "guard.yaml"
-    guard_cfg.write_text(HOME + "geofence:\n  inclusion_circles:\n    - {name: t, center_ne_m: [0.0, 0.0], radius_m: 60.0}\n")
-    ap, ctl, gcs = free_port(), free_port(), free_port()
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    procs = [
-        subprocess.Popen([sys.executable, "-m", "merlin.cli", "serve", "--config", str(serve_cfg), "--gcs-port", str(gcs),
-                          "--gcs-bind-port", "0", "--offboard-port", str(ap), "--offboard-bind-port", "0",
-                          "--out", str(tmp_path / "serve"), "--duration", "200", "--quiet"],
-                         cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env),
-        subprocess.Popen([sys.executable, "-m", "merlin.cli", "guard", "--autopilot", f"udpin:127.0.0.1:{ap}",
-                          "--controller", f"udpout:127.0.0.1:{ctl}", "--config", str(guard_cfg),
-                          "--out", str(tmp_path / "guard"), "--duration", "200"],
-                         cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env),
-    ]
-    try:
-        ex = subprocess.run([sys.executable, "-m", "tests.serve.px4_examples", "offboard_velocity_ned",
-                             f"udpin://0.0.0.0:{ctl}", str(_free_tcp_port())],
-                            cwd=ROOT, capture_output=True, text=True, env=env, timeout=180)
+class GuardedServe:
+    """``merlin serve --autopilot-only`` (the autopilot) behind ``merlin guard``; examples on the guard's
+    controller port, where a MAVSDK program written for PX4 SITL listens (``udpin://``)."""
+
+    def __init__(self, tmp: Path, guard_config: str = GUARD_CONFIG) -> None:
+        serve_cfg = tmp / "serve.yaml"
+        serve_cfg.write_text(HOME)
+        guard_cfg = tmp / "guard.yaml"
+        guard_cfg.write_text(guard_config)
+        ap, self.ctl, gcs = free_port(), free_port(), free_port()
+        self.env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        self.out = tmp / "guard"
+        self.procs = [
+            subprocess.Popen([sys.executable, "-m", "merlin.cli", "serve", "--autopilot-only", "--config",
+                              str(serve_cfg), "--gcs-port", str(gcs), "--gcs-bind-port", "0", "--offboard-port",
+                              str(ap), "--offboard-bind-port", "0", "--out", str(tmp / "serve"), "--duration", "300",
+                              "--quiet"], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=self.env),
+            subprocess.Popen([sys.executable, "-m", "merlin.cli", "guard", "--autopilot", f"udpin:127.0.0.1:{ap}",
+                              "--controller", f"udpout:127.0.0.1:{self.ctl}", "--config", str(guard_cfg),
+                              "--out", str(self.out), "--duration", "300"],
+                             cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=self.env),
+        ]
+
+    def run(self, name: str, timeout_s: float) -> str:
+        """Run the program ``name`` to its end; its whole output (asserted to have finished without error)."""
+        ex = subprocess.run([sys.executable, "-m", "tests.serve.px4_examples", name, f"udpin://0.0.0.0:{self.ctl}",
+                             str(_free_tcp_port())], cwd=ROOT, capture_output=True, text=True, env=self.env,
+                            timeout=timeout_s)
         out = ex.stdout + ex.stderr
-        assert "EXAMPLE FINISHED" in out and "failed with error code" not in out, out[-3000:]
-        assert "-- Go down 1 m/s" in out and "-- Stopping offboard" in out, out[-3000:]
-        events = (tmp_path / "guard" / "events.jsonl").read_text()
-        assert '"guard_request_held"' in events and '"type": "granted"' in events
-        assert '"type": "revoked"' not in events and '"type": "denied"' not in events
-    finally:
-        for p in procs:
+        assert FINISHED in out and "failed with error code" not in out and "Traceback" not in out, out[-3000:]
+        return out
+
+    def events(self, kind: str | None = None) -> list[dict[str, Any]]:
+        lines = (self.out / "events.jsonl").read_text().splitlines()
+        ev = [json.loads(x) for x in lines if x.strip()]
+        return [e for e in ev if kind is None or e["type"] == kind]
+
+    def close(self) -> None:
+        for p in self.procs:
             p.terminate()
             p.wait(timeout=20)
+
+
+@pytest.fixture
+def guarded(tmp_path: Path) -> Iterator[GuardedServe]:
+    g = GuardedServe(tmp_path)
+    try:
+        yield g
+    finally:
+        g.close()
+
+
+def test_mavsdk_offboard_velocity_ned_runs_unchanged_through_the_guard(guarded: GuardedServe) -> None:
+    out = guarded.run("offboard_velocity_ned", 180)
+    assert "-- Go down 1 m/s" in out and "-- Stopping offboard" in out, out[-3000:]
+    assert guarded.events("guard_request_held") and guarded.events("granted")
+    assert not guarded.events("revoked") and not guarded.events("denied")
+
+
+def test_mavsdk_offboard_attitude_is_revoked_and_its_hold_and_land_are_flown_by_merlin(guarded: GuardedServe) -> None:
+    """The offboard_attitude example climbs on 70 % thrust beyond the envelope's 3 m/s (serve's quadrotor
+    hovers at 0.5): the guard revokes it on vel_d, as merlin serve does on the same program. Its later
+    offboard.stop() (DO_SET_MODE AUTO.LOITER) and action.land() reach the core as hold and land, accepted,
+    and Merlin's trusted autopilot flies them: the program runs to its end without an error."""
+    guarded.run("offboard_attitude", 120)
+    assert [(r["reason"], r["reason_detail"]["parameter"]) for r in guarded.events("revoked")] == [
+        ("envelope", "vel_d_mps")]
+    asked = [e["command"] for e in guarded.events("guard_behaviour_request")]
+    assert asked == ["HOLD", "LAND"], asked
+    acks = {e["command"]: e["accepted"] for e in guarded.events("command_ack") if e["command"] in ("HOLD", "LAND")}
+    assert acks == {"HOLD": True, "LAND": True}, acks
+    assert not guarded.events("guard_denied")
+
+
+def test_mavsdk_takeoff_and_land_and_the_info_examples_run_unchanged_through_the_guard(
+        guarded: GuardedServe) -> None:
+    """The Action plugin's take-off and land from the controller link pass to the autopilot (no authority is
+    asked for: the autopilot flies them); the info and parameter examples read the autopilot through it."""
+    guarded.run("takeoff_and_land", 90)
+    assert not guarded.events("guard_denied") and not guarded.events("granted")
+    out = guarded.run("firmware_version", 60)
+    assert "flight_sw_major" in out, out[-2000:]
+    out = guarded.run("all_params", 90)
+    assert "COM_OF_LOSS_T" in out and "COM_OBL_RC_ACT" in out, out[-2000:]
+
+
+def test_mavsdk_goto_without_authority_is_denied_as_px4_denies_a_command(guarded: GuardedServe) -> None:
+    """The goto example repositions the vehicle from the controller link without asking for authority: the
+    guard answers DO_REPOSITION with COMMAND_ACK DENIED (the controller moves the vehicle only while it holds
+    authority, docs/guard.md), which MAVSDK raises as COMMAND_DENIED; the vehicle stays where it took off."""
+    p = subprocess.Popen([sys.executable, "-m", "tests.serve.px4_examples", "goto", f"udpin://0.0.0.0:{guarded.ctl}",
+                          str(_free_tcp_port())], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                         env=guarded.env)
+    try:
+        assert p.stdout is not None
+        lines = []
+        for line in p.stdout:  # the program raises, then MAVSDK's server keeps the process alive: read, then stop
+            lines.append(line)
+            if line.startswith("mavsdk_grpc.action.ActionError"):  # the exception's message, last in its traceback
+                break
+        out = "".join(lines)
+        assert "COMMAND_DENIED" in out and "goto_location" in out, out[-3000:]
+    finally:
+        p.kill()
+        p.wait(timeout=20)
+    [denied] = guarded.events("guard_denied")
+    assert "command 192" in denied["detail"] and "authority" in denied["detail"], denied

@@ -1,6 +1,6 @@
 """``merlin guard`` in front of ``merlin serve`` standing in for PX4 SITL (the issue's evidence): serve runs
-without Merlin's arbitration (tests/guard/serve_autopilot.yaml: no fence, no envelope action; only the
-offboard-loss failsafe, published as PX4's COM_OF_LOSS_T / COM_OBL_RC_ACT), the guard judges with its own
+without Merlin's arbitration (``--autopilot-only``: no fence, no envelope action; the offboard-loss
+failsafe, published as PX4's COM_OF_LOSS_T / COM_OBL_RC_ACT, kept), the guard judges with its own
 60 m fence, and a pymavlink loop is the experimental controller. serve's ground-station link is the test's
 window on the vehicle (HEARTBEAT mode, position), independent of the guard.
 """
@@ -24,7 +24,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 from tests.guard.controller import Controller
 from tests.guard.test_guard_flight import CONFIG, FENCE_RADIUS_M, ROOT, free_port, wait_for
 
-SERVE_CONFIG = Path(__file__).with_name("serve_autopilot.yaml")
+#: serve's configuration under the guard: the guard's home (its default), everything else serve's default;
+#: ``--autopilot-only`` takes Merlin's arbitration out of it
+SERVE_HOME = "home: {lat_deg: 29.6516, lon_deg: -82.3248, alt_amsl_m: 30.0}\n"
 OFFBOARD = 6 << 16
 AUTO_LOITER = (4 << 16) | (3 << 24)
 
@@ -69,12 +71,15 @@ class Observer:
 
 
 class ServeRig:
-    def __init__(self, tmp: Path, guard_config: str = CONFIG, serve_config: Path = SERVE_CONFIG) -> None:
+    def __init__(self, tmp: Path, guard_config: str = CONFIG, serve_config: str = SERVE_HOME) -> None:
         self.ap_port, self.ctl_port, gcs_port = free_port(), free_port(), free_port()
+        serve_file = tmp / "serve.yaml"
+        serve_file.write_text(serve_config)
         self.obs = Observer(gcs_port)
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         self.serve = subprocess.Popen(
-            [sys.executable, "-m", "merlin.cli", "serve", "--config", str(serve_config), "--gcs-port", str(gcs_port),
+            [sys.executable, "-m", "merlin.cli", "serve", "--autopilot-only", "--config", str(serve_file),
+             "--gcs-port", str(gcs_port),
              "--gcs-bind-port", "0", "--offboard-port", str(self.ap_port), "--offboard-bind-port", "0",
              "--out", str(tmp / "serve"), "--duration", "240", "--quiet"],
             cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
@@ -151,9 +156,7 @@ def test_killing_the_guard_lets_serves_offboard_loss_failsafe_take_over(rig: Ser
 
 
 def test_serve_with_an_unsafe_offboard_loss_action_is_refused(tmp_path: Path) -> None:
-    unsafe = tmp_path / "serve_unsafe.yaml"
-    unsafe.write_text(SERVE_CONFIG.read_text() + "links: {offboard_loss_timeout_s: 5.0}\n")
-    r = ServeRig(tmp_path, serve_config=unsafe)
+    r = ServeRig(tmp_path, serve_config=SERVE_HOME + "links: {offboard_loss_timeout_s: 5.0}\n")
     try:
         _out, err = r.guard.communicate(timeout=90)
         assert r.guard.returncode == 3, err

@@ -1,12 +1,14 @@
-"""The vehicle side's MAVLink: raw frames split, typed, and built, in the ``ardupilotmega`` dialect.
+"""An autopilot's MAVLink (PX4's or ArduPilot's): raw frames split, typed, and built, in the ``ardupilotmega``
+dialect, for ``merlin guard`` (:mod:`merlin.guard`), which sits between a controller and a real autopilot.
 
-Why a second edge beside :mod:`merlin.link`: the guard is a router. It forwards the autopilot's frames to
-the controller and the ground station byte for byte (so they see the vehicle as they would without
-Merlin), which needs every message of both autopilots' dialects to frame and check; ArduPilot's own
-messages (EKF_STATUS_REPORT, ...) are in ``ardupilotmega.xml``, which holds ``common.xml`` (PX4's) too.
-:mod:`merlin.link` speaks Merlin's dialect as a vehicle, with validation of every inbound command; the
-guard reads a handful of telemetry messages and builds a handful of commands. This module is the only
-one in :mod:`merlin.guard` that touches pymavlink, and everything it hands out is a plain typed record.
+Why a second MAVLink module beside :mod:`merlin.link.link`: the guard is a router. It forwards the
+autopilot's frames to the controller and the ground station byte for byte (so they see the vehicle as they
+would without Merlin), which needs every message of both autopilots' dialects to frame and check;
+ArduPilot's own messages (EKF_STATUS_REPORT, ...) are in ``ardupilotmega.xml``, which holds ``common.xml``
+(PX4's) too. :mod:`merlin.link.link` speaks Merlin's dialect as a vehicle, with validation of every inbound
+command; the guard reads a handful of telemetry messages and builds a handful of commands. It lives here
+because only :mod:`merlin.link` touches pymavlink (``docs/architecture.md``, "Dependency rule"): everything
+it hands the guard is a plain typed record or bytes.
 
 Framing reuses :class:`merlin.link.frames.FrameSplitter` (CRC-checked, resyncs on noise); the CRC_EXTRA
 table is ardupilotmega's plus Merlin's dialect, so a controller's MERLIN_* frames frame too. A frame whose

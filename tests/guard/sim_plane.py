@@ -1,0 +1,128 @@
+"""The guard's simulated autopilot speaking ArduPilot Plane (tests/guard/sim_autopilot.py's wire, a fixed
+wing's flight underneath).
+
+What the guard's behaviour on a Plane depends on, as ArduPlane documents it: HEARTBEAT with
+MAV_TYPE_FIXED_WING and PLANE_MODE custom modes; the parameters of the start-up check (FS_GCS_ENABL,
+FS_LONG_TIMEOUT, FS_LONG_ACTN, MAV_GCS_SYSID); TAKEOFF (climb out on the runway heading to the take-off
+altitude, then LOITER); GUIDED flying to SET_POSITION_TARGET_GLOBAL_INT's point and circling it with no
+setpoint timeout of its own; LOITER circling where it was entered; RTL flying home and circling there;
+and the GCS failsafe: no HEARTBEAT from MAV_GCS_SYSID for FS_LONG_TIMEOUT with FS_GCS_ENABL 1 or 2 (3 only
+in AUTO) runs FS_LONG_ACTN (0 Continue: an auto mode such as GUIDED stays; 1 RTL; 2 Glide as FBWA).
+
+The aircraft is a point mass at a constant 22 m/s (the Aerosonde's cruise, above the envelope's 18.5 m/s
+floor), turning at most 0.38 rad/s (a 30 deg bank) and climbing at most 3 m/s: enough to tell a mode from
+another and a return from a flyaway, not a flight model.
+"""
+
+from __future__ import annotations
+
+import math
+
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from merlin.guard.dialects import Dialect, PlaneMode
+from tests.guard.sim_autopilot import SimAutopilot
+
+PLANE_PARAMS = {"FS_GCS_ENABL": 1.0, "FS_LONG_TIMEOUT": 2.0, "FS_LONG_ACTN": 1.0, "MAV_GCS_SYSID": 255.0}
+CRUISE_MPS = 22.0
+TURN_RATE_RADPS = 9.81 * math.tan(math.radians(30.0)) / CRUISE_MPS
+LOITER_RADIUS_M = 80.0
+CLIMB_MPS = 3.0
+
+
+class SimPlane(SimAutopilot):
+    mav_type = mav.MAV_TYPE_FIXED_WING
+
+    def __init__(self, guard_port: int, params: dict[str, float] | None = None, **kw: object) -> None:
+        super().__init__(Dialect.ARDUPILOT, guard_port, dict(PLANE_PARAMS if params is None else params), **kw)  # type: ignore[arg-type]
+        self.hold_mode = self.mode = int(PlaneMode.LOITER)
+        self.offboard = int(PlaneMode.GUIDED)
+        self.course = 0.0
+        self.alt_target = 0.0
+        self.center: tuple[float, float] = (0.0, 0.0)
+        self.airborne = False
+
+    def mode_name(self, m: int | None = None) -> str:
+        return PlaneMode(self.mode if m is None else m).name
+
+    def _mode_of(self, name: str) -> int:
+        return int({"HOLD": PlaneMode.LOITER, "RTL": PlaneMode.RTL, "TAKEOFF": PlaneMode.TAKEOFF,
+                    "GLIDE": PlaneMode.FLY_BY_WIRE_A}[name])
+
+    def _handle(self, msg: object, now: float) -> None:
+        if msg.get_type() == "SET_POSITION_TARGET_GLOBAL_INT":  # type: ignore[attr-defined]
+            self.track.setpoints_t.append(now)
+            if self.mode == self.offboard:  # Plane: a new GUIDED point, circled once reached
+                n, e, _ = self.frame.to_ned(msg.lat_int * 1e-7, msg.lon_int * 1e-7, self.home[2])  # type: ignore[attr-defined]
+                self.center = (n, e)
+                self.alt_target = float(msg.alt)  # type: ignore[attr-defined]  # relative altitude frame
+            return
+        super()._handle(msg, now)
+
+    def _set_mode(self, custom: int, now: float) -> int:
+        if custom not in {int(m) for m in PlaneMode}:
+            return mav.MAV_RESULT_DENIED
+        self._enter(custom)
+        return mav.MAV_RESULT_ACCEPTED
+
+    def _enter(self, mode: int) -> None:
+        self.mode = mode
+        if mode in (int(PlaneMode.LOITER), int(PlaneMode.GUIDED)):
+            self.center = (self.pos[0], self.pos[1])  # GUIDED loiters where it was entered until given a point
+            self.alt_target = -self.pos[2]
+        elif mode == int(PlaneMode.RTL):
+            self.center = (0.0, 0.0)
+            self.alt_target = max(-self.pos[2], 100.0)  # ALT_HOLD_RTL's default, 100 m
+
+    def _command(self, msg: object, now: float) -> None:
+        if msg.command == mav.MAV_CMD_NAV_TAKEOFF:  # type: ignore[attr-defined]
+            src = (msg.get_srcSystem(), msg.get_srcComponent())  # type: ignore[attr-defined]
+            self.mode, self.airborne = int(PlaneMode.TAKEOFF), True
+            self.alt_target, self.course = float(msg.param7), 0.0  # type: ignore[attr-defined]
+            self._ack(msg.command, mav.MAV_RESULT_ACCEPTED, src)  # type: ignore[attr-defined]
+            return
+        super()._command(msg, now)
+
+    def _failsafes(self, now: float) -> None:
+        enabled = int(self.params["FS_GCS_ENABL"])
+        in_auto = self.mode == int(PlaneMode.AUTO)
+        if (not self.armed or self.gcs_failsafe or enabled not in (1, 2, 3) or (enabled == 3 and not in_auto)
+                or now - self.gcs_hb_t <= self.params["FS_LONG_TIMEOUT"]):
+            return
+        self.gcs_failsafe = True
+        act = int(self.params["FS_LONG_ACTN"])
+        if act == 1:
+            self._enter(int(PlaneMode.RTL))
+        elif act == 2:
+            self.mode = int(PlaneMode.FLY_BY_WIRE_A)
+        # 0 Continue: GUIDED is an auto mode, it stays
+
+    def _step(self, dt: float, now: float) -> None:
+        self._failsafes(now)
+        if not (self.armed and self.airborne):
+            self.vel = [0.0, 0.0, 0.0]
+            return
+        name = self.mode_name()
+        if name == "TAKEOFF":
+            want = 0.0
+            if -self.pos[2] >= self.alt_target - 1.0:
+                self._enter(int(PlaneMode.LOITER))
+        else:
+            dn, de = self.center[0] - self.pos[0], self.center[1] - self.pos[1]
+            d = math.hypot(dn, de)
+            bearing = math.atan2(de, dn)
+            # toward the point, then around it clockwise at LOITER_RADIUS_M
+            want = bearing if d > 2.0 * LOITER_RADIUS_M else bearing - math.pi / 2 * min(1.0, d / LOITER_RADIUS_M)
+        err = (want - self.course + math.pi) % (2.0 * math.pi) - math.pi
+        self.course += max(-TURN_RATE_RADPS * dt, min(TURN_RATE_RADPS * dt, err))
+        climb = 0.0 if name == "FLY_BY_WIRE_A" else max(-CLIMB_MPS, min(CLIMB_MPS, self.alt_target + self.pos[2]))
+        self.vel = [CRUISE_MPS * math.cos(self.course), CRUISE_MPS * math.sin(self.course), -climb]
+        for i in range(3):
+            self.pos[i] += self.vel[i] * dt
+
+    def _telemetry(self, now: float, n: int) -> None:
+        super()._telemetry(now, n)
+        if n % 5 == 0:
+            speed = CRUISE_MPS if self.airborne and self.armed else 0.0
+            self.send(self.m.vfr_hud_encode(speed, speed, int(math.degrees(self.course)) % 360, 50,
+                                            -self.pos[2] + self.home[2], -self.vel[2]))
