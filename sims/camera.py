@@ -136,6 +136,9 @@ class DownwardCamera:
 
     def homography(self, pos_ned_m: np.ndarray, att_rpy_rad: tuple[float, float, float]) -> np.ndarray:
         """Texture pixel (col, row, 1) -> image pixel. Texture columns run east, rows run south."""
+        return self._homography(pos_ned_m, dcm_from_euler(*att_rpy_rad))
+
+    def _homography(self, pos_ned_m: np.ndarray, R_nb: np.ndarray) -> np.ndarray:
         tex = self.texture
         s = tex.m_per_px
         period_n = tex.image.shape[0] * s
@@ -144,7 +147,7 @@ class DownwardCamera:
         c = np.array(
             [math.fmod(pos_ned_m[0], period_n), math.fmod(pos_ned_m[1], period_e), pos_ned_m[2]], dtype=float
         )
-        R_cn = (dcm_from_euler(*att_rpy_rad) @ R_BODY_CAM).T
+        R_cn = (R_nb @ R_BODY_CAM).T
         plane = np.column_stack([R_cn[:, 0], R_cn[:, 1], -R_cn @ c])  # (N, E, 1) -> camera
         tex_to_ne = np.array([[0.0, -s, 0.0], [s, 0.0, 0.0], [0.0, 0.0, 1.0]])  # (col, row, 1) -> (N, E, 1)
         return self.model.K() @ plane @ tex_to_ne
@@ -160,10 +163,11 @@ class DownwardCamera:
         if pos[2] >= -0.1:
             raise ValueError(f"camera height {-pos[2]:.2f} m: must be above the ground plane (down < 0)")
         m, fx = self.model, self.effects
-        H = self.homography(pos, att_rpy_rad)
+        R_nb = dcm_from_euler(*att_rpy_rad)
+        H = self._homography(pos, R_nb)
         img = self._warp(H).astype(np.float32)
         # motion blur: the ground moves at f v / h pixels per second in the image
-        R_nc = dcm_from_euler(*att_rpy_rad) @ R_BODY_CAM
+        R_nc = R_nb @ R_BODY_CAM
         v_cam = R_nc.T @ np.asarray(vel_ned_mps, dtype=float)
         blur_px = m.fx_px * fx.exposure_s * math.hypot(v_cam[0], v_cam[1]) / max(0.1, -pos[2])
         if blur_px >= 1.0:
@@ -189,7 +193,8 @@ class DownwardCamera:
         pts = cv2.perspectiveTransform(self._corners.reshape(-1, 1, 2), Hinv).reshape(-1, 2)
         corners, (c, cx, cy) = pts[:4], pts[4:]
         # texture pixels per image pixel at the image centre (the area of the centre pixel's footprint)
-        span = math.sqrt(abs(float(np.cross(cx - c, cy - c))))
+        (ax, ay), (bx, by) = (cx - c).tolist(), (cy - c).tolist()
+        span = math.sqrt(abs(ax * by - ay * bx))  # the 2-D cross product, as np.cross evaluates it
         level = 0
         while level + 1 < len(self._levels) and span >= 2.0 ** (level + 1):
             level += 1

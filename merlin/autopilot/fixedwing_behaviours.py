@@ -94,7 +94,8 @@ def turn_clearances_m(fence: geofence.Fence, s: VehicleState) -> tuple[float, fl
     """The margins of the fence projection's right and left turns, (right_m, left_m): the shortest distance
     from each projected path (reaction leg, then the half turn at the bank limit) to a hazard, minus the
     widening, exactly as the core's check measures it (:func:`merlin.core.geofence.turn_clearances`)."""
-    right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, state_wind_ne(s))
+    right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, state_wind_ne(s),
+                                           s.att_rpy_rad[0])
     return right.margin_m, left.margin_m
 
 
@@ -107,7 +108,8 @@ def escape_side(fence: geofence.Fence, s: VehicleState, home_ne: tuple[float, fl
     choose a turn deeper into the widening for a few metres more path
     (``tests/scenarios_fixedwing/test_turn_side.py`` pins that geometry).
     The turns are the core's, drifting with the wind-triangle wind (:func:`state_wind_ne`)."""
-    right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, state_wind_ne(s))
+    right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, state_wind_ne(s),
+                                           s.att_rpy_rad[0])
 
     def close(a: float, b: float) -> bool:
         return a == b or abs(a - b) < 1.0
@@ -333,7 +335,7 @@ class FixedWingBehaviours:
     def _start_escape(self, t: float, fence: geofence.Fence, s: VehicleState) -> None:
         """Fly an escape turn at the bank limit to the side :func:`escape_side` picks."""
         right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m,
-                                               state_wind_ne(s))
+                                               state_wind_ne(s), s.att_rpy_rad[0])
         self.escape_side = escape_side(fence, s)
         self._escape_course = math.atan2(s.vel_ned_mps[1], s.vel_ned_mps[0])
         self._escape_turned_rad = 0.0
@@ -458,9 +460,13 @@ class FixedWingBehaviours:
         # take its short way) and the aircraft heads home, or at the half turn. The monitor alone clearing
         # is not enough: it flickers at its threshold, and the first tick after the trip would hand the
         # aircraft to guidance's short way through the blocked side (scenario ``fw_adv_notch_west_wall``).
-        if half_turn_done and fence_tripped and self.fence is not None and _closing_on_hazard(self.fence, s):
+        if (half_turn_done and self.fence is not None and (fence_tripped or _turn_blocked(self.fence, s))
+                and _closing_on_hazard(self.fence, s)):
             # The half turn the projection covered is flown, but the fence is still tripped from where it
-            # leaves the aircraft and the course over the ground closes on the nearest boundary (heading back
+            # leaves the aircraft (or one of its turns is blocked, as when RTL starts: the monitor flickers at
+            # its threshold, and a tick it is clear handed the aircraft to guidance, whose cruise turn then
+            # left the range by 376.8 m, scenario fw_adv_escape_ends_tailwind after the projection counted
+            # the bank) and the course over the ground closes on the nearest boundary (heading back
             # at the edge it escaped, the wind behind it): guidance's route would go on turning at its cruise
             # bank, the way the half turn went, and out of the range (scenario fw_adv_escape_ends_tailwind:
             # 144.9 m). A new escape turn starts instead, its side chosen again on the fence's measure of both

@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from merlin.core.types import VehicleState
 
@@ -251,10 +252,17 @@ class _Energy:
 
 
 def _speed_rate(s: VehicleState) -> float:
-    """dV/dt along the velocity: the accelerometer's specific force rotated to NED, plus gravity.
+    """dV/dt of the airspeed: the accelerometer's specific force rotated to NED, plus gravity, along the air
+    velocity.
 
     Body-x specific force alone is not enough: at an angle of attack alpha it carries L sin(alpha) of the
     lift, which would read as an acceleration of about alpha g and destabilise the energy balance.
+    Along the air velocity, not the ground velocity: in a steady wind the two accelerate alike, but in a turn
+    the groundspeed swings by the wind times the turn rate (2.7 m/s^2 in an 11.9 m/s wind at 13 deg/s) while
+    the airspeed holds, and TECS traded that phantom speed for a pitch-up, then a push to an angle of attack
+    near zero that unloaded the wing for most of a second of an escape turn (scenario
+    ``fw_adv_pullup_reversal_tailwind``). The air velocity is the heading's at the pitot's airspeed (no
+    sideslip, no vertical wind); without a usable airspeed, the ground velocity as before.
     """
     phi, theta, psi = s.att_rpy_rad
     fx, fy, fz = s.accel_frd_mps2
@@ -266,6 +274,10 @@ def _speed_rate(s: VehicleState) -> float:
     ae = ct * sp * fx + (sf * st * sp + cf * cp) * fy + (cf * st * sp - sf * cp) * fz
     ad = -st * fx + sf * ct * fy + cf * ct * fz + G_MPS2
     vn, ve, vd = s.vel_ned_mps
+    v_air = s.airspeed_mps
+    if math.isfinite(v_air) and v_air > 3.0:
+        v_h = math.sqrt(max(v_air * v_air - vd * vd, 0.0))
+        vn, ve = v_h * cp, v_h * sp
     speed = math.sqrt(vn * vn + ve * ve + vd * vd)
     if speed < 1.0:
         return 0.0
@@ -376,6 +388,26 @@ def initial_state(p: FixedWingControlParams) -> FixedWingControlState:
     return FixedWingControlState(elevator_integ=p.elevator_trim, throttle=p.throttle_trim, initialized=True)
 
 
+class _Tecs(NamedTuple):
+    """What TECS (or an attitude command's pitch and throttle) gives this tick, with its integrators."""
+
+    throttle: float
+    throttle_integ: float
+    pitch_target_rad: float
+    pitch_integ_rad: float
+
+
+class _Surfaces(NamedTuple):
+    """The attitude loops' surfaces (before the takeover slew) and their integrators."""
+
+    aileron: float
+    elevator: float
+    rudder: float
+    aileron_integ: float
+    elevator_integ: float
+    rudder_integ: float
+
+
 def control_step(
     p: FixedWingControlParams,
     state: FixedWingControlState,
@@ -383,37 +415,81 @@ def control_step(
     targets: FixedWingTargets,
     dt_s: float,
 ) -> tuple[FixedWingControlState, ControlOutput]:
-    """One tick of the inner loops: TECS to pitch/throttle targets, then attitude loops to the surfaces."""
-    phi, theta = s.att_rpy_rad[0], s.att_rpy_rad[1]
-    pr, qr, rr = s.rates_frd_radps
-    k = _scaler(p, s)
-    imax = p.integrator_max
+    """One tick of the inner loops: TECS to pitch/throttle targets, then attitude loops to the surfaces.
 
-    # ---- speed and height: TECS, or the attitude command's pitch/throttle
+    The steps, each its own function: the speed rate's low-pass; whether the recovery is flown; the energy
+    balance (:func:`_energy`) and TECS's pitch and throttle (:func:`_tecs`); the pitch capped on the air
+    path; the attitude setpoints slewed (:func:`_attitude_setpoints`); the attitude loops
+    (:func:`_attitude_loops`); the takeover slew of the surfaces (:func:`_takeover_slew`)."""
     v_rate = state.speed_rate_mps2 + dt_s / (p.speed_rate_tau_s + dt_s) * (
         _speed_rate(s) - state.speed_rate_mps2
     )
+    recovering = _recovering(p, state, s, targets)
+    e = _energy(p, s, targets, v_rate, recovering)
+    tecs = _tecs(p, state, s, targets, e, recovering, dt_s)
+    pitch_target = _cap_to_air_path(p, s, tecs.pitch_target_rad)
+    roll_sp, pitch_sp = _attitude_setpoints(p, state, s, targets, pitch_target, recovering, dt_s)
+    loops = _attitude_loops(p, state, s, roll_sp, pitch_sp, dt_s)
+    (aileron, elevator, rudder), handover = _takeover_slew(p, state.handover, loops, dt_s)
+    surfaces = SurfaceCommand(aileron=aileron, elevator=elevator, rudder=rudder, throttle=tecs.throttle).clipped()
+
+    new_state = FixedWingControlState(
+        throttle_integ=tecs.throttle_integ,
+        pitch_tecs_integ_rad=tecs.pitch_integ_rad,
+        roll_sp_rad=roll_sp,
+        pitch_sp_rad=pitch_sp,
+        aileron_integ=loops.aileron_integ,
+        elevator_integ=loops.elevator_integ,
+        rudder_integ=loops.rudder_integ,
+        speed_rate_mps2=v_rate,
+        throttle=tecs.throttle,
+        initialized=True,
+        recovering=recovering,
+        handover=handover,
+    )
+    return new_state, ControlOutput(
+        surfaces=surfaces,
+        roll_sp_rad=roll_sp,
+        pitch_sp_rad=pitch_sp,
+        pitch_target_rad=pitch_target,
+        ste_rate_error=e.ste_d - e.ste,
+        seb_rate_error=e.seb_d - e.seb,
+        height_weight=e.w_h,
+        underspeed=e.underspeed,
+        recovering=recovering,
+    )
+
+
+def _recovering(p: FixedWingControlParams, state: FixedWingControlState, s: VehicleState,
+                targets: FixedWingTargets) -> bool:
+    """Whether the recovery is flown: below the minimum airspeed, sinking faster than the sink limit or
+    banked beyond the bank limit (each with its margin), and until all three are back within their exit
+    margins; never under an attitude command's own pitch and throttle."""
+    phi = s.att_rpy_rad[0]
     sink_asked = _sink_asked_mps(p, s, targets)
-    recovering = targets.pitch_rad is None and (
+    return targets.pitch_rad is None and (
         s.airspeed_mps < p.airspeed_min_mps
         or s.vel_ned_mps[2] > p.sink_max_mps + p.recovery_sink_margin_mps
         or abs(phi) > p.bank_max_rad + p.recovery_bank_margin_rad
         or (state.recovering and not (s.airspeed_mps >= p.airspeed_min_mps + p.recovery_exit_margin_mps
                                       and s.vel_ned_mps[2] <= sink_asked + p.recovery_exit_sink_mps
                                       and abs(phi) <= p.bank_max_rad)))
-    e = _energy(p, s, targets, v_rate, recovering)
+
+
+def _tecs(p: FixedWingControlParams, state: FixedWingControlState, s: VehicleState, targets: FixedWingTargets,
+          e: _Energy, recovering: bool, dt_s: float) -> _Tecs:
+    """Speed and height: TECS's throttle and pitch target (or the attitude command's), slewed throttle,
+    pitch within its limits."""
     ste_err = e.ste_d - e.ste
     seb_err = e.seb_d - e.seb
     if targets.pitch_rad is not None and targets.throttle is not None:
-        pitch_target = targets.pitch_rad
-        throttle = targets.throttle
-        throttle_integ, pitch_integ = state.throttle_integ, state.pitch_tecs_integ_rad
+        out = _Tecs(targets.throttle, state.throttle_integ, targets.pitch_rad, state.pitch_tecs_integ_rad)
     elif recovering and s.airspeed_mps < p.airspeed_min_mps + p.recovery_exit_margin_mps:
         # Full power at once (not slewed: a recovery's first second is worth metres), wings level (below),
         # pitch on the sink alone up to the angle-of-attack cap; the integrators hold what they learnt.
-        throttle = p.throttle_max
-        throttle_integ, pitch_integ = state.throttle_integ, state.pitch_tecs_integ_rad
-        pitch_target = p.tecs_pitch_ff * e.seb_d + p.recovery_pitch_p * seb_err + pitch_integ
+        pitch_integ = state.pitch_tecs_integ_rad
+        out = _Tecs(p.throttle_max, state.throttle_integ,
+                    p.tecs_pitch_ff * e.seb_d + p.recovery_pitch_p * seb_err + pitch_integ, pitch_integ)
     elif recovering:
         # Fast enough (a sink or a bank upset, not a stall): TECS's throttle (slewed: more speed would widen
         # an escape turn the fence projection planned at the speed of the trip), pitch on the sink alone up to
@@ -421,39 +497,52 @@ def control_step(
         throttle = _clip(p.throttle_trim + p.tecs_throttle_ff * e.ste_d + p.tecs_throttle_p * ste_err
                          + state.throttle_integ, p.throttle_min, p.throttle_max)
         throttle = _slew(state.throttle, throttle, p.throttle_slew_per_s * dt_s)
-        throttle_integ, pitch_integ = state.throttle_integ, state.pitch_tecs_integ_rad
-        pitch_target = p.tecs_pitch_ff * e.seb_d + p.recovery_pitch_p * seb_err + pitch_integ
-    else:
-        throttle_unsat = (
-            p.throttle_trim
-            + p.tecs_throttle_ff * e.ste_d
-            + p.tecs_throttle_p * ste_err
-            + state.throttle_integ
-        )
-        throttle = _clip(throttle_unsat, p.throttle_min, p.throttle_max)
-        saturated_same_way = (throttle_unsat > p.throttle_max and ste_err > 0) or (
-            throttle_unsat < p.throttle_min and ste_err < 0
-        )
-        throttle_integ = state.throttle_integ
-        if not saturated_same_way:
-            throttle_integ = _clip(throttle_integ + p.tecs_throttle_i_per_s * ste_err * dt_s, -imax, imax)
-        if e.underspeed:
-            # Underspeed protection: full power in proportion to how deep into the band we are.
-            throttle = max(throttle, p.throttle_min + (1.0 - e.w_h) * (p.throttle_max - p.throttle_min))
-        pitch_unsat = p.tecs_pitch_ff * e.seb_d + p.tecs_pitch_p * seb_err + state.pitch_tecs_integ_rad
-        pitch_target = _clip(pitch_unsat, p.pitch_min_rad, p.pitch_max_rad)
         pitch_integ = state.pitch_tecs_integ_rad
-        if not (
-            (pitch_unsat > p.pitch_max_rad and seb_err > 0) or (pitch_unsat < p.pitch_min_rad and seb_err < 0)
-        ):
-            pitch_integ = pitch_integ + p.tecs_pitch_i_per_s * seb_err * dt_s
-        # The integrator holds the trim angle of attack: keep it within the reachable pitch range.
-        pitch_integ = _clip(pitch_integ, p.pitch_min_rad, p.pitch_max_rad)
-    if not recovering:
-        throttle = _slew(state.throttle, throttle, p.throttle_slew_per_s * dt_s)
+        out = _Tecs(throttle, state.throttle_integ,
+                    p.tecs_pitch_ff * e.seb_d + p.recovery_pitch_p * seb_err + pitch_integ, pitch_integ)
     else:
-        pass  # full power at once, or TECS's slewed above
-    pitch_target = _clip(pitch_target, p.pitch_min_rad, p.pitch_max_rad)
+        out = _tecs_nominal(p, state, e, dt_s)
+    if not recovering:  # (a recovery's throttle is full power at once, or TECS's slewed above)
+        out = out._replace(throttle=_slew(state.throttle, out.throttle, p.throttle_slew_per_s * dt_s))
+    return out._replace(pitch_target_rad=_clip(out.pitch_target_rad, p.pitch_min_rad, p.pitch_max_rad))
+
+
+def _tecs_nominal(p: FixedWingControlParams, state: FixedWingControlState, e: _Energy, dt_s: float) -> _Tecs:
+    """TECS: throttle on the total energy rate, pitch on the energy balance rate, each with an integrator
+    that does not wind up against its limit; underspeed protection's extra power."""
+    ste_err = e.ste_d - e.ste
+    seb_err = e.seb_d - e.seb
+    imax = p.integrator_max
+    throttle_unsat = (
+        p.throttle_trim
+        + p.tecs_throttle_ff * e.ste_d
+        + p.tecs_throttle_p * ste_err
+        + state.throttle_integ
+    )
+    throttle = _clip(throttle_unsat, p.throttle_min, p.throttle_max)
+    saturated_same_way = (throttle_unsat > p.throttle_max and ste_err > 0) or (
+        throttle_unsat < p.throttle_min and ste_err < 0
+    )
+    throttle_integ = state.throttle_integ
+    if not saturated_same_way:
+        throttle_integ = _clip(throttle_integ + p.tecs_throttle_i_per_s * ste_err * dt_s, -imax, imax)
+    if e.underspeed:
+        # Underspeed protection: full power in proportion to how deep into the band we are.
+        throttle = max(throttle, p.throttle_min + (1.0 - e.w_h) * (p.throttle_max - p.throttle_min))
+    pitch_unsat = p.tecs_pitch_ff * e.seb_d + p.tecs_pitch_p * seb_err + state.pitch_tecs_integ_rad
+    pitch_target = _clip(pitch_unsat, p.pitch_min_rad, p.pitch_max_rad)
+    pitch_integ = state.pitch_tecs_integ_rad
+    if not (
+        (pitch_unsat > p.pitch_max_rad and seb_err > 0) or (pitch_unsat < p.pitch_min_rad and seb_err < 0)
+    ):
+        pitch_integ = pitch_integ + p.tecs_pitch_i_per_s * seb_err * dt_s
+    # The integrator holds the trim angle of attack: keep it within the reachable pitch range.
+    pitch_integ = _clip(pitch_integ, p.pitch_min_rad, p.pitch_max_rad)
+    return _Tecs(throttle, throttle_integ, pitch_target, pitch_integ)
+
+
+def _cap_to_air_path(p: FixedWingControlParams, s: VehicleState, pitch_target: float) -> float:
+    """The pitch target capped at the angle-of-attack protection above the flight path against the air."""
     # The flight path against the air (alpha ~ theta - gamma holds in the air mass): the airspeed, not the
     # groundspeed, under the vertical speed (no vertical wind). Against a strong headwind the ground path is
     # far steeper than the air path, and a cap on the ground path held the nose down in a dive at an angle
@@ -462,9 +551,15 @@ def control_step(
     v_air = s.airspeed_mps
     if v_air > 3.0:
         gamma = math.asin(_clip(-s.vel_ned_mps[2] / v_air, -1.0, 1.0))
-        pitch_target = min(pitch_target, gamma + p.alpha_protect_rad * math.cos(phi))
+        pitch_target = min(pitch_target, gamma + p.alpha_protect_rad * math.cos(s.att_rpy_rad[0]))
+    return pitch_target
 
-    # ---- setpoint slewing (bumpless, and gentle on the airframe)
+
+def _attitude_setpoints(p: FixedWingControlParams, state: FixedWingControlState, s: VehicleState,
+                        targets: FixedWingTargets, pitch_target: float, recovering: bool,
+                        dt_s: float) -> tuple[float, float]:
+    """The roll and pitch setpoints, slewed at their rates (bumpless, and gentle on the airframe)."""
+    phi = s.att_rpy_rad[0]
     # Near the minimum airspeed the bank is reduced (stall speed grows as 1/sqrt(cos bank)): wings level
     # first, then turn, as in a stall recovery.
     # Wings level while recovering slow or from a bank beyond the limit; a recovery from a sink alone keeps
@@ -475,8 +570,17 @@ def control_step(
         (s.airspeed_mps - p.airspeed_min_mps) / p.bank_full_margin_mps, 0.0, 1.0)
     roll_sp = _slew(state.roll_sp_rad, _clip(targets.roll_rad, -bank, bank), p.roll_sp_rate_radps * dt_s)
     pitch_sp = _slew(state.pitch_sp_rad, pitch_target, p.pitch_sp_rate_radps * dt_s)
+    return roll_sp, pitch_sp
 
-    # ---- attitude loops
+
+def _attitude_loops(p: FixedWingControlParams, state: FixedWingControlState, s: VehicleState, roll_sp: float,
+                    pitch_sp: float, dt_s: float) -> _Surfaces:
+    """PI attitude loops with rate damping (the pitch and yaw rates of the coordinated turn taken out), scaled
+    by the airspeed; the rudder holds the sideslip (lateral specific force) at zero."""
+    phi, theta = s.att_rpy_rad[0], s.att_rpy_rad[1]
+    pr, qr, rr = s.rates_frd_radps
+    k = _scaler(p, s)
+    imax = p.integrator_max
     q_turn, r_turn = _turn_rates(s)
     roll_err = roll_sp - phi
     pitch_err = pitch_sp - theta
@@ -488,7 +592,14 @@ def control_step(
     aileron = k * (p.roll_p * roll_err - p.roll_d * pr) + aileron_integ
     elevator = k * (p.pitch_p * pitch_err - p.pitch_d * (qr - q_turn)) + elevator_integ
     rudder = k * (-p.yaw_d * (rr - r_turn) - p.sideslip_p * ay) + rudder_integ
-    handover = state.handover
+    return _Surfaces(aileron, elevator, rudder, aileron_integ, elevator_integ, rudder_integ)
+
+
+def _takeover_slew(p: FixedWingControlParams, handover: tuple[float, float, float] | None, loops: _Surfaces,
+                   dt_s: float) -> tuple[tuple[float, float, float], tuple[float, float, float] | None]:
+    """After a takeover the surfaces move from the values taken over towards the loops' own at
+    :func:`takeover_slew_per_s`, until all three have met them (then ``handover`` is None)."""
+    aileron, elevator, rudder = loops.aileron, loops.elevator, loops.rudder
     if handover is not None:
         step = takeover_slew_per_s(p) * dt_s
         own = (_clip(aileron, -1.0, 1.0), _clip(elevator, -1.0, 1.0), _clip(rudder, -1.0, 1.0))
@@ -497,30 +608,4 @@ def control_step(
         else:
             aileron, elevator, rudder = (_slew(h, o, step) for h, o in zip(handover, own, strict=True))
             handover = (aileron, elevator, rudder)
-    surfaces = SurfaceCommand(aileron=aileron, elevator=elevator, rudder=rudder, throttle=throttle).clipped()
-
-    new_state = FixedWingControlState(
-        throttle_integ=throttle_integ,
-        pitch_tecs_integ_rad=pitch_integ,
-        roll_sp_rad=roll_sp,
-        pitch_sp_rad=pitch_sp,
-        aileron_integ=aileron_integ,
-        elevator_integ=elevator_integ,
-        rudder_integ=rudder_integ,
-        speed_rate_mps2=v_rate,
-        throttle=throttle,
-        initialized=True,
-        recovering=recovering,
-        handover=handover,
-    )
-    return new_state, ControlOutput(
-        surfaces=surfaces,
-        roll_sp_rad=roll_sp,
-        pitch_sp_rad=pitch_sp,
-        pitch_target_rad=pitch_target,
-        ste_rate_error=ste_err,
-        seb_rate_error=seb_err,
-        height_weight=e.w_h,
-        underspeed=e.underspeed,
-        recovering=recovering,
-    )
+    return (aileron, elevator, rudder), handover

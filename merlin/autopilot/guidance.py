@@ -56,6 +56,7 @@ FALLBACK_NONE, FALLBACK_HOLD, FALLBACK_LAND = 0, 1, 2
 
 #: A command slower than this horizontally has nothing to brake: the behaviour flies as asked at once.
 BRAKE_MIN_SPEED_MPS = 0.1
+_NO_ACCEL: Final[Vec3] = (0.0, 0.0, 0.0)
 
 # Enum members read on every tick, bound once (``merlin.core.types``, "Enum members on the hot path").
 _HOLD: Final = Behavior.HOLD
@@ -96,6 +97,9 @@ class GuidanceState(NamedTuple):
     # while braking after a takeover: the unit (north, east) direction the command was moving in when the
     # behaviour was entered (see :func:`step`); None once the command has stopped along it
     brake_ne: tuple[float, float] | None = None
+    # the braking ramp's deceleration while the command brakes at its limit (NED, m/s^2), fed forward to the
+    # velocity loop (see :func:`step`); zero otherwise
+    accel_ff_ned_mps2: Vec3 = (0.0, 0.0, 0.0)
 
 
 def enter(behavior: Behavior, s: VehicleState, cfg: TrustedParams, fence: Fence | None = None) -> GuidanceState:
@@ -357,12 +361,25 @@ def step(g: GuidanceState, s: VehicleState, cfg: TrustedParams, dt: float) -> tu
             want = (along_want * brake[0], along_want * brake[1], want[2])
         else:
             brake = None
-    v = limit_velocity_change(g2.vel_cmd, want, cfg.max_horizontal_decel_mps2 * dt, cfg.max_vertical_decel_mps2 * dt)
+    c = g2.vel_cmd
+    max_dh = cfg.max_horizontal_decel_mps2 * dt
+    v = limit_velocity_change(c, want, max_dh, cfg.max_vertical_decel_mps2 * dt)
+    ff = _NO_ACCEL
+    if brake is not None and dt > 0.0:
+        # The braking ramp's own deceleration, fed forward: a velocity loop that only chases the ramp trails it
+        # by a / Kp (about 1.6 m/s, 0.4 s of braking, on the default quadrotor), beyond the reaction time the
+        # projection allows, and in a tailwind, whose drag no longer helps the braking, the vehicle stopped
+        # past the projected stop (scenario adv_rtl_tailwind_ramp). Only while the limit holds the command: it
+        # then moves along the braking direction at exactly the deceleration the projection assumes, whereas a
+        # change below the limit is the position loop's answer to the estimate's noise.
+        dn, de = v[0] - c[0], v[1] - c[1]
+        if math.hypot(dn, de) >= max_dh * (1.0 - 1e-9):
+            ff = (dn / dt, de / dt, 0.0)
     # g2 with vel_cmd=v and sp with vel_ned_mps=v (built directly: this runs every tick)
     return (
         GuidanceState(
             g2.behavior, g2.anchor_ned_m, g2.yaw_rad, g2.phase, g2.mission_index, g2.done, v, g2.path_ne_m,
-            g2.leg, g2.fallback, g2.note, g2.goto_ned_m, brake,
+            g2.leg, g2.fallback, g2.note, g2.goto_ned_m, brake, ff,
         ),
         Setpoint(sp.kind, sp.pos_ned_m, v, sp.yaw_rad, sp.yaw_rate_radps, sp.att_rpy_rad, sp.thrust),
     )

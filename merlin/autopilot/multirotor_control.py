@@ -285,9 +285,14 @@ def _velocity_to_thrust(
         ed = _clamp(vsd - _fin(ve[2], vsd), -lim, lim)
     ix, iy = st.vel_int_xy_mps2
     h = st.hover_thrust_est
-    # horizontal
-    axn = g.vel_p_xy_per_s * en + ix - g.vel_d_xy * acc_n
-    axe = g.vel_p_xy_per_s * ee + iy - g.vel_d_xy * acc_e
+    # horizontal, with the command's own acceleration (Merlin's braking ramp) added as PX4's velocity controller
+    # adds its acceleration setpoint: a velocity loop that only chases a ramp trails it by ``a / Kp``
+    # (scenario adv_rtl_tailwind_ramp)
+    fn, fe = cmd.accel_ned_mps2[0], cmd.accel_ned_mps2[1]
+    if not (-_ACC_MAX_MPS2 < fn < _ACC_MAX_MPS2 and -_ACC_MAX_MPS2 < fe < _ACC_MAX_MPS2):  # also catches NaN
+        fn = fe = 0.0
+    axn = g.vel_p_xy_per_s * en + ix + fn - g.vel_d_xy * acc_n
+    axe = g.vel_p_xy_per_s * ee + iy + fe - g.vel_d_xy * acc_e
     amag = math.hypot(axn, axe)
     sat_xy = False
     if amag > g.acc_max_xy_mps2:

@@ -345,53 +345,12 @@ def _astar(
             continue
         closed[u] = True
         if u == goal:
-            out: list[NE] = []
-            k = parent[goal]
-            out.append(tangent_of[k])
-            first = k
-            while k != -1:
-                out.append((float(pts[k, 0]), float(pts[k, 1])))
-                if k != 0:
-                    first = k
-                k = parent[k]
-            out.reverse()
-            turn = turn_of.get(first) if turns else None
-            if turn is not None:
-                out.insert(1, turn.exit_ne_m)
-            return out, turn
+            return _path_to(goal, parent, pts, tangent_of, turn_of if turns else None)
         a = (float(pts[u, 0]), float(pts[u, 1]))
         region = start_region if u == 0 else free_c
         if u == 0 and turns:
-            # the start's legs: round either turn circle, then the tangent to the node
-            for v in np.flatnonzero(~closed[1:n]).tolist():
-                v += 1
-                best = _turn_in(
-                    arc_region if arc_region is not None else region,
-                    region,
-                    a,
-                    (float(pts[v, 0]), float(pts[v, 1])),
-                    turns,
-                )
-                if best is not None and best[0] < g[v]:
-                    g[v] = best[0]
-                    parent[v] = 0
-                    turn_of[v] = best[1]
-                    heapq.heappush(heap, (float(best[0] + h[v]), v))
-            # ... or round either turn circle straight onto the loiter circle
-            best_goal = _turn_in(
-                arc_region if arc_region is not None else region,
-                region,
-                a,
-                a,
-                turns,
-                (center, radius, clockwise),
-            )
-            if best_goal is not None and best_goal[0] < g[goal]:
-                g[goal] = best_goal[0]
-                parent[goal] = 0
-                turn_of[0] = best_goal[1]
-                tangent_of[0] = best_goal[2]
-                heapq.heappush(heap, (float(best_goal[0]), goal))
+            _relax_start_turns(arc_region if arc_region is not None else region, region, a, pts, h, g, parent,
+                               closed, heap, tangent_of, turn_of, turns, (center, radius, clockwise))
             continue
         tp = tangent_point_ne(a, center, radius, clockwise)
         g_region = region
@@ -415,6 +374,52 @@ def _astar(
                 parent[v] = u
                 heapq.heappush(heap, (float(cost + h[v]), v))
     return None
+
+
+def _path_to(goal: int, parent: list[int], pts: np.ndarray, tangent_of: dict[int, NE],
+             turn_of: dict[int, TurnIn] | None) -> tuple[list[NE], TurnIn | None]:
+    """The A* path's points from the start to the goal's tangent point, walking the parents back; with the
+    start's turns (``turn_of``), the turn-in of its first leg and that turn's exit point after the start."""
+    out: list[NE] = []
+    k = parent[goal]
+    out.append(tangent_of[k])
+    first = k
+    while k != -1:
+        out.append((float(pts[k, 0]), float(pts[k, 1])))
+        if k != 0:
+            first = k
+        k = parent[k]
+    out.reverse()
+    turn = turn_of.get(first) if turn_of is not None else None
+    if turn is not None:
+        out.insert(1, turn.exit_ne_m)
+    return out, turn
+
+
+def _relax_start_turns(arc_region: shapely.Geometry, region: shapely.Geometry, a: NE, pts: np.ndarray,
+                       h: np.ndarray, g: np.ndarray, parent: list[int], closed: np.ndarray,
+                       heap: list[tuple[float, int]], tangent_of: dict[int, NE], turn_of: dict[int, TurnIn],
+                       turns: tuple[tuple[NE, float, bool], ...], loiter: tuple[NE, float, bool]) -> None:
+    """A*'s expansion of the start when it leaves on a turn circle: round either turn, then the tangent to
+    each open node, or straight onto the loiter circle (the goal, index ``len(pts)``)."""
+    n = len(pts)
+    goal = n
+    for v in np.flatnonzero(~closed[1:n]).tolist():
+        v += 1
+        best = _turn_in(arc_region, region, a, (float(pts[v, 0]), float(pts[v, 1])), turns)
+        if best is not None and best[0] < g[v]:
+            g[v] = best[0]
+            parent[v] = 0
+            turn_of[v] = best[1]
+            heapq.heappush(heap, (float(best[0] + h[v]), v))
+    # ... or round either turn circle straight onto the loiter circle
+    best_goal = _turn_in(arc_region, region, a, a, turns, loiter)
+    if best_goal is not None and best_goal[0] < g[goal]:
+        g[goal] = best_goal[0]
+        parent[goal] = 0
+        turn_of[0] = best_goal[1]
+        tangent_of[0] = best_goal[2]
+        heapq.heappush(heap, (float(best_goal[0]), goal))
 
 
 @dataclass(frozen=True, slots=True)
@@ -492,13 +497,7 @@ def plan(
     until it heads for the first point (a Dubins start: Dubins 1957, "On curves of minimal length with a
     constraint on average curvature", Am. J. Math. 79(3)), the arc checked like a leg. Without a valid
     turn-in the legs start at the position."""
-    for name, v in (("start_ne_m", start_ne_m), ("center_ne_m", center_ne_m)):
-        if len(v) != 2 or not all(math.isfinite(x) for x in v):
-            raise ValueError(f"{name} = {v!r}: must be a finite (north, east) pair")
-    if not (math.isfinite(radius_m) and radius_m >= 0.0):
-        raise ValueError(f"radius_m = {radius_m!r}: must be finite and >= 0")
-    if not (math.isfinite(clearance_m) and clearance_m >= 0.0):
-        raise ValueError(f"clearance_m = {clearance_m!r}: must be finite and >= 0")
+    _check_plan_args(start_ne_m, center_ne_m, radius_m, clearance_m)
     start = (float(start_ne_m[0]), float(start_ne_m[1]))
     center = (float(center_ne_m[0]), float(center_ne_m[1]))
     if not has_zones(fence) or math.dist(start, center) <= radius_m:
@@ -510,102 +509,138 @@ def plan(
     shapely.prepare(free_c)
 
     # The start's region: F_c, plus (within 2 d_free of the start) F_{d/2}; the same about a point goal.
-    status = "routed"
-    start_pt = shapely.Point(start)
     rs = _relaxed(fence, start, free_c, clearance_m, around)
-    start_region, half_space, d_free = rs.region, rs.half, rs.d_free
     goal_region = start_goal_region = None
     if radius_m == 0.0:
         rg = _relaxed(fence, center, free_c, clearance_m, around)
         if rg.region is not free_c:
             goal_region = rg.region
-            start_goal_region = shapely.union(start_region, goal_region)
+            start_goal_region = shapely.union(rs.region, goal_region)
             shapely.prepare(start_goal_region)
-    direct_region = start_goal_region if start_goal_region is not None else start_region
+    direct_region = start_goal_region if start_goal_region is not None else rs.region
     tangent = tangent_point_ne(start, center, radius_m, clockwise)
     if tangent is not None and bool(segments_covered(direct_region, start, np.asarray([tangent]))[0]):
         return Route((), "direct", clearance_m, 0.0)
 
+    nodes = _nodes(node_space, start, center)
+    if course_rad is not None and turn_radius is not None and math.isfinite(course_rad) and turn_radius > 0.0:
+        routed = _plan_with_turn(free_c, rs, start, nodes, center, radius_m, clockwise, course_rad, turn_radius,
+                                 clearance_m)
+        if routed is not None:
+            return routed
+    found = _astar(
+        free_c, rs.region, start, nodes, center, radius_m, clockwise,
+        goal_region=goal_region, start_goal_region=start_goal_region,
+    )
+    status = "routed"
+    if found is not None:
+        route = found[0]
+    else:
+        if shapely.is_empty(node_space):
+            return Route((), "no_route", clearance_m, 0.0)
+        best = _plan_from_outside(fence, free_c, node_space, rs.region, start, nodes, center, radius_m, clockwise,
+                                  goal_region, around)
+        if best is None:
+            return Route((), "no_route", clearance_m, 0.0)
+        route, status = best
+    legs = tuple(route)
+    length = sum(math.dist(legs[i], legs[i + 1]) for i in range(len(legs) - 1))
+    return Route(legs, status, clearance_m, length)
+
+
+def _check_plan_args(start_ne_m: NE, center_ne_m: NE, radius_m: float, clearance_m: float) -> None:
+    """A ValueError naming the argument of :func:`plan` that is not a finite pair or a finite length >= 0."""
+    for name, v in (("start_ne_m", start_ne_m), ("center_ne_m", center_ne_m)):
+        if len(v) != 2 or not all(math.isfinite(x) for x in v):
+            raise ValueError(f"{name} = {v!r}: must be a finite (north, east) pair")
+    if not (math.isfinite(radius_m) and radius_m >= 0.0):
+        raise ValueError(f"radius_m = {radius_m!r}: must be finite and >= 0")
+    if not (math.isfinite(clearance_m) and clearance_m >= 0.0):
+        raise ValueError(f"clearance_m = {clearance_m!r}: must be finite and >= 0")
+
+
+def _nodes(node_space: shapely.Geometry, start: NE, center: NE) -> list[NE]:
+    """The visibility graph's nodes: the node space's reflex vertices, at most :data:`MAX_NODES` of them, those
+    nearest the straight line to the goal (deterministic: a stable sort)."""
     nodes = reflex_vertices(node_space)
-    if len(nodes) > MAX_NODES:  # keep those nearest the straight line to the goal (deterministic: stable sort)
+    if len(nodes) > MAX_NODES:
         line = shapely.LineString([start, center])
         dist = shapely.distance(line, shapely.points(np.asarray(nodes)))
         order = np.argsort(dist, kind="stable")[:MAX_NODES]
         nodes = [nodes[i] for i in sorted(order.tolist())]
-    turns: tuple[tuple[NE, float, bool], ...] = ()
-    if course_rad is not None and turn_radius is not None and math.isfinite(course_rad) and turn_radius > 0.0:
-        rn, re_ = -math.sin(course_rad), math.cos(course_rad)  # the right-hand side of the course
-        turns = tuple(
-            (
-                (start[0] + side * turn_radius * rn, start[1] + side * turn_radius * re_),
-                turn_radius,
-                side > 0.0,
-            )
-            for side in (1.0, -1.0)
+    return nodes
+
+
+def _plan_with_turn(free_c: shapely.Geometry, rs: _Relaxed, start: NE, nodes: list[NE], center: NE, radius_m: float,
+                    clockwise: bool, course_rad: float, turn_radius: float, clearance_m: float) -> Route | None:
+    """The route that starts with the turn the aircraft must fly anyway (a Dubins start, :func:`plan`), or
+    None without a valid turn-in."""
+    rn, re_ = -math.sin(course_rad), math.cos(course_rad)  # the right-hand side of the course
+    turns = tuple(
+        (
+            (start[0] + side * turn_radius * rn, start[1] + side * turn_radius * re_),
+            turn_radius,
+            side > 0.0,
         )
-        # the turn keeps half the start's clearance (all of c from a start outside the buffer); the leg after
-        # it may too while within reach of the turn, beyond that it keeps c
-        if half_space is free_c:
-            turn_regions = (free_c, free_c)
-        else:
-            reach = shapely.buffer(
-                start_pt, 2.0 * (d_free + turn_radius) + NODE_INSET_M, quad_segs=BUFFER_QUAD_SEGS
-            )
-            leg_region = shapely.union(free_c, shapely.intersection(reach, half_space))
-            shapely.prepare(leg_region)
-            turn_regions = (half_space, leg_region)
-        found = _astar(
-            free_c, turn_regions[1], start, nodes, center, radius_m, clockwise, turns, turn_regions[0]
-        )
-        turn = found[1] if found is not None else None
-        if found is not None and turn is not None:
-            pts = found[0]
-            legs = tuple(pts[1:])
-            length = _arc_length(turn) + sum(math.dist(legs[i], legs[i + 1]) for i in range(len(legs) - 1))
-            return Route(legs, "routed", clearance_m, length, turn)
-    found = _astar(
-        free_c, start_region, start, nodes, center, radius_m, clockwise,
-        goal_region=goal_region, start_goal_region=start_goal_region,
+        for side in (1.0, -1.0)
     )
-    if found is not None:
-        route = found[0]
+    # the turn keeps half the start's clearance (all of c from a start outside the buffer); the leg after
+    # it may too while within reach of the turn, beyond that it keeps c
+    if rs.half is free_c:
+        turn_regions = (free_c, free_c)
     else:
-        # Boxed in or outside: fly the shortest way into the node space first (the exit), then plan from there.
-        # A point goal inside the buffer is entered the same way, reversed (from its entry, the nearest point
-        # of the node space): without it a goal deep in a pocket has no leg to it that keeps half its clearance.
-        if shapely.is_empty(node_space):
-            return Route((), "no_route", clearance_m, 0.0)
-        exit_ne = _nearest_in(node_space, start)
-        exit_ok = math.dist(exit_ne, start) >= 1e-9 and _exit_leg_ok(fence, start, exit_ne, around)
-        entry_ne: NE | None = None
-        if goal_region is not None:
-            q = _nearest_in(node_space, center)
-            if math.dist(q, center) >= 1e-9 and _exit_leg_ok(fence, center, q, around):
-                entry_ne = q
-        candidates: list[tuple[NE | None, NE | None]] = [(exit_ne, None)] if exit_ok else []
-        if entry_ne is not None:
-            candidates += [(None, entry_ne)] + ([(exit_ne, entry_ne)] if exit_ok else [])
-        best: list[NE] | None = None
-        for a, b in candidates:
-            s0, region0 = (start, start_region) if a is None else (a, free_c)
-            if b is None:
-                f = _astar(free_c, region0, s0, nodes, center, radius_m, clockwise,
-                           goal_region=goal_region, start_goal_region=goal_region)
-            else:
-                f = _astar(free_c, region0, s0, nodes, b, 0.0, clockwise)
-            if f is None:
-                continue
-            pts = f[0] if b is None else [*f[0], center]  # the entry's leg to the goal, reversed
-            if a is not None:
-                pts = [start, *pts]  # the exit leg: the shortest way into the free space
-            if best is None or _length(pts) < _length(best):
-                best, status = pts, "routed" if a is None else "routed_from_outside"
-        if best is None:
-            return Route((), "no_route", clearance_m, 0.0)
-        route = best
-    legs = tuple(route)
-    length = sum(math.dist(legs[i], legs[i + 1]) for i in range(len(legs) - 1))
-    return Route(legs, status, clearance_m, length)
+        reach = shapely.buffer(
+            shapely.Point(start), 2.0 * (rs.d_free + turn_radius) + NODE_INSET_M, quad_segs=BUFFER_QUAD_SEGS
+        )
+        leg_region = shapely.union(free_c, shapely.intersection(reach, rs.half))
+        shapely.prepare(leg_region)
+        turn_regions = (rs.half, leg_region)
+    found = _astar(
+        free_c, turn_regions[1], start, nodes, center, radius_m, clockwise, turns, turn_regions[0]
+    )
+    turn = found[1] if found is not None else None
+    if found is None or turn is None:
+        return None
+    legs = tuple(found[0][1:])
+    length = _arc_length(turn) + sum(math.dist(legs[i], legs[i + 1]) for i in range(len(legs) - 1))
+    return Route(legs, "routed", clearance_m, length, turn)
+
+
+def _plan_from_outside(fence: Fence, free_c: shapely.Geometry, node_space: shapely.Geometry,
+                       start_region: shapely.Geometry, start: NE, nodes: list[NE], center: NE, radius_m: float,
+                       clockwise: bool, goal_region: shapely.Geometry | None,
+                       around: tuple[NE, NE]) -> tuple[list[NE], str] | None:
+    """Boxed in or outside: fly the shortest way into the node space first (the exit), then plan from there.
+    A point goal inside the buffer is entered the same way, reversed (from its entry, the nearest point of
+    the node space): without it a goal deep in a pocket has no leg to it that keeps half its clearance.
+    The shortest of the candidates, with its status; None when none has a route."""
+    exit_ne = _nearest_in(node_space, start)
+    exit_ok = math.dist(exit_ne, start) >= 1e-9 and _exit_leg_ok(fence, start, exit_ne, around)
+    entry_ne: NE | None = None
+    if goal_region is not None:
+        q = _nearest_in(node_space, center)
+        if math.dist(q, center) >= 1e-9 and _exit_leg_ok(fence, center, q, around):
+            entry_ne = q
+    candidates: list[tuple[NE | None, NE | None]] = [(exit_ne, None)] if exit_ok else []
+    if entry_ne is not None:
+        candidates += [(None, entry_ne)] + ([(exit_ne, entry_ne)] if exit_ok else [])
+    best: list[NE] | None = None
+    status = "routed"
+    for a, b in candidates:
+        s0, region0 = (start, start_region) if a is None else (a, free_c)
+        if b is None:
+            f = _astar(free_c, region0, s0, nodes, center, radius_m, clockwise,
+                       goal_region=goal_region, start_goal_region=goal_region)
+        else:
+            f = _astar(free_c, region0, s0, nodes, b, 0.0, clockwise)
+        if f is None:
+            continue
+        pts = f[0] if b is None else [*f[0], center]  # the entry's leg to the goal, reversed
+        if a is not None:
+            pts = [start, *pts]  # the exit leg: the shortest way into the free space
+        if best is None or _length(pts) < _length(best):
+            best, status = pts, "routed" if a is None else "routed_from_outside"
+    return None if best is None else (best, status)
 
 
 def plan_path(fence: Fence | None, start_ne_m: NE, goal_ne_m: NE, clearance_m: float) -> tuple[NE, ...] | None:

@@ -377,6 +377,16 @@ def reference_markdown() -> str:
     _check_notes([s.model for s in secs])
     anchors = {s.model: s.anchor for s in secs}
     defaults = MerlinConfig()
+    lines = _head(secs)
+    for sec in secs:
+        lines += _section_markdown(sec, anchors)
+    lines += _envelope_part(defaults)
+    lines += _arbiter_part(defaults)
+    return "\n".join(lines)
+
+
+def _head(secs: list[Section]) -> list[str]:
+    """The page's introduction, units and contents."""
     strict_doc = inspect.cleandoc(Strict.__doc__ or "").removeprefix("Base: ")
     lines = [
         "# Merlin configuration reference",
@@ -416,8 +426,12 @@ def reference_markdown() -> str:
         "## Sections",
         "",
     ]
-    for sec in secs:
-        lines += _section_markdown(sec, anchors)
+    return lines
+
+
+def _envelope_part(defaults: MerlinConfig) -> list[str]:
+    """The envelope parameters and the default envelope stages."""
+    lines: list[str] = []
     lines += [
         '<a id="envelope-parameters"></a>',
         "",
@@ -443,6 +457,12 @@ def reference_markdown() -> str:
         parent = f", extends `{stage.extends}`" if stage.extends else ""
         lines += [f"### `{stage_name}`{parent}", "", stage.description, ""]
         lines += [render_markdown(envelope_table(defaults, stage_name)), ""]
+    return lines
+
+
+def _arbiter_part(defaults: MerlinConfig) -> list[str]:
+    """The monitors, the actions and clear conditions, and the default arbiter table."""
+    lines: list[str] = []
     lines += [
         '<a id="monitors"></a>',
         "",
@@ -477,7 +497,7 @@ def reference_markdown() -> str:
         render_markdown(arbiter_table(defaults)),
         "",
     ]
-    return "\n".join(lines)
+    return lines
 
 
 #: What mypyc puts in ``__doc__`` of a class it compiled (``merlin.core``'s enums are compiled).

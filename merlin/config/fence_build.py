@@ -51,6 +51,7 @@ def build_fence_params(geofence_cfg: GeofenceConfig, vehicle_cfg: VehicleLimits,
         turn = {"full_bank_airspeed_mps": fc.full_bank_airspeed_mps(cp),
                 "turn_airspeed_mps": fc.escape_airspeed_mps(cp),
                 "turn_speed_gain_per_s": cp.speed_gain_per_s,
+                "roll_rate_radps": cp.roll_sp_rate_radps,
                 "recovery_height_m": recovery_height_m}
     return FenceParams(
         mode=mode,

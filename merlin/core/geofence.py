@@ -137,6 +137,10 @@ class FenceParams:
     full_bank_airspeed_mps: float = 0.0
     turn_airspeed_mps: float = 0.0
     turn_speed_gain_per_s: float = 0.6
+    # Fixed wing: the rate at which the trusted loops move their bank (the roll setpoint's slew). A bank away
+    # from a turn's side is rolled out at it before the roll-in that the reaction time covers
+    # (:func:`fixed_wing_turn`). 0: not modelled (the escape starts from wings level).
+    roll_rate_radps: float = 0.0
     # Fixed wing: the most height the stall recovery may lose after a revocation (derived from the aircraft
     # and the envelope: merlin.autopilot.fixedwing_recovery.recovery_height_bound_m). The floor projection
     # counts it beyond the reaction time's sink, so that a controller granted above the minimum grant height
@@ -149,7 +153,7 @@ class FenceParams:
             problems.append(f"mode {self.mode!r} is not 'velocity_projection' or 'position_only'")
         if self.vehicle not in ("multirotor", "fixed_wing"):
             problems.append(f"vehicle {self.vehicle!r} is not 'multirotor' or 'fixed_wing'")
-        for name in ("margin_m", "sigma_k", "reaction_time_s", "recovery_height_m"):
+        for name in ("margin_m", "sigma_k", "reaction_time_s", "recovery_height_m", "roll_rate_radps"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0.0):
                 problems.append(f"{name}={v!r} must be finite and >= 0")
@@ -543,7 +547,7 @@ _CLEAR_POSITION_ONLY = FenceResult(False, "", 0.0, _NAN)
 
 def check(fence: Fence, pos_ned_m: Sequence[float], vel_ned_mps: Sequence[float], sigma_h_m: float,
           sigma_v_m: float, airborne: bool, wind_ne_mps: tuple[float, float] = (0.0, 0.0),
-          demand_vel_ned_mps: Sequence[float] | None = None) -> FenceResult:
+          demand_vel_ned_mps: Sequence[float] | None = None, bank_rad: float = 0.0) -> FenceResult:
     """The fence verdict for one tick. Pure; never raises on non-finite numbers (they trip "invalid").
 
     ``demand_vel_ned_mps`` (multirotor): the velocity the command being flown drives towards (for an
@@ -560,14 +564,19 @@ def check(fence: Fence, pos_ned_m: Sequence[float], vel_ned_mps: Sequence[float]
     *air*: over the reaction leg and the half turn the wind carries it ``wind * t`` downwind, so the ground
     path is the air path plus that drift (a trochoid), not a circle (:func:`_turn_path`; scenario
     ``fw_adv_tailwind_fence_22mps``, docs/fixed-wing.md, "Wind"). A non-finite wind trips "invalid" like any
-    broken input: treating it as none would be unsafe."""
+    broken input: treating it as none would be unsafe.
+
+    ``bank_rad`` (fixed wing only; right positive): the bank at this tick. A turn away from it first rolls
+    it out (:func:`fixed_wing_turn`); a non-finite bank trips "invalid". The escape is flown at the
+    airspeed, not its horizontal part: in a dive the speed is kept when the loops level the path, and the
+    turn is as wide as that speed makes it (scenario ``fw_adv_dive_reversal``)."""
     prm = fence.params
     if not prm.enabled:
         return _DISABLED
     n, e, dn = pos_ned_m
     vn, ve, vd = vel_ned_mps
     wn, we = wind_ne_mps
-    if _broken(n, e, dn, vn, ve, vd, sigma_h_m, sigma_v_m, wn, we):
+    if _broken(n, e, dn, vn, ve, vd, sigma_h_m, sigma_v_m, wn, we) or not math.isfinite(bank_rad):
         return _INVALID
     n, e, vn, ve = _flush_tiny(n, e, vn, ve)
     v = math.hypot(vn, ve)
@@ -594,12 +603,14 @@ def check(fence: Fence, pos_ned_m: Sequence[float], vel_ned_mps: Sequence[float]
                 ve = 0.0
             v = math.hypot(vn, ve)
             wind = (wn, we)
-        turn = fixed_wing_turn(prm, v)
+        turn = fixed_wing_turn(prm, _escape_speed_mps(v, vd), bank_rad)
         leg, radius = turn.leg_m, turn.radius_m
-        d = leg + math.pi * radius
+        rollout = turn.rollout_m()
+        d = rollout + leg + math.pi * radius
         drift = _drift_m(wind, turn)
-        # farthest point of either turn from the position, plus the drift over the whole manoeuvre
-        reach = math.hypot(leg, radius) + radius + drift
+        # farthest point of either turn from the position, plus the drift over the whole manoeuvre (the
+        # roll-out's path length bounds how far it moves the turn's start)
+        reach = rollout + math.hypot(leg, radius) + radius + drift
         # the polyline's chord error (beyond the finest table only for turns wider than ~2.6 km)
         sag = _WIND_SAG_FACTOR * max(ARC_CHORD_ERROR_M, radius * fence._arc_tables[-1][1]) + _leg_sag_m(turn)
     else:
@@ -684,7 +695,8 @@ def _verdict(
         if not (lb > reach + w + sag):
             if _outside_box(fence, n, e):
                 trip_h = True
-            elif fence._grid_nj and _grid_clears_path(fence, n, e, vn, ve, v, d, leg, radius, w, fixed_wing, drift):
+            elif fence._grid_nj and _grid_clears_path(fence, n, e, vn, ve, v, d, leg, radius, w, fixed_wing, drift,
+                                                        turn):
                 trip_h = False
             else:
                 trip_h = _path_hits(fence, n, e, vn, ve, v, d, turn, w, sag, reach, wind)
@@ -856,6 +868,7 @@ def _grid_clears_path(
     w: float,
     fixed_wing: bool,
     drift_m: float = 0.0,
+    turn: FixedWingTurn | None = None,
 ) -> bool:
     """True when the distance field alone proves that the exact test would find the path clear.
 
@@ -867,22 +880,34 @@ def _grid_clears_path(
     when the field's lower bound at the disc's centre exceeds its radius plus the widening, that piece is
     clear; otherwise it is halved, up to ``_GRID_DEPTH`` times. For a fixed wing one clear turn suffices;
     the exact test's polyline may lie a chord error off the arc and its widening adds that error, hence
-    twice the sag here. Pure Python: no shapely call.
+    twice the sag here. A roll-out (``turn`` given, :func:`fixed_wing_turn`) is tested as the disc of its
+    arc's length about the position, and the leg and the turn from the arc's end on its heading. Pure
+    Python: no shapely call.
     """
     if not (v > 0.0):
         return _lower_bound(fence, n, e) > w
     un, ue = vn / v, ve / v
     if not fixed_wing:
         return _segment_clear(fence, n, e, n + d * un, e + d * ue, w, _GRID_DEPTH)
-    need = w + 2.0 * _WIND_SAG_FACTOR * _arc_table(fence, radius)[0] + drift_m
-    an, ae = n + leg * un, e + leg * ue
+    need = w + 2.0 * _WIND_SAG_FACTOR * max(_arc_table(fence, radius)[0], ARC_CHORD_ERROR_M) + drift_m
     for side in (1.0, -1.0):
-        rn, re_ = -ue * side, un * side
+        sn_, se_, su_n, su_e, side_leg = n, e, un, ue, leg
+        if turn is not None and turn.rolls_out(side):
+            arc = turn.rollout_radius_m * turn.rollout_turn_rad
+            if not (_lower_bound(fence, n, e) > arc + need):
+                continue
+            head, _t, _sag = _rollout_arc(n, e, un, ue, turn, side)
+            sn_, se_ = float(head[-1, 0]), float(head[-1, 1])
+            c, sn = math.cos(turn.rollout_turn_rad), math.sin(turn.rollout_turn_rad)
+            su_n, su_e = c * un + side * sn * ue, c * ue - side * sn * un
+            side_leg = leg + 0.5 * turn.rollout_m()
+        an, ae = sn_ + side_leg * su_n, se_ + side_leg * su_e
+        rn, re_ = -su_e * side, su_n * side
         centre_clear = _lower_bound(fence, an + radius * rn, ae + radius * re_) > radius + need
         if (
             centre_clear
-            or _arc_clear(fence, an, ae, un, ue, rn, re_, radius, 0.0, math.pi, need, _GRID_DEPTH)
-        ) and (leg <= 0.0 or _segment_clear(fence, n, e, an, ae, need, _GRID_DEPTH)):
+            or _arc_clear(fence, an, ae, su_n, su_e, rn, re_, radius, 0.0, math.pi, need, _GRID_DEPTH)
+        ) and (side_leg <= 0.0 or _segment_clear(fence, sn_, se_, an, ae, need, _GRID_DEPTH)):
             return True
     return False
 
@@ -973,6 +998,11 @@ _WIND_SAG_FACTOR = 1.05
 _NO_WIND: tuple[float, float] = (0.0, 0.0)
 
 
+#: The largest bank the roll-out counts: a coordinated level turn beyond it needs more than 5.7 g, which no
+#: wing lifts in a fixed wing's speed range; an aircraft banked further turns no faster than this.
+_ROLLOUT_BANK_MAX_RAD = math.radians(80.0)
+
+
 class FixedWingTurn(NamedTuple):
     """The fixed-wing escape as the trusted loops fly it, in the air mass (:func:`fixed_wing_turn`).
 
@@ -980,7 +1010,14 @@ class FixedWingTurn(NamedTuple):
     aircraft is slower than the loops' full-bank airspeed, the speed regained wings level, for
     ``accel_s`` (the speed loop's first-order approach to ``v_turn_mps``). Then the half turn of
     ``radius_m`` at the bank limit, flown at ``v_turn_mps``. ``duration_s``: the whole manoeuvre's time
-    (what the wind drifts it by)."""
+    (what the wind drifts it by), the roll-out included.
+
+    ``bank_rad`` (right positive): the bank at the trip. A turn to the other side first rolls it out, for
+    ``rollout_s`` (the bank over the loops' roll rate); the path counts the bank held for the first half of
+    that time (``rollout_turn_rad`` of heading towards the bank, on an arc of ``rollout_radius_m``), then
+    straight for the second half, before the reaction leg: the bank only decreases while it is rolled out
+    and the turn rate ``g tan(bank) / V`` is convex in the bank, so that heading leads the real one at
+    every moment (scenarios ``fw_adv_pullup_reversal_tailwind`` and ``fw_adv_dive_reversal``)."""
 
     v0_mps: float
     reaction_s: float
@@ -990,6 +1027,10 @@ class FixedWingTurn(NamedTuple):
     leg_m: float
     radius_m: float
     duration_s: float
+    bank_rad: float = 0.0
+    rollout_s: float = 0.0
+    rollout_turn_rad: float = 0.0
+    rollout_radius_m: float = 0.0
 
     def leg_s_m(self, t: FloatArray) -> FloatArray:
         """Distance along the leg at the times ``t`` (0..reaction_s + accel_s)."""
@@ -997,12 +1038,22 @@ class FixedWingTurn(NamedTuple):
         ta = np.clip(t - tr, 0.0, None)
         return np.asarray(v0 * np.minimum(t, tr) + ve * ta - (ve - v0) * (1.0 - np.exp(-k * ta)) / k)
 
+    def rolls_out(self, side: float) -> bool:
+        """Whether the turn to ``side`` (+1 right, -1 left) first rolls out a bank towards the other side."""
+        return self.rollout_s > 0.0 and self.bank_rad * side < 0.0
 
-def fixed_wing_turn(prm: FenceParams, v_air_mps: float) -> FixedWingTurn:
-    """The escape the projection assumes from horizontal airspeed ``v_air_mps``, in the model the trusted
-    loops fly (:mod:`merlin.autopilot.fixedwing_control`, whose parameters set ``full_bank_airspeed_mps``,
-    ``turn_airspeed_mps`` and ``turn_speed_gain_per_s`` through :func:`merlin.config.fence_build`):
+    def rollout_m(self) -> float:
+        """The roll-out's path length (0 when none is flown to either side)."""
+        return self.v0_mps * self.rollout_s
 
+
+def fixed_wing_turn(prm: FenceParams, v_air_mps: float, bank_rad: float = 0.0) -> FixedWingTurn:
+    """The escape the projection assumes from airspeed ``v_air_mps`` and bank ``bank_rad``, in the model the
+    trusted loops fly (:mod:`merlin.autopilot.fixedwing_control`, whose parameters set
+    ``full_bank_airspeed_mps``, ``turn_airspeed_mps``, ``turn_speed_gain_per_s`` and ``roll_rate_radps``
+    through :func:`merlin.config.fence_build`):
+
+    * a bank towards the other side is rolled out first, at the loops' roll rate (:class:`FixedWingTurn`);
     * the reaction time at the current airspeed (detection, roll-in);
     * below the full-bank airspeed ``V_b`` the loops give the bank only in part (and none while they
       recover from a stall), so the turn waits for the speed: the speed loop approaches its target ``V_t``
@@ -1026,12 +1077,27 @@ def fixed_wing_turn(prm: FenceParams, v_air_mps: float) -> FixedWingTurn:
         accel_s = math.log((vt - v) / (vt - prm.full_bank_airspeed_mps)) / k
     leg = v * tr + vt * accel_s - (vt - v) * (1.0 - math.exp(-k * accel_s)) / k
     radius = vt * vt / g_tan
-    return FixedWingTurn(v, tr, accel_s, vt, k, leg, radius, tr + accel_s + math.pi * vt / g_tan)
+    phi = min(abs(bank_rad), _ROLLOUT_BANK_MAX_RAD) if math.isfinite(bank_rad) else _ROLLOUT_BANK_MAX_RAD
+    rollout_s = rollout_turn = rollout_radius = 0.0
+    if prm.roll_rate_radps > 0.0 and phi > 0.0 and v > 0.0:
+        rollout_s = phi / prm.roll_rate_radps
+        rate = prm.gravity_mps2 * math.tan(phi) / v
+        rollout_turn, rollout_radius = 0.5 * rollout_s * rate, v / rate
+    return FixedWingTurn(v, tr, accel_s, vt, k, leg, radius, rollout_s + tr + accel_s + math.pi * vt / g_tan,
+                         math.copysign(phi, bank_rad) if phi > 0.0 else 0.0, rollout_s, rollout_turn,
+                         rollout_radius)
 
 
 #: Time samples of a leg that regains speed in a wind (its ground path is curved: the air path's distance
 #: is not linear in time while the drift is); the chord error between samples is added to the widening.
 _LEG_SAMPLES = 8
+
+
+def _escape_speed_mps(v_h_mps: float, vd_mps: float) -> float:
+    """The airspeed the escape is projected at from horizontal air speed ``v_h_mps`` and vertical speed
+    ``vd_mps``: the whole airspeed (no vertical wind), which the loops keep when they level a dive or a climb.
+    A vehicle with no horizontal speed has no direction to project: its horizontal speed (0) as before."""
+    return math.hypot(v_h_mps, vd_mps) if v_h_mps > 0.0 else v_h_mps
 
 
 def _leg_sag_m(turn: FixedWingTurn) -> float:
@@ -1059,22 +1125,78 @@ def _turn_path(
     side: float,
     wind: tuple[float, float] = _NO_WIND,
 ) -> tuple[FloatArray, float]:
-    """The fixed-wing path: the straight leg, then a half turn (side +1 right, -1 left). Returns (verts, sag).
+    """The fixed-wing path: the roll-out of a bank towards the other side (if any), the straight leg, then a
+    half turn (side +1 right, -1 left). Returns (verts, sag).
 
     ``un, ue`` is the direction of the air velocity. With a ``wind``, each vertex is moved downwind by
     ``wind * t``, ``t`` being when the aircraft flying the air path (:class:`FixedWingTurn`) reaches it:
     the ground path of a constant-bank turn in a steady wind. A leg that regains speed is sampled in time
     (its ground path bends), and its chord error is added to the returned sag."""
+    drifting = wind is not _NO_WIND and turn.v_turn_mps > 0.0
+    if not turn.rolls_out(side):
+        verts, t, sag = _air_path(fence, n, e, un, ue, turn, side, drifting)
+    else:
+        head, t_head, sag_out = _rollout_arc(n, e, un, ue, turn, side)
+        # the rest of the roll-out, straight: a longer reaction leg from the arc's end, on the new heading
+        half = 0.5 * turn.rollout_s
+        rest = turn._replace(reaction_s=turn.reaction_s + half, leg_m=turn.leg_m + turn.v0_mps * half)
+        c, sn = math.cos(turn.rollout_turn_rad), math.sin(turn.rollout_turn_rad)
+        # towards the bank (-side): a right bank turns the heading clockwise (north towards east)
+        un2, ue2 = c * un + side * sn * ue, c * ue - side * sn * un
+        tail, t_tail, sag = _air_path(fence, float(head[-1, 0]), float(head[-1, 1]), un2, ue2, rest, side, drifting)
+        verts = np.vstack((head[:-1], tail))
+        t = np.concatenate((t_head[:-1], t_tail + half))
+        sag = max(sag, sag_out * _WIND_SAG_FACTOR if drifting else sag_out)
+    if drifting:
+        verts[:, 0] += wind[0] * t
+        verts[:, 1] += wind[1] * t
+    return verts, sag
+
+
+#: The roll-out arc's polyline is within this of the arc (as the half turn's, :data:`ARC_CHORD_ERROR_M`).
+_ROLLOUT_MAX_SEGMENTS = 64
+
+
+def _rollout_arc(n: float, e: float, un: float, ue: float, turn: FixedWingTurn,
+                 side: float) -> tuple[FloatArray, FloatArray, float]:
+    """The first half of a roll-out before a turn to ``side``: the arc flown at the bank of the trip (towards
+    -side), as a polyline with its vertex times and chord error."""
+    r, ang = turn.rollout_radius_m, turn.rollout_turn_rad
+    # segments so that the chord error r (1 - cos(da / 2)) stays within ARC_CHORD_ERROR_M
+    m = 1
+    if r * (1.0 - math.cos(0.5 * ang)) > ARC_CHORD_ERROR_M:
+        da_max = 2.0 * math.acos(max(1.0 - ARC_CHORD_ERROR_M / r, -1.0))
+        m = min(max(math.ceil(ang / da_max), 1), _ROLLOUT_MAX_SEGMENTS)
+    phi = np.linspace(0.0, ang, m + 1)
+    rn, re_ = ue * side, -un * side  # unit normal towards the roll-out's centre (the bank's side, -side)
+    one_c, sn = 1.0 - np.cos(phi), np.sin(phi)
+    verts = np.empty((m + 1, 2))
+    verts[:, 0] = n + r * (rn * one_c + un * sn)
+    verts[:, 1] = e + r * (re_ * one_c + ue * sn)
+    sag = r * (1.0 - math.cos(0.5 * ang / m))
+    return verts, phi * r / turn.v0_mps, sag
+
+
+def _air_path(
+    fence: Fence,
+    n: float,
+    e: float,
+    un: float,
+    ue: float,
+    turn: FixedWingTurn,
+    side: float,
+    timed: bool,
+) -> tuple[FloatArray, FloatArray, float]:
+    """The straight leg and the half turn in the air mass, from (n, e) on ``un, ue``: (verts, times, sag).
+    The times are filled in only when ``timed`` (a wind drifts the path by them)."""
     leg, radius = turn.leg_m, turn.radius_m
     sag, cphi, sphi = _arc_table(fence, radius)
     an, ae = n + leg * un, e + leg * ue  # start of the turn
     rn, re_ = -ue * side, un * side  # unit normal towards the turn centre (right of u for side = +1)
-    drifting = wind is not _NO_WIND and turn.v_turn_mps > 0.0
-    lead = _LEG_SAMPLES + 1 if drifting and turn.accel_s > 0.0 else 1
+    lead = _LEG_SAMPLES + 1 if timed and turn.accel_s > 0.0 else 1
     verts = np.empty((cphi.shape[0] + lead, 2))
-    t = np.empty(verts.shape[0])
+    t = np.zeros(verts.shape[0])
     verts[0, 0], verts[0, 1] = n, e
-    t[0] = 0.0
     if lead > 1:
         # the end of the reaction leg, then the speed regained, in equal steps of time
         tl = turn.reaction_s + turn.accel_s * np.arange(0, _LEG_SAMPLES) / _LEG_SAMPLES
@@ -1089,13 +1211,11 @@ def _turn_path(
     # point(phi) = centre + R (-normal cos(phi) + u sin(phi)): phi = 0 is the turn's start, heading u.
     verts[lead:, 0] = an + radius * (rn - rn * cphi + un * sphi)
     verts[lead:, 1] = ae + radius * (re_ - re_ * cphi + ue * sphi)
-    if drifting:
+    if timed:
         # the tables hold phi = linspace(0, pi, m + 1); arctan2 gives it back exactly enough for a time
         t[lead:] = turn.reaction_s + turn.accel_s + radius * np.arctan2(sphi, cphi) / turn.v_turn_mps
-        verts[:, 0] += wind[0] * t
-        verts[:, 1] += wind[1] * t
         sag = sag * _WIND_SAG_FACTOR + leg_sag
-    return verts, sag
+    return verts, t, sag
 
 
 def _path_hits(
@@ -1304,6 +1424,7 @@ def turn_clearances(
     vel_ned_mps: Sequence[float],
     sigma_h_m: float,
     wind_ne_mps: tuple[float, float] = (0.0, 0.0),
+    bank_rad: float = 0.0,
 ) -> tuple[TurnClearance, TurnClearance]:
     """Both sides of the fixed-wing fence projection, (right, left), measured exactly as :func:`check` builds
     them (the fence's reaction time and bank limit; the arc as its polyline, whose chord error is counted
@@ -1313,12 +1434,16 @@ def turn_clearances(
     not for every tick: it always calls shapely (two distances, and the first contact on a side that has
     one). Horizontal only; the fence's vehicle kind is not consulted (the turn is what is measured).
     Non-finite input, or a fence with no horizontal hazard, gives NaN / inf margins respectively.
+    ``bank_rad``: the bank at this state (right positive), rolled out first by a turn to the other side, and
+    the airspeed is the whole one, as in :func:`check`.
     """
     prm = fence.params
     n, e = float(pos_ned_m[0]), float(pos_ned_m[1])
     vn, ve = float(vel_ned_mps[0]), float(vel_ned_mps[1])
+    vd = float(vel_ned_mps[2]) if len(vel_ned_mps) > 2 else 0.0
     wn, we = float(wind_ne_mps[0]), float(wind_ne_mps[1])
-    if not math.isfinite(n + e + vn + ve + sigma_h_m + wn + we) or max(abs(n), abs(e)) > MAX_ABS_POS_M:
+    if (not math.isfinite(n + e + vn + ve + vd + sigma_h_m + wn + we + bank_rad)
+            or max(abs(n), abs(e)) > MAX_ABS_POS_M):
         bad = (TurnClearance(1, _NAN, _NAN), TurnClearance(-1, _NAN, _NAN))
         return bad
     if fence._forbidden is None:
@@ -1335,9 +1460,9 @@ def turn_clearances(
             free = _INF if d > w else 0.0
             return TurnClearance(1, d - w, free), TurnClearance(-1, d - w, free)
         un, ue = vn / v, ve / v
-        turn = fixed_wing_turn(prm, v)
+        turn = fixed_wing_turn(prm, _escape_speed_mps(v, vd), bank_rad)
         radius = turn.radius_m
-        reach = math.hypot(turn.leg_m, radius) + radius + _drift_m(wind, turn)
+        reach = turn.rollout_m() + math.hypot(turn.leg_m, radius) + radius + _drift_m(wind, turn)
         sag_max = _WIND_SAG_FACTOR * max(ARC_CHORD_ERROR_M, radius * fence._arc_tables[-1][1]) + _leg_sag_m(turn)
         hazard = _local_hazard(fence, n, e, reach + w + sag_max)
         out = []

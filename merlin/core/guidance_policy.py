@@ -56,6 +56,12 @@ class GuidanceMemory(Protocol):
         """The commanded point (GOTO's, ORBIT's centre) this memory answers, flown or not."""
         ...
 
+    @property
+    def accel_ff_ned_mps2(self) -> Vec3:
+        """The acceleration the behaviour's velocity command follows by construction this tick (its braking
+        ramp after a takeover), for the velocity loop to feed forward; zero when none."""
+        ...
+
 
 M = TypeVar("M", bound=GuidanceMemory)
 

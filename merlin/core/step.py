@@ -57,6 +57,7 @@ from merlin.core.types import (
     RequestKind,
     Setpoint,
     SetpointKind,
+    Vec3,
     VehicleState,
 )
 
@@ -599,8 +600,10 @@ def _fence_monitor(cfg: CoreConfig, fence: geofence.Fence, last: Command | None,
     prm = fence.params
     demand = None if prm.vehicle == "fixed_wing" else demanded_velocity(flown, s, prm.reaction_time_s,
                                                                         prm.gravity_mps2)
+    # a fixed wing's escape first rolls out a bank towards the other side (geofence.fixed_wing_turn)
+    bank = s.att_rpy_rad[0] if prm.vehicle == "fixed_wing" else 0.0
     res = geofence.check(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, s.pos_sigma_v_m, floor_reached,
-                         wind_ne, demand)
+                         wind_ne, demand, bank)
     return _fence_reason(res) if res.tripped else None
 
 
@@ -739,7 +742,7 @@ def _route_warning(events: list[Event], now: float, what: str, note: str) -> Non
 
 def _incoming(cfg: CoreConfig, st: CoreState, arb: ArbiterState, source: tuple[Authority, Behavior], dt: float,
               op: OperatorInput, c: Checked, floor_reached: bool, trusted_sp: Setpoint | None,
-              ) -> tuple[OperatorMemory, Command]:
+              trusted_ff: Vec3 | None = None) -> tuple[OperatorMemory, Command]:
     """The command of the source in authority, before bumpless shaping (and the operator's memory)."""
     authority, behavior = source
     s, sp = c.s, c.setpoint
@@ -760,9 +763,19 @@ def _incoming(cfg: CoreConfig, st: CoreState, arb: ArbiterState, source: tuple[A
             incoming = track_command(clamp_command(incoming, cfg.clamp), st.last_command, s, dt, cfg.clamp)
         return op_mem, incoming
     if trusted_sp is not None:
-        return op_mem, setpoint_to_command(trusted_sp, s, _TRUSTED, cfg.trusted)
+        own = setpoint_to_command(trusted_sp, s, _TRUSTED, cfg.trusted)
+        return op_mem, own if trusted_ff is None else own._replace(accel_ned_mps2=trusted_ff)
     # unreachable in practice: EXPERIMENTAL without a valid setpoint is revoked this tick
     return op_mem, Command(_CMD_VELOCITY, _TRUSTED, yaw_rad=s.att_rpy_rad[2])
+
+
+def _feedforward(memory: GuidanceMemory | None) -> Vec3 | None:
+    """The acceleration Merlin's own command follows by construction (its braking ramp), for the velocity
+    loop; None when there is none."""
+    if memory is None:
+        return None
+    a = memory.accel_ff_ned_mps2
+    return a if (a[0] != 0.0 or a[1] != 0.0 or a[2] != 0.0) else None
 
 
 def _operator_memory(st: CoreState, s: VehicleState, fenced: bool) -> OperatorMemory:
@@ -872,7 +885,7 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
         events.append(Event(now, EventKind.BEHAVIOR, behavior=behavior))
     source = (authority, behavior)
     op_mem, incoming = _incoming(cfg, st, arb, source, dt, inputs.operator, checked, report.floor_reached,
-                                 trusted.setpoint)
+                                 trusted.setpoint, _feedforward(trusted.memory))
     flies_trusted = (authority is _TRUSTED or authority is _SHADOW) and arb.armed
     blend, command = _bumpless(cfg, st, source, flies_trusted, now, dt, checked.s, incoming)
     statuses, reported, failsafe = _statuses(cfg, st, now, authority, report, events)

@@ -318,6 +318,9 @@ class Command(NamedTuple):
     thrust: float = 0.0
     pos_target_ned_m: Vec3 | None = None  # the position the velocity command closes on, if any
     blend: float = 1.0  # 0 at a transfer, 1 once the incoming source is fully in command
+    # the rate at which a velocity command is changing, fed forward by the velocity loop (PX4's acceleration
+    # setpoint beside its velocity setpoint); zero for any source whose command profile is not Merlin's own
+    accel_ned_mps2: Vec3 = ZERO3
 
 
 class EventKind(Enum):

@@ -536,8 +536,17 @@ def _nan_if_none(v: float | None) -> float:
 
 
 def encode(out: o.OutMessage, mod: ModuleType) -> list[Any]:
-    """The pymavlink message object(s) for ``out`` (a long STATUSTEXT becomes several chunks)."""
-    M = mod
+    """The pymavlink message object(s) for ``out`` (a long STATUSTEXT becomes several chunks): telemetry,
+    the protocols' messages (commands, parameters, missions), or Merlin's own dialect."""
+    for family in (_encode_telemetry, _encode_protocol, _encode_merlin):
+        msgs = family(out, mod)
+        if msgs is not None:
+            return msgs
+    raise TypeError(f"not an outgoing Merlin message: {out!r}")
+
+
+def _encode_telemetry(out: o.OutMessage, M: ModuleType) -> list[Any] | None:
+    """The vehicle's telemetry and STATUSTEXT (None: not one of them)."""
     match out:
         case o.HeartbeatOut():
             return [M.MAVLink_heartbeat_message(out.mav_type, M.MAV_AUTOPILOT_PX4, out.base_mode,
@@ -593,6 +602,13 @@ def encode(out: o.OutMessage, mod: ModuleType) -> list[Any]:
                 chunks.append(b"")  # a NUL-terminated chunk marks the end for the receiver
             msg_id = out.id or 1
             return [M.MAVLink_statustext_message(out.severity, c, msg_id, n) for n, c in enumerate(chunks)]
+    return None
+
+
+def _encode_protocol(out: o.OutMessage, M: ModuleType) -> list[Any] | None:
+    """Command acknowledgements, autopilot version, parameters and the mission protocol (None: not one
+    of them)."""
+    match out:
         case o.CommandAckOut():
             return [M.MAVLink_command_ack_message(out.command, out.result, out.progress, out.result_param2,
                                                   out.target_system, out.target_component)]
@@ -625,6 +641,12 @@ def encode(out: o.OutMessage, mod: ModuleType) -> list[Any]:
             return [M.MAVLink_mission_current_message(out.seq, out.total, out.mission_state, out.in_mission_mode)]
         case o.MissionItemReachedOut():
             return [M.MAVLink_mission_item_reached_message(out.seq)]
+    return None
+
+
+def _encode_merlin(out: o.OutMessage, M: ModuleType) -> list[Any] | None:
+    """Merlin's dialect: the authority exchange and the envelope status (None: not one of them)."""
+    match out:
         case o.AuthorityGrantOut():
             return [M.MAVLink_merlin_authority_grant_message(
                 out.time_boot_ms, out.grant_seq, out.request_id, out.target_system, out.target_component,
@@ -652,7 +674,7 @@ def encode(out: o.OutMessage, mod: ModuleType) -> list[Any]:
             return [M.MAVLink_merlin_envelope_status_message(
                 out.time_boot_ms, out.parameter, out.parameter_count, out.state, out.value, out.min, out.max,
                 out.exceedance_elapsed_s, out.exceedance_duration_s, _chars(out.stage, 16))]
-    raise TypeError(f"not an outgoing Merlin message: {out!r}")
+    return None
 
 
 def _value_or_nan(r: Any) -> float:

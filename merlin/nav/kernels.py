@@ -596,10 +596,11 @@ def gps_innovation(
     vel_var: float,
     y: np.ndarray,
     r: np.ndarray,
-) -> tuple[float, float, float, float, float]:
+) -> tuple[float, float, float, float, float, float, float]:
     """The GPS epoch carried forward by ``lag`` and its innovation (``NavEstimator._gps_innovation`` gives
-    the equations): fills y = z − h(x̂) and R's diagonal r, returns the position and velocity NIS and the
-    NED acceleration used to carry the epoch."""
+    the equations): fills y = z − h(x̂) and R's diagonal r, returns the position and velocity NIS, the
+    NED acceleration used to carry the epoch, and the mechanisation-only position (north, east) carried
+    back to the epoch's time of validity with it (for the window test)."""
     fbx, fby, fbz = ax_b - s[17], ay_b - s[18], az_b - s[19]
     qw, qx, qy, qz = s[6], s[7], s[8], s[9]
     tx = 2.0 * (qy * fbz - qz * fby)
@@ -618,4 +619,6 @@ def gps_innovation(
     r[0] = r[1] = sig_h2 + lag_var_p
     r[2] = sig_v2 + lag_var_p
     r[3] = r[4] = r[5] = vel_var
-    return nis(H, P, r, y, 0, 3), nis(H, P, r, y, 3, 6), an, ae, ad
+    dr_n = s[24] - s[3] * lag + 0.5 * an * lag * lag
+    dr_e = s[25] - s[4] * lag + 0.5 * ae * lag * lag
+    return nis(H, P, r, y, 0, 3), nis(H, P, r, y, 3, 6), an, ae, ad, dr_n, dr_e

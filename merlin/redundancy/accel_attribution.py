@@ -232,6 +232,27 @@ class AccelAttribution:
         None before any; ``miscompare``: the pair's accelerometers disagree beyond the voter's threshold.
         ``decide`` and ``count`` as in :meth:`merlin.redundancy.attribution.SubAlertAttribution.step`."""
         cfg = self.cfg
+        dt = self._propagate(t_s, gyro, accel, q_voted)
+        miscompare = self._detect(dt, accel, miscompare)
+        fix = self._take_fix(t_s, gps)
+        if not self._episode:
+            if not miscompare:
+                self._between_episodes(fix, q_voted)
+                return _IDLE
+            self._start_episode()
+        if decide if count is None else count:
+            self.counter_s = self.counter_s + dt if miscompare else max(0.0, self.counter_s - cfg.decay * dt)
+        if decide and self.counter_s <= 0.0 and not miscompare:
+            self._episode = False  # the pair agrees again; a window restarts at the next fix
+            self._anchor = None  # the next window starts at the next fix; a new onset, at the newest one
+            return _IDLE
+        if fix is not None:
+            self._estimate_shares(fix)
+        return self._view(t_s, decide)
+
+    def _propagate(self, t_s: float, gyro: np.ndarray, accel: np.ndarray, q_voted: np.ndarray) -> float:
+        """The shared attitude propagated with the pair's mean gyro and each lane's specific force integrated
+        in NED (kept over ``history_s``); returns the tick's interval."""
         dt = 0.0 if self._t is None else max(0.0, t_s - self._t)
         self._t = t_s
         if self._r is None:
@@ -240,16 +261,23 @@ class AccelAttribution:
             self._r = self._r @ _rotation(gyro.mean(axis=0) * dt)
         self._s += (self._r @ accel.T).T * dt
         self._hist.append((t_s, self._s.copy()))
-        while self._hist and self._hist[0][0] < t_s - cfg.history_s:
+        while self._hist and self._hist[0][0] < t_s - self.cfg.history_s:
             self._hist.popleft()
+        return dt
 
-        # the layer's own detection (detect_mps2)
+    def _detect(self, dt: float, accel: np.ndarray, miscompare: bool) -> bool:
+        """The layer's own detection (``detect_mps2``) beside the voter's miscompare; the pair's agreed
+        difference followed while they agree."""
         d_acc = accel[0] - accel[1]
         lp = self._pair.level(dt, d_acc)
-        miscompare = miscompare or lp >= cfg.detect_mps2
+        miscompare = miscompare or lp >= self.cfg.detect_mps2
         if not self._episode and not miscompare:
             self._pair.follow(dt, d_acc, lp)
+        return miscompare
 
+    def _take_fix(self, t_s: float, gps: tuple[float, tuple[float, float, float]] | None,
+                  ) -> tuple[float, np.ndarray, np.ndarray] | None:
+        """A new GPS fix as (time of validity, the integrals then, velocity NED), None when there is none."""
         fix = None
         if gps is not None and gps[0] != self._gps_t:
             s_fix = self._s_at(gps[0])
@@ -258,54 +286,60 @@ class AccelAttribution:
             if s_fix is not None:
                 fix = (gps[0], s_fix, np.asarray(gps[1], float))
                 self._last_fix = fix
+        return fix
 
-        if not self._episode:
-            if miscompare:
-                # the episode's window starts at the newest fix before the onset (at most one fix period
-                # plus the GPS latency earlier), on the attitude propagated since the last window start
-                self._episode = True
-                if self._last_fix is not None:
-                    self._anchor = self._last_fix
-                self.counter_s = 0.0
-                self.verdict = None
-                self._shares, self._sigma, self._dnorm = (0.0, 0.0), math.inf, 0.0
-            else:
-                if fix is not None:
-                    w = self._window(*fix)
-                    if w is None or w[2] >= cfg.window_s:
-                        if w is not None:
-                            # one more measurement of what both lanes share: the error of an attitude
-                            # aligned at the last window's end and propagated with the gyros since, as
-                            # it will be through an episode
-                            rv = 0.5 * (w[0][0] + w[0][1])
-                            self._windows += 1
-                            k = max(1.0 / cfg.average_windows, 1.0 / (cfg.prior_windows + self._windows))
-                            self._cov += k * (np.outer(rv, rv) - self._cov)
-                            self._align(rv, q_voted)
-                        self._anchor = fix  # the next window starts at this fix
-                return _IDLE
-        if decide if count is None else count:
-            self.counter_s = self.counter_s + dt if miscompare else max(0.0, self.counter_s - cfg.decay * dt)
-        if decide and self.counter_s <= 0.0 and not miscompare:
-            self._episode = False  # the pair agrees again; a window restarts at the next fix
-            self._anchor = None  # the next window starts at the next fix; a new onset, at the newest one
-            return _IDLE
-        if fix is not None:
-            w = self._window(*fix)
+    def _start_episode(self) -> None:
+        """A miscompare starts an episode: its window starts at the newest fix before the onset (at most one
+        fix period plus the GPS latency earlier), on the attitude propagated since the last window start."""
+        self._episode = True
+        if self._last_fix is not None:
+            self._anchor = self._last_fix
+        self.counter_s = 0.0
+        self.verdict = None
+        self._shares, self._sigma, self._dnorm = (0.0, 0.0), math.inf, 0.0
+
+    def _between_episodes(self, fix: tuple[float, np.ndarray, np.ndarray] | None, q_voted: np.ndarray) -> None:
+        """While the pair agrees, each window of ``window_s`` between fixes measures once more what both
+        lanes share and re-aligns the attitude; the next window starts at this fix."""
+        if fix is None:
+            return
+        cfg = self.cfg
+        w = self._window(*fix)
+        if w is None or w[2] >= cfg.window_s:
             if w is not None:
-                r, d, span = w
-                self._dnorm = float(np.linalg.norm(d))
-                if self._dnorm >= cfg.min_disagreement_mps2:
-                    # generalised least squares: the components the common error leaves alone (the
-                    # vertical, with a poor attitude) weigh most; var(share) = 1 / (D^T C^-1 D)
-                    wd = np.linalg.solve(self._cov, d)
-                    dwd = float(d @ wd)
-                    self._shares = (float(r[0] @ wd) / dwd, -float(r[1] @ wd) / dwd)
-                    self._sigma = math.sqrt(min(1.0, cfg.window_s / span) / dwd)
-                    if span < cfg.window_s:
-                        self._sigma = max(self._sigma, cfg.max_share_sigma * (1.0 + 1e-9))  # too short a window
-                else:
-                    self._shares, self._sigma = (0.0, 0.0), math.inf
+                # one more measurement of what both lanes share: the error of an attitude aligned at the
+                # last window's end and propagated with the gyros since, as it will be through an episode
+                rv = 0.5 * (w[0][0] + w[0][1])
+                self._windows += 1
+                k = max(1.0 / cfg.average_windows, 1.0 / (cfg.prior_windows + self._windows))
+                self._cov += k * (np.outer(rv, rv) - self._cov)
+                self._align(rv, q_voted)
+            self._anchor = fix  # the next window starts at this fix
+
+    def _estimate_shares(self, fix: tuple[float, np.ndarray, np.ndarray]) -> None:
+        """Each lane's share of the disagreement over the episode's window up to ``fix``, and its sigma."""
+        cfg = self.cfg
+        w = self._window(*fix)
+        if w is None:
+            return
+        r, d, span = w
+        self._dnorm = float(np.linalg.norm(d))
+        if self._dnorm >= cfg.min_disagreement_mps2:
+            # generalised least squares: the components the common error leaves alone (the vertical, with
+            # a poor attitude) weigh most; var(share) = 1 / (D^T C^-1 D)
+            wd = np.linalg.solve(self._cov, d)
+            dwd = float(d @ wd)
+            self._shares = (float(r[0] @ wd) / dwd, -float(r[1] @ wd) / dwd)
+            self._sigma = math.sqrt(min(1.0, cfg.window_s / span) / dwd)
+            if span < cfg.window_s:
+                self._sigma = max(self._sigma, cfg.max_share_sigma * (1.0 + 1e-9))  # too short a window
+        else:
+            self._shares, self._sigma = (0.0, 0.0), math.inf
+
+    def _view(self, t_s: float, decide: bool) -> AccelView:
+        """The episode's view: the shares while the GPS is fresh, which lane to feed, and the verdict once
+        the miscompare has persisted with shares sharp enough."""
+        cfg = self.cfg
         fresh = t_s - self._gps_seen_at <= cfg.gps_timeout_s
         shares = self._shares if fresh and self._sigma <= cfg.max_feed_share_sigma else (0.0, 0.0)
         sigma = self._sigma if fresh else math.inf

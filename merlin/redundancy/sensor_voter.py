@@ -266,10 +266,37 @@ def _vote_step_general(
     duplex_fault_lane: int | None = None,
     duplex_fault_detail: str = "duplex FDI verdict",
 ) -> tuple[VoterState, VotedOutput, tuple[FaultReport, ...]]:
+    """The vote's steps, in order: validate each lane; the mid-value of the candidates (and, down to two, the
+    duplex miscompare); the persistence counters; isolation; the optional reintegration; the output."""
     events: list[FaultReport] = []
     dt = 0.0 if state.t_s is None else max(0.0, t_s - state.t_s)
-    name = spec.name
+    lanes = _validated(spec, state, t_s, samples, events)
+    cand = [i for i, ln in enumerate(lanes) if not ln.isolated and ln.fault is None]
+    vecs = [lanes[i].last_values for i in cand]
+    mid = _mid_value(vecs) if cand else None  # type: ignore[arg-type]
+    duplex_mis = mid is not None and len(cand) == 2 and _duplex_miscompare(spec, state, t_s, cand, vecs, events)
+    _count_persistence(spec, lanes, t_s, dt, cand, mid, duplex_mis, events)
+    _isolate(spec, lanes, t_s, duplex_fault_lane, duplex_fault_detail, events)
+    if spec.reintegration_s is not None:
+        _reintegrate(spec, lanes, t_s, dt, events)
+    lanes_t = tuple(lanes)
+    level = _level(lanes_t)
+    if level < state.level:
+        events.append(FaultReport(t_s, FaultKind.DEGRADED, spec.name, -1, float(level), float(state.level),
+                                  detail=f"{state.level.name} -> {level.name}"))
+    used = tuple(i for i in cand if not lanes_t[i].isolated)
+    if len(used) == 3 and spec.pair_mean_in_persistence:
+        used = _agreeing_pair(spec, lanes_t, used)
+    values = _mid_value([lanes_t[i].last_values for i in used]) if used else state.output  # type: ignore[misc]
+    out = VotedOutput(t_s, values, bool(used), level, used, duplex_mis)
+    return VoterState(lanes_t, t_s, level, values), out, tuple(events)
 
+
+def _validated(spec: ChannelSpec, state: VoterState, t_s: float, samples: tuple[LaneSample | None, ...],
+               events: list[FaultReport]) -> list[LaneState]:
+    """Each lane's sample validated (timeout, range, rate, stuck), a fault reported as it appears or clears
+    on a lane not isolated."""
+    name = spec.name
     lanes = [_validate(spec, ln, t_s, s) for ln, s in zip(state.lanes, samples, strict=True)]
     for i, (old, new) in enumerate(zip(state.lanes, lanes, strict=True)):
         if new.fault is not None and new.fault is not old.fault and not new.isolated:
@@ -277,20 +304,28 @@ def _vote_step_general(
                                       if new.fault is FaultKind.TIMEOUT else 0.0))
         elif new.fault is None and old.fault is not None and not new.isolated:
             events.append(FaultReport(t_s, FaultKind.VALIDATION_CLEARED, name, i, detail=old.fault.value))
+    return lanes
 
-    cand = [i for i, ln in enumerate(lanes) if not ln.isolated and ln.fault is None]
-    vecs = [lanes[i].last_values for i in cand]
-    mid = _mid_value(vecs) if cand else None  # type: ignore[arg-type]
 
-    duplex_mis = False
-    if mid is not None and len(cand) == 2:
-        a, b = vecs
-        comp, dist = _worst_excess(spec, a, b)  # type: ignore[arg-type]
-        duplex_mis = dist > spec.miscompare[comp]
-        if duplex_mis and not state.lanes[cand[0]].miscompare:
-            events.append(FaultReport(t_s, FaultKind.DUPLEX_MISCOMPARE, f"{name}.{spec.components[comp]}", -1,
-                                      dist, spec.miscompare[comp], detail=f"lanes {cand[0]} and {cand[1]}"))
+def _duplex_miscompare(spec: ChannelSpec, state: VoterState, t_s: float, cand: list[int],
+                       vecs: list[tuple[float, ...] | None],
+                       events: list[FaultReport]) -> bool:
+    """Two candidates left: whether they disagree beyond the miscompare limit (reported once per episode; a
+    duplex cannot tell which one is wrong)."""
+    a, b = vecs
+    comp, dist = _worst_excess(spec, a, b)  # type: ignore[arg-type]
+    duplex_mis = dist > spec.miscompare[comp]
+    if duplex_mis and not state.lanes[cand[0]].miscompare:
+        events.append(FaultReport(t_s, FaultKind.DUPLEX_MISCOMPARE, f"{spec.name}.{spec.components[comp]}", -1,
+                                  dist, spec.miscompare[comp], detail=f"lanes {cand[0]} and {cand[1]}"))
+    return duplex_mis
 
+
+def _count_persistence(spec: ChannelSpec, lanes: list[LaneState], t_s: float, dt: float, cand: list[int],
+                       mid: tuple[float, ...] | None, duplex_mis: bool, events: list[FaultReport]) -> None:
+    """Each lane's persistence counter: up while it is faulty or (three candidates) miscompares with the
+    mid-value, down at ``decay`` otherwise."""
+    name = spec.name
     for i, ln in enumerate(lanes):
         if ln.isolated:
             continue
@@ -315,8 +350,13 @@ def _vote_step_general(
             lanes[i] = LaneState(ln.last_t_s, ln.last_values, ln.identical, ln.fault, mis, counter, ln.isolated,
                                  ln.isolated_t_s, ln.clean_s)
 
-    # isolation (latched). Never isolate the last lane on persistence alone: with nothing to compare, a
-    # validation fault only removes it from this tick's vote (the output goes invalid instead).
+
+def _isolate(spec: ChannelSpec, lanes: list[LaneState], t_s: float, duplex_fault_lane: int | None,
+             duplex_fault_detail: str, events: list[FaultReport]) -> None:
+    """Isolation (latched) of a lane whose counter reached ``persistence_s``, and of the lane a duplex FDI
+    names. Never the last lane on persistence alone: with nothing to compare, a validation fault only
+    removes it from this tick's vote (the output goes invalid instead)."""
+    name = spec.name
     for i, ln in enumerate(lanes):
         if ln.isolated or ln.counter_s < spec.persistence_s - _EPS_S:
             continue
@@ -333,36 +373,28 @@ def _vote_step_general(
             events.append(FaultReport(t_s, FaultKind.ISOLATED, name, duplex_fault_lane,
                                       detail=duplex_fault_detail))
 
-    # optional reintegration (off by default)
-    if spec.reintegration_s is not None:
-        healthy = [i for i, ln in enumerate(lanes) if not ln.isolated and ln.fault is None]
-        ref = _mid_value([lanes[i].last_values for i in healthy]) if healthy else None  # type: ignore[misc]
-        for i, ln in enumerate(lanes):
-            if not ln.isolated:
-                continue
-            ok = ref is not None and ln.fault is None
-            if ok:
-                comp, dist = _worst_excess(spec, ln.last_values, ref)  # type: ignore[arg-type]
-                ok = dist <= spec.miscompare[comp]
-            clean = ln.clean_s + dt if ok else 0.0
-            if clean >= spec.reintegration_s - _EPS_S:
-                lanes[i] = replace(ln, isolated=False, isolated_t_s=None, clean_s=0.0, counter_s=0.0,
-                                   miscompare=False)
-                events.append(FaultReport(t_s, FaultKind.REINTEGRATED, name, i, clean, spec.reintegration_s))
-            else:
-                lanes[i] = replace(ln, clean_s=clean)
 
-    lanes_t = tuple(lanes)
-    level = _level(lanes_t)
-    if level < state.level:
-        events.append(FaultReport(t_s, FaultKind.DEGRADED, name, -1, float(level), float(state.level),
-                                  detail=f"{state.level.name} -> {level.name}"))
-    used = tuple(i for i in cand if not lanes_t[i].isolated)
-    if len(used) == 3 and spec.pair_mean_in_persistence:
-        used = _agreeing_pair(spec, lanes_t, used)
-    values = _mid_value([lanes_t[i].last_values for i in used]) if used else state.output  # type: ignore[misc]
-    out = VotedOutput(t_s, values, bool(used), level, used, duplex_mis)
-    return VoterState(lanes_t, t_s, level, values), out, tuple(events)
+def _reintegrate(spec: ChannelSpec, lanes: list[LaneState], t_s: float, dt: float,
+                 events: list[FaultReport]) -> None:
+    """The optional reintegration (``reintegration_s``; off by default): an isolated lane that agrees with
+    the healthy lanes' mid-value for that long, with no validation fault, votes again."""
+    assert spec.reintegration_s is not None
+    healthy = [i for i, ln in enumerate(lanes) if not ln.isolated and ln.fault is None]
+    ref = _mid_value([lanes[i].last_values for i in healthy]) if healthy else None  # type: ignore[misc]
+    for i, ln in enumerate(lanes):
+        if not ln.isolated:
+            continue
+        ok = ref is not None and ln.fault is None
+        if ok:
+            comp, dist = _worst_excess(spec, ln.last_values, ref)  # type: ignore[arg-type]
+            ok = dist <= spec.miscompare[comp]
+        clean = ln.clean_s + dt if ok else 0.0
+        if clean >= spec.reintegration_s - _EPS_S:
+            lanes[i] = replace(ln, isolated=False, isolated_t_s=None, clean_s=0.0, counter_s=0.0,
+                               miscompare=False)
+            events.append(FaultReport(t_s, FaultKind.REINTEGRATED, spec.name, i, clean, spec.reintegration_s))
+        else:
+            lanes[i] = replace(ln, clean_s=clean)
 
 
 def _agreeing_pair(spec: ChannelSpec, lanes: tuple[LaneState, ...], used: tuple[int, ...]) -> tuple[int, ...]:

@@ -75,6 +75,7 @@ class SequentialImuFdi:
         self._llr = 0.0
         self._t_stat = np.zeros(2)
         self._recovery: RecoveryTest | None = None
+        self._onset = 0  # the onset estimate of the alert in progress (sample index)
 
     # ------------------------------------------------------------------------------------ each sample
     def _observe(self, gyro: np.ndarray, accel: np.ndarray, mag: np.ndarray) -> tuple[Sample, np.ndarray]:
@@ -122,6 +123,7 @@ class SequentialImuFdi:
         axes = alarm if alarm.any() else np.ones(N_AXES, bool)
         onset = int(self.cusum.last_zero[axes].min()) if alarm.any() else s.k
         onset = min(onset, s.k)
+        self._onset = onset
         t = self.tests
         ref = self.history.since(onset - t.reference_samples)
         before = [h.b for h in self.history.since(0) if h.k < onset] or [s.b]
@@ -173,7 +175,8 @@ class SequentialImuFdi:
         if abs(self._llr) >= t.isolation_h and other_ok:
             self.state = FdiState.FAULT_1 if bad == 0 else FdiState.FAULT_2
             axes = alarm | np.any(self.stuck.frozen(), axis=0)
-            self._recovery = RecoveryTest(t, self._dt, z, axes)
+            window = np.array([self.noise.z(h.y) for h in self.history.since(self._onset + 1)])
+            self._recovery = RecoveryTest(t, self._dt, z, axes, window)
             return [FaultReport(t_s, FaultKind.FAULT_DECLARED, "imu", self.lanes[bad], abs(self._llr),
                                 t.isolation_h,
                                 detail=f"isolation LLR {self._llr:+.1f} (jump {self._jump:+.1f}, kinematic "

@@ -114,6 +114,8 @@ class VisualOdometry:
         self._fast = cv2.FastFeatureDetector_create(threshold=config.fast_threshold, nonmaxSuppression=True)
         self._prev: _Frame | None = None
         self._hann: np.ndarray | None = None
+        self._shift_key: tuple[int, int, int] | None = None
+        self._shift_rc: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 1), np.intp), np.zeros((1, 0), np.intp))
         self._lk = {
             "winSize": (config.lk_window_px, config.lk_window_px),
             "maxLevel": config.lk_levels,
@@ -165,7 +167,8 @@ class VisualOdometry:
         if len(chosen) > cfg.max_tracked:
             # round by round over the cells (stable: within a round, cell order)
             chosen = chosen[np.argsort(rank[keep_rank], kind="stable")[: cfg.max_tracked]]
-        score = len(np.unique(cell)) / float(cfg.grid_cols * cfg.grid_rows)
+        n_cells = cfg.grid_cols * cfg.grid_rows
+        score = np.count_nonzero(np.bincount(cell, minlength=n_cells)) / float(n_cells)
         return np.ascontiguousarray(pts[chosen], dtype=np.float32).reshape(-1, 1, 2), score
 
     def _repetition(self, image: np.ndarray) -> tuple[float, float]:
@@ -184,7 +187,10 @@ class VisualOdometry:
         if zero <= 0.0:
             return 0.0, math.inf
         r = min(self.cfg.repetition_window_px // 2, h // 2 - 1, w // 2 - 1)
-        ac = np.fft.fftshift(ac)[h // 2 - r : h // 2 + r + 1, w // 2 - r : w // 2 + r + 1] / zero
+        # shifts −r..r around zero, read with wrapped indices (the crop of np.fft.fftshift(ac), without
+        # shifting the whole array)
+        rows, cols = self._shift_index(h, w, r)
+        ac = ac[rows, cols] / zero
         _, labels = cv2.connectedComponents((ac > 0.5).astype(np.uint8))
         is_peak = ac >= cv2.dilate(ac, np.ones((3, 3), np.uint8))
         outside = (labels != labels[r, r]) & is_peak
@@ -195,6 +201,16 @@ class VisualOdometry:
         peak = float(masked.flat[k])
         dy, dx = divmod(k, 2 * r + 1)
         return peak, 2.0 * math.hypot(dy - r, dx - r)
+
+    def _shift_index(self, h: int, w: int, r: int) -> tuple[np.ndarray, np.ndarray]:
+        """Row and column indices (as an open mesh) of the shifts −r..r of an h×w circular
+        autocorrelation, cached per shape."""
+        key = (h, w, r)
+        if self._shift_key != key:
+            k = np.arange(-r, r + 1)
+            self._shift_rc = ((k % h)[:, None], (k % w)[None, :])
+            self._shift_key = key
+        return self._shift_rc
 
     @staticmethod
     def _strength(image: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -250,47 +266,12 @@ class VisualOdometry:
         if R_gyro is not None and prev.R_gyro is not None:
             # this frame's attitude = the previous frame's, turned by the gyro's rotation in between
             R_nb = prev.R_nb @ (prev.R_gyro.T @ R_gyro)
-        if (
-            texture < cfg.min_texture_score
-            or len(prev.points) < cfg.min_features
-            or height_m < cfg.min_height_m
-        ):
-            return _invalid(t_s, VoQuality(features=len(prev.points), texture_score=texture))
-
-        if prev.repetition > cfg.max_repetition:
-            # ambiguous by a period unless the prior pins the motion well inside half a period
-            flow_sigma_px = self.model.fx_px * cfg.prior_sigma_mps * dt / max(height_m, cfg.min_height_m)
-            if vel_prior_ned_mps is None or 3.0 * flow_sigma_px > 0.5 * prev.period_px:
-                return _invalid(
-                    t_s,
-                    VoQuality(features=len(prev.points), texture_score=texture, repetition=prev.repetition),
-                )
-
-        # predicted positions: the ground point under each feature seen from the predicted new pose
+        refused = self._refused(prev, t_s, dt, texture, height_m, vel_prior_ned_mps)
+        if refused is not None:
+            return refused
         p0 = prev.points
         n0 = p0.shape[0]
-        g1 = self._unit_ground(p0, prev.R_nb) * prev.height_m
-        v = np.zeros(3) if vel_prior_ned_mps is None else np.asarray(vel_prior_ned_mps, dtype=float)
-        rel = np.column_stack([g1, np.full(n0, prev.height_m)]) - v * dt
-        rel[:, 2] = np.maximum(rel[:, 2], 0.1)
-        guess = self._project(rel, R_nb).astype(np.float32).reshape(-1, 1, 2)
-
-        p1, st, _ = cv2.calcOpticalFlowPyrLK(
-            prev.image, image, p0, guess.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk
-        )
-        h, w = image.shape
-        q = p1.reshape(-1, 2)
-        inside = (q[:, 0] >= 0) & (q[:, 1] >= 0) & (q[:, 0] < w) & (q[:, 1] < h)
-        ok = (st.ravel() == 1) & inside
-        # the backward check only for the tracks that survived the forward pass
-        fwd = np.flatnonzero(ok)
-        if len(fwd):
-            pb, stb, _ = cv2.calcOpticalFlowPyrLK(
-                image, prev.image, p1[fwd], p0[fwd], flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
-                **self._lk,
-            )
-            fb = np.linalg.norm((pb - p0[fwd]).reshape(-1, 2), axis=1)
-            ok[fwd] = (stb.ravel() == 1) & (fb < cfg.fb_max_px)
+        p1, ok = self._track(prev, image, self._predicted(prev, R_nb, vel_prior_ned_mps, dt))
         tracked = int(ok.sum())
         if tracked < max(cfg.min_features, 8):
             return _invalid(
@@ -310,10 +291,74 @@ class VisualOdometry:
         quality = VoQuality(n_in, ratio, reproj, texture, False, prev.repetition)
         if n_in < cfg.min_features or ratio < cfg.min_inlier_ratio or reproj > cfg.max_reprojection_px:
             return _invalid(t_s, quality)
+        return self._velocity(t_s, prev, R_nb, a[inl], b[inl], dt, quality)
 
-        # metric, de-rotated displacement: h1 u1 = Δ + h2 u2 (least squares over the inliers)
-        u1 = self._unit_ground(a[inl], prev.R_nb)
-        u2 = self._unit_ground(b[inl], R_nb)
+    def _refused(self, prev: _Frame, t_s: float, dt: float, texture: float, height_m: float,
+                 vel_prior_ned_mps: tuple[float, float, float] | None) -> VoSample | None:
+        """An invalid sample when the pair of frames cannot give a velocity (too little texture or too few
+        features, too low, or a repetitive texture the prior does not disambiguate); None otherwise."""
+        cfg = self.cfg
+        if (
+            texture < cfg.min_texture_score
+            or len(prev.points) < cfg.min_features
+            or height_m < cfg.min_height_m
+        ):
+            return _invalid(t_s, VoQuality(features=len(prev.points), texture_score=texture))
+
+        if prev.repetition > cfg.max_repetition:
+            # ambiguous by a period unless the prior pins the motion well inside half a period
+            flow_sigma_px = self.model.fx_px * cfg.prior_sigma_mps * dt / max(height_m, cfg.min_height_m)
+            if vel_prior_ned_mps is None or 3.0 * flow_sigma_px > 0.5 * prev.period_px:
+                return _invalid(
+                    t_s,
+                    VoQuality(features=len(prev.points), texture_score=texture, repetition=prev.repetition),
+                )
+        return None
+
+    def _predicted(self, prev: _Frame, R_nb: np.ndarray, vel_prior_ned_mps: tuple[float, float, float] | None,
+                   dt: float) -> np.ndarray:
+        """The predicted positions of the previous frame's features: the ground point under each, seen from
+        the predicted new pose (the prior's velocity, none: still)."""
+        p0 = prev.points
+        n0 = p0.shape[0]
+        g1 = self._unit_ground(p0, prev.R_nb) * prev.height_m
+        v = np.zeros(3) if vel_prior_ned_mps is None else np.asarray(vel_prior_ned_mps, dtype=float)
+        rel = np.column_stack([g1, np.full(n0, prev.height_m)]) - v * dt
+        rel[:, 2] = np.maximum(rel[:, 2], 0.1)
+        guess: np.ndarray = self._project(rel, R_nb).astype(np.float32).reshape(-1, 1, 2)
+        return guess
+
+    def _track(self, prev: _Frame, image: np.ndarray, guess: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pyramidal Lucas-Kanade from the previous frame, started at ``guess``, then back: (the tracked
+        positions, which tracks stayed in the image and came back within ``fb_max_px``)."""
+        cfg = self.cfg
+        p0 = prev.points
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(
+            prev.image, image, p0, guess.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk
+        )
+        h, w = image.shape
+        q = p1.reshape(-1, 2)
+        inside = (q[:, 0] >= 0) & (q[:, 1] >= 0) & (q[:, 0] < w) & (q[:, 1] < h)
+        ok = (st.ravel() == 1) & inside
+        # the backward check only for the tracks that survived the forward pass
+        fwd = np.flatnonzero(ok)
+        if len(fwd):
+            pb, stb, _ = cv2.calcOpticalFlowPyrLK(
+                image, prev.image, p1[fwd], p0[fwd], flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+                **self._lk,
+            )
+            fb = np.linalg.norm((pb - p0[fwd]).reshape(-1, 2), axis=1)
+            ok[fwd] = (stb.ravel() == 1) & (fb < cfg.fb_max_px)
+        return p1, ok
+
+    def _velocity(self, t_s: float, prev: _Frame, R_nb: np.ndarray, a: np.ndarray, b: np.ndarray, dt: float,
+                  quality: VoQuality) -> VoSample:
+        """The metric, de-rotated displacement of the inliers ``a`` -> ``b`` over ``dt`` as a velocity with
+        its variance: ``h1 u1 = Δ + h2 u2`` by least squares."""
+        cfg = self.cfg
+        n_in = quality.features
+        u1 = self._unit_ground(a, prev.R_nb)
+        u2 = self._unit_ground(b, R_nb)
         # rows (1, 0, u2x) and (0, 1, u2y): the normal equations in closed sums (three unknowns; the
         # general least-squares solver cost more than the rest of this step)
         rhs = prev.height_m * u1
@@ -342,7 +387,8 @@ class VisualOdometry:
         var += (cfg.height_rel_sigma * vel) ** 2
         vh2 = vel[0] ** 2 + vel[1] ** 2
         var[:2] += cfg.yaw_sigma_rad**2 * vh2
-        valid_quality = VoQuality(n_in, ratio, reproj, texture, True, prev.repetition)
+        valid_quality = VoQuality(n_in, quality.inlier_ratio, quality.reprojection_error_px, quality.texture_score,
+                                  True, quality.repetition)
         return VoSample(
             t_s,
             (float(vel[0]), float(vel[1]), float(vel[2])),

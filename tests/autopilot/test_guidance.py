@@ -113,5 +113,8 @@ def test_step_limits_the_setpoint_and_keeps_every_other_field() -> None:
         got_g, got_sp = guidance.step(g, s, cfg, 0.0025)
         v = got_g.vel_cmd
         assert got_sp.vel_ned_mps == v
-        assert got_g == g2._replace(vel_cmd=v)
+        # the braking ramp's feed-forward is step's own too: the command's change over the tick at the limit
+        a = got_g.accel_ff_ned_mps2
+        assert a == (0.0, 0.0, 0.0) or math.isclose(math.hypot(a[0], a[1]), cfg.max_horizontal_decel_mps2)
+        assert got_g == g2._replace(vel_cmd=v, accel_ff_ned_mps2=a)
         assert got_sp == sp._replace(vel_ned_mps=v)

@@ -20,7 +20,12 @@ from merlin.config.models import MerlinConfig
 from merlin.config.runtime import build_core_config
 from merlin.core.config import SetpointClamp
 from merlin.core.geofence import Fence, FenceParams, PolygonNE, check, trigger_distance_m
-from merlin.core.shaping import OperatorMemory, clamp_command, demanded_velocity, operator_command
+from merlin.core.shaping import (
+    OperatorMemory,
+    clamp_command,
+    demanded_velocity,
+    operator_command,
+)
 from merlin.core.types import (
     Authority,
     Behavior,
@@ -116,6 +121,40 @@ def test_a_revocation_to_rtl_in_wind_stops_no_deeper_than_projected(
         "gcs": [{"t": 0.0, "command": "arm"}, {"t": 0.0, "command": "hold"}],
         "controller": {"type": "experimental_controllers.adversaries:VelocityStep",
                        "params": {"request_at_s": 0.5, "start_at_s": 1.0, "heading_deg": heading, "speed_mps": speed}},
+        "log_rate_hz": 400.0,
+    })
+    r = run_scenario(sc, CFG)
+    assert float(np.nanmin(r.log["fence_margin"])) > 0.0  # never outside the range
+    assert any(e["type"] == "behavior" and e["behavior"] == "RTL" for e in r.events)  # the escape is RTL
+    assert _achieved_past_projected_m(r) <= 1.0
+
+
+@settings(max_examples=5, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+@given(
+    heading=st.floats(70.0, 110.0),
+    dist=st.floats(100.0, 150.0),
+    side=st.floats(200.0, 250.0),
+    south=st.booleans(),
+    accel=st.floats(1.5, 3.0),
+    wind_n=st.floats(-3.0, 3.0),
+    wind_e=st.floats(8.0, 10.0),
+)
+# adv_rtl_tailwind_ramp: the velocity loop trailed the braking ramp and stopped 1.2 m past the projected stop
+@example(heading=90.0, dist=120.0, side=250.0, south=False, accel=2.0, wind_n=-2.0, wind_e=9.0)
+def test_a_ramped_approach_in_a_tailwind_stops_no_deeper_than_projected(
+    heading: float, dist: float, side: float, south: bool, accel: float, wind_n: float, wind_e: float
+) -> None:
+    """A ramp (not a step: a step's demand trips the projection early and hides the braking's lag) to the 15 m/s
+    clamp towards the east edge, with an 8-10 m/s wind behind it and home far to one side: Merlin's RTL brakes
+    along the velocity and the vehicle stops no deeper than the projected stop (+1 m), inside the range."""
+    sc = Scenario.model_validate({
+        "name": "ramp_rtl_tailwind", "duration_s": 1.5 + dist / 8.0 + 12.0, "seed": 5,
+        "initial": {"pos_ned_m": [-side if south else side, HALF - dist, -35.0]},
+        "wind": {"steady_ned_mps": [wind_n, wind_e, 0.0]},
+        "gcs": [{"t": 0.0, "command": "arm"}, {"t": 0.0, "command": "hold"}],
+        "controller": {"type": "experimental_controllers.adversaries:VelocityStep",
+                       "params": {"request_at_s": 0.5, "start_at_s": 1.0, "heading_deg": heading, "speed_mps": 15.0,
+                                  "accel_mps2": accel}},
         "log_rate_hz": 400.0,
     })
     r = run_scenario(sc, CFG)

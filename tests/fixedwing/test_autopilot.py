@@ -313,3 +313,25 @@ def test_the_angle_of_attack_cap_follows_the_air_path_not_the_ground_path() -> N
     cap = gamma_air + cp.alpha_protect_rad * math.cos(math.radians(35.0))
     assert state.recovering
     assert state.pitch_sp_rad == pytest.approx(cap, abs=math.radians(0.5))
+
+
+def test_tecs_reads_the_airspeed_rate_not_the_groundspeed_swing_in_a_turn_in_wind() -> None:
+    """A coordinated level turn at a steady 23 m/s and 30 deg of bank in a 12 m/s wind: the groundspeed swings
+    by the wind times the turn rate (up to 3 m/s^2) while the airspeed holds. TECS's speed rate is the
+    airspeed's (0 at every heading); read along the ground velocity it pitched the escape turn of
+    ``fw_adv_pullup_reversal_tailwind`` up, then pushed the wing to no lift."""
+    v, phi, wind = 23.0, math.radians(30.0), (0.0, 12.0)
+    omega = fc.G_MPS2 * math.tan(phi) / v
+    for psi_deg in range(0, 360, 15):
+        psi = math.radians(psi_deg)
+        # centripetal acceleration of the air velocity (the wind is steady), minus gravity, in the body frame
+        a_n, a_e = -v * omega * math.sin(psi), v * omega * math.cos(psi)
+        f_ned = (a_n, a_e, -fc.G_MPS2)
+        cps, sps, cph, sph = math.cos(psi), math.sin(psi), math.cos(phi), math.sin(phi)
+        # body FRD = R_x(phi)^T R_z(psi)^T NED (level pitch)
+        x = cps * f_ned[0] + sps * f_ned[1]
+        y0 = -sps * f_ned[0] + cps * f_ned[1]
+        f_frd = (x, cph * y0 + sph * f_ned[2], -sph * y0 + cph * f_ned[2])
+        s = VehicleState(vel_ned_mps=(v * cps + wind[0], v * sps + wind[1], 0.0), att_rpy_rad=(phi, 0.0, psi),
+                         accel_frd_mps2=f_frd, airspeed_mps=v, pos_ned_m=(0.0, 0.0, -100.0))
+        assert abs(fc._speed_rate(s)) < 1e-9, psi_deg

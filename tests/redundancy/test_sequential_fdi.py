@@ -269,3 +269,30 @@ def test_a_jump_after_noise_lifted_the_cusum_names_its_imu_at_once():
         assert step(k, 1.5 * float(fdi.noise.sigma_d()[2])) is FdiState.NORMAL
     assert fdi.cusum.last_zero[2] <= 200
     assert step(206, 0.9) is FdiState.FAULT_1
+
+
+def test_a_ramp_declared_on_a_noise_excursion_is_not_recovered():
+    """Seed 003's F2 (yaw-rate ramp on IMU-2 from 3.5 s) on an 8 s flight whose declaration sample (3.97 s)
+    was a noise excursion 2 sigma beyond the ramp's level. A fault model started from that sample alone
+    took the next two samples, still 2 sigma into the fault, for clean: IMU-2 was recovered at 4.00 s and
+    declared again at 4.33 s. With the model started from the samples since the onset: one declaration,
+    no recovery while the ramp lasts, the healthy IMU never flagged."""
+    data = inject(nominal_flight(8.0, np.random.default_rng(1004)), "F2", np.random.default_rng(2004))
+    run = run_fdi(data, SEQUENTIAL, np.random.default_rng(3004))
+    kinds = [e.kind for e in run.events]
+    assert kinds.count(FaultKind.FAULT_DECLARED) == 1
+    assert FaultKind.RECOVERED not in kinds
+    m = metrics(run)
+    assert m.wrong_imu_samples == 0 and m.dt_s is not None and m.dt_s <= 1.11
+
+
+def test_the_fault_model_starts_from_the_samples_since_the_onset():
+    axes = np.zeros(N_AXES, bool)
+    axes[2] = True
+    window = np.zeros((40, N_AXES))
+    window[:, 2] = np.linspace(0.0, -4.0, 40)  # a ramp from the onset to the declaration
+    rec = RecoveryTest(TESTS, DT, window[-1], axes, window)
+    assert rec.m[2] == pytest.approx(-2.0) and rec.v[2] == pytest.approx(np.var(window[:, 2]))
+    assert rec.v[0] == 1.0  # never below the clean samples' own variance
+    single = RecoveryTest(TESTS, DT, window[-1], axes)
+    assert single.m[2] == -4.0 and single.v[2] == 1.0

@@ -100,3 +100,30 @@ def test_an_escape_that_ends_heading_at_the_edge_in_a_tailwind_turns_again() -> 
     assert [e["side"] for e in escapes[:2]] == ["left", "right"], escapes
     assert escapes[1].get("after") == "half turn with the fence still tripped"
     assert r.metrics["min_fence_margin_m"] > 5.0
+
+
+def test_a_pull_up_banked_towards_the_edge_in_a_tailwind_escapes_with_the_wing_loaded() -> None:
+    """The falsifier's pull-up banked right towards the east edge, in a 12 m/s wind blowing east: the escape
+    turn (left) reverses the bank, and TECS, reading the groundspeed's swing in the turn as airspeed, pushed
+    the wing to an angle of attack below zero; the turn left the range by 14.98 m. It now reads the
+    airspeed's own rate: the wing keeps lifting through the reversal and the turn stays inside."""
+    r, results = _run("fw_adv_pullup_reversal_tailwind.yaml")
+    assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
+    t_rev = next(e["t"] for e in r.events if e["type"] == "revoked")
+    escape = next(e for e in r.events if e["type"] == "fixed_wing_escape_turn" and e["t"] >= t_rev)
+    assert escape["side"] == "left"
+    t = np.asarray(r.log["t"])
+    after = (t >= t_rev) & (t <= t_rev + 3.0)
+    assert np.asarray(r.log["env_alpha_deg"])[after].min() > 3.0
+    assert r.metrics["min_fence_margin_m"] > 5.0
+
+
+def test_a_dive_banked_away_from_the_escape_is_revoked_for_the_turn_it_will_fly() -> None:
+    """The falsifier's push into a 10.6 m/s dive banked 31 deg left, the clear turn to the right: the
+    projection flies the escape at the whole airspeed (25.9 m/s, not the 23.4 m/s over the ground) after
+    rolling the left bank out, so it revokes earlier (at 8.94 s the turn left the range by 3.06 m)."""
+    r, results = _run("fw_adv_dive_reversal.yaml")
+    assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
+    revoked = [e for e in r.events if e["type"] == "revoked"]
+    assert revoked[0]["t"] < 8.9 and revoked[0]["reason_detail"]["parameter"] == "inclusion"
+    assert r.metrics["min_fence_margin_m"] > 5.0

@@ -240,4 +240,6 @@ def test_mavsdk_set_current_mission_item(serve: ServeProc) -> None:
     out = "\n".join(lines_until(p, "FLOW FINISHED", 90))
     assert "FLOW FINISHED" in out and "FLOW progress 2/3" in out, out[-2000:]
     jumps = [e for e in serve.events() if e["type"] == "command_ack" and e["command"] == "MISSION_CURRENT"]
-    assert [j["accepted"] for j in jumps] == [True], jumps
+    # MAVSDK sends MISSION_SET_CURRENT again when MISSION_CURRENT is slow to come back (a loaded machine):
+    # every copy must be accepted, as PX4 answers each, and the flow above must have seen the item.
+    assert jumps and all(j["accepted"] for j in jumps), jumps
