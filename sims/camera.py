@@ -12,8 +12,8 @@ illumination gain that drifts, and sensor noise.
 Cost (the camera renders every frame of every camera run): the texture's pyramid is built once
 (``cv2.pyrDown`` with wrapped borders) and the coarsest level whose pixel is not larger than the centre image
 pixel's footprint on the ground is warped, which is also the anti-aliasing a real lens gives; the warp reads
-only the visible footprint, a plain slice of the texture tiled 2×2 (no wrapping in the inner loop) unless
-the footprint is larger than one period. The sensor noise is a bank of Gaussian samples drawn once from the
+only the visible footprint, a plain slice of the texture tiled 2×2 or more (no wrapping in the inner loop)
+unless the footprint is wider than the tiling less one period. The sensor noise is a bank of Gaussian samples drawn once from the
 camera's generator, read each frame at an offset drawn from that generator: seeded and deterministic, a
 fresh-looking field every frame, at the cost of an add instead of 76,800 normal draws.
 """
@@ -97,6 +97,8 @@ def _texture_pyramid(image: np.ndarray, min_side: int = 64) -> list[np.ndarray]:
 # Offsets into the noise bank are drawn per frame; a bank twice the image in each direction gives
 # (h+1)(w+1) distinct fields.
 _NOISE_BANK_SCALE = 2
+# The side of each texture level once tiled (DownwardCamera._levels), in level-0 pixels
+_TILED_SIDE_PX = 2048
 
 
 class DownwardCamera:
@@ -119,8 +121,12 @@ class DownwardCamera:
         yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
         r2 = ((xx - model.cx_px) / (0.5 * w)) ** 2 + ((yy - model.cy_px) / (0.5 * h)) ** 2
         self._vignette = (1.0 - effects.vignetting * r2 / 2.0).astype(np.float32)
-        # each level tiled 2x2, so that any footprint up to one period is a plain slice
-        self._levels = [np.tile(lv, (2, 2)) for lv in _texture_pyramid(texture.image)]
+        # each level tiled n x n, so that any footprint up to n - 1 periods is a plain slice: 2x2 for the
+        # photographs (a 102 m period at 0.1 m per pixel), more for the small synthetic textures (water's
+        # 51 m and the tiles' 48 m period are narrower than a 320x240 footprint from 30 m, which would
+        # otherwise take the slower wrapped warp), up to the same 2048-pixel side
+        self._reps = max(2, math.ceil(_TILED_SIDE_PX / max(texture.image.shape)))
+        self._levels = [np.tile(lv, (self._reps, self._reps)) for lv in _texture_pyramid(texture.image)]
         self._noise = (
             self.rng.standard_normal((_NOISE_BANK_SCALE * h, _NOISE_BANK_SCALE * w), dtype=np.float32)
             * np.float32(effects.noise_sigma)
@@ -216,7 +222,7 @@ class DownwardCamera:
         y0 = math.floor(float(lc[:, 1].min())) - 2
         x1 = math.ceil(float(lc[:, 0].max())) + 3
         y1 = math.ceil(float(lc[:, 1].max())) + 3
-        if x1 - x0 > pw or y1 - y0 > ph:
+        if x1 - x0 > (self._reps - 1) * pw or y1 - y0 > (self._reps - 1) * ph:
             return self._wrap_warp(src, ph, pw, H, to_level)
         sx, sy = x0 % pw, y0 % ph
         # crop pixel = level pixel - (x0, y0): the level is periodic, so the slice from (sx, sy) is it
