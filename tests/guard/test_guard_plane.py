@@ -6,11 +6,14 @@ the parameters docs/guard.md asks for, killing the guard hands the aircraft to P
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -108,3 +111,115 @@ def test_killing_the_guard_hands_a_plane_to_its_long_failsafe(tmp_path: Path) ->
             proc.kill()
         gcs.sock.close()
         sim.stop()
+
+
+class PlaneRig:
+    """The simulated Plane already flying (loitering at ``flying``), the guard in a thread with the shipped
+    fixed-wing configuration, and a pymavlink controller streaming GUIDED altitude targets."""
+
+    def __init__(self, tmp: Path, flying: tuple[float, float, float], guard_extra: str = "") -> None:
+        from merlin.commands.guard import load
+        from merlin.guard.endpoints import parse_endpoint
+        from merlin.guard.runner import Guard
+        from tests.guard.controller import Controller
+
+        ap_port, ctl_port = free_port(), free_port()
+        self.sim = SimPlane(ap_port, flying=flying).start()
+        cfg_file = tmp / "guard.yaml"
+        cfg_file.write_text(FW_CONFIG + guard_extra)
+        cfg, gcfg = load(str(cfg_file))
+        self.guard = Guard(cfg, gcfg, parse_endpoint(f"udpin:127.0.0.1:{ap_port}"),
+                           parse_endpoint(f"udpin:127.0.0.1:{ctl_port}"), None, tmp / "out")
+        self.guard.start()
+        self.thread = threading.Thread(target=self.guard.run, daemon=True)
+        self.thread.start()
+        self.ctl = Controller(ctl_port).start()
+
+    def authority(self) -> str:
+        d = self.guard.decision
+        return d.authority.name if d is not None else "none"
+
+    def latlon(self, n: float, e: float) -> tuple[float, float]:
+        lat, lon, _ = self.sim.frame.to_geodetic(n, e)
+        return lat, lon
+
+    def goto(self, n: float, e: float, height_m: float) -> None:
+        """Plane's GUIDED point: DO_REPOSITION as COMMAND_INT, altitude above home."""
+        lat, lon = self.latlon(n, e)
+        self.ctl.command_int(mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mav.MAV_CMD_DO_REPOSITION, -1, 0, 0, math.nan,
+                             lat, lon, height_m)
+
+    def request_guided(self, height_m: float) -> None:
+        c, s = self.ctl, self.sim
+        wait_for(lambda: c.mode() is not None, 40, "the Plane's HEARTBEAT through the guard")
+        lat, lon = self.latlon(s.pos[0], s.pos[1])
+        c.global_target = (lat, lon, height_m)  # Plane reads the altitude alone; the stream is the liveness
+        c.streaming = True
+        time.sleep(1.5)  # the controller's liveness (handover.heartbeat_alive_min_s)
+        c.set_mode(float(PlaneMode.GUIDED))
+        wait_for(lambda: (mav.MAV_CMD_DO_SET_MODE, 0) in c.acks, 10, "GUIDED granted and forwarded")
+        wait_for(lambda: s.mode == int(PlaneMode.GUIDED), 5, "the Plane in GUIDED")
+        assert self.authority() == "EXPERIMENTAL"
+
+    def close(self) -> None:
+        self.ctl.stop()
+        self.guard.stop()
+        self.thread.join(timeout=5)
+        self.guard.close()
+        self.sim.stop()
+
+
+EAST_EDGE_M = 1000.0  # the shipped fixed-wing range's east boundary (examples/configs/fixedwing_default.yaml)
+
+
+@pytest.mark.parametrize("fallback", [None, "rtl"], ids=["merlin-streamed", "plane-rtl"])
+def test_a_guided_flight_on_a_plane_passes_then_a_flyaway_is_revoked_and_the_return_stays_inside(
+        fallback: str | None, tmp_path: Path) -> None:
+    """Merlin's own fixed-wing behaviour streamed as GUIDED points (the default), or Plane's RTL
+    (``guard.fallback_mode: rtl``)."""
+    rig = PlaneRig(tmp_path, flying=(0.0, 600.0, 100.0), guard_extra=f"  fallback_mode: {fallback}\n" if fallback else "")
+    s = rig.sim
+    try:
+        rig.request_guided(100.0)
+        # a guided flight: a point inside the range reaches the Plane, which flies to it; the core judges it
+        # (the stream's altitude is Plane's target altitude too: it climbs with the point)
+        assert rig.ctl.global_target is not None
+        rig.ctl.global_target = (*rig.ctl.global_target[:2], 120.0)
+        rig.goto(300.0, 300.0, 120.0)
+        wait_for(lambda: bool(s.gotos), 5, "the controller's GUIDED point through the guard")
+        assert math.dist(s.gotos[-1][1], (300.0, 300.0)) < 1.0 and abs(s.gotos[-1][2] - 120.0) < 1e-3
+        d0 = math.dist((s.pos[0], s.pos[1]), (300.0, 300.0))
+        time.sleep(4.0)
+        assert rig.authority() == "EXPERIMENTAL"
+        assert math.dist((s.pos[0], s.pos[1]), (300.0, 300.0)) < d0 - 40.0, "the Plane did not fly to the point"
+        sp = rig.guard.inputs.setpoint_
+        assert sp is not None and math.dist(sp.pos_ned_m[:2], (300.0, 300.0)) < 1.0 and sp.pos_ned_m[2] == -120.0
+        # a flyaway: a point 3 km east, 2 km outside the range
+        n_gotos = len(s.gotos)
+        rig.goto(0.0, 3000.0, 120.0)
+        wait_for(lambda: len(s.gotos) > n_gotos, 5, "the flyaway's point through the guard")
+        wait_for(lambda: rig.authority() != "EXPERIMENTAL", 60, "Merlin's revocation of the flyaway")
+        t_rev = time.monotonic()
+        # the controller's later points never reach the Plane, and the aircraft turns back inside the range
+        rig.goto(0.0, 3000.0, 120.0)
+        time.sleep(12.0)
+        assert max(p[1] for p in s.track.pos) < EAST_EDGE_M, "left the range"
+        i_rev = next(k for k, t in enumerate(s.track.t) if t + s.t0 >= t_rev)
+        assert s.pos[1] < max(p[1] for p in s.track.pos[i_rev:]) - 50.0, "not heading back from the edge"
+        events = [json.loads(x) for x in (tmp_path / "out" / "events.jsonl").read_text().splitlines()]
+        revoked = [e for e in events if e.get("type") == "revoked"]
+        assert revoked and revoked[0]["reason"] == "geofence", revoked
+        ours = [g for g in s.gotos if math.dist(g[1], (0.0, 3000.0)) > 1.0 and g[0] >= t_rev - 1.0]
+        if fallback is None:
+            # Merlin flies: the Plane stays in GUIDED on Merlin's points, the first one an escape turn's abeam
+            # point sent in the tick of the revocation (the reaction time the fence projection assumes covers
+            # the autopilot's roll-in from there)
+            assert s.mode == int(PlaneMode.GUIDED)
+            targets = [e for e in events if e.get("type") == "guard_guided_target"]
+            assert targets and targets[0]["what"] == "turn" and targets[0]["t"] == revoked[0]["t"], targets[:2]
+            assert ours, "no guided point from Merlin reached the Plane"
+            assert any(e.get("type") == "fixed_wing_escape_turn" for e in events)
+        else:
+            assert s.mode == int(PlaneMode.RTL) and not ours
+    finally:
+        rig.close()
