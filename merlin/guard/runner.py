@@ -168,6 +168,7 @@ class Guard:
         #: a fixed wing's trusted behaviours as guided points (merlin.guard.fixedwing_targets), while Merlin flies
         self.fw_stream: FixedWingStream | None = None
         self._fw_sent: tuple[float, GuidedTarget] | None = None
+        self._fw_what = ""  # the kind of guided point last sent (an event records each new kind)
         self.autopilot: Autopilot | None = None
         self.modes: ModeTable | None = None
         self.ap_mode: int | None = None
@@ -553,7 +554,8 @@ class Guard:
             self._on_core_event(e.kind, e, t)
         if d0 is not None and d0.authority is Authority.EXPERIMENTAL and d.authority is not Authority.EXPERIMENTAL:
             self.intent.reset()
-            self.fw_stream, self._fw_sent = None, None  # a new stage per revocation: it enters the behaviour afresh
+            # a new stage per revocation: it enters the behaviour afresh
+            self.fw_stream, self._fw_sent, self._fw_what = None, None, ""
             self.trusted_since = t
             self.fallback_sent_t = None
             if self.modes is not None and self.modes.streams_setpoints:
@@ -653,6 +655,10 @@ class Guard:
         assert self.autopilot is not None
         lat, lon, _ = self.telemetry.frame.to_geodetic(g.north_m, g.east_m)
         alt = self.telemetry.frame.alt0_amsl_m + g.height_m
+        if g.what != self._fw_what:
+            self._fw_what = g.what
+            self.event({"t": t, "type": "guard_guided_target", "what": g.what,
+                        "target_ned_m": [g.north_m, g.east_m, -g.height_m], "loiter_radius_m": g.loiter_radius_m})
         if self.autopilot.dialect is Dialect.PX4:
             self._send(self.ap_link, self.enc.position_target_global(int(t * 1000), self.target, lat, lon, alt))
             return
@@ -666,9 +672,6 @@ class Guard:
                 return
         self._fw_sent = (t, g)
         self._send(self.ap_link, self.enc.reposition(self.target, lat, lon, alt, g.loiter_radius_m, g.clockwise))
-        if last is None or last[1].what != g.what:
-            self.event({"t": t, "type": "guard_guided_target", "what": g.what,
-                        "target_ned_m": [g.north_m, g.east_m, -g.height_m], "loiter_radius_m": g.loiter_radius_m})
 
     # ---------------------------------------------------------------------------------------- loop
 

@@ -24,7 +24,8 @@ import math
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from merlin.guard.dialects import Dialect, PlaneMode
-from tests.guard.sim_autopilot import SimAutopilot
+from merlin.link.px4_modes import Px4AutoSubMode, Px4MainMode, Px4Mode
+from tests.guard.sim_autopilot import PX4_PARAMS, SimAutopilot
 
 PLANE_PARAMS = {"FS_GCS_ENABL": 1.0, "FS_LONG_TIMEOUT": 2.0, "FS_LONG_ACTN": 1.0, "MAV_GCS_SYSID": 255.0}
 CRUISE_MPS = 22.0
@@ -140,7 +141,7 @@ class SimPlane(SimAutopilot):
             self.vel = [0.0, 0.0, 0.0]
             return
         name = self.mode_name()
-        if name == "TAKEOFF":
+        if name in ("TAKEOFF", "AUTO_TAKEOFF"):
             want = 0.0
             if -self.pos[2] >= self.alt_target - 1.0:
                 self._enter(int(PlaneMode.LOITER))
@@ -170,3 +171,64 @@ class SimPlane(SimAutopilot):
             speed = CRUISE_MPS if self.airborne and self.armed else 0.0
             self.send(self.m.vfr_hud_encode(speed, speed, int(math.degrees(self.course)) % 360, 50,
                                             -self.pos[2] + self.home[2], -self.vel[2]))
+
+
+def _px4(main: Px4MainMode, sub: int = 0) -> int:
+    return Px4Mode(main, sub).custom_mode
+
+
+class SimPx4Plane(SimPlane):
+    """The same aircraft speaking PX4's fixed wing (PX4 user guide, "Offboard Mode"; PX4's custom modes):
+    OFFBOARD accepted only with a setpoint stream (PX4's proof of life), a position target
+    (SET_POSITION_TARGET_GLOBAL_INT or _LOCAL_NED with x, y, z used) flown to and circled, AUTO.LOITER
+    circling where it was entered, AUTO.RTL flying home; the offboard-loss failsafe: no setpoint for
+    COM_OF_LOSS_T in OFFBOARD runs COM_OBL_RC_ACT (3 Return, 5 Hold; 4 Land corkscrews down)."""
+
+    def __init__(self, guard_port: int, params: dict[str, float] | None = None,
+                 flying: tuple[float, float, float] | None = None, **kw: object) -> None:
+        super().__init__(guard_port, dict(PX4_PARAMS if params is None else params), flying, **kw)
+        self.dialect = Dialect.PX4
+        self.hold_mode = self.mode = _px4(Px4MainMode.AUTO, Px4AutoSubMode.LOITER)
+        self.offboard = _px4(Px4MainMode.OFFBOARD)
+        self.rtl_mode = _px4(Px4MainMode.AUTO, Px4AutoSubMode.RTL)
+
+    def mode_name(self, m: int | None = None) -> str:
+        got = Px4Mode.from_custom_mode(self.mode if m is None else m)
+        return got.name() if got else str(m)
+
+    def _handle(self, msg: object, now: float) -> None:
+        name = msg.get_type()  # type: ignore[attr-defined]
+        if name in ("SET_POSITION_TARGET_GLOBAL_INT", "SET_POSITION_TARGET_LOCAL_NED"):
+            self.track.setpoints_t.append(now)
+            self.sp_t = now
+            if self.mode == self.offboard and not msg.type_mask & 0b111:  # type: ignore[attr-defined]
+                if name == "SET_POSITION_TARGET_GLOBAL_INT":
+                    self._goto(int(msg.coordinate_frame), msg.lat_int * 1e-7, msg.lon_int * 1e-7,  # type: ignore[attr-defined]
+                               float(msg.alt))  # type: ignore[attr-defined]
+                else:
+                    self.center, self.alt_target = (float(msg.x), float(msg.y)), -float(msg.z)  # type: ignore[attr-defined]
+                self.gotos.append((now, self.center, self.alt_target))
+            return
+        SimAutopilot._handle(self, msg, now)
+
+    def _set_mode(self, custom: int, now: float) -> int:
+        if custom == self.offboard and now - self.sp_t > 0.5:
+            return mav.MAV_RESULT_DENIED  # PX4: OFFBOARD needs a setpoint stream first
+        if custom not in (self.offboard, self.hold_mode, self.rtl_mode):
+            return mav.MAV_RESULT_UNSUPPORTED
+        self._enter(custom)
+        return mav.MAV_RESULT_ACCEPTED
+
+    def _enter(self, mode: int) -> None:
+        self.mode = mode
+        if mode in (self.hold_mode, self.offboard):
+            self.center = (self.pos[0], self.pos[1])
+            self.alt_target = -self.pos[2]
+        elif mode == self.rtl_mode:
+            self.center = (0.0, 0.0)
+            self.alt_target = max(-self.pos[2], 100.0)
+
+    def _failsafes(self, now: float) -> None:
+        if self.armed and self.mode == self.offboard and now - self.sp_t > self.params["COM_OF_LOSS_T"]:
+            act = int(self.params["COM_OBL_RC_ACT"])
+            self._enter(self.rtl_mode if act == 3 else self.hold_mode)
