@@ -14,6 +14,8 @@ discards its surfaces, and reads off its guidance the point the autopilot should
   navigation (L1/NPFG) turns towards a point abeam at its bank limit, the way the stage's escape turn does,
   so the first point after a revocation starts the turn the fence projection assumed (its reaction time
   covers the autopilot's roll-in);
+- **the escape's run-out** (the escape turn found an open course and holds it wings level): a point far
+  ahead on that course, moved with the aircraft;
 - **a route leg**: the leg's end point, at the behaviour's height;
 - **a loiter** (HOLD, RTL over home, LAND's loiter down): the circle's centre, its radius and direction
   (DO_REPOSITION's param3 and param4 on ArduPlane; PX4's offboard circles a position target at its own
@@ -41,6 +43,9 @@ from merlin.core.types import Decision, VehicleState
 #: The abeam point of a turn lies this many turn radii off the aircraft: far enough that the autopilot's
 #: navigation does not treat it as reached, near enough that it turns at its limit towards it.
 ABEAM_TURN_RADII = 2.0
+#: The escape's run-out (an open course held wings level) flies to a point this many turn radii ahead on it,
+#: moved with the aircraft: far enough that the autopilot does not start circling it.
+RUN_OUT_TURN_RADII = 6.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -78,6 +83,8 @@ class FixedWingStream:
         self.stage.step(t, d, s, takeoff_height_m)
         gs = self.stage.gstate
         height = gs.loiter.height_m
+        if self.stage.escape_run_out:
+            return self._ahead(s, height)
         if self.stage.escape_side:
             return self._abeam(s, self.stage.escape_side > 0.0, height)
         if gs.mode is fg.GuidanceMode.RTL and gs.turn_radius_m > 0.0:
@@ -91,10 +98,20 @@ class FixedWingStream:
         c = gs.loiter
         return GuidedTarget(c.center_ne_m[0], c.center_ne_m[1], c.height_m, c.radius_m, c.clockwise, "loiter")
 
-    def _abeam(self, s: VehicleState, right: bool, height_m: float) -> GuidedTarget:
+    def _ahead(self, s: VehicleState, height_m: float) -> GuidedTarget:
+        """The escape's run-out: the open course held, a point far ahead on it."""
+        course = self._course(s)
+        r = RUN_OUT_TURN_RADII * self.turn_radius_m
+        return GuidedTarget(s.pos_ned_m[0] + r * math.cos(course), s.pos_ned_m[1] + r * math.sin(course), height_m,
+                            what="run-out")
+
+    @staticmethod
+    def _course(s: VehicleState) -> float:
         vn, ve = s.vel_ned_mps[0], s.vel_ned_mps[1]
-        course = math.atan2(ve, vn) if math.hypot(vn, ve) > 1.0 else s.att_rpy_rad[2]
-        side = course + (math.pi / 2 if right else -math.pi / 2)
+        return math.atan2(ve, vn) if math.hypot(vn, ve) > 1.0 else s.att_rpy_rad[2]
+
+    def _abeam(self, s: VehicleState, right: bool, height_m: float) -> GuidedTarget:
+        side = self._course(s) + (math.pi / 2 if right else -math.pi / 2)
         r = ABEAM_TURN_RADII * self.turn_radius_m
         return GuidedTarget(s.pos_ned_m[0] + r * math.cos(side), s.pos_ned_m[1] + r * math.sin(side), height_m,
                             what="turn")

@@ -81,6 +81,7 @@ from merlin.guard.telemetry import TelemetryState, stream_requests
 from merlin.guard.trusted import TrustedOutput, trusted_output
 from merlin.link import autopilot_wire as w
 from merlin.link.frames import Frame
+from merlin.link.signing import SignatureCheck, SigningState
 from merlin.link.tlog import TlogWriter
 from merlin.pipeline import InputBuilder
 
@@ -122,6 +123,9 @@ class _Link:
     splitter: Any = field(default_factory=w.frame_splitter)
     frames_in: int = 0
     frames_out: int = 0
+    #: MAVLink 2 signing on this link: inbound frames must verify against the key, outbound ones are signed
+    verify: SigningState | None = None
+    signer: w.LinkSigner | None = None
 
     def fileno(self) -> int:
         t = self.transport
@@ -150,7 +154,7 @@ class _Held:
 class Guard:
     def __init__(self, cfg: MerlinConfig, gcfg: GuardConfig, autopilot: EndpointSpec, controller: EndpointSpec,
                  gcs: EndpointSpec | None = None, out_dir: Path | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, signing_keys: dict[str, bytes] | None = None) -> None:
         self.cfg = cfg
         self.gcfg = gcfg
         self._clock = clock
@@ -159,6 +163,10 @@ class Guard:
         self.ctl_link = _Link("controller", open_transport(controller))
         self.gcs_link = _Link("gcs", open_transport(gcs)) if gcs is not None else None
         self.links = [x for x in (self.ap_link, self.ctl_link, self.gcs_link) if x is not None]
+        for link in self.links:
+            key = (signing_keys or {}).get(link.name)
+            if key is not None:
+                link.verify, link.signer = SigningState(key), w.LinkSigner(key)
         self.decoder = w.Decoder()
         self.enc = w.Encoder(gcfg.system_id, gcfg.component_id)
         h = cfg.home
@@ -230,6 +238,12 @@ class Guard:
         once already, from its arrival)."""
         if link is None:
             return
+        if link.signer is not None:
+            signed = link.signer.sign(raw, time.time())
+            if signed is None:
+                self.counts[f"not sent on the signed {link.name} link: a MAVLink 1 frame"] += 1
+                return
+            raw = signed
         link.transport.write(raw)
         link.frames_out += 1
         if originated and self.tlog is not None:
@@ -244,17 +258,42 @@ class Guard:
         out: list[Frame] = []
         for data, addr in link.transport.read(timeout_s):
             frames, _errors = link.splitter.feed(data, final=link.transport.datagram)
-            if frames and addr is not None and link.transport.datagram:
-                link.transport.remote = addr  # answer whoever sent valid MAVLink (udpin)
+            now_unix = time.time()
             for fr in frames:
                 link.frames_in += 1
-                now_unix = time.time()
                 if self.tlog is not None:
                     self.tlog.write(fr.raw, now_unix)
-                if link is self.ap_link and self.ap_tlog is not None:
+            if link.verify is not None:
+                frames = self._verified(link, frames, now_unix)
+            if frames and addr is not None and link.transport.datagram:
+                link.transport.remote = addr  # answer whoever sent valid (and, when signing, verified) MAVLink
+            if link is self.ap_link and self.ap_tlog is not None:
+                for fr in frames:
                     self.ap_tlog.write(fr.raw, now_unix)
             out.extend(frames)
         return out
+
+    def _verified(self, link: _Link, frames: list[Frame], now_unix: float) -> list[Frame]:
+        """The frames of a signed link whose signature verifies with its key (MAVLink's replay rule included):
+        an unsigned or wrongly signed frame is dropped before anything reads it, so it neither reaches the
+        autopilot nor counts as the controller's liveness, request or setpoint."""
+        v = link.verify
+        assert v is not None
+        v.advance_clock(now_unix)
+        kept = []
+        for fr in frames:
+            check = v.check(fr)
+            if check is SignatureCheck.OK:
+                kept.append(fr)
+                continue
+            reason = f"dropped: {link.name} frame {check.value}"
+            self.counts[reason] += 1
+            t = self.t()
+            if t - self._denied_t.get(reason, -math.inf) >= STATUSTEXT_REPEAT_S:
+                self._denied_t[reason] = t
+                self.event({"t": t, "type": "guard_signing_dropped", "link": link.name, "check": check.value,
+                            "msg_id": fr.msg_id, "system_id": fr.system_id})
+        return kept
 
     # ------------------------------------------------------------------------------------ start-up
 
@@ -667,8 +706,9 @@ class Guard:
             since, prev = t - last[0], last[1]
             moved = math.hypot(g.north_m - prev.north_m, g.east_m - prev.east_m) > GUIDED_MOVE_M or (
                 abs(g.height_m - prev.height_m) > GUIDED_MOVE_M or g.what != prev.what)
-            period = GUIDED_TURN_PERIOD_S if g.what == "turn" else GUIDED_REPEAT_S
-            if since < period and not (moved and g.what != "turn"):
+            sliding = g.what in ("turn", "run-out")  # a point that moves with the aircraft
+            period = GUIDED_TURN_PERIOD_S if sliding else GUIDED_REPEAT_S
+            if since < period and not (moved and not sliding):
                 return
         self._fw_sent = (t, g)
         self._send(self.ap_link, self.enc.reposition(self.target, lat, lon, alt, g.loiter_radius_m, g.clockwise))

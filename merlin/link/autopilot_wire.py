@@ -28,9 +28,9 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega
 
-from merlin.link import codec
+from merlin.link import codec, signing
 from merlin.link.dialect import mavlink_module
-from merlin.link.frames import Frame, FrameSplitter
+from merlin.link.frames import IFLAG_SIGNED, SIGNATURE_LEN, STX_V2, Frame, FrameSplitter
 
 # message ids (common.xml / ardupilotmega.xml)
 HEARTBEAT = 0
@@ -378,6 +378,42 @@ class Decoder:
         except Exception as exc:  # a frame with a good CRC but a bad payload: never crash the router
             self.errors[type(exc).__name__] += 1
             return None
+
+
+# -------------------------------------------------------------------------------------------- signing
+
+class LinkSigner:
+    """MAVLink 2 signing of what the guard writes on one link (:func:`merlin.link.signing.sign_frame`).
+
+    A frame already signed with this link's key (forwarded from a link that shares it) goes out as it came;
+    any other MAVLink 2 frame (the guard's own, or forwarded from a link with another key or none) is signed
+    here with this link's key, as ``link_id``, at a timestamp that strictly increases (MAVLink's replay rule:
+    per stream, and a new stream within a minute of the receiver's clock). A MAVLink 1 frame cannot be
+    signed and is not sent on a signed link (counted in ``unsignable``)."""
+
+    def __init__(self, key: bytes, link_id: int = 0) -> None:
+        self.key = key
+        self.link_id = link_id
+        self._ts = 0
+        self.unsignable = 0
+
+    def _timestamp(self, unix_s: float) -> int:
+        self._ts = max(self._ts + 1, signing.signing_timestamp(unix_s))
+        return self._ts
+
+    def sign(self, raw: bytes, unix_s: float) -> bytes | None:
+        if len(raw) > 12 + SIGNATURE_LEN and raw[0] == STX_V2 and raw[2] & IFLAG_SIGNED:
+            msg = raw[7] | raw[8] << 8 | raw[9] << 16
+            if signing.signature_valid(Frame(raw, 2, raw[4], raw[5], raw[6], msg, True), self.key):
+                return raw
+            raw = raw[:-SIGNATURE_LEN]
+        msg_id = raw[7] | raw[8] << 8 | raw[9] << 16 if len(raw) > 10 and raw[0] == STX_V2 else -1
+        extra = _crc_extra().get(msg_id)
+        out = None if extra is None else signing.sign_frame(raw, self.key, self.link_id, self._timestamp(unix_s),
+                                                             extra, _x25)
+        if out is None:
+            self.unsignable += 1
+        return out
 
 
 # ---------------------------------------------------------------------------------------------- build

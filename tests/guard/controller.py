@@ -12,12 +12,17 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 
 class Controller:
-    def __init__(self, guard_port: int) -> None:
+    def __init__(self, guard_port: int, signing_key: bytes | None = None) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
         self.sock.settimeout(0.01)
         self.remote = ("127.0.0.1", guard_port)
         self.m = mav.MAVLink(None, 1, 191)
+        if signing_key is not None:  # MAVLink 2 signing as pymavlink does it (link 1, timestamps from now)
+            self.m.signing.secret_key = signing_key
+            self.m.signing.link_id = 1
+            self.m.signing.timestamp = int((time.time() - 1420070400) * 100_000)
+            self.m.signing.sign_outgoing = True
         self.rx = mav.MAVLink(None, 0, 0)
         self.vel = (0.0, 0.0, 0.0)
         self.streaming = False

@@ -71,3 +71,15 @@ def test_a_fixed_wing_streams_merlins_point_unless_a_fallback_mode_is_configured
     assert fallback.target is None and fallback.mode == modes.behaviour_modes[Behavior.RTL]
     # no point given (no stream): the autopilot's mode of the core's behaviour, as before
     assert trusted_output(_decision(Behavior.RTL), modes, GuardConfig(), 0.0, s).mode == modes.behaviour_modes[Behavior.RTL]
+
+
+def test_an_escape_run_out_holds_its_open_course_on_a_point_far_ahead() -> None:
+    from merlin.guard.fixedwing_targets import RUN_OUT_TURN_RADII
+
+    s = _state(-800.0, -900.0, 100.0, math.pi / 4)  # heading north-east
+    stream = FixedWingStream(CFG, CORE, s, 0.02)
+    g = stream._ahead(s, 100.0)
+    r = RUN_OUT_TURN_RADII * stream.turn_radius_m
+    assert g.what == "run-out"
+    assert math.isclose(g.north_m, -800.0 + r / math.sqrt(2.0), abs_tol=1e-6)
+    assert math.isclose(g.east_m, -900.0 + r / math.sqrt(2.0), abs_tol=1e-6)
