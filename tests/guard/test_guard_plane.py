@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from merlin.commands.guard import replay_session
 from merlin.guard.dialects import PlaneMode
 from tests.guard.sim_autopilot import PX4_PARAMS
 from tests.guard.sim_plane import PLANE_PARAMS, SimPlane, SimPx4Plane
@@ -319,3 +320,6 @@ def test_merlins_streamed_return_on_a_plane_routes_around_the_keep_out(tmp_path:
         assert s.mode == s.offboard  # flown in GUIDED on Merlin's points, not Plane's straight RTL
     finally:
         rig.close()
+    # the session's decisions re-run exactly from its logged inputs (merlin guard --replay)
+    same, detail = replay_session(tmp_path / "out")
+    assert same, detail
