@@ -95,7 +95,8 @@ class ControllerIntent:
             return self._plane_setpoint(rec, s)
         d = rec.decoded
         if isinstance(d, codec.Rejected):
-            return Refused(f"{w.message_name(rec.msg_id)}: {d.detail}")
+            # what is wrong first: a STATUSTEXT keeps 50 characters
+            return Refused(f"{d.detail} ({w.message_name(rec.msg_id)})")
         yaw = s.att_rpy_rad[2]
         if isinstance(d, i.SetpointIn):
             return d.to_setpoint(s.pos_ned_m, yaw)

@@ -415,7 +415,7 @@ class Guard:
             sp = self.intent.on_setpoint(rec, self.telemetry._last_state)
             if isinstance(sp, Refused):
                 # a setpoint the core cannot judge never reaches the autopilot (merlin serve drops it too)
-                self._deny(fr, rec, f"setpoint not judged: {sp.detail}", t)
+                self._deny(fr, rec, sp.detail, t)
                 return
             if sp is not None:
                 self.inputs.setpoint(sp, t)
