@@ -231,35 +231,48 @@ def _clean_triplex_tick(
     spec: ChannelSpec, state: VoterState, t_s: float, samples: tuple[LaneSample | None, ...]
 ) -> tuple[VoterState, VotedOutput, tuple[FaultReport, ...]] | None:
     """The common tick, in a fraction of the general path's time (it runs at 400 Hz before the EKF):
-    three clean lanes (not isolated, no fault, no miscompare, integrator at zero) each with a new, in-range,
-    changed sample, all within threshold of the median. Returns exactly what the general path would --
-    same state, output, no events (tests/redundancy/test_sensor_voter.py checks the equivalence) -- or
-    None when any condition fails."""
-    if state.level is not RedundancyLevel.TRIPLEX or state.t_s is None:
+    three clean lanes (not isolated, no fault, no miscompare, integrator at zero), each with either a new,
+    in-range, changed sample or nothing new (no sample, or one not newer than the last: a 10-25 Hz GPS,
+    barometer or magnetometer between its samples) and not timed out, all within threshold of the median.
+    Returns exactly what the general path would -- same state, output, no events
+    (tests/redundancy/test_sensor_voter.py checks the equivalence, at the IMU's rate and at a slow
+    channel's) -- or None when any condition fails. A lane with nothing new keeps its state object: the
+    general path would rebuild it with the same values."""
+    if state.level is not RedundancyLevel.TRIPLEX or state.t_s is None or len(samples) != N_LANES:
         return None
-    a, b, c = samples
-    if a is None or b is None or c is None:
-        return None
+    lanes: list[LaneState] = []
+    vecs: list[tuple[float, ...]] = []
     for ln, smp in zip(state.lanes, samples, strict=True):
         if ln.isolated or ln.fault is not None or ln.miscompare or ln.counter_s != 0.0:
             return None
-        if ln.last_t_s is None or not smp.t_s > ln.last_t_s or t_s - smp.t_s > spec.timeout_s:  # type: ignore[union-attr]
+        last_t, last_vals = ln.last_t_s, ln.last_values
+        if last_t is None or last_vals is None:
             return None
-        vals = smp.values  # type: ignore[union-attr]
-        if vals == ln.last_values or smp.fix_type < spec.min_fix_type:  # type: ignore[union-attr]
+        if smp is None or not smp.t_s > last_t:  # nothing new from this lane: only its timeout can change
+            if t_s - last_t > spec.timeout_s:
+                return None
+            lanes.append(ln)
+            vecs.append(last_vals)
+            continue
+        if t_s - smp.t_s > spec.timeout_s:
+            return None
+        vals = smp.values
+        if vals == last_vals or smp.fix_type < spec.min_fix_type:
             return None
         # map() with operator functions keeps the per-component loop in C; a NaN fails every <=
         if len(vals) != len(spec.range_min) or not (all(map(le, spec.range_min, vals))
                                                     and all(map(le, vals, spec.range_max))):
             return None
-    mid = tuple(map(_median3, a.values, b.values, c.values))
+        lanes.append(LaneState(smp.t_s, vals))
+        vecs.append(vals)
+    a, b, c = vecs
+    mid = tuple(map(_median3, a, b, c))
     thr = spec.miscompare
-    for smp in (a, b, c):
-        if not all(map(le, map(abs, map(sub, smp.values, mid)), thr)):
+    for v in vecs:
+        if not all(map(le, map(abs, map(sub, v, mid)), thr)):
             return None
-    lanes = (LaneState(a.t_s, a.values), LaneState(b.t_s, b.values), LaneState(c.t_s, c.values))
     out = VotedOutput(t_s, mid, True, RedundancyLevel.TRIPLEX, _ALL_LANES, False)
-    return VoterState(lanes, t_s, RedundancyLevel.TRIPLEX, mid), out, _NO_EVENTS
+    return VoterState((lanes[0], lanes[1], lanes[2]), t_s, RedundancyLevel.TRIPLEX, mid), out, _NO_EVENTS
 
 
 def _vote_step_general(
