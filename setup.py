@@ -52,6 +52,16 @@ COMPILED_MODULES = (
     "sims/battery.py",
     "sims/multirotor.py",
     "sims/sensors.py",
+    # with estimator: ekf (every tick: the sample types, the IMU voter and its degradation chain, the
+    # filter's glue around its numba kernels, the tick's stages; docs/benchmarks/nav.md, "Closed loop speed")
+    "merlin/measurements.py",
+    "merlin/nav/quaternion.py",
+    "merlin/redundancy/sensor_voter.py",
+    "merlin/redundancy/degradation.py",
+    "merlin/redundancy/sensor_suite.py",
+    "merlin/nav/estimator.py",
+    "merlin/nav/fusion_stage.py",
+    "merlin/pipeline.py",
 )
 
 # Name of mypyc's shared runtime library (a top-level module ``merlin_native__mypyc``).

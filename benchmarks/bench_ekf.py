@@ -19,6 +19,8 @@ the old figure and the new come from the same minutes of the same machine.
 
     .venv/bin/python benchmarks/bench_ekf.py --part steps [--runs 5]
     nice -n 5 .venv/bin/python benchmarks/bench_ekf.py --part loop [--runs 3] [--baseline-tree DIR]
+    # the compiled builds of two checkouts (each built with `python setup.py build_ext --inplace`)
+    nice -n 5 .venv/bin/python benchmarks/bench_ekf.py --part loop --build installed --this-tree NEW --baseline-tree OLD
 """
 
 from __future__ import annotations
@@ -246,41 +248,51 @@ def _loop_scenario(case: str) -> tuple[Any, Any]:
     return sc, cfg
 
 
-def loop_once(case: str) -> dict[str, float]:
-    """Fly one case once in this process; its simulated duration and process CPU time."""
+def loop_once(case: str) -> dict[str, Any]:
+    """Fly one case once in this process; its simulated duration, process CPU time and build."""
+    from merlin import _build
     from sims.runner import run_scenario
 
     sc, cfg = _loop_scenario(case)
     c0 = time.process_time()
     run_scenario(sc, cfg)
     cpu = time.process_time() - c0
-    return {"sim_s": float(sc.duration_s), "cpu_s": cpu}
+    return {"sim_s": float(sc.duration_s), "cpu_s": cpu, "build": _build.describe()}
 
 
-def _child(case: str, tree: Path) -> dict[str, float]:
-    env = dict(os.environ, PYTHONPATH=str(tree), MERLIN_USE_SOURCES="1")
+def _child(case: str, tree: Path, build: str = "sources") -> dict[str, Any]:
+    """One run of ``case`` in a fresh process on ``tree``: its ``.py`` sources (``build="sources"``,
+    MERLIN_USE_SOURCES=1), or whatever that tree has built (``"installed"``: its mypyc extension modules
+    when ``setup.py build_ext --inplace`` or an editable install compiled them there)."""
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    if build == "sources":
+        env["MERLIN_USE_SOURCES"] = "1"
+    else:
+        env.pop("MERLIN_USE_SOURCES", None)
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", case]
     res = subprocess.run(cmd, env=env, cwd=str(tree), capture_output=True, text=True, check=True)
     return dict(json.loads(res.stdout.strip().splitlines()[-1]))
 
 
-def bench_loop(runs: int, cases: list[str], baseline: Path | None) -> None:
-    trees = [("this tree", ROOT)] + ([("baseline", baseline)] if baseline is not None else [])
-    print("| case | tree | real-time factor (CPU), median | spread | target | runs |")
-    print("|---|---|---|---|---|---|")
+def bench_loop(runs: int, cases: list[str], baseline: Path | None, this_tree: Path = ROOT,
+               build: str = "sources") -> None:
+    trees = [("this tree", this_tree)] + ([("baseline", baseline)] if baseline is not None else [])
+    print("| case | tree | build | real-time factor (CPU), median | spread | target | runs |")
+    print("|---|---|---|---|---|---|---|")
     for case in cases:
         rtf: dict[str, list[float]] = {name: [] for name, _ in trees}
-        for _name, tree in trees:  # warm-up (numba's cache, imports), not counted
-            _child(case, tree)
+        kind: dict[str, str] = {}
+        for name, tree in trees:  # warm-up (numba's cache, imports), not counted
+            kind[name] = str(_child(case, tree, build).get("build", "?"))
         for _ in range(runs):
             for name, tree in trees:
-                r = _child(case, tree)
+                r = _child(case, tree, build)
                 rtf[name].append(r["sim_s"] / r["cpu_s"])
         for name, _ in trees:
             v = rtf[name]
             target = LOOP_TARGETS.get(case)
             print(
-                f"| {case} | {name} | {statistics.median(v):.1f}× | {min(v):.1f}–{max(v):.1f} |"
+                f"| {case} | {name} | {kind[name]} | {statistics.median(v):.1f}× | {min(v):.1f}–{max(v):.1f} |"
                 f" {f'≥ {target:g}×' if target else '—'} | {len(v)} |",
                 flush=True,
             )
@@ -292,6 +304,11 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--cases", nargs="*", default=list(LOOP_CASES))
     ap.add_argument("--baseline-tree", type=Path, default=None)
+    ap.add_argument("--this-tree", type=Path, default=ROOT,
+                    help="--part loop: the checkout flown as 'this tree' (default: the one holding this script)")
+    ap.add_argument("--build", choices=["sources", "installed"], default="sources",
+                    help="--part loop: run the trees' .py sources (MERLIN_USE_SOURCES=1), or their compiled "
+                         "modules where built (mypyc, setup.py build_ext --inplace)")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if hasattr(os, "sched_setaffinity"):
@@ -335,7 +352,7 @@ def main() -> None:
                 f" {f'≤ {t:g}' if t else '—'} |"
             )
     if a.part in ("loop", "all"):
-        bench_loop(a.runs, a.cases, a.baseline_tree)
+        bench_loop(a.runs, a.cases, a.baseline_tree, a.this_tree.resolve(), a.build)
 
 
 if __name__ == "__main__":

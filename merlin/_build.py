@@ -36,6 +36,14 @@ COMPILED_MODULES: tuple[str, ...] = (
     "sims.battery",
     "sims.multirotor",
     "sims.sensors",
+    "merlin.measurements",
+    "merlin.nav.quaternion",
+    "merlin.redundancy.sensor_voter",
+    "merlin.redundancy.degradation",
+    "merlin.redundancy.sensor_suite",
+    "merlin.nav.estimator",
+    "merlin.nav.fusion_stage",
+    "merlin.pipeline",
 )
 
 #: Written by ``setup.py`` beside this file after a successful compiled build: module -> sha256 of the

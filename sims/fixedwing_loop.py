@@ -28,6 +28,7 @@ from merlin.config.models import MerlinConfig
 from merlin.config.runtime import build_core_config
 from merlin.core.step import TrustedCore
 from merlin.core.types import Behavior, Decision, Inputs, VehicleState
+from merlin.nav.fusion_stage import Completion
 from merlin.pipeline import VehicleTick
 from sims.battery import BatteryParams
 from sims.fixedwing import SIMS_ROOT, FixedWingSim, SurfaceCommand
@@ -360,10 +361,11 @@ class FixedWingLoop(SimulatedVehicle):
         self.state = self.sensed.state
         return self.state
 
-    def _complete_ekf_state(self, st: VehicleState) -> VehicleState:
+    def _complete_ekf_state(self) -> Completion:
         """The multirotor's completion, plus the alpha vane (read as truth, as the stand-in's:
         :class:`FixedWingEstimator`)."""
-        return replace(super()._complete_ekf_state(st), alpha_rad=self.truth.alpha_rad)
+        tr = self.truth
+        return (tr.airspeed_mps, self.armed, tr.landed, self.batt_frac, tr.alpha_rad)
 
     def act(self, inputs: Inputs) -> Decision:
         """The core's tick on ``inputs`` (whose ``state`` must be :meth:`sense`'s), then the fixed-wing

@@ -13,7 +13,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from dataclasses import replace as dc_replace
 from typing import Any
 
 import numpy as np
@@ -22,7 +21,7 @@ from merlin.config.models import MerlinConfig
 from merlin.core.config import CoreConfig
 from merlin.core.step import TrustedCore
 from merlin.core.types import Decision, Inputs, NavMode, RedundancyReport, VehicleState
-from merlin.nav.fusion_stage import FusionStage
+from merlin.nav.fusion_stage import Completion, FusionStage
 from merlin.pipeline import Sensed, VehicleTick
 from merlin.redundancy.lanes import VotedSensors
 from sims.battery import Battery, BatteryParams, BatterySagFault
@@ -330,9 +329,10 @@ class SimulatedVehicle:
         standin = self.estimator  # type: ignore[attr-defined]
         return EstimatorFn(lambda t, frame, voted: standin.estimate(t, self.truth, self.armed, self.batt_frac))
 
-    def _complete_ekf_state(self, st: VehicleState) -> VehicleState:
-        """What the filter does not estimate: armed (the core's), on the ground, battery and airspeed (the
-        simulated landing detector, battery monitor and airspeed sensor: read as truth)."""
-        return dc_replace(st, armed=self.armed, landed=self.truth.landed, battery_frac=self.batt_frac,
-                          airspeed_mps=self.truth.airspeed_mps)
+    def _complete_ekf_state(self) -> Completion:
+        """What the filter does not estimate (:class:`merlin.nav.fusion_stage.FusionStage`'s ``complete``):
+        airspeed, armed (the core's), on the ground and battery (the simulated airspeed sensor, landing
+        detector and battery monitor: read as truth); no angle of attack."""
+        tr = self.truth
+        return (tr.airspeed_mps, self.armed, tr.landed, self.batt_frac, 0.0)
 

@@ -934,19 +934,32 @@ class NavEstimator:
         P: np.ndarray = np.array(self.kf.P, dtype=float)
         return P
 
-    def state(self) -> VehicleState:
+    def state(self, airspeed_mps: float = 0.0, armed: bool = False, landed: bool = True,
+              battery_frac: float = 1.0, alpha_rad: float = 0.0) -> VehicleState:
+        """The estimate as the core reads it. What the filter does not estimate (airspeed, armed, on the
+        ground, battery, angle of attack) the caller gives, so that the state is built once per tick (it is
+        read every tick, by every lane's filter: a ``dataclasses.replace`` afterwards cost as much as
+        building it)."""
         s = self._s.tolist()  # one conversion: the state is read every tick
+        p = self.kf.P
+        a_, b_, d_, pzz = float(p[0, 0]), float(p[0, 1]), float(p[1, 1]), float(p[2, 2])
         g, a = self._last_gyro, self._last_accel
-        return VehicleState(
-            pos_ned_m=(s[0], s[1], s[2]),
-            vel_ned_mps=(s[3], s[4], s[5]),
-            att_rpy_rad=quat_to_euler((s[6], s[7], s[8], s[9])),
-            rates_frd_radps=(g[0] - s[14], g[1] - s[15], g[2] - s[16]),
-            accel_frd_mps2=(a[0] - s[17], a[1] - s[18], a[2] - s[19]),
-            pos_sigma_h_m=self.pos_sigma_h_m,
-            pos_sigma_v_m=self.pos_sigma_v_m,
-            nav_mode=self._mode,
-            nav_inertial_s=self.inertial_s,
+        # pos_sigma_h_m, pos_sigma_v_m and inertial_s inlined (same expressions, same floats)
+        return VehicleState(  # positional, in VehicleState's field order
+            (s[0], s[1], s[2]),  # pos_ned_m
+            (s[3], s[4], s[5]),  # vel_ned_mps
+            quat_to_euler((s[6], s[7], s[8], s[9])),  # att_rpy_rad
+            (g[0] - s[14], g[1] - s[15], g[2] - s[16]),  # rates_frd_radps
+            (a[0] - s[17], a[1] - s[18], a[2] - s[19]),  # accel_frd_mps2
+            airspeed_mps,
+            math.sqrt(max(0.0, 0.5 * (a_ + d_) + math.sqrt(0.25 * (a_ - d_) ** 2 + b_ * b_))),  # pos_sigma_h_m
+            math.sqrt(max(0.0, pzz)),  # pos_sigma_v_m
+            self._mode,  # nav_mode
+            max(0.0, self._t - self._aid_t),  # nav_inertial_s
+            armed,
+            landed,
+            battery_frac,
+            alpha_rad,
         )
 
     @property

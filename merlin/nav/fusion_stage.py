@@ -18,17 +18,21 @@ from merlin.measurements import ImuSample
 from merlin.nav.estimator import NavEstimator
 from merlin.redundancy.lanes import VotedSensors
 
+#: what a driver adds to the filter's state: (airspeed_mps, armed, landed, battery_frac, alpha_rad)
+Completion = tuple[float, bool, bool, float, float]
+
 
 class FusionStage:
     """:class:`merlin.nav.estimator.NavEstimator` on the tick's sensor frame; ``events`` collects its
     events as plain dicts (``nav_<kind>``)."""
 
     def __init__(self, ekf: NavEstimator, aiding: Callable[[float, NavEstimator], Any] | None = None,
-                 complete: Callable[[VehicleState], VehicleState] | None = None) -> None:
+                 complete: Callable[[], Completion] | None = None) -> None:
         self.ekf = ekf
         #: called after the sensor updates with (t, filter): the driver's further aiding (visual odometry)
         self.aiding = aiding
-        #: the driver's completion of the filter's state (armed, on the ground, battery, airspeed)
+        #: the driver's completion of the filter's state: (airspeed_mps, armed, landed, battery_frac,
+        #: alpha_rad) now, what the filter does not estimate (:meth:`NavEstimator.state`'s arguments)
         self.complete = complete
         self.events: list[dict[str, Any]] = []
 
@@ -64,5 +68,4 @@ class FusionStage:
             self.events.append({"t": e.t_s, "type": f"nav_{e.kind.value}", "source": e.source,
                                 "parameter": e.parameter, "statistic": e.statistic, "limit": e.limit,
                                 "text": e.describe()})
-        st = ekf.state()
-        return st if self.complete is None else self.complete(st)
+        return ekf.state() if self.complete is None else ekf.state(*self.complete())

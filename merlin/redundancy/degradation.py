@@ -16,7 +16,7 @@ samples of the two surviving lanes.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -50,8 +50,7 @@ NAV_HEALTH: dict[RedundancyLevel, float] = {
 }
 
 
-@dataclass(frozen=True, slots=True)
-class ChainOutput:
+class ChainOutput(NamedTuple):  # built every tick: a NamedTuple (merlin.redundancy.sensor_voter's records)
     imu: VotedOutput
     level: RedundancyLevel
     nav_health: float
@@ -212,7 +211,7 @@ class ImuDegradationChain:
         feed = self.alert_lane if self.alert_lane is not None else self._sub_alert_feed()
         if feed is not None and feed in pair and imu[feed] is not None \
                 and out.valid and set(out.lanes_used) == set(pair):
-            return replace(out, values=imu[feed].values, lanes_used=(feed,))  # type: ignore[union-attr]
+            return out._replace(values=imu[feed].values, lanes_used=(feed,))  # type: ignore[union-attr]
         return out
 
     def _enter_simplex(self, t_s: float) -> FaultReport:

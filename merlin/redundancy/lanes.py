@@ -369,8 +369,7 @@ class LaneNavigation:
                     self.events.append({"t": e.t_s, "type": f"nav_{e.kind.value}", "lane": i, "source": e.source,
                                         "parameter": e.parameter, "statistic": e.statistic, "limit": e.limit,
                                         "text": f"lane {i}: {e.describe()}"})
-                self.states[i] = replace(ekf.state(), armed=armed, landed=truth.landed, battery_frac=batt_frac,
-                                         airspeed_mps=truth.airspeed_mps)
+                self.states[i] = ekf.state(truth.airspeed_mps, armed, truth.landed, batt_frac)
             else:
                 assert self.standins is not None
                 self.states[i] = self.standins[i].estimate(t, truth, armed, batt_frac)

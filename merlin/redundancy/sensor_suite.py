@@ -18,7 +18,7 @@ barometer and GPS samples are what the estimator fuses.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -40,8 +40,7 @@ from merlin.redundancy.sensor_voter import (
 VOTED_LANE = -1
 
 
-@dataclass(frozen=True, slots=True)
-class VotedSensors:
+class VotedSensors(NamedTuple):  # built every tick: a NamedTuple (merlin.redundancy.sensor_voter's records)
     t_s: float
     imu: ImuSample | None
     mag: MagSample | None

@@ -292,3 +292,56 @@ def test_the_clean_tick_fast_path_returns_exactly_what_the_general_path_does(see
                                                 and all(a == b or (math.isnan(a) and math.isnan(b))
                                                         for a, b in zip(out_f.values, out_g.values, strict=True)))
         assert (out_f.valid, out_f.level, out_f.lanes_used) == (out_g.valid, out_g.level, out_g.lanes_used)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), p_anomaly=st.sampled_from([0.0, 0.05, 0.2]),
+       channel=st.sampled_from(["mag", "baro", "gps"]))
+def test_the_fast_path_between_a_slow_channels_samples_returns_what_the_general_path_does(seed, p_anomaly,
+                                                                                          channel):
+    """A 10-25 Hz channel voted at 400 Hz has nothing new on most ticks, lane by lane (each unit at its own
+    phase); the fast path takes those ticks too. On any sequence -- clean, or with late, missing (long
+    enough to time out), repeated, out-of-range, NaN or wild samples -- its states, outputs and events
+    equal the general path's, tick by tick."""
+    from merlin.redundancy.sensor_voter import _vote_step_general
+
+    spec = CHANNEL_SPECS[channel]
+    n = len(spec.components)
+    rng = np.random.default_rng(seed)
+    s_fast = s_gen = VoterState()
+    prev: list[LaneSample | None] = [None, None, None]
+    period = 16 if channel != "gps" else 40  # ticks at 400 Hz: 25 Hz, 10 Hz
+    phase = [int(x) for x in rng.integers(0, period, 3)]
+    silent_until = [0, 0, 0]
+    scale = 0.1 * np.asarray(spec.miscompare)
+    for k in range(600):
+        t = k * 0.0025
+        samples: list[LaneSample | None] = []
+        for i in range(3):
+            if k < silent_until[i] or (k - phase[i]) % period != 0:
+                samples.append(prev[i])  # nothing new from this unit this tick
+                continue
+            vals = tuple(float(x) for x in scale * rng.standard_normal(n) + 0.01 * i * scale)
+            if rng.random() < p_anomaly:
+                kind = rng.integers(5)
+                if kind == 0:
+                    silent_until[i] = k + int(rng.integers(1, 3)) * int(spec.timeout_s / 0.0025)  # a gap
+                    samples.append(prev[i])
+                    continue
+                if kind == 1 and prev[i] is not None:
+                    vals = prev[i].values  # type: ignore[union-attr]  # repeated (stuck) values
+                elif kind == 2:
+                    vals = (math.nan, *vals[1:])
+                elif kind == 3:
+                    vals = (1e9, *vals[1:])  # out of range
+                else:
+                    vals = (vals[0] + 5.0 * spec.miscompare[0], *vals[1:])  # miscompare
+            prev[i] = LaneSample(t, vals, fix_type=3 if channel == "gps" else 99)
+            samples.append(prev[i])
+        s_fast, out_f, ev_f = vote_step(spec, s_fast, t, tuple(samples))
+        s_gen, out_g, ev_g = _vote_step_general(spec, s_gen, t, tuple(samples))
+        assert s_fast == s_gen and ev_f == ev_g
+        assert out_f.values == out_g.values or (out_f.values is not None and out_g.values is not None
+                                                and all(a == b or (math.isnan(a) and math.isnan(b))
+                                                        for a, b in zip(out_f.values, out_g.values, strict=True)))
+        assert (out_f.valid, out_f.level, out_f.lanes_used) == (out_g.valid, out_g.level, out_g.lanes_used)
