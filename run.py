@@ -140,7 +140,7 @@ def cmd_test(py: Path, extra: list[str]) -> int:
 # beside the CPU-bound tests, wide enough that their waiting overlaps. The CPU-bound pool runs at a lower
 # scheduling priority: the real-time flights get the CPU when they need it (a client starved of it misses
 # its heartbeat and is revoked, as a real one would be), the batch tests take what is left.
-INTEGRATION_WORKERS = 6
+INTEGRATION_WORKERS = 4
 CPU_POOL_NICENESS = 10
 
 

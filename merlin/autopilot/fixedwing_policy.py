@@ -51,6 +51,8 @@ class FixedWingMemory(NamedTuple):
     goto_ned_m: Vec3 | None = None  # the commanded point (GOTO, ORBIT's centre) the stage loiters about
     note: str = ""  # the stage plans the routes: never a note here
     fallback: int = 0
+    # no acceleration to feed forward: the command is the aircraft's own velocity, which the stage does not fly
+    accel_ff_ned_mps2: Vec3 = (0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True, slots=True)

@@ -6,6 +6,7 @@ import math
 from typing import Any
 
 from merlin.autopilot.guidance import MultirotorGuidance
+from merlin.autopilot.multirotor_control import DEFAULT_GAINS
 from merlin.config.fence_build import build_fence
 from merlin.config.loader import config_sha256
 from merlin.config.models import ENVELOPE_PARAMETERS, MerlinConfig
@@ -209,5 +210,11 @@ def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig
             max_accel_up_mps2=v.max_vertical_accel_mps2,
             max_accel_down_mps2=v.max_accel_down_mps2,
             max_yaw_rate_radps=v.max_yaw_rate_degps * _DEG,
+            # the loop the actuator stage flies (merlin.autopilot.multirotor_stage, its default gains): the
+            # fence's projection of a velocity command and the loop are one model
+            loop_vel_p_per_s=DEFAULT_GAINS.vel_p_xy_per_s,
+            loop_vel_i_max_mps2=DEFAULT_GAINS.vel_i_xy_max_mps2,
+            loop_vel_d_s=DEFAULT_GAINS.vel_d_xy,
+            loop_max_tilt_rad=DEFAULT_GAINS.tilt_max_rad,
         ),
     )

@@ -171,6 +171,15 @@ class SetpointClamp:
     max_accel_up_mps2: float = 4.0
     max_accel_down_mps2: float = 3.0
     max_yaw_rate_radps: float = 0.7853981633974483  # 45 deg/s
+    # The trusted velocity loop that flies a velocity command (merlin.autopilot.multirotor_control): its
+    # proportional gain, integrator limit, derivative gain on the measured acceleration and tilt limit bound
+    # the acceleration a velocity command can still add during the fence's reaction time
+    # (merlin.core.shaping.loop_bounded_demand). A gain of 0: not known, and the projection assumes the
+    # vehicle's full tilt acceleration towards any demand.
+    loop_vel_p_per_s: float = 0.0
+    loop_vel_i_max_mps2: float = 0.0
+    loop_vel_d_s: float = 0.0
+    loop_max_tilt_rad: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

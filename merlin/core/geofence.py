@@ -592,27 +592,11 @@ def check(fence: Fence, pos_ned_m: Sequence[float], vel_ned_mps: Sequence[float]
     fixed_wing = prm.vehicle == "fixed_wing"
     wind = _NO_WIND
     if fixed_wing:
-        if wn != 0.0 or we != 0.0:
-            if abs(wn) > MAX_SPEED_MPS or abs(we) > MAX_SPEED_MPS:
-                return _INVALID
-            # the turn is flown in the air mass: its shape follows the air velocity
-            vn, ve = vn - wn, ve - we
-            if -_TINY < vn < _TINY:
-                vn = 0.0
-            if -_TINY < ve < _TINY:
-                ve = 0.0
-            v = math.hypot(vn, ve)
-            wind = (wn, we)
-        turn = fixed_wing_turn(prm, _escape_speed_mps(v, vd), bank_rad)
+        fw = _fixed_wing_projection(fence, vn, ve, vd, v, wn, we, bank_rad)
+        if fw is None:
+            return _INVALID
+        vn, ve, v, wind, turn, d, drift, reach, sag = fw
         leg, radius = turn.leg_m, turn.radius_m
-        rollout = turn.rollout_m()
-        d = rollout + leg + math.pi * radius
-        drift = _drift_m(wind, turn)
-        # farthest point of either turn from the position, plus the drift over the whole manoeuvre (the
-        # roll-out's path length bounds how far it moves the turn's start)
-        reach = rollout + math.hypot(leg, radius) + radius + drift
-        # the polyline's chord error (beyond the finest table only for turns wider than ~2.6 km)
-        sag = _WIND_SAG_FACTOR * max(ARC_CHORD_ERROR_M, radius * fence._arc_tables[-1][1]) + _leg_sag_m(turn)
     else:
         turn = None
         leg = radius = sag = drift = 0.0
@@ -628,6 +612,38 @@ def check(fence: Fence, pos_ned_m: Sequence[float], vel_ned_mps: Sequence[float]
 
     return _verdict(fence, n, e, h, vn, ve, vd, v, d, leg, radius, w, sag, reach, turn, wind, drift,
                     sigma_v_m, airborne)
+
+
+def _fixed_wing_projection(fence: Fence, vn: float, ve: float, vd: float, v: float, wn: float, we: float,
+                           bank_rad: float) -> tuple[float, float, float, tuple[float, float], FixedWingTurn, float,
+                                                     float, float, float] | None:
+    """A fixed wing's escape for :func:`check`: the air velocity (ground velocity less the wind: the turn
+    is flown in the air mass, its shape follows the air velocity) and its horizontal speed, the wind, the
+    turn, the path length, the wind's drift, the reach (the farthest point of either turn plus the drift)
+    and the polylines' chord error; None for a wind beyond :data:`MAX_SPEED_MPS` (invalid)."""
+    prm = fence.params
+    wind = _NO_WIND
+    if wn != 0.0 or we != 0.0:
+        if abs(wn) > MAX_SPEED_MPS or abs(we) > MAX_SPEED_MPS:
+            return None
+        vn, ve = vn - wn, ve - we
+        if -_TINY < vn < _TINY:
+            vn = 0.0
+        if -_TINY < ve < _TINY:
+            ve = 0.0
+        v = math.hypot(vn, ve)
+        wind = (wn, we)
+    turn = fixed_wing_turn(prm, _escape_speed_mps(v, vd), bank_rad)
+    leg, radius = turn.leg_m, turn.radius_m
+    rollout = turn.rollout_m()
+    d = rollout + leg + math.pi * radius
+    drift = _drift_m(wind, turn)
+    # farthest point of either turn from the position, plus the drift over the whole manoeuvre (the
+    # roll-out's path length bounds how far it moves the turn's start)
+    reach = rollout + math.hypot(leg, radius) + radius + drift
+    # the polyline's chord error (beyond the finest table only for turns wider than ~2.6 km)
+    sag = _WIND_SAG_FACTOR * max(ARC_CHORD_ERROR_M, radius * fence._arc_tables[-1][1]) + _leg_sag_m(turn)
+    return vn, ve, v, wind, turn, d, drift, reach, sag
 
 
 def _flush_tiny(n: float, e: float, vn: float, ve: float) -> tuple[float, float, float, float]:

@@ -180,6 +180,55 @@ def demanded_velocity(cmd: Command | None, s: VehicleState, reaction_time_s: flo
     return (v[0] + k * zn, v[1] + k * ze, v[2])
 
 
+def loop_bounded_demand(demand: Vec3, last: Command | None, s: VehicleState, reaction_time_s: float,
+                        lim: SetpointClamp, gravity_mps2: float) -> Vec3:
+    """A velocity command's demand for the fence projection, cut to the speed Merlin's velocity loop can still
+    add towards it within the reaction time (``demanded_velocity`` gives the command's own velocity).
+
+    The projection credits the vehicle with accelerating towards the demand during the reaction time
+    (:func:`merlin.core.geofence.check`). The loop that flies a velocity command asks for at most
+    ``Kp e + I_max + Kd max(0, -a)`` of horizontal thrust acceleration (its error ``e``, no larger than the
+    larger of the demand's and the last actuated command's distance from the velocity; its integrator at its
+    limit; its derivative term on the measured acceleration ``a``), and never more than ``g tan(tilt_max)``;
+    the thrust it has now may be larger, and goes at most as far. The air's force on the airframe (the
+    specific force's body x and y components) only falls as the vehicle speeds up along the demand, so it
+    counts as measured now. Along the demand the vehicle then accelerates at most at
+    ``max(thrust bound + air now, 0)``: a vehicle already in equilibrium against its drag, the loop's steady
+    error read as a demand to accelerate, gains nothing (the ramped approaches of
+    ``benchmarks/bench_adversary_steps.py --ramped``), while a step from rest is credited its full tilt.
+
+    Unchanged when the loop is not known (``lim.loop_vel_p_per_s`` 0) or the attitude or the specific force
+    is not finite (the projection then assumes the full tilt acceleration, as before)."""
+    kp = lim.loop_vel_p_per_s
+    v = s.vel_ned_mps
+    en, ee = demand[0] - v[0], demand[1] - v[1]
+    e = math.hypot(en, ee)
+    r, p, y = s.att_rpy_rad
+    fx, fy, fz = s.accel_frd_mps2
+    if not (kp > 0.0 and e > 1e-9 and math.isfinite(e + r + p + y + fx + fy + fz)):
+        return demand
+    un, ue = en / e, ee / e
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    # the specific force in NED (ZYX Euler angles): the body x and y parts are the air's, the z part the thrust's
+    air_n = fx * cy * cp + fy * (cy * sp * sr - sy * cr)
+    air_e = fx * sy * cp + fy * (sy * sp * sr + cy * cr)
+    thr_n, thr_e = fz * (cy * sp * cr + sy * sr), fz * (sy * sp * cr - cy * sr)
+    acc_along = (air_n + thr_n) * un + (air_e + thr_e) * ue
+    e_loop = e
+    if last is not None and last.kind is _CMD_VELOCITY:
+        lv = last.vel_ned_mps
+        e_last = math.hypot(lv[0] - v[0], lv[1] - v[1])
+        if math.isfinite(e_last) and e_last > e_loop:
+            e_loop = e_last
+    asked = kp * e_loop + lim.loop_vel_i_max_mps2 + lim.loop_vel_d_s * max(-acc_along, 0.0)
+    thrust = min(asked, gravity_mps2 * math.tan(lim.loop_max_tilt_rad))
+    thrust = max(thrust, math.hypot(thr_n, thr_e))
+    gain = max(thrust + air_n * un + air_e * ue, 0.0) * reaction_time_s
+    if gain >= e:
+        return demand
+    return (v[0] + gain * un, v[1] + gain * ue, demand[2])
+
+
 class OperatorMemory(NamedTuple):
     """What the operator's position-assist mode remembers: the heading and the point held at centre sticks."""
 

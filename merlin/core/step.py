@@ -30,6 +30,7 @@ from merlin.core.shaping import (
     blend_start,
     clamp_command,
     demanded_velocity,
+    loop_bounded_demand,
     operator_command,
     setpoint_to_command,
     shape,
@@ -600,6 +601,9 @@ def _fence_monitor(cfg: CoreConfig, fence: geofence.Fence, last: Command | None,
     prm = fence.params
     demand = None if prm.vehicle == "fixed_wing" else demanded_velocity(flown, s, prm.reaction_time_s,
                                                                         prm.gravity_mps2)
+    if demand is not None and cfg.clamp is not None and flown is not None and flown.kind is _CMD_VELOCITY:
+        # as far as the velocity loop flying the command can take the vehicle in the reaction time
+        demand = loop_bounded_demand(demand, last, s, prm.reaction_time_s, cfg.clamp, prm.gravity_mps2)
     # a fixed wing's escape first rolls out a bank towards the other side (geofence.fixed_wing_turn)
     bank = s.att_rpy_rad[0] if prm.vehicle == "fixed_wing" else 0.0
     res = geofence.check(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, s.pos_sigma_v_m, floor_reached,

@@ -24,6 +24,7 @@ from merlin.core.shaping import (
     OperatorMemory,
     clamp_command,
     demanded_velocity,
+    loop_bounded_demand,
     operator_command,
 )
 from merlin.core.types import (
@@ -205,6 +206,58 @@ def test_an_attitude_command_demands_its_tilt_acceleration() -> None:
     assert d is not None
     assert math.isclose(d[0], 2.0 + 9.80665 * math.tan(math.radians(30.0)) * 0.3, rel_tol=1e-9)
     assert abs(d[1]) < 1e-12
+
+
+_LOOP = SetpointClamp(loop_vel_p_per_s=2.5, loop_vel_i_max_mps2=3.0, loop_vel_d_s=0.2,
+                      loop_max_tilt_rad=math.radians(35.0))
+G = 9.80665
+
+
+def _flying_north(speed: float, tilt_deg: float, air_mps2: float) -> VehicleState:
+    """North at ``speed``, pitched ``tilt_deg`` nose down holding height; the air pushes ``air_mps2`` north."""
+    p = -math.radians(tilt_deg)
+    fz = -G / math.cos(p)
+    return VehicleState(pos_ned_m=(0.0, 0.0, -30.0), vel_ned_mps=(speed, 0.0, 0.0), att_rpy_rad=(0.0, p, 0.0),
+                        accel_frd_mps2=(air_mps2 / math.cos(p), 0.0, fz))
+
+
+def test_a_velocity_command_in_equilibrium_against_drag_demands_nothing_more() -> None:
+    # the ramped approach at the 15 m/s clamp: the loop's steady 1 m/s error holds 29.7 deg against the drag
+    s = _flying_north(14.0, 29.7, -G * math.tan(math.radians(29.7)))
+    d = loop_bounded_demand((15.0, 0.0, 0.0), None, s, 0.3, _LOOP, G)
+    assert d[0] - 14.0 < 0.05 and d[1] == 0.0 and d[2] == 0.0
+    # the old model credited the full 1 m/s: braking from 15 m/s, 3.6 m more of projected path
+    assert demanded_velocity(Command(CommandKind.VELOCITY, Authority.EXPERIMENTAL, vel_ned_mps=(15.0, 0.0, 0.0)),
+                             s, 0.3, G) == (15.0, 0.0, 0.0)
+
+
+def test_a_velocity_step_from_rest_is_credited_the_loops_full_tilt() -> None:
+    s = _flying_north(0.0, 0.0, 0.0)
+    d = loop_bounded_demand((30.0, 0.0, 0.0), None, s, 0.3, _LOOP, G)
+    assert math.isclose(d[0], G * math.tan(math.radians(35.0)) * 0.3, rel_tol=1e-9)
+    # a tailwind pushing the vehicle adds to it; a small step is credited in full
+    assert loop_bounded_demand((30.0, 0.0, 0.0), None, _flying_north(0.0, 0.0, 1.0), 0.3, _LOOP, G)[0] > d[0]
+    assert loop_bounded_demand((0.5, 0.0, 0.0), None, s, 0.3, _LOOP, G) == (0.5, 0.0, 0.0)
+    # without the loop's model, or without a finite specific force, the demand is left whole
+    assert loop_bounded_demand((30.0, 0.0, 0.0), None, s, 0.3, SetpointClamp(), G) == (30.0, 0.0, 0.0)
+    broken = replace(s, accel_frd_mps2=(math.nan, 0.0, -G))
+    assert loop_bounded_demand((30.0, 0.0, 0.0), None, broken, 0.3, _LOOP, G) == (30.0, 0.0, 0.0)
+
+
+@settings(max_examples=200, deadline=None)
+@given(speed=st.floats(0.0, 20.0), tilt=st.floats(-40.0, 40.0), air=st.floats(-8.0, 8.0),
+       dn=st.floats(-40.0, 40.0), de=st.floats(-40.0, 40.0), last_n=st.floats(-40.0, 40.0))
+def test_the_loop_bound_only_shortens_the_demand_along_its_own_direction(
+    speed: float, tilt: float, air: float, dn: float, de: float, last_n: float
+) -> None:
+    s = _flying_north(speed, tilt, air)
+    last = Command(CommandKind.VELOCITY, Authority.EXPERIMENTAL, vel_ned_mps=(last_n, 0.0, 0.0))
+    d = loop_bounded_demand((dn, de, 1.0), last, s, 0.3, _LOOP, G)
+    en, ee = dn - speed, de
+    gn, ge = d[0] - speed, d[1]
+    assert math.hypot(gn, ge) <= math.hypot(en, ee) + 1e-9  # never more than the command asks
+    assert abs(gn * ee - ge * en) <= 1e-6 * (1.0 + math.hypot(en, ee) ** 2)  # along the command's direction
+    assert gn * en + ge * ee >= -1e-9 and d[2] == 1.0
 
 
 def test_a_fenced_pilot_cannot_push_outward_but_flies_along_and_inward_freely() -> None:

@@ -24,17 +24,23 @@ def test_mavproxy_connects_sets_a_param_on_the_ground_arms_and_takes_off(serve: 
     # a PX4-style vehicle (icd/ICD.md section 2); the default home is PX4 SITL's, 488 m AMSL, so 503 is 15 m
     # above home.
     # A parameter set on the ground is accepted; in flight it is refused (MAVProxy retries, then gives up).
-    script = ("sleep 15; echo 'param set ENV_ROLL_MAX 25'; sleep 3; echo 'arm throttle'; sleep 4; echo 'takeoff 503';"
-              " sleep 8; echo 'param set ENV_ROLL_MAX 40'; sleep 5; echo 'param show ENV_ROLL_MAX'; sleep 2")
+    # As an operator at the console: the first command waits for MAVProxy's parameter download (it tries MAVLink
+    # FTP first, which Merlin does not serve, then falls back to PARAM_REQUEST_LIST; on a loaded machine that
+    # can take longer than any fixed pause).
+    wait_params = ("for i in $(seq 240); do grep -q 'Received [0-9]* parameters' out.txt 2>/dev/null && break;"
+                   " sleep 0.5; done; ")
+    script = (wait_params + "echo 'param set ENV_ROLL_MAX 25'; sleep 3; echo 'arm throttle'; sleep 4;"
+              " echo 'takeoff 503'; sleep 8; echo 'param set ENV_ROLL_MAX 40'; sleep 5; echo 'param show ENV_ROLL_MAX';"
+              " sleep 2")
     for _ in range(600):  # serve is up (its start record written) before MAVProxy's clock starts
         if any(e["type"] == "serve_start" for e in serve.events()):
             break
         time.sleep(0.1)
     cmd = f"({script}) | {sys.executable} -m MAVProxy.mavproxy --master=udpin:127.0.0.1:{serve.gcs_port} " \
-          f"--logfile={state / 'mavproxy.tlog'} --state-basedir={state}"
+          f"--logfile={state / 'mavproxy.tlog'} --state-basedir={state} 2>&1 | tee out.txt"
     try:
-        res = subprocess.run(["bash", "-c", cmd], cwd=state, capture_output=True, text=True, timeout=120,
-                             env={**os.environ, "PYTHONPATH": str(ROOT)})
+        res = subprocess.run(["bash", "-c", cmd], cwd=state, capture_output=True, text=True, timeout=200,
+                             env={**os.environ, "PYTHONPATH": str(ROOT), "PYTHONUNBUFFERED": "1"})
         out = res.stdout + res.stderr
     except subprocess.TimeoutExpired as exc:
         out = (exc.stdout or b"").decode() if isinstance(exc.stdout, bytes) else (exc.stdout or "")
@@ -89,10 +95,10 @@ def test_mavproxy_session_wp_load_list_mode_arm_takeoff_mission_rtl(serve: Serve
             break
         time.sleep(0.1)
     cmd = f"({script}) | {sys.executable} -m MAVProxy.mavproxy --master=udpin:127.0.0.1:{serve.gcs_port} " \
-          f"--logfile={state / 'mavproxy.tlog'} --state-basedir={state}"
+          f"--logfile={state / 'mavproxy.tlog'} --state-basedir={state} 2>&1 | tee out.txt"
     try:
-        res = subprocess.run(["bash", "-c", cmd], cwd=state, capture_output=True, text=True, timeout=120,
-                             env={**os.environ, "PYTHONPATH": str(ROOT)})
+        res = subprocess.run(["bash", "-c", cmd], cwd=state, capture_output=True, text=True, timeout=200,
+                             env={**os.environ, "PYTHONPATH": str(ROOT), "PYTHONUNBUFFERED": "1"})
         out = res.stdout + res.stderr
     except subprocess.TimeoutExpired as exc:
         out = (exc.stdout or b"").decode() if isinstance(exc.stdout, bytes) else (exc.stdout or "")
