@@ -204,11 +204,9 @@ class Server:
         self.cfg = opts.config
         self.dt = 1.0 / opts.rate_hz
         # the vehicle on the ground at home; a fixed wing rests on its catapult until TAKEOFF launches it.
-        # The fusion EKF navigates, except on the catapult: its launch stroke is not simulated, so the IMU never
-        # sees the aircraft reach flying speed and the filter would reject every fix after the release
-        # (sims.fixedwing_loop refuses the combination); the fixed wing flies the stand-in, by name.
-        fixed_wing = opts.vehicle in FIXED_WING_VEHICLES
-        self.estimator = "truth_plus_noise" if fixed_wing else "ekf"
+        # The fusion EKF navigates on both (a fixed wing's filter starts again in the air at the catapult's
+        # release, whose stroke is not simulated: sims.fixedwing_loop).
+        self.estimator = "ekf"
         self.estimator_note = estimator_note(self.estimator)
         sc = Scenario.model_validate({"name": "serve", "duration_s": 7200.0, "dt_s": self.dt, "vehicle": opts.vehicle,
                                       "estimator": self.estimator})
