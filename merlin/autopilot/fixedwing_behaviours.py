@@ -25,7 +25,12 @@ wing cannot stop:
   trusted behaviour already flies (nothing to revoke) starts the same escape turn, once per trip. RTL and
   LAND start with it too whenever one of the projection's two turns is blocked, whatever took authority
   back (a floor trip, a watchdog). The turn ends once both projected turns are clear and the aircraft
-  heads home, or at the half turn.
+  heads home, or at the half turn; before either, it stops on the first course that is open (flown wings
+  level for the projection's escape time, drifting with the wind, it stays clear:
+  :func:`merlin.core.geofence.straight_clearance`) and holds it until the behaviour can take over with a
+  first turn the projection finds clear (:meth:`FixedWingBehaviours._open_course`): an escape is judged on
+  what follows it, not on its half turn, which in a lobe of the range with the wind towards its wall ends
+  heading at the wall.
 * RTL and LAND route around the fence's keep-out zones and inclusion boundary
   (:mod:`merlin.autopilot.fixedwing_route`): planned when they start, or when the escape turn ends, from
   the aircraft's position and course; the loiter over home moves off a keep-out if it must.
@@ -207,6 +212,10 @@ class FixedWingBehaviours:
         self.escape_side: float = 0.0  # +1 / -1 while an escape turn is flown, else 0
         self._escape_course = 0.0  # course over the ground at the previous tick of the escape turn, rad
         self._escape_turned_rad = 0.0  # how far the escape turn has turned towards its side so far
+        #: the escape has found an open course (geofence.straight_clearance) and flies it wings level until
+        #: the behaviour can take over (the run-out), instead of turning on round
+        self._escape_run_out = False
+        self._open_checked_t = -math.inf  # when the escape last measured whether its course is open
         #: a horizontal fence trip under trusted authority starts an escape turn only after the monitor was
         #: clear for TRIP_REARM_S with no escape turn under way (one turn per trip, never a circle of them)
         self._trip_armed = True
@@ -216,6 +225,11 @@ class FixedWingBehaviours:
         self.notes: list[dict[str, Any]] = [] if notes is None else notes
         self.surfaces = surfaces
         self.cstate = fc.reset_from_state(cp, s0, surfaces)
+
+    @property
+    def escape_run_out(self) -> bool:
+        """The escape turn has found an open course and holds it wings level (the run-out)."""
+        return bool(self.escape_side) and self._escape_run_out
 
     def restart(self, surfaces: fc.SurfaceCommand) -> None:
         """The vehicle was put into a new state from outside (a launch): the next tick re-initialises the
@@ -343,6 +357,8 @@ class FixedWingBehaviours:
         self.escape_side = escape_side(fence, s)
         self._escape_course = math.atan2(s.vel_ned_mps[1], s.vel_ned_mps[0])
         self._escape_turned_rad = 0.0
+        self._escape_run_out = False
+        self._open_checked_t = -math.inf
         self._trip_armed = False
         self._trip_clear_since = None
         self.notes.append({"t": t, "type": "fixed_wing_escape_turn",
@@ -493,7 +509,11 @@ class FixedWingBehaviours:
         step = (course - self._escape_course + math.pi) % math.tau - math.pi
         self._escape_course = course
         self._escape_turned_rad += step * self.escape_side
-        half_turn_done = self._escape_turned_rad >= math.pi
+        follow_on = False
+        if self.fence is not None and t - self._open_checked_t >= ROUTE_CHECK_S:
+            self._open_checked_t = t
+            follow_on = self._open_course(t, decision, s, fence_tripped)
+        half_turn_done = not self._escape_run_out and self._escape_turned_rad >= math.pi
         # Ends when a turn either way from here is clear (the projection's two turns: guidance may then
         # take its short way) and the aircraft heads home, or at the half turn. The monitor alone clearing
         # is not enough: it flickers at its threshold, and the first tick after the trip would hand the
@@ -518,7 +538,8 @@ class FixedWingBehaviours:
             return replace(targets, roll_rad=self.escape_side * fc.bank_limit_rad(self.cp),
                            airspeed_mps=fc.escape_airspeed_mps(self.cp))
         if (not fence_tripped and homeward and (self.fence is None or not _turn_blocked(self.fence, s)
-                                                or self._route_takes_over(t, decision, s))) or half_turn_done:
+                                                or self._route_takes_over(t, decision, s))) or half_turn_done \
+                or follow_on:
             self.notes.append({"t": t, "type": "fixed_wing_escape_turn_end",
                                "turned_deg": math.degrees(self._escape_turned_rad),
                                "fence_tripped": fence_tripped})
@@ -537,9 +558,56 @@ class FixedWingBehaviours:
             self.escape_side = 0.0
             return targets
         # at the bank limit and the airspeed the fence projection assumed for the turn (fixed_wing_turn): a
-        # slower cruise would fade the bank, a faster one widen the turn
-        return replace(targets, roll_rad=self.escape_side * fc.bank_limit_rad(self.cp),
-                       airspeed_mps=fc.escape_airspeed_mps(self.cp))
+        # slower cruise would fade the bank, a faster one widen the turn; on the open course, wings level
+        roll = 0.0 if self._escape_run_out else self.escape_side * fc.bank_limit_rad(self.cp)
+        return replace(targets, roll_rad=roll, airspeed_mps=fc.escape_airspeed_mps(self.cp))
+
+    def _open_course(self, t: float, decision: Decision, s: VehicleState, fence_tripped: bool) -> bool:
+        """The escape judged on what follows it (every :data:`ROUTE_CHECK_S`); True when the behaviour can
+        take over now.
+
+        A half turn at the bank limit ends heading back the way the aircraft came: in a lobe of the range
+        with a strong wind towards its wall that is a course from which neither turn clears, and the escape
+        chained after it, chosen on the same half-turn measure, ends heading at the wall again (scenarios
+        ``fw_adv_lobe_dive_north_wind``: 23.8 m outside, ``fw_adv_lobe_crash_northeast_wind``: 3.5 m). So the
+        turn stops as soon as its course is open (the path flown wings level for the projection's whole
+        escape time, drifting with the wind, stays clear: :func:`merlin.core.geofence.straight_clearance`)
+        and the aircraft holds that course (the run-out). The behaviour takes over from the run-out when what
+        it flies first is a turn the projection finds clear: RTL's (or LAND's) route turn-in, on its side
+        (the route's Dubins start, or the short way to its first point); a loiter, both turns. A run-out
+        whose course closes before that turns again, the side chosen again (:func:`escape_side`)."""
+        fence = self.fence
+        assert fence is not None
+        if not fr.has_zones(fence):
+            return False
+        wind = state_wind_ne(s)
+        open_m = geofence.straight_clearance(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, wind,
+                                             s.att_rpy_rad[0])
+        if not self._escape_run_out:
+            if not open_m > 0.0:
+                return False
+            self._escape_run_out = True
+            self.notes.append({"t": t, "type": "fixed_wing_escape_run_out",
+                               "turned_deg": math.degrees(self._escape_turned_rad), "open_margin_m": open_m})
+        elif not open_m > 0.0:
+            self.notes.append({"t": t, "type": "fixed_wing_escape_run_out_end", "open_margin_m": open_m})
+            self._start_escape(t, fence, s)
+            self.notes[-1]["after"] = "the run-out's course closed"
+            return False
+        if fence_tripped:
+            return False
+        right, left = turn_clearances_m(fence, s)
+        if decision.behavior in (Behavior.RTL, Behavior.LAND) and self.rtl_routes:
+            _loiter, _c, route = self._rtl_plan(t, s, note=False)
+            if route.status == "no_route":
+                return False
+            if route.turn is not None:
+                side = 1.0 if route.turn.clockwise else -1.0
+            else:
+                target = route.legs_ne_m[1] if len(route.legs_ne_m) > 1 else _loiter.center_ne_m
+                side = _side_towards(s, target)
+            return (right if side > 0.0 else left) > 0.0
+        return right > 0.0 and left > 0.0
 
 
 #: Rate of the fixed-wing guidance and inner loops (the gains were tuned at 100 Hz in tests/fixedwing; PX4

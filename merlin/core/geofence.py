@@ -1496,6 +1496,63 @@ def turn_clearances(
     return out[0], out[1]
 
 
+def straight_clearance(
+    fence: Fence,
+    pos_ned_m: Sequence[float],
+    vel_ned_mps: Sequence[float],
+    sigma_h_m: float,
+    wind_ne_mps: tuple[float, float] = (0.0, 0.0),
+    bank_rad: float = 0.0,
+) -> float:
+    """How far the aircraft's course is *open*: the margin (as :func:`turn_clearances` measures it: distance
+    to a hazard less the widening and the polyline's chord error) of the path flown wings level from here
+    for as long as the fence projection's escape takes (:attr:`FixedWingTurn.duration_s`), in the air mass
+    and drifting with the wind. A bank is rolled out first at the loops' roll rate (the arc at that bank
+    for half the roll-out time, as :func:`_turn_path` counts it), and the straight part is flown at the
+    turn's airspeed (the faster one the loops may fly: the farther it reaches, the more it checks).
+
+    An escape turn is judged on what follows it: a half turn at the bank limit ends heading back the way
+    the aircraft came, which in a lobe of the range with the wind towards its wall is a course from which
+    neither turn clears. A course open for the whole escape's time is one the aircraft can hold while the
+    behaviour after the escape takes over (``merlin.autopilot.fixedwing_behaviours``; scenarios
+    ``fw_adv_lobe_dive_north_wind`` and ``fw_adv_lobe_crash_northeast_wind``). NaN for non-finite input,
+    inf for a fence with no horizontal hazard."""
+    prm = fence.params
+    n, e = float(pos_ned_m[0]), float(pos_ned_m[1])
+    vn, ve = float(vel_ned_mps[0]), float(vel_ned_mps[1])
+    vd = float(vel_ned_mps[2]) if len(vel_ned_mps) > 2 else 0.0
+    wn, we = float(wind_ne_mps[0]), float(wind_ne_mps[1])
+    if (not math.isfinite(n + e + vn + ve + vd + sigma_h_m + wn + we + bank_rad)
+            or max(abs(n), abs(e)) > MAX_ABS_POS_M or max(abs(wn), abs(we)) > MAX_SPEED_MPS):
+        return _NAN
+    if fence._forbidden is None:
+        return _INF
+    w = prm.margin_m + prm.sigma_k * max(sigma_h_m, 0.0)
+    vn, ve = vn - wn, ve - we  # the air velocity: the straight line is flown in the air mass
+    v = math.hypot(vn, ve)
+    with np.errstate(all="ignore"):
+        if v < _MIN_PATH_M:
+            return float(shapely.distance(fence._forbidden, shapely.points((n, e)))) - w
+        un, ue = vn / v, ve / v
+        turn = fixed_wing_turn(prm, _escape_speed_mps(v, vd), bank_rad)
+        sag = 0.0
+        if turn.rollout_s > 0.0:
+            side = -1.0 if turn.bank_rad > 0.0 else 1.0  # a turn to this side would roll the bank out
+            head, t_head, sag = _rollout_arc(n, e, un, ue, turn, side)
+            c, sn = math.cos(turn.rollout_turn_rad), math.sin(turn.rollout_turn_rad)
+            un, ue = c * un + side * sn * ue, c * ue - side * sn * un
+        else:
+            head, t_head = np.array(((n, e),)), np.zeros(1)
+        t_end = max(turn.duration_s, float(t_head[-1]))
+        run = turn.v_turn_mps * (t_end - float(t_head[-1]))
+        end = head[-1] + run * np.array((un, ue))
+        verts = np.vstack((head, end[None, :]))
+        t = np.concatenate((t_head, (t_end,)))
+        verts[:, 0] += wn * t
+        verts[:, 1] += we * t
+        return float(shapely.distance(fence._forbidden, shapely.linestrings(verts))) - w - sag * _WIND_SAG_FACTOR
+
+
 def wind_triangle_ne(vel_ned_mps: Sequence[float], airspeed_mps: float, yaw_rad: float) -> tuple[float, float]:
     """The horizontal wind from the wind triangle: ground velocity minus the air velocity along the heading.
 

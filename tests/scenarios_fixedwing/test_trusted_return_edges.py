@@ -89,16 +89,20 @@ def test_a_dive_after_a_grant_above_the_minimum_height_is_revoked_above_the_reco
     assert h.min() > 30.0 + 5.0  # the floor and its margin
 
 
-def test_an_escape_that_ends_heading_at_the_edge_in_a_tailwind_turns_again() -> None:
-    """The half turn after the airspeed revocation ends heading south-west at the south edge with the wind
-    behind it and the fence still tripped: a new escape turn starts on the side the fence projection finds
-    better (right, into the wind), and RTL takes over only once the course opens from the edge (RTL's
-    cruise turn left the range by 144.9 m)."""
+def test_an_escape_near_the_edge_in_a_tailwind_does_not_end_heading_at_it() -> None:
+    """The half turn after the airspeed revocation ended heading south-west at the south edge with the wind
+    behind it and the fence still tripped, and RTL's cruise turn left the range by 144.9 m. A new escape
+    turn then started there on the side the fence projection found better (right, into the wind). The
+    escape is now judged on what follows it: the left escape (the clear side) finds its course open at
+    once, holds it wings level, and RTL takes over once its route's turn-in is a turn the projection finds
+    clear; no escape runs on to its half turn, so none ends heading at the edge."""
     r, results = _run("fw_adv_escape_ends_tailwind.yaml")
     assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
     escapes = [e for e in r.events if e["type"] == "fixed_wing_escape_turn" and e["t"] > 11.0]
-    assert [e["side"] for e in escapes[:2]] == ["left", "right"], escapes
-    assert escapes[1].get("after") == "half turn with the fence still tripped"
+    assert escapes and escapes[0]["side"] == "left", escapes
+    ends = [e for e in r.events if e["type"] == "fixed_wing_escape_turn_end" and e["t"] > 11.0]
+    assert ends and all(e["turned_deg"] < 180.0 for e in ends), ends
+    assert any(e["type"] == "fixed_wing_escape_run_out" and e["t"] > 11.0 for e in r.events)
     assert r.metrics["min_fence_margin_m"] > 5.0
 
 
@@ -126,4 +130,34 @@ def test_a_dive_banked_away_from_the_escape_is_revoked_for_the_turn_it_will_fly(
     assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
     revoked = [e for e in r.events if e["type"] == "revoked"]
     assert revoked[0]["t"] < 8.9 and revoked[0]["reason_detail"]["parameter"] == "inclusion"
+    assert r.metrics["min_fence_margin_m"] > 5.0
+
+
+def _escapes_end_on_an_open_course(r) -> None:  # type: ignore[no-untyped-def]
+    """Every escape turn ends before its half turn, on a course the straight-path check found open."""
+    ends = [e for e in r.events if e["type"] == "fixed_wing_escape_turn_end"]
+    run_outs = [e for e in r.events if e["type"] == "fixed_wing_escape_run_out"]
+    assert ends and run_outs, [e["type"] for e in r.events]
+    assert all(e["turned_deg"] < 180.0 for e in ends), ends
+    assert all(e["open_margin_m"] > 0.0 for e in run_outs), run_outs
+
+
+def test_escapes_in_the_north_east_lobe_in_a_wind_towards_its_edge_stay_inside() -> None:
+    """The falsifier's 94 m/s dive east in the north-east lobe, 12 m/s blowing north: half-turn escapes chained
+    through RTL's turn-in ended heading at the east edge, where neither turn clears (23.83 m outside). The
+    escape stops on its first open course and RTL takes over from there with a turn-in the projection
+    finds clear: inside for the whole minute."""
+    r, results = _run("fw_adv_lobe_dive_north_wind.yaml")
+    assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
+    _escapes_end_on_an_open_course(r)
+    assert r.metrics["min_fence_margin_m"] > 5.0
+
+
+def test_escapes_in_the_north_west_lobe_in_a_wind_towards_the_notch_stay_inside() -> None:
+    """The falsifier's crashed velocity adversary in the north-west lobe heading at the notch's west wall,
+    10.6 m/s blowing north-east: the same chain ended heading at the wall (3.54 m outside in 26 s, 20.0 m over
+    a minute). With the escape judged on what follows it: inside for the whole minute."""
+    r, results = _run("fw_adv_lobe_crash_northeast_wind.yaml")
+    assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
+    _escapes_end_on_an_open_course(r)
     assert r.metrics["min_fence_margin_m"] > 5.0
