@@ -160,11 +160,6 @@ def _refuse_what_cannot_act(sc: Scenario, source: str, on_launcher: bool) -> Non
     if sc.camera is not None:
         errors.append(f"camera: {sc.camera.texture!r}: the downward camera and visual odometry are not modelled"
                       f" on the fixed wing ({sc.vehicle}); allowed: no camera (null)")
-    if sc.estimator == "ekf" and on_launcher:
-        errors.append("estimator = 'ekf' with a catapult start (initial.pos_ned_m down >= 0): the launch stroke"
-                      " is not simulated, so the IMU never sees the aircraft reach flying speed and the filter"
-                      " would reject every GPS fix after the release; start the EKF airborne (down < 0) or use"
-                      " estimator: truth_plus_noise")
     from sims.lane_faults import sensor_voter_on
 
     voter = sensor_voter_on(sc)
@@ -259,16 +254,19 @@ class FixedWingLoop(SimulatedVehicle):
         self.estimator = FixedWingEstimator(rng_est, dt, losses)
         _refuse_what_cannot_act(sc, source, self.on_launcher)
         if sc.estimator == "ekf":
-            # the multirotor's fusion EKF on this aircraft's sensor frame (merlin.nav.fusion_stage). The
-            # scenario starts airborne, so there is no alignment on the ground: the filter starts from the
-            # state at t = 0 with NavInit's default uncertainties (1 m, 0.2 m/s, 1.7 deg of tilt, 11 deg of
-            # yaw), as a filter handed over after an in-flight alignment would
+            # the multirotor's fusion EKF on this aircraft's sensor frame (merlin.nav.fusion_stage): on the
+            # catapult aligned on the ground before arming, as the multirotor's; airborne, started GPS-aided in
+            # the air (_airborne_filter)
             from merlin.nav.estimator import NavEstimator, NavInit
             from sims.vision_loop import VisionLoop, nav_filter_config
 
-            tr0 = self.fw.truth()
-            self.ekf = NavEstimator(nav_filter_config(cfg), init=NavInit(
-                pos_ned_m=tr0.pos_ned_m, vel_ned_mps=tr0.vel_ned_mps, att_rpy_rad=tr0.rpy_rad))
+            self._nav_cfg = nav_filter_config(cfg)
+            if self.on_launcher:
+                self.ekf = NavEstimator(self._nav_cfg, init=NavInit(
+                    pos_ned_m=(float(ini.pos_ned_m[0]), float(ini.pos_ned_m[1]), 0.0),
+                    att_rpy_rad=(0.0, 0.0, math.radians(ini.yaw_deg))))
+            else:
+                self.ekf = self._airborne_filter(0.0)
             self.vision = VisionLoop(None, sc.seed)  # no camera (refused above): the GPS test trace only
         from sims.lane_faults import build_redundancy, redundancy_setup
 
@@ -302,6 +300,8 @@ class FixedWingLoop(SimulatedVehicle):
         if not self.experimental_stall_protection:
             self.stage.cp_experimental = self.cp_unprotected
 
+        #: fixes valid at or before this time saw the aircraft on the launcher (set at the release; sense)
+        self._launcher_fixes_until_s = -math.inf
         self.k = 0
         self.armed = False
         self.batt_frac = 1.0
@@ -336,6 +336,24 @@ class FixedWingLoop(SimulatedVehicle):
         """The one motor's throttle command, 0..1 (what ``merlin serve`` reports as VFR_HUD throttle)."""
         return (self.surfaces.throttle,)
 
+    def _airborne_filter(self, t: float) -> Any:
+        """The fusion EKF started in the air at ``t``, GPS-aided (``NavInit.gps_aided``), as PX4's EKF2 can:
+        tilt and heading from an in-flight alignment (the truth, at NavInit's default 1.7 deg of tilt and
+        11 deg of yaw uncertainty), horizontal position and velocity from the receiver's fix (the truth plus
+        the receiver's slow wander, at its accuracy), the height as on the ground (the truth: the barometer
+        is the height reference, its offset the filter's own state). Started INERTIAL until the receiver's
+        next epoch instead, the core would see GPS lost at once (scenario ``fw_lap``: it landed at t = 0)."""
+        from merlin.nav.estimator import NavEstimator, NavInit
+
+        tr = self.fw.truth()
+        gp = self.sensors.gps.p
+        wander = self.sensors.gps.markov_error_ned_m
+        return NavEstimator(self._nav_cfg, init=NavInit(
+            t_s=t, pos_ned_m=(tr.pos_ned_m[0] + wander[0], tr.pos_ned_m[1] + wander[1], tr.pos_ned_m[2]),
+            vel_ned_mps=tr.vel_ned_mps, att_rpy_rad=tr.rpy_rad,
+            pos_sigma_m=math.hypot(gp.pos_h_markov_sigma_m, gp.pos_h_white_sigma_m),
+            vel_sigma_mps=max(gp.vel_h_sigma_mps, gp.vel_v_sigma_mps), gps_aided=True))
+
     def _on_launcher_truth(self, t: float) -> Any:
         """The aircraft at rest on the catapult at the start point: level, on the ground, motor off."""
         tr = self.fw.truth()
@@ -357,6 +375,11 @@ class FixedWingLoop(SimulatedVehicle):
         t = self.t
         self.truth = self._on_launcher_truth(t) if self.on_launcher else self.fw.truth()
         self.frame = self.injector.apply(self.sensors.step(self.truth))
+        if self.frame.gps is not None and self.frame.gps.t_s <= self._launcher_fixes_until_s:
+            # a fix of the aircraft on the launcher (valid at or before the release tick), delivered after the
+            # release (the receiver's latency): the filter started in the air at the release never had that
+            # state
+            self.frame = self.frame._replace(gps=None)
         self.sensed = self.tick.sense(t, self.frame)
         self.state = self.sensed.state
         return self.state
@@ -402,6 +425,18 @@ class FixedWingLoop(SimulatedVehicle):
         self.fw.restart_clock(self.k)
         assert self.fw.trim_result is not None
         self.stage.restart(self.fw.trim_result.surfaces)  # its TAKEOFF climb-out starts from the release state
+        if self.ekf is not None:
+            # The stroke is not simulated: the aircraft is at rest on the rail one tick and flying at the
+            # release the next, which no IMU sample shows, so the filter aligned on the ground cannot follow.
+            # It is started again in the air at the release, GPS-aided (_airborne_filter); the receiver's
+            # fixes still in flight from before the release are not handed to it (sense).
+            from merlin.nav.fusion_stage import FusionStage
+
+            self.ekf = self._airborne_filter(t)
+            stage = self.tick.estimator
+            assert isinstance(stage, FusionStage)
+            stage.ekf = self.ekf
+            self._launcher_fixes_until_s = t
         tr = self.fw.truth()
         self.notes.append({"t": t, "type": "fixed_wing_launch", "height_m": -tr.pos_ned_m[2],
                            "airspeed_mps": tr.airspeed_mps, "heading_deg": math.degrees(tr.rpy_rad[2])})

@@ -81,9 +81,24 @@ class ClosedLoop(SimulatedVehicle):
             from merlin.nav.estimator import NavEstimator, NavInit
             from sims.vision_loop import VisionLoop, nav_filter_config
 
-            # aligned on the ground before arming, as the runner of a real vehicle would (NavInit's doc)
-            self.ekf = NavEstimator(nav_filter_config(cfg), init=NavInit(pos_ned_m=tuple(ini.pos_ned_m),  # type: ignore[arg-type]
-                                                 att_rpy_rad=(0.0, 0.0, math.radians(ini.yaw_deg))))
+            # aligned on the ground before arming, as the runner of a real vehicle would (NavInit's doc). A
+            # start in the air (down < 0) starts GPS-aided (NavInit.gps_aided), as the fixed wing's does
+            # (sims.fixedwing_loop): horizontal position from the receiver's fix (the truth plus its slow
+            # wander, at its accuracy), height and attitude as on the ground. Started INERTIAL until the
+            # receiver's first epoch instead, the core saw GPS lost at t = 0 and began a landing the
+            # scenario never asked for (tests/core/test_adversary_takeover.py: the pilot then took over a
+            # descending vehicle and the envelope, not the keep-out, revoked him).
+            att0 = (0.0, 0.0, math.radians(ini.yaw_deg))
+            if ini.pos_ned_m[2] < 0.0:
+                gp = self.sensors.gps.p
+                wander = self.sensors.gps.markov_error_ned_m
+                init = NavInit(pos_ned_m=(ini.pos_ned_m[0] + wander[0], ini.pos_ned_m[1] + wander[1],
+                                          ini.pos_ned_m[2]), att_rpy_rad=att0,
+                               pos_sigma_m=math.hypot(gp.pos_h_markov_sigma_m, gp.pos_h_white_sigma_m),
+                               vel_sigma_mps=max(gp.vel_h_sigma_mps, gp.vel_v_sigma_mps), gps_aided=True)
+            else:
+                init = NavInit(pos_ned_m=tuple(ini.pos_ned_m), att_rpy_rad=att0)  # type: ignore[arg-type]
+            self.ekf = NavEstimator(nav_filter_config(cfg), init=init)
             self.vision = VisionLoop(sc.camera, sc.seed)
         self.gains = DEFAULT_GAINS
         self.k = 0

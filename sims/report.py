@@ -19,7 +19,7 @@ from merlin.config.runtime import build_core_config, envelope_limits
 from merlin.core.types import Authority, Behavior, CommandKind, NavMode
 from sims.expectations import Verdict
 from sims.runner import FIXED_WING_VEHICLES, RunResult
-from sims.scenario import camera_statement
+from sims.scenario import camera_statement, estimator_note
 
 SUMMARY_VERSION = 1
 
@@ -43,8 +43,7 @@ def summary_dict(r: RunResult, verdicts: list[Verdict]) -> dict[str, Any]:
         "seed": sc.seed,
         "duration_s": sc.duration_s,
         "estimator": sc.estimator,
-        "estimator_note": ("truth plus modelled navigation errors (a stand-in for the EKF)"
-                           if sc.estimator == "truth_plus_noise" else "fusion EKF on the simulated sensors")
+        "estimator_note": estimator_note(sc.estimator)
         + ("; angle of attack from a vane read as truth" if sc.vehicle in FIXED_WING_VEHICLES else ""),
         "terrain": sc.ground,
         "camera": camera_statement(sc),

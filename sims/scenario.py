@@ -292,7 +292,10 @@ class Scenario(S):
     config: str | dict[str, Any] = Field(
         "default", description="'default', a path relative to the scenario file, or an inline mapping"
     )
-    estimator: Literal["truth_plus_noise", "ekf"] = "truth_plus_noise"
+    estimator: Literal["truth_plus_noise", "ekf"] = Field(
+        "ekf", description="'ekf': Merlin's fusion EKF on the simulated sensors (the default: the navigation "
+                           "stack the failsafes depend on); 'truth_plus_noise': the simulator's stand-in (the "
+                           "truth plus modelled errors), only when a scenario asks for it by name and says why")
     initial: Initial = Initial()
     wind: Wind = Wind()
     gcs: list[GcsStep] = []
@@ -369,6 +372,11 @@ class Scenario(S):
         return self
 
 
+def estimator_note(estimator: str) -> str:
+    """What a run's ``estimator`` is, in words, for every summary (a run's, ``merlin serve``'s)."""
+    if estimator == "truth_plus_noise":
+        return "truth plus modelled navigation errors (a stand-in for the EKF, asked for by name)"
+    return "fusion EKF on the simulated sensors"
 def camera_can_work(estimator: str, vehicle: str, lane_navigation: str, terrain: str) -> bool:
     """Whether the downward camera and VO are on by default: with the fusion EKF (the stand-in fuses no VO), on
     a multirotor (the fixed wing's loop has no camera: at its ~100 m cruise the 70° footprint is wider than

@@ -151,7 +151,8 @@ def test_each_stage_runs_once_per_tick_in_order(before: bool) -> None:
 
 
 def test_the_simulated_loops_offer_the_report_only_when_the_core_monitors_it() -> None:
-    base = {"name": "pipeline", "duration_s": 1.0}
+    # the stand-in, by name: with the EKF (the default) the IMU voter is on, and this loop is the one without it
+    base = {"name": "pipeline", "duration_s": 1.0, "estimator": "truth_plus_noise"}
     plain = ClosedLoop(Scenario.model_validate(base), MerlinConfig())
     assert plain.redundancy_report(0.0) is None
     voted = ClosedLoop(Scenario.model_validate({**base, "redundancy": {"sensor_voter": True}}), MerlinConfig())

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import shlex
+from collections import Counter
 from typing import Any
 
 import numpy as np
@@ -126,6 +127,8 @@ def aggregate(records: list[dict[str, Any]], *, seed: int, planned: int, out_dir
         "failed": len(ok) - sum(1 for r in ok if r.get("passed")),
         "errors": len(errors),
         "pass_rate_wilson95": [lo, hi],
+        # which navigation the runs flew on (the fusion EKF unless a scenario names the stand-in)
+        "estimators": dict(sorted(Counter(str(r.get("estimator", "unrecorded")) for r in ok).items())),
         "expectations": sorted(expectations, key=lambda e: (e["scenario"], e["name"])),
         "distributions": dists,
         "worst_runs": worst_runs,

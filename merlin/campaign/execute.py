@@ -144,6 +144,7 @@ def execute(spec: RunSpec) -> dict[str, Any]:
         rec.update({
             "status": "ok",
             "passed": all(v.passed for v in verdicts),
+            "estimator": sc.estimator,
             "expectations": [v.to_dict() for v in verdicts],
             "config_sha256": result.config_sha256,
             "log_digest_sha256": result.decisions_digest,

@@ -118,7 +118,8 @@ def render(agg: dict[str, Any], records: list[dict[str, Any]], scenarios: list[C
            "<h1>Merlin campaign report</h1>",
            f'<p class="summary">{verdict}: {agg["runs"]} of {agg["runs_planned"]} planned runs flown; '
            f'{agg["passed"]} passed, {agg["failed"]} failed, {agg["errors"]} crashed (errors). '
-           f"Pass rate Wilson 95 % interval [{lo:.4f}, {hi:.4f}]. Campaign seed {agg['seed']}.</p>"]
+           f"Pass rate Wilson 95 % interval [{lo:.4f}, {hi:.4f}]. Campaign seed {agg['seed']}. Estimator "
+           f"(runs flown): {_e(', '.join(f'{k} {v}' for k, v in agg.get('estimators', {}).items()) or 'none')}.</p>"]
     out.append("<h2>Scenarios</h2>")
     out.append(rows_html(["file", "SHA-256", "configuration", "config SHA-256", "varied"], [
         [f"<code>{_e(s['file'])}</code>", f"<code>{_e(s['sha256'][:16])}</code>", _e(s["config_name"]),

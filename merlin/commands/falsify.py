@@ -118,7 +118,8 @@ def falsify(cfg_path: Path, site: Any, classes: tuple[Any, ...], budget: int, se
         close()
     wall = time.perf_counter() - t0
     summary: dict[str, Any] = {
-        "config": str(cfg_path), "config_name": site.cfg.name, "vehicle": site.vehicle, "budget": budget,
+        "config": str(cfg_path), "config_name": site.cfg.name, "vehicle": site.vehicle,
+        "estimator": _estimator(site, classes, sim_seed), "budget": budget,
         "seed": seed, "sim_seed": sim_seed, "backend": backend, "workers": n_workers,
         "evaluated": len(result.evaluations), "errors": sum(e.status != "ok" for e in result.evaluations),
         "wall_s": wall, "runs_per_min": len(result.evaluations) / wall * 60.0 if wall > 0 else 0.0, "classes": {},
@@ -168,6 +169,18 @@ def falsify(cfg_path: Path, site: Any, classes: tuple[Any, ...], budget: int, se
         print(f"  worst case: {w['command']}")
     print(f"  summary: {out / 'summary.md'}")
     return rc
+
+
+def _estimator(site: Any, classes: tuple[Any, ...], sim_seed: int) -> str:
+    """The estimator the adversaries' runs fly (the scenario default unless a class names one), for the
+    summary: every summary states which estimator ran."""
+    import numpy as np
+
+    from sims.scenario import Scenario
+
+    names = {Scenario.model_validate(c.scenario(site, np.full(len(c.params), 0.5), sim_seed)).estimator
+             for c in classes}
+    return ", ".join(sorted(names))
 
 
 def reproduce(path: Path) -> float | None:

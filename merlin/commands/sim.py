@@ -95,7 +95,8 @@ def run(args: argparse.Namespace) -> int:
         rtf = summary["timing"]["realtime_factor"]
         print(
             f"{summary['scenario']}: {'passed' if summary['passed'] else 'FAILED'}"
-            f" (config {summary['config_sha256'][:12]}, seed {summary['seed']}, {rtf:.1f}x real time,"
+            f" (config {summary['config_sha256'][:12]}, seed {summary['seed']}, estimator {summary['estimator']},"
+            f" {rtf:.1f}x real time,"
             f" {summary['timing']['build'].split(':')[0]}) -> {out}"
         )
     return 0 if summary["passed"] else 1

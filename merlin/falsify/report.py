@@ -71,7 +71,7 @@ def figures(result: SearchResult) -> dict[str, bytes]:
 def markdown(summary: dict[str, Any]) -> str:
     s = summary
     lines = [f"# merlin falsify: {s['config']}", "",
-             f"Vehicle {s['vehicle']}, budget {s['budget']} simulations ({s['evaluated']} flown, {s['errors']} errors), "
+             f"Vehicle {s['vehicle']}, estimator {s.get('estimator', 'unrecorded')}, budget {s['budget']} simulations ({s['evaluated']} flown, {s['errors']} errors), "
              f"seed {s['seed']}, {s['workers']} workers on the {s['backend']} backend, {s['wall_s']:.0f} s "
              f"({s['runs_per_min']:.1f} runs/min).", ""]
     w = s.get("worst")

@@ -62,7 +62,13 @@ class GpsStatus(Enum):
 
 @dataclass(frozen=True, slots=True)
 class NavInit:
-    """Where the filter starts and how sure it is (the runner aligns on the ground before arming)."""
+    """Where the filter starts and how sure it is (the runner aligns on the ground before arming).
+
+    ``gps_aided``: the position and velocity are a GPS fix valid at ``t_s`` (an in-flight start, as PX4's
+    EKF2 can make: tilt and heading from an alignment in the air, position and velocity from the receiver).
+    The filter then counts that fix as fused at ``t_s`` and navigates on GPS from its first instant, instead
+    of on INERTIAL until the receiver's next epoch (which an airborne vehicle's core would read as GPS
+    lost at t = 0; scenario ``fw_lap``). Give ``pos_sigma_m`` and ``vel_sigma_mps`` as that fix's accuracy."""
 
     t_s: float = 0.0
     pos_ned_m: Vec3 = ZERO3
@@ -72,6 +78,7 @@ class NavInit:
     vel_sigma_mps: float = 0.2
     tilt_sigma_rad: float = 0.03
     yaw_sigma_rad: float = 0.2
+    gps_aided: bool = False
 
 
 class GpsCheck(NamedTuple):
@@ -260,6 +267,9 @@ class NavEstimator:
         self._vo_refused = 0  # frames refused by the quality test since the last usable one
         self._aid_t = init.t_s  # last position/velocity aid (GPS or VO)
         self._mode = NavMode.INERTIAL  # nothing fused yet
+        if init.gps_aided:  # started from a fix (NavInit): that fix counts as the first one fused
+            self._gps_pos_fused_t = init.t_s
+            self._mode = NavMode.GPS
         self._events: list[NavEvent] = []
 
         self.last_gps: GpsCheck | None = None

@@ -198,13 +198,18 @@ class Server:
 
     def __init__(self, opts: ServeOptions) -> None:
         from sims.runner import FIXED_WING_VEHICLES, make_loop
-        from sims.scenario import Scenario
+        from sims.scenario import Scenario, estimator_note
 
         self.opts = opts
         self.cfg = opts.config
         self.dt = 1.0 / opts.rate_hz
-        # the vehicle on the ground at home; a fixed wing rests on its catapult until TAKEOFF launches it
-        sc = Scenario.model_validate({"name": "serve", "duration_s": 7200.0, "dt_s": self.dt, "vehicle": opts.vehicle})
+        # the vehicle on the ground at home; a fixed wing rests on its catapult until TAKEOFF launches it.
+        # The fusion EKF navigates on both (a fixed wing's filter starts again in the air at the catapult's
+        # release, whose stroke is not simulated: sims.fixedwing_loop).
+        self.estimator = "ekf"
+        self.estimator_note = estimator_note(self.estimator)
+        sc = Scenario.model_validate({"name": "serve", "duration_s": 7200.0, "dt_s": self.dt, "vehicle": opts.vehicle,
+                                      "estimator": self.estimator})
         self.loop = make_loop(sc, self.cfg, opts.config_source)
         self.mav_type = o.MAV_TYPE_FIXED_WING if opts.vehicle in FIXED_WING_VEHICLES else o.MAV_TYPE_QUADROTOR
         h = self.cfg.home
@@ -1305,6 +1310,7 @@ class Server:
         """Serve until the duration elapses or :meth:`stop`; returns the timing and link statistics."""
         opts = self.opts
         self.events.write({"t": 0.0, "type": "serve_start", "rate_hz": opts.rate_hz, "speedup": opts.speedup,
+                           "estimator": self.estimator, "estimator_note": self.estimator_note,
                            "config": opts.config_source, "config_sha256": self.cfg_sha256,
                            "effective_config": str(self.effective_config),
                            "params": "locked" if self.params_locked else "writable on the ground (gcs link)",
@@ -1396,7 +1402,7 @@ class Server:
                                    "reason": rec.reason.value, "detail": rec.detail})
         timing = {**self.stats.summary(), "tlog_write_max_ms": self.tlog.max_write_ns / 1e6,
                   "tlog_writes_over_1ms": self.tlog.slow_writes}
-        summary = {"timing": timing, "links": links,
+        summary = {"estimator": self.estimator, "timing": timing, "links": links,
                    "final": {"t_s": self.t, "authority": self.decision.authority.name if self.decision else None,
                              "armed": bool(self.decision.armed) if self.decision else False}}
         self.events.write({"t": self.t, "type": "serve_stop", **summary})

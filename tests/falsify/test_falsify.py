@@ -50,6 +50,8 @@ def test_finds_the_planted_breach_and_the_worst_case_reproduces(tmp_path: Path) 
     for name in ("summary.md", "summary.html", "margins.png", "best_so_far.png", "evaluations.jsonl"):
         assert (out / name).stat().st_size > 0, name
     assert len((out / "evaluations.jsonl").read_text().splitlines()) == 6
+    # the summary states which estimator the runs flew (the default: the fusion EKF)
+    assert summary["estimator"] == "ekf" and "estimator ekf" in (out / "summary.md").read_text()
 
 
 def _synthetic_fly(target: np.ndarray):

@@ -91,10 +91,13 @@ def test_filter_config_follows_the_core_limit_and_the_declination_at_home():
 
 def test_a_camera_needs_the_ekf(tmp_path: Path):
     p = tmp_path / "cam.yaml"
-    p.write_text("name: cam\nduration_s: 5\ncamera: {texture: grass}\n")
+    # the stand-in, by name (the EKF is the default, with which the camera is accepted)
+    p.write_text("name: cam\nduration_s: 5\nestimator: truth_plus_noise\ncamera: {texture: grass}\n")
     with pytest.raises(ConfigError) as exc:
         load_scenario(p)
     assert "camera" in str(exc.value) and "cam.yaml" in str(exc.value)
+    p.write_text("name: cam\nduration_s: 5\ncamera: {texture: grass}\n")
+    assert load_scenario(p)[0].estimator == "ekf"
     p.write_text("name: cam\nduration_s: 5\nestimator: ekf\ncamera: {texture: marble}\n")
     with pytest.raises(ConfigError) as exc:
         load_scenario(p)

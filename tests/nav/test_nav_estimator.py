@@ -174,6 +174,36 @@ def test_gps_and_vo_lost_goes_inertial_then_lost_after_the_time_limit(traj):
     assert lost_event.to_core_event().reason.code is ReasonCode.NAV_LOST
 
 
+def test_a_gps_aided_start_navigates_on_gps_from_its_first_instant(traj):
+    """An in-flight start from a fix (NavInit.gps_aided) is GPS-aided at once and stays so on the receiver's
+    epochs; without a fix the filter is INERTIAL until its first epoch (an airborne vehicle's core would see
+    GPS lost at t = 0: scenario fw_lap). The start's fix ages like any other: with no epoch after it, GPS is
+    lost after gps_timeout_s and reported."""
+    init = NavInit(t_s=float(traj.t_s[0]), pos_ned_m=tuple(traj.pos_ned_m[0]),
+                   vel_ned_mps=tuple(traj.vel_ned_mps[0]), att_rpy_rad=quat_to_euler(tuple(traj.quat[0])))
+    aided = dataclasses.replace(init, gps_aided=True)
+    assert NavEstimator(SYNTH_VO, init).state().nav_mode is NavMode.INERTIAL
+    assert NavEstimator(SYNTH_VO, aided).state().nav_mode is NavMode.GPS
+    timeout = NavConfig().gps_timeout_s
+
+    def modes(receiver: bool):  # type: ignore[no-untyped-def]
+        est = NavEstimator(SYNTH_VO, aided)
+        samples = synthesize(traj, np.random.default_rng(3), DEFAULT_MODEL, (), [], False)
+        samples = [s for s in samples if s.t_s <= init.t_s + 3.0 and (receiver or not isinstance(s, GpsSample))]
+        out: list[tuple[float, NavMode]] = []
+        replay(est, samples,
+               lambda s: out.append((s.t_s, est.state().nav_mode)) if isinstance(s, ImuSample) else None)
+        return out, est.pop_events()
+
+    with_fixes, events = modes(True)
+    assert all(m is NavMode.GPS for _, m in with_fixes)
+    assert not [e for e in events if e.kind is NavEventKind.LOST]
+    outage, events = modes(False)  # no epoch after the start's fix (a receiver that went silent)
+    assert all(m is NavMode.GPS for t, m in outage if t < init.t_s + timeout - 0.05)
+    assert all(m is not NavMode.GPS for t, m in outage if t > init.t_s + timeout + 0.05)
+    assert [e for e in events if e.kind is NavEventKind.LOST and e.source == "gps"]
+
+
 def test_inertial_only_sigma_is_honest():
     """Monte Carlo: after GPS and VO are lost, the true horizontal error stays inside the reported 3-sigma
     in (nearly) all runs and the sigma is not absurdly pessimistic either."""

@@ -58,6 +58,22 @@ def test_the_fixed_wing_rests_on_the_catapult_until_takeoff_then_climbs_out_and_
     assert r.metrics["max_fence_breach_m"] == 0.0
 
 
+def test_the_fusion_ekf_flies_the_launch_started_again_in_the_air_at_the_release() -> None:
+    """The default estimator, the fusion EKF, aligned on the rail and started again GPS-aided at the release
+    (the stroke is not simulated): it navigates on GPS through the launch, no fix is rejected (the rail's
+    fixes that arrive after the release are not handed to it), and the estimate follows the climb-out."""
+    r = _launch_run()
+    assert r.scenario.estimator == "ekf"
+    assert not [e for e in r.events if e["type"].startswith("nav_") and e["type"] != "nav_mode"], [
+        e for e in r.events if e["type"].startswith("nav_")]
+    t = np.asarray(r.log["t"])
+    after = t >= LAUNCH_T_S
+    assert (np.asarray(r.log["nav_mode"])[after] == 0).all()  # NavMode.GPS
+    err = np.hypot(np.asarray(r.log["est_n"]) - r.log["truth_n"], np.asarray(r.log["est_e"]) - r.log["truth_e"])
+    assert err[after].max() < 3.0  # the receiver's wander (1 m sigma) and the release's first seconds
+    assert np.abs(np.asarray(r.log["est_d"]) - r.log["truth_d"])[after].max() < 2.0
+
+
 def test_a_start_just_above_the_ground_is_refused_with_the_catapult_named() -> None:
     sc = Scenario.model_validate({"name": "low", "duration_s": 1.0, "dt_s": 0.01, "vehicle": "aerosonde",
                                   "initial": {"pos_ned_m": [0.0, 0.0, -5.0]}})

@@ -61,6 +61,9 @@ def test_serve_flies_the_fixed_wing_launch_cruise_and_rtl(tmp_path: Path) -> Non
     finally:
         stop(sp)
     events = sp.events()
+    # the fusion EKF navigates (started again in the air at the catapult's release), and serve says so
+    assert next(e for e in events if e["type"] == "serve_start")["estimator"] == "ekf"
+    assert next(e for e in events if e["type"] == "serve_stop")["estimator"] == "ekf"
     behaviours = [e["behavior"] for e in events if e["type"] == "behavior"]
     assert behaviours[-3:] == ["TAKEOFF", "HOLD", "RTL"], behaviours
     assert not [e for e in events if e["type"] == "monitor_tripped" and e.get("monitor") == "geofence"]
