@@ -226,6 +226,11 @@ class FixedWingBehaviours:
         self.surfaces = surfaces
         self.cstate = fc.reset_from_state(cp, s0, surfaces)
 
+    @property
+    def escape_run_out(self) -> bool:
+        """The escape turn has found an open course and holds it wings level (the run-out)."""
+        return bool(self.escape_side) and self._escape_run_out
+
     def restart(self, surfaces: fc.SurfaceCommand) -> None:
         """The vehicle was put into a new state from outside (a launch): the next tick re-initialises the
         loops from ``surfaces`` whatever the decision."""

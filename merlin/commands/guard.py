@@ -38,6 +38,12 @@ def register(sub: Any) -> None:
     p.add_argument("--realtime-priority", type=int, default=0, metavar="N",
                    help="route and tick SCHED_FIFO at priority N once the start-up check passed (Linux, needs the "
                         "privilege), as merlin serve --realtime-priority; 0 off")
+    p.add_argument("--signing-key", default=None, metavar="FILE",
+                   help="MAVLink 2 signing key for every link (64 hex digits, 44 base64 characters or 32 raw bytes): "
+                        "frames not signed with it are dropped, everything the guard sends is signed")
+    for link in ("autopilot", "controller", "gcs"):
+        p.add_argument(f"--{link}-signing-key", default=None, metavar="FILE",
+                       help=f"signing key for the {link} link alone (overrides --signing-key there)")
     p.add_argument("--quiet", action="store_true")
     p.add_argument("--replay", default=None, metavar="DIR",
                    help="re-run a session's decisions from DIR/core_inputs.jsonl with DIR/effective_config.yaml "
@@ -101,10 +107,31 @@ def _realtime(guard: Any, priority: int) -> None:
         guard.event({"t": guard.t(), "type": "realtime", "policy": "normal", "detail": str(exc)})
 
 
+def signing_keys(args: argparse.Namespace, with_gcs: bool) -> dict[str, bytes]:
+    """Each link's MAVLink 2 signing key (link name -> key) from ``--signing-key`` and ``--<link>-signing-key``;
+    a key file that cannot be read is a :class:`merlin.link.signing.KeyFileError` naming the option."""
+    from merlin.link.signing import KeyFileError, load_key_file
+
+    out: dict[str, bytes] = {}
+    for link in ("autopilot", "controller", "gcs"):
+        opt = f"--{link}-signing-key"
+        path = getattr(args, f"{link}_signing_key", None)
+        if path is None:
+            opt, path = "--signing-key", getattr(args, "signing_key", None)
+        if path is None or (link == "gcs" and not with_gcs):
+            continue
+        try:
+            out[link] = load_key_file(Path(path))
+        except (KeyFileError, OSError) as exc:
+            raise KeyFileError(f"{opt} {path}: {exc}") from None
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     from merlin.config.loader import ConfigError
     from merlin.guard.endpoints import EndpointError, parse_endpoint
     from merlin.guard.runner import Guard, GuardRefused
+    from merlin.link.signing import KeyFileError
 
     if args.replay is not None:
         same, detail = replay_session(Path(args.replay))
@@ -121,11 +148,12 @@ def run(args: argparse.Namespace) -> int:
         ctl = parse_endpoint(args.controller, "--controller")
         gcs = parse_endpoint(args.gcs, "--gcs") if args.gcs else None
         cfg, gcfg = load(args.config)
-    except (EndpointError, ConfigError) as exc:
+        keys = signing_keys(args, gcs is not None)
+    except (EndpointError, ConfigError, KeyFileError) as exc:
         print(f"merlin guard: {exc}", file=sys.stderr)
         return 2
     out = Path(args.out) if args.out else Path("out/guard") / dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
-    guard = Guard(cfg, gcfg, ap, ctl, gcs, out)
+    guard = Guard(cfg, gcfg, ap, ctl, gcs, out, signing_keys=keys)
     signal.signal(signal.SIGTERM, lambda *_: guard.stop())
     signal.signal(signal.SIGINT, lambda *_: guard.stop())
     try:

@@ -8,6 +8,14 @@ inside the boundary of the allowed area (inclusion zones less keep-outs) at the 
 way along it, so every edge, corner and keep-out is reachable, at any distance, and every heading is taken
 relative to that edge's outward normal.
 
+A fixed wing cannot hover: it starts flying its course at cruise airspeed in the run's wind. A start from
+which Merlin's own fence projection already trips is a state no authority could have handed it (the
+trusted side would have turned away long before, and a controller flying it there would have been revoked
+earlier), so a breach from it is not the adversary's doing: such a start slides back along its course, in
+steps of :data:`START_STEP_M`, until the projection (the core's :func:`merlin.core.geofence.check`, with the
+start's wind and a good GPS's sigma) is clear (tests/falsify/test_falsify.py,
+``test_a_fixed_wing_start_the_projection_trips_slides_back_along_its_course``).
+
 The classes (multirotor): ``velocity`` (setpoint steps and ramps of any size the validator accepts, any
 heading and climb), ``velocity_crash`` and ``velocity_hang`` (the same with the process crashing or
 hanging at a chosen moment of the approach), ``tilt`` (attitude setpoints), ``operator`` (the pilot's
@@ -30,6 +38,7 @@ from shapely.geometry import LineString, Point
 from merlin.config.loader import ConfigError
 from merlin.config.models import MerlinConfig
 from merlin.config.runtime import build_core_config
+from merlin.core.geofence import check
 from merlin.core.step import MAX_SETPOINT_VELOCITY_MPS
 
 VEHICLES = {"multirotor": "quadrotor_default", "aerosonde": "aerosonde"}
@@ -47,6 +56,12 @@ STEP_ACCEL_MPS2 = 300.0
 #: The longest stretch of a multirotor's trusted return a run flies, when the straight line home from the
 #: approach's end leaves the range (a return that cuts a corner or crosses a keep-out does so early).
 MAX_RETURN_S = 40.0
+#: The step by which a fixed wing's start slides back along its course until its projection is clear.
+START_STEP_M = 10.0
+#: The position sigma the start's projection is judged with (a good GPS, as ``min_clear_m`` assumes).
+START_SIGMA_M = 1.0
+#: The airspeed a fixed wing starts at (the fixed-wing scenarios' cruise).
+FW_START_AIRSPEED_MPS = 22.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,6 +97,7 @@ class Site:
     ceiling_m: float | None
     floor_m: float | None
     min_clear_m: float
+    fence: Any = None  # the core's fence (merlin.core.geofence.Fence), for the start's projection
 
     @property
     def perimeter_m(self) -> float:
@@ -164,7 +180,7 @@ def load_site(cfg: MerlinConfig, vehicle: str, source: str) -> Site:
     if vehicle == "aerosonde":
         min_clear = max(min_clear, 2.5 * 22.0 ** 2 / (9.80665 * math.tan(math.radians(cfg.vehicle.bank_limit_deg))))
     return Site(cfg, cfg.model_dump(mode="json"), vehicle, allowed, tuple(rings), cum,
-                gf.altitude_ceiling_m, gf.altitude_floor_m, min_clear)
+                gf.altitude_ceiling_m, gf.altitude_floor_m, min_clear, fence)
 
 
 Builder = Callable[["AdversaryClass", Site, dict[str, float], int], dict[str, Any]]
@@ -200,7 +216,10 @@ def _heights(site: Site) -> tuple[float, float]:
     ceiling = site.ceiling_m if site.ceiling_m is not None else 150.0
     if site.vehicle == "aerosonde":
         floor = site.floor_m if site.floor_m is not None else 20.0
-        return floor + clear, ceiling - max(clear, 10.0)
+        # a fixed wing's floor projection counts the stall recovery's bounded height loss: below it the
+        # fence trips at the start and no grant is given (merlin.core.geofence._floor_drop_m)
+        rec = site.fence.params.recovery_height_m if site.fence is not None and site.floor_m is not None else 0.0
+        return floor + clear + rec, ceiling - max(clear, 10.0)
     if site.floor_m is not None:
         return site.floor_m + clear, ceiling - clear
     return 4.0, ceiling - clear
@@ -230,6 +249,40 @@ def _common(site: Site, v: dict[str, float], seed: int, name: str) -> tuple[dict
         sc["dt_s"] = 0.005  # the JSBSim model and the core at 200 Hz, as the fixed-wing scenarios
         sc["initial"]["airspeed_mps"] = 22.0
     return sc, start, outward
+
+
+def start_projection_clear(site: Site, pos_ne: np.ndarray, h_m: float, heading_deg: float,
+                           wind_ne_mps: tuple[float, float]) -> bool:
+    """Whether Merlin's own fence projection is clear for a fixed wing at ``pos_ne`` and ``h_m`` flying
+    ``heading_deg`` at the start airspeed in the wind ``wind_ne_mps`` (wings level)."""
+    h = math.radians(heading_deg)
+    vn = FW_START_AIRSPEED_MPS * math.cos(h) + wind_ne_mps[0]
+    ve = FW_START_AIRSPEED_MPS * math.sin(h) + wind_ne_mps[1]
+    res = check(site.fence, (float(pos_ne[0]), float(pos_ne[1]), -h_m), (vn, ve, 0.0), START_SIGMA_M,
+                START_SIGMA_M, True, (float(wind_ne_mps[0]), float(wind_ne_mps[1])))
+    return not res.tripped
+
+
+def _viable_fw_start(site: Site, sc: dict[str, Any], start: np.ndarray, heading_deg: float) -> np.ndarray:
+    """The fixed wing's start slid back along its course until its projection is clear (the module's
+    docstring says why); a start that is clear stays where it is. When no point of the course behind it
+    is clear (a range too small for the aircraft's turn), the run starts at home on the same course."""
+    h0 = -float(sc["initial"]["pos_ned_m"][2])
+    wn, we, _ = sc["wind"]["steady_ned_mps"]
+    back = -np.array([math.cos(math.radians(heading_deg)), math.sin(math.radians(heading_deg))])
+    p = np.asarray(start, dtype=float)
+    clear_area = site.allowed.buffer(-site.min_clear_m)
+    for _ in range(400):
+        if start_projection_clear(site, p, h0, heading_deg, (wn, we)):
+            break
+        q = p + START_STEP_M * back
+        if not clear_area.contains(Point(*q)):
+            p = np.zeros(2)
+            break
+        p = q
+    sc["initial"]["pos_ned_m"][0] = round(float(p[0]), 3)
+    sc["initial"]["pos_ned_m"][1] = round(float(p[1]), 3)
+    return p
 
 
 def _abs_heading(outward: np.ndarray, rel_deg: float) -> float:
@@ -267,6 +320,8 @@ def _velocity(cls: AdversaryClass, site: Site, v: dict[str, float], seed: int) -
     heading = _abs_heading(outward, v["heading_rel_deg"])
     accel = 0.0 if v["accel_mps2"] >= STEP_ACCEL_MPS2 else v["accel_mps2"]
     h0 = -sc["initial"]["pos_ned_m"][2]
+    if site.vehicle == "aerosonde":
+        start = _viable_fw_start(site, sc, start, heading)
     lead = 1.6 + v["start_after_s"]
     params: dict[str, Any] = {
         "start_after_s": round(v["start_after_s"], 3), "heading_deg": round(heading, 3),
@@ -333,8 +388,9 @@ def _operator(cls: AdversaryClass, site: Site, v: dict[str, float], seed: int) -
 
 
 def _pull_push(cls: AdversaryClass, site: Site, v: dict[str, float], seed: int) -> dict[str, Any]:
-    sc, _start, outward = _common(site, v, seed, cls.name)
+    sc, start, outward = _common(site, v, seed, cls.name)
     sc["initial"]["yaw_deg"] = round(_abs_heading(outward, v["heading_rel_deg"]), 3)
+    _viable_fw_start(site, sc, start, sc["initial"]["yaw_deg"])
     sc["controller"] = {"type": f"{ADVERSARIES}:SearchPullPush", "params": {
         "request_at_s": 1.0, "start_after_s": 1.0,
         "pull_pitch_deg": round(v["pull_pitch_deg"], 3), "pull_rate_degps": round(v["pull_rate_degps"], 3),

@@ -26,7 +26,8 @@ sections 6 and 13, "what PX4 does and what Merlin does"), applied to a real auto
   healthy); disarming passes on the ground; a forced disarm (MAVSDK ``kill``: param2 21196) passes in the
   air too, as the ICD's ``action.kill`` row says. Take-off passes on the ground.
 - Commands that make the autopilot fly somewhere by itself (reposition, orbit, change speed, mission
-  start, pause/continue) pass only while the controller holds authority (the core then judges where the
+  start, pause/continue, and ArduPilot's guided "goto", MISSION_ITEM_INT with ``current`` 2, which is how
+  Plane's GUIDED is given a point) pass only while the controller holds authority (the core then judges where the
   vehicle goes). Anything that rewrites the autopilot (parameters, missions and fences, home, FTP,
   reboot) is DENIED: the experimental controller never rewrites what keeps the vehicle safe, including
   the failsafe parameters the guard checked at start-up.
@@ -41,9 +42,10 @@ from dataclasses import dataclass
 from enum import Enum
 
 from merlin.core.types import GcsCommandKind
-from merlin.guard.dialects import ModeTable
+from merlin.guard.dialects import Dialect, ModeTable
 from merlin.link import autopilot_wire as w
 
+GUIDED_GOTO = 2  # MISSION_ITEM_INT.current: ArduPilot's guided-mode "goto" (ArduPilot dev docs)
 ARM_FORCE_MAGIC = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2: force (common.xml)
 # messages that rewrite the autopilot: parameters, mission/fence/rally uploads, home, origin, files, stream rates
 REWRITING_IDS = {
@@ -161,6 +163,12 @@ def classify(msg_id: int, rec: object | None, ctx: GateContext) -> Verdict:
         if ctx.experimental or not (ctx.autopilot_offboard or ctx.trusted_flying):
             return FORWARD
         return Verdict(Route.DROP, "setpoint without authority")
+    if msg_id == w.MISSION_ITEM_INT and isinstance(rec, w.MissionItemIn) and rec.current == GUIDED_GOTO \
+            and ctx.modes.dialect is Dialect.ARDUPILOT:
+        # ArduPilot's guided "goto": a point for GUIDED to fly to, not a mission upload
+        return FORWARD if ctx.experimental else Verdict(
+            Route.DENY, "guided goto (MISSION_ITEM_INT current 2): flies the vehicle, allowed only while the "
+                        "controller holds authority")
     if msg_id in OPERATOR_IDS:
         return Verdict(Route.DROP, f"{OPERATOR_IDS[msg_id]}: operator input comes from the ground station's link")
     if msg_id in REWRITING_IDS:

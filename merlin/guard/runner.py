@@ -70,15 +70,18 @@ from merlin.core.types import (
 from merlin.geodesy import LocalFrame
 from merlin.guard import inputs_log
 from merlin.guard.config import GuardConfig
-from merlin.guard.dialects import Autopilot, Dialect, ModeTable, detect, mode_table
+from merlin.guard.dialects import Autopilot, Dialect, ModeTable, VehicleClass, detect, mode_table
 from merlin.guard.endpoints import EndpointSpec, open_transport
 from merlin.guard.failsafe_params import ParamReader, Refusal, check, requirements
+from merlin.guard.fixedwing_targets import FixedWingStream, GuidedTarget
 from merlin.guard.gate import GateContext, Route, classify
+from merlin.guard.intent import ControllerIntent, Refused
 from merlin.guard.response import BrakeMeter
 from merlin.guard.telemetry import TelemetryState, stream_requests
 from merlin.guard.trusted import TrustedOutput, trusted_output
 from merlin.link import autopilot_wire as w
 from merlin.link.frames import Frame
+from merlin.link.signing import SignatureCheck, SigningState
 from merlin.link.tlog import TlogWriter
 from merlin.pipeline import InputBuilder
 
@@ -96,6 +99,9 @@ def write_effective_config(out_dir: Path, cfg: MerlinConfig, gcfg: GuardConfig) 
 HEARTBEAT_PERIOD_S = 1.0
 STATUSTEXT_REPEAT_S = 1.0
 SWITCH_TIMEOUT_S = 2.0
+GUIDED_TURN_PERIOD_S = 0.2  # a fixed wing's turn point, moved with the course, sent this often (ArduPlane)
+GUIDED_REPEAT_S = 1.0  # an unchanged guided point is sent again this often (a lost command is repeated)
+GUIDED_MOVE_M = 5.0  # a guided point that moved more than this is sent at once
 HOLD_MARGIN_S = 0.05  # a held request reaches the core this long after the liveness rule is met (one tick+)
 IN_PROGRESS_INTERVAL_S = 0.5  # as merlin serve: MAVSDK waits 1.5 s after each IN_PROGRESS
 MAV_RESULT_IN_PROGRESS = 5  # after a grant, the autopilot must show its offboard mode within this  # one STATUSTEXT per denial reason per second at most
@@ -117,6 +123,9 @@ class _Link:
     splitter: Any = field(default_factory=w.frame_splitter)
     frames_in: int = 0
     frames_out: int = 0
+    #: MAVLink 2 signing on this link: inbound frames must verify against the key, outbound ones are signed
+    verify: SigningState | None = None
+    signer: w.LinkSigner | None = None
 
     def fileno(self) -> int:
         t = self.transport
@@ -145,7 +154,7 @@ class _Held:
 class Guard:
     def __init__(self, cfg: MerlinConfig, gcfg: GuardConfig, autopilot: EndpointSpec, controller: EndpointSpec,
                  gcs: EndpointSpec | None = None, out_dir: Path | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, signing_keys: dict[str, bytes] | None = None) -> None:
         self.cfg = cfg
         self.gcfg = gcfg
         self._clock = clock
@@ -154,11 +163,20 @@ class Guard:
         self.ctl_link = _Link("controller", open_transport(controller))
         self.gcs_link = _Link("gcs", open_transport(gcs)) if gcs is not None else None
         self.links = [x for x in (self.ap_link, self.ctl_link, self.gcs_link) if x is not None]
+        for link in self.links:
+            key = (signing_keys or {}).get(link.name)
+            if key is not None:
+                link.verify, link.signer = SigningState(key), w.LinkSigner(key)
         self.decoder = w.Decoder()
         self.enc = w.Encoder(gcfg.system_id, gcfg.component_id)
         h = cfg.home
         self.telemetry = TelemetryState(LocalFrame(h.lat_deg, h.lon_deg, h.alt_amsl_m), gcfg.telemetry_stale_s)
-        self.core = TrustedCore(build_core_config(cfg))
+        self.core_cfg = build_core_config(cfg)
+        self.core = TrustedCore(self.core_cfg)
+        #: a fixed wing's trusted behaviours as guided points (merlin.guard.fixedwing_targets), while Merlin flies
+        self.fw_stream: FixedWingStream | None = None
+        self._fw_sent: tuple[float, GuidedTarget] | None = None
+        self._fw_what = ""  # the kind of guided point last sent (an event records each new kind)
         self.autopilot: Autopilot | None = None
         self.modes: ModeTable | None = None
         self.ap_mode: int | None = None
@@ -167,6 +185,8 @@ class Guard:
         self.decision: Decision | None = None
         #: the core's inputs, built as every driver builds them (merlin.pipeline); the guard reads no RC
         self.inputs = InputBuilder(rc_connected=False)
+        #: what the controller's setpoints ask of the autopilot underneath (set once the dialect is known)
+        self.intent = ControllerIntent(self.telemetry.frame, standing=False)
         self.alive_since: float | None = None  # start of the controller's current unbroken liveness
         self.commands: list[GcsCommand] = []
         # behaviour requests from the controller handed to the core while Merlin flies, by the core command's
@@ -218,6 +238,12 @@ class Guard:
         once already, from its arrival)."""
         if link is None:
             return
+        if link.signer is not None:
+            signed = link.signer.sign(raw, time.time())
+            if signed is None:
+                self.counts[f"not sent on the signed {link.name} link: a MAVLink 1 frame"] += 1
+                return
+            raw = signed
         link.transport.write(raw)
         link.frames_out += 1
         if originated and self.tlog is not None:
@@ -232,17 +258,42 @@ class Guard:
         out: list[Frame] = []
         for data, addr in link.transport.read(timeout_s):
             frames, _errors = link.splitter.feed(data, final=link.transport.datagram)
-            if frames and addr is not None and link.transport.datagram:
-                link.transport.remote = addr  # answer whoever sent valid MAVLink (udpin)
+            now_unix = time.time()
             for fr in frames:
                 link.frames_in += 1
-                now_unix = time.time()
                 if self.tlog is not None:
                     self.tlog.write(fr.raw, now_unix)
-                if link is self.ap_link and self.ap_tlog is not None:
+            if link.verify is not None:
+                frames = self._verified(link, frames, now_unix)
+            if frames and addr is not None and link.transport.datagram:
+                link.transport.remote = addr  # answer whoever sent valid (and, when signing, verified) MAVLink
+            if link is self.ap_link and self.ap_tlog is not None:
+                for fr in frames:
                     self.ap_tlog.write(fr.raw, now_unix)
             out.extend(frames)
         return out
+
+    def _verified(self, link: _Link, frames: list[Frame], now_unix: float) -> list[Frame]:
+        """The frames of a signed link whose signature verifies with its key (MAVLink's replay rule included):
+        an unsigned or wrongly signed frame is dropped before anything reads it, so it neither reaches the
+        autopilot nor counts as the controller's liveness, request or setpoint."""
+        v = link.verify
+        assert v is not None
+        v.advance_clock(now_unix)
+        kept = []
+        for fr in frames:
+            check = v.check(fr)
+            if check is SignatureCheck.OK:
+                kept.append(fr)
+                continue
+            reason = f"dropped: {link.name} frame {check.value}"
+            self.counts[reason] += 1
+            t = self.t()
+            if t - self._denied_t.get(reason, -math.inf) >= STATUSTEXT_REPEAT_S:
+                self._denied_t[reason] = t
+                self.event({"t": t, "type": "guard_signing_dropped", "link": link.name, "check": check.value,
+                            "msg_id": fr.msg_id, "system_id": fr.system_id})
+        return kept
 
     # ------------------------------------------------------------------------------------ start-up
 
@@ -295,6 +346,9 @@ class Guard:
                 found = detect(rec.autopilot, rec.mav_type, fr.system_id, fr.component_id)
                 if found is not None:
                     self.autopilot, self.modes = found, mode_table(found)
+                    # ArduPlane's GUIDED keeps a target of its own between the controller's messages
+                    self.intent = ControllerIntent(self.telemetry.frame, found.dialect is Dialect.ARDUPILOT
+                                                   and found.vehicle is VehicleClass.FIXED_WING)
             if self.autopilot is not None and (fr.system_id, fr.component_id) == self.target:
                 self.ap_mode = rec.custom_mode
                 self._ap_seq = fr.seq
@@ -357,9 +411,20 @@ class Guard:
             if hb_t is None or t - hb_t > self.cfg.watchdogs.controller_heartbeat.timeout_s:
                 self.alive_since = t
             self.inputs.controller_heartbeat(t)
-        if fr.msg_id in w.SETPOINT_IDS:
-            self.inputs.setpoint(_core_setpoint(rec), t)
+        if fr.msg_id in w.SETPOINT_IDS and fr.msg_id != w.SET_ACTUATOR_CONTROL_TARGET:
+            sp = self.intent.on_setpoint(rec, self.telemetry._last_state)
+            if isinstance(sp, Refused):
+                # a setpoint the core cannot judge never reaches the autopilot (merlin serve drops it too)
+                self._deny(fr, rec, sp.detail, t)
+                return
+            if sp is not None:
+                self.inputs.setpoint(sp, t)
+        elif fr.msg_id == w.SET_ACTUATOR_CONTROL_TARGET:
+            self.inputs.setpoint(Setpoint(SetpointKind.VELOCITY), t)
         v = classify(fr.msg_id, rec, self._gate_context())
+        if v.route is Route.FORWARD and self.intent.standing and not self._goto(rec, t):
+            self._deny(fr, rec, "goto not judged: the point is not one Merlin reads (see events)", t)
+            return
         if v.route is Route.FORWARD:
             self._forward_to_autopilot(fr)
         elif v.route is Route.DROP:
@@ -429,6 +494,28 @@ class Guard:
         elif t >= h.next_progress_t:
             self._in_progress(h, t)
 
+    def _goto(self, rec: object | None, t: float) -> bool:
+        """ArduPlane's GUIDED point (DO_REPOSITION as COMMAND_INT, MISSION_ITEM_INT ``current`` 2) becomes the
+        standing target the core judges; False for one the core cannot read (it is then not forwarded)."""
+        state = self.telemetry._last_state
+        if isinstance(rec, w.CommandIn) and rec.command == w.MAV_CMD_DO_REPOSITION:
+            if not rec.is_int:
+                self.event({"t": t, "type": "guard_goto_refused",
+                            "detail": "DO_REPOSITION as COMMAND_LONG: Plane reads it as COMMAND_INT (a frame)"})
+                return False
+            frame = rec.frame
+            sp = self.intent.on_goto(frame, rec.params[4] * 1e-7, rec.params[5] * 1e-7, rec.params[6], state)
+        elif isinstance(rec, w.MissionItemIn) and rec.current == 2:
+            sp = self.intent.on_goto(rec.frame, rec.lat_deg, rec.lon_deg, rec.alt_m, state)
+        else:
+            return True
+        if isinstance(sp, Refused):
+            self.event({"t": t, "type": "guard_goto_refused", "detail": sp.detail})
+            return False
+        self.inputs.setpoint(sp, t)
+        self.event({"t": t, "type": "guard_goto", "target_ned_m": list(sp.pos_ned_m)})
+        return True
+
     def _forward_to_autopilot(self, fr: Frame) -> None:
         self._send(self.ap_link, fr.raw, originated=False)
         if self.on_forward is not None:
@@ -492,6 +579,9 @@ class Guard:
         self._advance_held(t)
         if self.gcs_link is None:  # no ground station to watch: its link is never the reason for a failsafe
             self.inputs.gcs_heartbeat(t)
+        if self.intent.standing and not self.intent.attitude:
+            # ArduPlane's GUIDED target stands until replaced: it is what the autopilot flies every tick
+            self.inputs.setpoint(self.intent.standing_setpoint(state), t)
         inputs = self.inputs.build(state, tuple(self.commands))
         self.commands.clear()
         if self._inputs_fd is not None:
@@ -502,9 +592,15 @@ class Guard:
             self.event(e.to_dict())
             self._on_core_event(e.kind, e, t)
         if d0 is not None and d0.authority is Authority.EXPERIMENTAL and d.authority is not Authority.EXPERIMENTAL:
+            self.intent.reset()
+            # a new stage per revocation: it enters the behaviour afresh
+            self.fw_stream, self._fw_sent, self._fw_what = None, None, ""
             self.trusted_since = t
             self.fallback_sent_t = None
-            self.brake.start(t, state.vel_ned_mps)
+            if self.modes is not None and self.modes.streams_setpoints:
+                # a multirotor brakes to a stop; a fixed wing turns at its speed (its turn is the fence
+                # monitor's to judge, which goes on judging the trusted flight)
+                self.brake.start(t, state.vel_ned_mps)
         measured = self.brake.update(t, state.vel_ned_mps)
         if measured is not None:
             ok = measured.reaction_ok and measured.decel_ok
@@ -531,6 +627,7 @@ class Guard:
             # autopilot get the mode command, so it never flies the controller's setpoints before the core
             # has handed over
             self.supervising = True
+            self.intent.enter(self.telemetry._last_state)
             self.switch_deadline = t + SWITCH_TIMEOUT_S
             self.trusted_since = None
             self.fallback_sent_t = None
@@ -564,7 +661,19 @@ class Guard:
         if self.trusted_since is None:
             self.trusted_since = t
         since = self.trusted_since
-        out: TrustedOutput = trusted_output(d, self.modes, self.gcfg, t - since, self.telemetry._last_state)
+        state = self.telemetry._last_state
+        fw_target = None
+        if not self.modes.streams_setpoints and self.gcfg.fallback_mode is None:
+            if self.fw_stream is None:
+                self.fw_stream = FixedWingStream(self.cfg, self.core_cfg, state, 1.0 / self.gcfg.rate_hz)
+            n_notes = len(self.fw_stream.notes)
+            fw_target = self.fw_stream.target(t, d, state)
+            for note in self.fw_stream.notes[n_notes:]:
+                self.event({**note, "t": t})
+        out: TrustedOutput = trusted_output(d, self.modes, self.gcfg, t - since, state, fw_target)
+        if out.target is not None:
+            self._send_guided_target(out.target, t)
+            return
         if out.mode is not None:
             if self.ap_mode == out.mode:
                 return
@@ -577,6 +686,32 @@ class Guard:
         if out.vel_ned_mps is not None:
             self._send(self.ap_link, self.enc.velocity_setpoint(int(t * 1000), self.target, out.vel_ned_mps,
                                                                 out.yaw_rad))
+
+    def _send_guided_target(self, g: GuidedTarget, t: float) -> None:
+        """A fixed wing's trusted point: PX4's offboard needs it streamed every tick; ArduPlane's GUIDED keeps
+        its point, so it is sent when it moves (a turn's abeam point every GUIDED_TURN_PERIOD_S, so the turn
+        goes on) and again every GUIDED_REPEAT_S (a lost command is repeated)."""
+        assert self.autopilot is not None
+        lat, lon, _ = self.telemetry.frame.to_geodetic(g.north_m, g.east_m)
+        alt = self.telemetry.frame.alt0_amsl_m + g.height_m
+        if g.what != self._fw_what:
+            self._fw_what = g.what
+            self.event({"t": t, "type": "guard_guided_target", "what": g.what,
+                        "target_ned_m": [g.north_m, g.east_m, -g.height_m], "loiter_radius_m": g.loiter_radius_m})
+        if self.autopilot.dialect is Dialect.PX4:
+            self._send(self.ap_link, self.enc.position_target_global(int(t * 1000), self.target, lat, lon, alt))
+            return
+        last = self._fw_sent
+        if last is not None:
+            since, prev = t - last[0], last[1]
+            moved = math.hypot(g.north_m - prev.north_m, g.east_m - prev.east_m) > GUIDED_MOVE_M or (
+                abs(g.height_m - prev.height_m) > GUIDED_MOVE_M or g.what != prev.what)
+            sliding = g.what in ("turn", "run-out")  # a point that moves with the aircraft
+            period = GUIDED_TURN_PERIOD_S if sliding else GUIDED_REPEAT_S
+            if since < period and not (moved and not sliding):
+                return
+        self._fw_sent = (t, g)
+        self._send(self.ap_link, self.enc.reposition(self.target, lat, lon, alt, g.loiter_radius_m, g.clockwise))
 
     # ---------------------------------------------------------------------------------------- loop
 
@@ -633,12 +768,3 @@ class Guard:
                 os.close(fd)
         self._events_fd = self._inputs_fd = None
 
-
-def _core_setpoint(rec: object | None) -> Setpoint:
-    if isinstance(rec, w.SetpointLocal):
-        pos = tuple(0.0 if not math.isfinite(v) else v for v in rec.pos_ned_m)
-        vel = tuple(0.0 if not math.isfinite(v) else v for v in rec.vel_ned_mps)
-        yaw = rec.yaw_rad if math.isfinite(rec.yaw_rad) else 0.0
-        kind = SetpointKind.POSITION if rec.uses_position else SetpointKind.VELOCITY
-        return Setpoint(kind, pos, vel, yaw)  # type: ignore[arg-type]
-    return Setpoint(SetpointKind.VELOCITY)

@@ -28,8 +28,9 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega
 
+from merlin.link import codec, signing
 from merlin.link.dialect import mavlink_module
-from merlin.link.frames import Frame, FrameSplitter
+from merlin.link.frames import IFLAG_SIGNED, SIGNATURE_LEN, STX_V2, Frame, FrameSplitter
 
 # message ids (common.xml / ardupilotmega.xml)
 HEARTBEAT = 0
@@ -92,6 +93,9 @@ MAV_RESULT_UNSUPPORTED = 3
 # ignore x y z (1|2|4), ignore ax ay az (64|128|256), ignore yaw rate (2048))
 MAV_FRAME_LOCAL_NED = 1
 TYPEMASK_VELOCITY_YAW = 1 | 2 | 4 | 64 | 128 | 256 | 2048
+# position only: ignore velocity (8|16|32), acceleration (64|128|256), yaw and yaw rate (1024|2048)
+TYPEMASK_POSITION = 8 | 16 | 32 | 64 | 128 | 256 | 1024 | 2048
+MAV_FRAME_GLOBAL_INT = 5
 # ESTIMATOR_STATUS_FLAGS / EKF_STATUS_FLAGS: the horizontal absolute position bit (the same value in both)
 ESTIMATOR_POS_HORIZ_ABS = 16
 # MAV_LANDED_STATE
@@ -225,6 +229,7 @@ class CommandIn:
     target_system: int
     target_component: int
     is_int: bool
+    frame: int = 0  # COMMAND_INT's MAV_FRAME (COMMAND_LONG has none)
 
 
 @dataclass(frozen=True, slots=True)
@@ -235,22 +240,44 @@ class SetModeIn:
 
 
 @dataclass(frozen=True, slots=True)
-class SetpointLocal:
-    """SET_POSITION_TARGET_LOCAL_NED as the core reads it (POSITION_TARGET_TYPEMASK: bits 0-2 ignore the
-    position, 3-5 the velocity)."""
+class MissionItemIn:
+    """MISSION_ITEM_INT as ArduPlane reads a guided "goto" (``current`` 2, MAV_CMD_NAV_WAYPOINT): the point to
+    fly to and loiter about; any other ``current`` is a mission upload."""
 
+    command: int
+    current: int
+    frame: int
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    target_system: int
+    target_component: int
+
+
+@dataclass(frozen=True, slots=True)
+class ControllerSetpoint:
+    """A controller's SET_POSITION_TARGET_LOCAL_NED / _GLOBAL_INT or SET_ATTITUDE_TARGET.
+
+    ``decoded`` is what :func:`merlin.link.codec.decode` makes of it, the validation ``merlin serve`` applies
+    to the same messages: a :class:`merlin.link.inbound.SetpointIn`, :class:`~merlin.link.inbound.
+    GlobalSetpointIn` or :class:`~merlin.link.inbound.AttitudeTargetIn` whose ``to_setpoint`` is the core's
+    setpoint, or a :class:`merlin.link.codec.Rejected` naming the field, its value and what is allowed (a
+    mask or frame Merlin cannot judge). ``frame``, ``type_mask`` and ``z`` (``alt`` for the global message)
+    are the raw fields, for an autopilot that reads only part of the message (ArduPlane's GUIDED: an
+    altitude)."""
+
+    msg_id: int
+    decoded: object
+    frame: int
     type_mask: int
-    pos_ned_m: tuple[float, float, float]
-    vel_ned_mps: tuple[float, float, float]
-    yaw_rad: float
-
-    @property
-    def uses_position(self) -> bool:
-        return not self.type_mask & 0b111
+    z: float
 
 
-def _typed_setpoint_local(m: Any) -> SetpointLocal:
-    return SetpointLocal(int(m.type_mask), (_f(m.x), _f(m.y), _f(m.z)), (_f(m.vx), _f(m.vy), _f(m.vz)), _f(m.yaw))
+def _typed_setpoint(m: Any) -> ControllerSetpoint:
+    msg_id = int(m.get_msgId())
+    frame = int(getattr(m, "coordinate_frame", 0))
+    z = _f(m.alt) if msg_id == SET_POSITION_TARGET_GLOBAL_INT else _f(getattr(m, "z", math.nan))
+    return ControllerSetpoint(msg_id, codec.decode(m, ardupilotmega), frame, int(m.type_mask), z)
 
 
 def _f(v: Any) -> float:
@@ -301,7 +328,7 @@ def _typed_command_long(m: Any) -> CommandIn:
 def _typed_command_int(m: Any) -> CommandIn:
     p = (m.param1, m.param2, m.param3, m.param4, float(m.x), float(m.y), m.z)
     return CommandIn(int(m.command), tuple(_f(v) for v in p), int(m.target_system),  # type: ignore[arg-type]
-                     int(m.target_component), True)
+                     int(m.target_component), True, int(m.frame))
 
 
 _TYPED = {
@@ -321,7 +348,11 @@ _TYPED = {
     COMMAND_ACK: lambda m: CommandAck(int(m.command), int(m.result)),
     COMMAND_LONG: _typed_command_long,
     COMMAND_INT: _typed_command_int,
-    SET_POSITION_TARGET_LOCAL_NED: _typed_setpoint_local,
+    SET_POSITION_TARGET_LOCAL_NED: _typed_setpoint,
+    SET_POSITION_TARGET_GLOBAL_INT: _typed_setpoint,
+    SET_ATTITUDE_TARGET: _typed_setpoint,
+    MISSION_ITEM_INT: lambda m: MissionItemIn(int(m.command), int(m.current), int(m.frame), m.x * 1e-7, m.y * 1e-7,
+                                              _f(m.z), int(m.target_system), int(m.target_component)),
     SET_MODE: lambda m: SetModeIn(int(m.base_mode), int(m.custom_mode), int(m.target_system)),
 }
 #: the ids :func:`typed` turns into records (everything else is forwarded, never decoded)
@@ -349,6 +380,42 @@ class Decoder:
             return None
 
 
+# -------------------------------------------------------------------------------------------- signing
+
+class LinkSigner:
+    """MAVLink 2 signing of what the guard writes on one link (:func:`merlin.link.signing.sign_frame`).
+
+    A frame already signed with this link's key (forwarded from a link that shares it) goes out as it came;
+    any other MAVLink 2 frame (the guard's own, or forwarded from a link with another key or none) is signed
+    here with this link's key, as ``link_id``, at a timestamp that strictly increases (MAVLink's replay rule:
+    per stream, and a new stream within a minute of the receiver's clock). A MAVLink 1 frame cannot be
+    signed and is not sent on a signed link (counted in ``unsignable``)."""
+
+    def __init__(self, key: bytes, link_id: int = 0) -> None:
+        self.key = key
+        self.link_id = link_id
+        self._ts = 0
+        self.unsignable = 0
+
+    def _timestamp(self, unix_s: float) -> int:
+        self._ts = max(self._ts + 1, signing.signing_timestamp(unix_s))
+        return self._ts
+
+    def sign(self, raw: bytes, unix_s: float) -> bytes | None:
+        if len(raw) > 12 + SIGNATURE_LEN and raw[0] == STX_V2 and raw[2] & IFLAG_SIGNED:
+            msg = raw[7] | raw[8] << 8 | raw[9] << 16
+            if signing.signature_valid(Frame(raw, 2, raw[4], raw[5], raw[6], msg, True), self.key):
+                return raw
+            raw = raw[:-SIGNATURE_LEN]
+        msg_id = raw[7] | raw[8] << 8 | raw[9] << 16 if len(raw) > 10 and raw[0] == STX_V2 else -1
+        extra = _crc_extra().get(msg_id)
+        out = None if extra is None else signing.sign_frame(raw, self.key, self.link_id, self._timestamp(unix_s),
+                                                             extra, _x25)
+        if out is None:
+            self.unsignable += 1
+        return out
+
+
 # ---------------------------------------------------------------------------------------------- build
 
 class Encoder:
@@ -373,6 +440,25 @@ class Encoder:
         return self._pack(self._mav.set_position_target_local_ned_encode(
             time_boot_ms & 0xFFFFFFFF, target[0], target[1], MAV_FRAME_LOCAL_NED, TYPEMASK_VELOCITY_YAW,
             0.0, 0.0, 0.0, vel_ned_mps[0], vel_ned_mps[1], vel_ned_mps[2], 0.0, 0.0, 0.0, yaw_rad, 0.0))
+
+    def reposition(self, target: tuple[int, int], lat_deg: float, lon_deg: float, alt_amsl_m: float,
+                   loiter_radius_m: float, clockwise: bool) -> bytes:
+        """MAV_CMD_DO_REPOSITION as COMMAND_INT (MAV_FRAME_GLOBAL_INT, altitude above mean sea level): ArduPlane's
+        GUIDED point; param1 -1 keeps the speed, param3 the loiter radius (0: the autopilot's), param4 its
+        direction (0 clockwise, 1 counter-clockwise; ArduPilot dev docs, "Plane Commands in Guided Mode")."""
+        return self._pack(self._mav.command_int_encode(
+            target[0], target[1], MAV_FRAME_GLOBAL_INT, MAV_CMD_DO_REPOSITION, 0, 0, -1.0, 0.0,
+            max(0.0, loiter_radius_m), 0.0 if clockwise else 1.0, round(lat_deg * 1e7),
+            round(lon_deg * 1e7), alt_amsl_m))
+
+    def position_target_global(self, time_boot_ms: int, target: tuple[int, int], lat_deg: float, lon_deg: float,
+                               alt_amsl_m: float) -> bytes:
+        """SET_POSITION_TARGET_GLOBAL_INT, position only (MAV_FRAME_GLOBAL_INT): PX4's fixed-wing offboard
+        point, streamed (PX4 leaves OFFBOARD without a stream)."""
+        return self._pack(self._mav.set_position_target_global_int_encode(
+            time_boot_ms & 0xFFFFFFFF, target[0], target[1], MAV_FRAME_GLOBAL_INT, TYPEMASK_POSITION,
+            round(lat_deg * 1e7), round(lon_deg * 1e7), alt_amsl_m, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+            0.0))
 
     def command_long(self, target: tuple[int, int], command: int, params: tuple[float, ...]) -> bytes:
         p = tuple(params) + (0.0,) * (7 - len(params))

@@ -19,12 +19,14 @@ from __future__ import annotations
 
 import hashlib
 import hmac
+import struct
+from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
 
 from merlin.config.models import signing_key_from_file_bytes
-from merlin.link.frames import Frame
+from merlin.link.frames import IFLAG_SIGNED, STX_V2, Frame
 
 KEY_LEN = 32
 #: 2015-01-01T00:00:00Z as a Unix time: the signing timestamp epoch.
@@ -72,6 +74,22 @@ def signature_valid(frame: Frame, key: bytes) -> bool:
         return False
     digest = hashlib.sha256(key + frame.raw[:-6]).digest()[:6]
     return hmac.compare_digest(digest, frame.raw[-6:])
+
+
+def sign_frame(raw: bytes, key: bytes, link_id: int, timestamp: int, crc_extra: int,
+               crc: Callable[[bytes], int]) -> bytes | None:
+    """``raw`` (a MAVLink 2 frame, signed or not) signed with ``key`` as ``link_id`` at ``timestamp``: the
+    incompatibility flag set, the CRC recomputed over the new header (``crc``: X.25 over the bytes after
+    the start byte, then ``crc_extra``), and the 13-byte signature block appended. None for a MAVLink 1
+    frame, which cannot carry a signature."""
+    if len(raw) < 12 or raw[0] != STX_V2:
+        return None
+    body_end = 10 + raw[1]
+    head = bytearray(raw[:body_end])
+    head[2] |= IFLAG_SIGNED
+    check = crc(bytes(head[1:]) + bytes((crc_extra,)))
+    framed = bytes(head) + struct.pack("<H", check) + bytes((link_id & 0xFF,)) + (timestamp & 0xFFFF_FFFF_FFFF).to_bytes(6, "little")
+    return framed + hashlib.sha256(key + framed).digest()[:6]
 
 
 class SignatureCheck(Enum):

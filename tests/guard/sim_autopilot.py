@@ -222,6 +222,10 @@ class SimAutopilot:
             if self.armed and "LAND" in self.mode_name():
                 self.armed = False
 
+    def attitude_rpy(self) -> tuple[float, float, float]:
+        """Roll, pitch, yaw for ATTITUDE (a multirotor's point mass: level, facing north)."""
+        return (0.0, 0.0, 0.0)
+
     def _telemetry(self, now: float, n: int) -> None:
         tb = int((now - self.t0) * 1000)
         if n % int(self.rate_hz) == 0:
@@ -231,7 +235,7 @@ class SimAutopilot:
             self.send(self.m.sys_status_encode(0, 0, 0, 500, 16000, -1, 80, 0, 0, 0, 0, 0, 0))
             landed = mav.MAV_LANDED_STATE_ON_GROUND if self.pos[2] > -0.1 else mav.MAV_LANDED_STATE_IN_AIR
             self.send(self.m.extended_sys_state_encode(0, landed))
-        self.send(self.m.attitude_encode(tb, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+        self.send(self.m.attitude_encode(tb, *self.attitude_rpy(), 0.0, 0.0, 0.0))
         self.send(self.m.local_position_ned_encode(tb, *self.pos, *self.vel))
         lat, lon, alt = self.frame.to_geodetic(*self.pos)
         self.send(self.m.global_position_int_encode(tb, int(lat * 1e7), int(lon * 1e7), int(alt * 1000),

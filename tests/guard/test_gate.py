@@ -129,3 +129,20 @@ def test_no_mode_command_from_the_controller_reaches_a_manual_mode(main: int, su
     if v.route in (Route.FORWARD, Route.RELEASE):
         assert custom in PX4.release_modes or (custom == PX4.offboard and experimental)
         assert not (trusted and not experimental)
+
+
+def test_arduplane_guided_goto_passes_only_with_authority_and_other_mission_items_are_refused() -> None:
+    from merlin.guard.dialects import Autopilot, Dialect, VehicleClass, mode_table
+    from merlin.guard.gate import GateContext, Route, classify
+    from merlin.link import autopilot_wire as w
+
+    modes = mode_table(Autopilot(Dialect.ARDUPILOT, VehicleClass.FIXED_WING, 1, 1, 1))
+    goto = w.MissionItemIn(w.MAV_CMD_NAV_WAYPOINT, 2, 6, 29.65, -82.32, 100.0, 1, 1)
+    upload = w.MissionItemIn(w.MAV_CMD_NAV_WAYPOINT, 0, 6, 29.65, -82.32, 100.0, 1, 1)
+
+    def ctx(experimental: bool) -> GateContext:
+        return GateContext(modes, experimental, experimental, False, False, None, {})
+
+    assert classify(w.MISSION_ITEM_INT, goto, ctx(True)).route is Route.FORWARD
+    assert classify(w.MISSION_ITEM_INT, goto, ctx(False)).route is Route.DENY
+    assert classify(w.MISSION_ITEM_INT, upload, ctx(True)).route is Route.DENY

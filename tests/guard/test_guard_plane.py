@@ -6,19 +6,24 @@ the parameters docs/guard.md asks for, killing the guard hands the aircraft to P
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from merlin.commands.guard import replay_session
 from merlin.guard.dialects import PlaneMode
-from tests.guard.sim_plane import PLANE_PARAMS, SimPlane
+from tests.guard.sim_autopilot import PX4_PARAMS
+from tests.guard.sim_plane import PLANE_PARAMS, SimPlane, SimPx4Plane
 from tests.guard.test_guard_flight import ROOT, free_port, wait_for
 
 pytestmark = pytest.mark.integration
@@ -108,3 +113,213 @@ def test_killing_the_guard_hands_a_plane_to_its_long_failsafe(tmp_path: Path) ->
             proc.kill()
         gcs.sock.close()
         sim.stop()
+
+
+class PlaneRig:
+    """The simulated Plane already flying (loitering at ``flying``), the guard in a thread with the shipped
+    fixed-wing configuration, and a pymavlink controller streaming GUIDED altitude targets."""
+
+    def __init__(self, tmp: Path, flying: tuple[float, float, float], guard_extra: str = "", px4: bool = False) -> None:
+        from merlin.commands.guard import load
+        from merlin.guard.endpoints import parse_endpoint
+        from merlin.guard.runner import Guard
+        from tests.guard.controller import Controller
+
+        ap_port, ctl_port = free_port(), free_port()
+        self.px4 = px4
+        self.sim = (SimPx4Plane if px4 else SimPlane)(ap_port, flying=flying).start()
+        cfg_file = tmp / "guard.yaml"
+        cfg_file.write_text(FW_CONFIG + guard_extra)
+        cfg, gcfg = load(str(cfg_file))
+        self.guard = Guard(cfg, gcfg, parse_endpoint(f"udpin:127.0.0.1:{ap_port}"),
+                           parse_endpoint(f"udpin:127.0.0.1:{ctl_port}"), None, tmp / "out")
+        self.guard.start()
+        self.thread = threading.Thread(target=self.guard.run, daemon=True)
+        self.thread.start()
+        self.ctl = Controller(ctl_port).start()
+
+    def authority(self) -> str:
+        d = self.guard.decision
+        return d.authority.name if d is not None else "none"
+
+    def latlon(self, n: float, e: float) -> tuple[float, float]:
+        lat, lon, _ = self.sim.frame.to_geodetic(n, e)
+        return lat, lon
+
+    def goto(self, n: float, e: float, height_m: float) -> None:
+        """Plane's GUIDED point: DO_REPOSITION as COMMAND_INT, altitude above home; PX4's fixed-wing offboard
+        point: the position target streamed."""
+        lat, lon = self.latlon(n, e)
+        if self.px4:
+            self.ctl.global_target = (lat, lon, height_m)
+            return
+        self.ctl.command_int(mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mav.MAV_CMD_DO_REPOSITION, -1, 0, 0, math.nan,
+                             lat, lon, height_m)
+
+    def request_guided(self, height_m: float) -> None:
+        c, s = self.ctl, self.sim
+        wait_for(lambda: c.mode() is not None, 40, "the Plane's HEARTBEAT through the guard")
+        lat, lon = self.latlon(s.pos[0], s.pos[1])
+        c.global_target = (lat, lon, height_m)  # Plane reads the altitude alone; the stream is the liveness
+        c.streaming = True
+        end = time.monotonic() + 1.5  # the controller's liveness (handover.heartbeat_alive_min_s)
+        asked = False
+        while time.monotonic() < end + 10.0 and (mav.MAV_CMD_DO_SET_MODE, 0) not in c.acks:
+            if self.px4:
+                # PX4's first offboard point is the aircraft's own position (as it reads it in
+                # GLOBAL_POSITION_INT): within handover.max_setpoint_position_error_m of it
+                c.global_target = (*self.latlon(s.pos[0], s.pos[1]), height_m)
+            if time.monotonic() >= end and not asked:
+                c.set_mode(*((6.0, 0.0) if self.px4 else (float(PlaneMode.GUIDED),)))
+                asked = True
+            time.sleep(0.02)
+        wait_for(lambda: (mav.MAV_CMD_DO_SET_MODE, 0) in c.acks, 10, "the offboard mode granted and forwarded")
+        wait_for(lambda: s.mode == s.offboard, 5, "the aircraft in GUIDED/OFFBOARD")
+        assert self.authority() == "EXPERIMENTAL"
+
+    def close(self) -> None:
+        self.ctl.stop()
+        self.guard.stop()
+        self.thread.join(timeout=5)
+        self.guard.close()
+        self.sim.stop()
+
+
+EAST_EDGE_M = 1000.0  # the shipped fixed-wing range's east boundary (examples/configs/fixedwing_default.yaml)
+
+
+@pytest.mark.parametrize(("px4", "fallback"), [(False, None), (False, "rtl"), (True, None)],
+                         ids=["ardupilot-merlin-streamed", "ardupilot-plane-rtl", "px4-merlin-streamed"])
+def test_a_guided_flight_on_a_plane_passes_then_a_flyaway_is_revoked_and_the_return_stays_inside(
+        px4: bool, fallback: str | None, tmp_path: Path) -> None:
+    """Merlin's own fixed-wing behaviour streamed as GUIDED points (ArduPlane) or offboard position targets
+    (PX4), the default, or Plane's RTL (``guard.fallback_mode: rtl``)."""
+    rig = PlaneRig(tmp_path, flying=(0.0, 600.0, 100.0), guard_extra=f"  fallback_mode: {fallback}\n" if fallback else "",
+                   px4=px4)
+    s = rig.sim
+    try:
+        rig.request_guided(100.0)
+        # a guided flight: a point inside the range reaches the Plane, which flies to it; the core judges it
+        # (the stream's altitude is Plane's target altitude too: it climbs with the point)
+        assert rig.ctl.global_target is not None
+        rig.ctl.global_target = (*rig.ctl.global_target[:2], 120.0)
+        n_gotos = len(s.gotos)
+        rig.goto(300.0, 300.0, 120.0)
+        wait_for(lambda: len(s.gotos) > n_gotos and math.dist(s.gotos[-1][1], (300.0, 300.0)) < 1.0, 5,
+                 "the controller's point through the guard")
+        assert math.dist(s.gotos[-1][1], (300.0, 300.0)) < 1.0 and abs(s.gotos[-1][2] - 120.0) < 1e-3
+        d0 = math.dist((s.pos[0], s.pos[1]), (300.0, 300.0))
+        # (a turn of up to a half circle first, at 0.38 rad/s)
+        wait_for(lambda: math.dist((s.pos[0], s.pos[1]), (300.0, 300.0)) < d0 - 100.0, 20, "the flight to the point")
+        assert rig.authority() == "EXPERIMENTAL"
+        sp = rig.guard.inputs.setpoint_
+        assert sp is not None and math.dist(sp.pos_ned_m[:2], (300.0, 300.0)) < 1.0 and sp.pos_ned_m[2] == -120.0
+        # a flyaway: a point 3 km east, 2 km outside the range
+        n_gotos = len(s.gotos)
+        rig.goto(0.0, 3000.0, 120.0)
+        wait_for(lambda: len(s.gotos) > n_gotos, 5, "the flyaway's point through the guard")
+        wait_for(lambda: rig.authority() != "EXPERIMENTAL", 60, "Merlin's revocation of the flyaway")
+        t_rev = time.monotonic()
+        # the controller's later points never reach the Plane, and the aircraft turns back inside the range
+        rig.goto(0.0, 3000.0, 120.0)
+        time.sleep(12.0)
+        assert max(p[1] for p in s.track.pos) < EAST_EDGE_M, "left the range"
+        i_rev = next(k for k, t in enumerate(s.track.t) if t + s.t0 >= t_rev)
+        assert s.pos[1] < max(p[1] for p in s.track.pos[i_rev:]) - 50.0, "not heading back from the edge"
+        events = [json.loads(x) for x in (tmp_path / "out" / "events.jsonl").read_text().splitlines()]
+        revoked = [e for e in events if e.get("type") == "revoked"]
+        assert revoked and revoked[0]["reason"] == "geofence", revoked
+        ours = [g for g in s.gotos if math.dist(g[1], (0.0, 3000.0)) > 1.0 and g[0] >= t_rev - 1.0]
+        if fallback is None:
+            # Merlin flies: the Plane stays in GUIDED on Merlin's points, the first one an escape turn's abeam
+            # point sent in the tick of the revocation (the reaction time the fence projection assumes covers
+            # the autopilot's roll-in from there)
+            assert s.mode == s.offboard
+            targets = [e for e in events if e.get("type") == "guard_guided_target"]
+            assert targets and targets[0]["what"] == "turn" and targets[0]["t"] == revoked[0]["t"], targets[:2]
+            assert ours, "no guided point from Merlin reached the Plane"
+            assert any(e.get("type") == "fixed_wing_escape_turn" for e in events)
+        else:
+            assert s.mode == int(PlaneMode.RTL) and not ours
+    finally:
+        rig.close()
+
+
+def test_a_px4_fixed_wing_whose_offboard_loss_would_land_where_it_is_is_refused(tmp_path: Path) -> None:
+    ap_port = free_port()
+    sim = SimPx4Plane(ap_port, {**PX4_PARAMS, "COM_OBL_RC_ACT": 4.0}).start()  # 4 Land: corkscrews down
+    try:
+        proc = _spawn(ap_port, free_port(), free_port(), tmp_path)
+        _out, err = proc.communicate(timeout=60)
+        assert proc.returncode == 3, err
+        assert "COM_OBL_RC_ACT" in err and "required" in err, err
+        assert sim.track.setpoints_t == []
+    finally:
+        sim.stop()
+
+
+def test_killing_the_guard_hands_a_px4_fixed_wing_to_its_offboard_loss_failsafe(tmp_path: Path) -> None:
+    from tests.guard.controller import Controller
+
+    ap_port, ctl_port = free_port(), free_port()
+    sim = SimPx4Plane(ap_port, flying=(0.0, 0.0, 100.0)).start()
+    proc = _spawn(ap_port, ctl_port, free_port(), tmp_path)
+    ctl = Controller(ctl_port).start()
+    try:
+        assert proc.stdout is not None
+        proc.stdout.readline()  # the start line: the check passed with COM_OF_LOSS_T 0.5, COM_OBL_RC_ACT 5
+        wait_for(lambda: ctl.mode() is not None, 40, "the autopilot's HEARTBEAT through the guard")
+        ctl.streaming = True
+        end = time.monotonic() + 12.0
+        asked = False
+        while time.monotonic() < end and sim.mode != sim.offboard:
+            lat, lon, _ = sim.frame.to_geodetic(sim.pos[0], sim.pos[1])
+            ctl.global_target = (lat, lon, 100.0)  # the aircraft's own position, as it reads it
+            if time.monotonic() > end - 10.0 and not asked:
+                ctl.set_mode(6.0, 0.0)  # OFFBOARD, once the stream and the controller's liveness run
+                asked = True
+            time.sleep(0.02)
+        assert sim.mode == sim.offboard, ctl.texts
+        time.sleep(1.0)
+        assert sim.mode == sim.offboard  # the guard forwards the controller's stream: PX4 stays in OFFBOARD
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+        wait_for(lambda: sim.mode == sim.hold_mode, PX4_PARAMS["COM_OF_LOSS_T"] + 1.5,
+                 "PX4's offboard-loss failsafe (COM_OBL_RC_ACT 5: Hold)")
+        # the failsafe's own delay, from the last setpoint the guard forwarded: never sooner than COM_OF_LOSS_T
+        assert time.monotonic() - sim.track.setpoints_t[-1] >= PX4_PARAMS["COM_OF_LOSS_T"]
+    finally:
+        ctl.stop()
+        if proc.poll() is None:
+            proc.kill()
+        sim.stop()
+
+
+MAST_NE_M, MAST_RADIUS_M = (-500.0, -500.0), 80.0  # the shipped range's keep-out (a radio mast)
+
+
+def test_merlins_streamed_return_on_a_plane_routes_around_the_keep_out(tmp_path: Path) -> None:
+    """Revoked near the south-west corner, the straight way home crosses the radio mast's keep-out; Merlin's
+    streamed return (its fixed-wing stage's routed RTL, flown as GUIDED points) goes around it."""
+    rig = PlaneRig(tmp_path, flying=(-750.0, -750.0, 100.0))
+    s = rig.sim
+    try:
+        rig.request_guided(100.0)
+        rig.goto(-3000.0, -3000.0, 100.0)  # the flyaway: 3 km south-west, out of the range
+        wait_for(lambda: rig.authority() != "EXPERIMENTAL", 60, "Merlin's revocation of the flyaway")
+        i_rev = len(s.track.pos) - 1
+        # flown back past the mast towards home (both coordinates north-east of the keep-out)
+        wait_for(lambda: s.pos[0] > MAST_NE_M[0] + 150.0 and s.pos[1] > MAST_NE_M[1] + 150.0, 90,
+                 "the return home past the keep-out")
+        path = s.track.pos[i_rev:]
+        closest = min(math.dist((p[0], p[1]), MAST_NE_M) for p in path)
+        assert closest > MAST_RADIUS_M, f"the return crossed the keep-out: {closest:.1f} m from the mast's centre"
+        assert all(-1000.0 < p[0] < 1500.0 and -1000.0 < p[1] < 1000.0 for p in s.track.pos), "left the range"
+        events = [json.loads(x) for x in (tmp_path / "out" / "events.jsonl").read_text().splitlines()]
+        assert any(e.get("type") == "fixed_wing_rtl_route" for e in events), "no routed return planned"
+        assert s.mode == s.offboard  # flown in GUIDED on Merlin's points, not Plane's straight RTL
+    finally:
+        rig.close()
+    # the session's decisions re-run exactly from its logged inputs (merlin guard --replay)
+    same, detail = replay_session(tmp_path / "out")
+    assert same, detail

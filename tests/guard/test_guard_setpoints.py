@@ -1,0 +1,54 @@
+"""A controller setpoint the core cannot judge never reaches the autopilot (merlin.guard.intent, the codec
+merlin serve uses): the controller is told why, and the setpoints the core reads pass as before."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from merlin.commands.guard import load
+from merlin.guard.dialects import Dialect
+from merlin.guard.endpoints import parse_endpoint
+from merlin.guard.runner import Guard
+from tests.guard.controller import Controller
+from tests.guard.sim_autopilot import SimAutopilot
+from tests.guard.test_guard_flight import CONFIG, free_port, wait_for
+
+pytestmark = pytest.mark.integration
+
+ACCELERATION_ONLY = 0b0000_1100_0011_1111  # x y z and vx vy vz ignored, ax ay az used: Merlin does not judge it
+
+
+def test_an_acceleration_setpoint_is_not_forwarded_and_a_velocity_setpoint_is(tmp_path: Path) -> None:
+    ap_port, ctl_port = free_port(), free_port()
+    sim = SimAutopilot(Dialect.PX4, ap_port).start()
+    cfg_file = tmp_path / "guard.yaml"
+    cfg_file.write_text(CONFIG)
+    cfg, gcfg = load(str(cfg_file))
+    guard = Guard(cfg, gcfg, parse_endpoint(f"udpin:127.0.0.1:{ap_port}"),
+                  parse_endpoint(f"udpin:127.0.0.1:{ctl_port}"), None, tmp_path / "out")
+    guard.start()
+    thread = threading.Thread(target=guard.run, daemon=True)
+    thread.start()
+    ctl = Controller(ctl_port).start()
+    try:
+        wait_for(lambda: ctl.mode() is not None, 10, "the autopilot's HEARTBEAT through the guard")
+        for _ in range(10):
+            ctl.send(ctl.m.set_position_target_local_ned_encode(
+                0, 1, 1, mav.MAV_FRAME_LOCAL_NED, ACCELERATION_ONLY, 0, 0, 0, 0, 0, 0, 1.0, 0.0, 0.0, 0, 0))
+            time.sleep(0.05)
+        wait_for(lambda: any("acceleration" in x for x in ctl.texts), 5, "the STATUSTEXT naming the field")
+        assert sim.track.setpoints_t == []
+        assert guard.inputs.setpoint_ is None  # nor is it the core's setpoint
+        ctl.streaming = True  # velocity setpoints: judged, and passed (PX4's proof of life before OFFBOARD)
+        wait_for(lambda: len(sim.track.setpoints_t) > 5, 5, "the velocity setpoints through the guard")
+    finally:
+        ctl.stop()
+        guard.stop()
+        thread.join(timeout=5)
+        guard.close()
+        sim.stop()
