@@ -12,8 +12,8 @@ illumination gain that drifts, and sensor noise.
 Cost (the camera renders every frame of every camera run): the texture's pyramid is built once
 (``cv2.pyrDown`` with wrapped borders) and the coarsest level whose pixel is not larger than the centre image
 pixel's footprint on the ground is warped, which is also the anti-aliasing a real lens gives; the warp reads
-only the visible footprint, a plain slice of the texture tiled 2×2 (no wrapping in the inner loop) unless
-the footprint is larger than one period. The sensor noise is a bank of Gaussian samples drawn once from the
+only the visible footprint, a plain slice of the texture tiled 2×2 or more (no wrapping in the inner loop)
+unless the footprint is wider than the tiling less one period. The sensor noise is a bank of Gaussian samples drawn once from the
 camera's generator, read each frame at an offset drawn from that generator: seeded and deterministic, a
 fresh-looking field every frame, at the cost of an add instead of 76,800 normal draws.
 """
@@ -97,6 +97,8 @@ def _texture_pyramid(image: np.ndarray, min_side: int = 64) -> list[np.ndarray]:
 # Offsets into the noise bank are drawn per frame; a bank twice the image in each direction gives
 # (h+1)(w+1) distinct fields.
 _NOISE_BANK_SCALE = 2
+# The side of each texture level once tiled (DownwardCamera._levels), in level-0 pixels
+_TILED_SIDE_PX = 2048
 
 
 class DownwardCamera:
@@ -119,8 +121,12 @@ class DownwardCamera:
         yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
         r2 = ((xx - model.cx_px) / (0.5 * w)) ** 2 + ((yy - model.cy_px) / (0.5 * h)) ** 2
         self._vignette = (1.0 - effects.vignetting * r2 / 2.0).astype(np.float32)
-        # each level tiled 2x2, so that any footprint up to one period is a plain slice
-        self._levels = [np.tile(lv, (2, 2)) for lv in _texture_pyramid(texture.image)]
+        # each level tiled n x n, so that any footprint up to n - 1 periods is a plain slice: 2x2 for the
+        # photographs (a 102 m period at 0.1 m per pixel), more for the small synthetic textures (water's
+        # 51 m and the tiles' 48 m period are narrower than a 320x240 footprint from 30 m, which would
+        # otherwise take the slower wrapped warp), up to the same 2048-pixel side
+        self._reps = max(2, math.ceil(_TILED_SIDE_PX / max(texture.image.shape)))
+        self._levels = [np.tile(lv, (self._reps, self._reps)) for lv in _texture_pyramid(texture.image)]
         self._noise = (
             self.rng.standard_normal((_NOISE_BANK_SCALE * h, _NOISE_BANK_SCALE * w), dtype=np.float32)
             * np.float32(effects.noise_sigma)
@@ -165,7 +171,7 @@ class DownwardCamera:
         m, fx = self.model, self.effects
         R_nb = dcm_from_euler(*att_rpy_rad)
         H = self._homography(pos, R_nb)
-        img = self._warp(H).astype(np.float32)
+        img = self._warp(H)
         # motion blur: the ground moves at f v / h pixels per second in the image
         R_nc = R_nb @ R_BODY_CAM
         v_cam = R_nc.T @ np.asarray(vel_ned_mps, dtype=float)
@@ -173,16 +179,21 @@ class DownwardCamera:
         if blur_px >= 1.0:
             img = _motion_blur(img, blur_px, math.atan2(-v_cam[1], -v_cam[0]))
         if fx.defocus_sigma_px > 0.0:
-            img = cv2.GaussianBlur(img, (0, 0), fx.defocus_sigma_px)
+            # OpenCV would size the kernel 5x5 at the default 0.5 px, whose outer taps weigh 3e-4 of the
+            # sum (below a grey level): 3x3 up to 0.5 px (OpenCV's fast 8-bit path), ±3 sigma beyond
+            k = 3 if fx.defocus_sigma_px <= 0.5 else 2 * math.ceil(3.0 * fx.defocus_sigma_px) + 1
+            img = cv2.GaussianBlur(img, (k, k), fx.defocus_sigma_px)
         gain = 1.0 + fx.gain_amplitude * math.sin(2.0 * math.pi * t_s / fx.gain_period_s)
-        np.multiply(img, self._vignette, out=img)
-        img *= np.float32(gain)
-        if self._noise is not None:
-            oy = int(self.rng.integers(0, self._noise.shape[0] - m.height_px + 1))
-            ox = int(self.rng.integers(0, self._noise.shape[1] - m.width_px + 1))
-            img += self._noise[oy : oy + m.height_px, ox : ox + m.width_px]
-        np.clip(img, 0.0, 255.0, out=img)
-        return img.astype(np.uint8)
+        # vignetting and gain in one pass to float, then the noise added with the clip to 0..255 and the
+        # rounding to 8 bits in one saturating pass (each step a whole-image pass: most of the cost left
+        # after the warp)
+        lit = cv2.multiply(img, self._vignette, scale=gain, dtype=cv2.CV_32F)
+        if self._noise is None:
+            return np.clip(np.rint(lit), 0.0, 255.0).astype(np.uint8)
+        oy = int(self.rng.integers(0, self._noise.shape[0] - m.height_px + 1))
+        ox = int(self.rng.integers(0, self._noise.shape[1] - m.width_px + 1))
+        out: np.ndarray = cv2.add(lit, self._noise[oy : oy + m.height_px, ox : ox + m.width_px], dtype=cv2.CV_8U)
+        return out
 
     def _warp(self, H: np.ndarray) -> np.ndarray:
         """The plane under the camera (``H``: texture level-0 pixel -> image pixel), warped from the visible
@@ -211,7 +222,7 @@ class DownwardCamera:
         y0 = math.floor(float(lc[:, 1].min())) - 2
         x1 = math.ceil(float(lc[:, 0].max())) + 3
         y1 = math.ceil(float(lc[:, 1].max())) + 3
-        if x1 - x0 > pw or y1 - y0 > ph:
+        if x1 - x0 > (self._reps - 1) * pw or y1 - y0 > (self._reps - 1) * ph:
             return self._wrap_warp(src, ph, pw, H, to_level)
         sx, sy = x0 % pw, y0 % ph
         # crop pixel = level pixel - (x0, y0): the level is periodic, so the slice from (sx, sy) is it

@@ -19,6 +19,7 @@ from merlin.config.runtime import build_core_config, envelope_limits
 from merlin.core.types import Authority, Behavior, CommandKind, NavMode
 from sims.expectations import Verdict
 from sims.runner import FIXED_WING_VEHICLES, RunResult
+from sims.scenario import camera_statement
 
 SUMMARY_VERSION = 1
 
@@ -45,6 +46,8 @@ def summary_dict(r: RunResult, verdicts: list[Verdict]) -> dict[str, Any]:
         "estimator_note": ("truth plus modelled navigation errors (a stand-in for the EKF)"
                            if sc.estimator == "truth_plus_noise" else "fusion EKF on the simulated sensors")
         + ("; angle of attack from a vane read as truth" if sc.vehicle in FIXED_WING_VEHICLES else ""),
+        "terrain": sc.ground,
+        "camera": camera_statement(sc),
         "passed": all(v.passed for v in verdicts),
         "config_name": r.config.name,
         "config_sha256": r.config_sha256,

@@ -22,16 +22,13 @@ from merlin.config.loader import ConfigError
 from merlin.config.models import MerlinConfig
 from sims.multirotor_loop import ClosedLoop, vehicle_params_path
 from sims.run_log import RunRecorder, RunResult
-from sims.scenario import Scenario
+from sims.scenario import FIXED_WING_VEHICLES, Scenario
 from sims.scenario_script import ScenarioScript
 from sims.vehicle_loop import SimulatedVehicle, gps_loss_spans
 
 # the loops and helpers a driver or a test reaches through the runner
 __all__ = ["FIXED_WING_VEHICLES", "ClosedLoop", "RunResult", "gps_loss_spans", "make_loop", "run_scenario",
            "vehicle_capability", "vehicle_params_path"]
-
-#: Vehicle files flown by JSBSim through :mod:`sims.fixedwing_loop` rather than the multirotor model.
-FIXED_WING_VEHICLES = ("aerosonde",)
 
 
 def vehicle_capability(vehicle: str | Path | None) -> VehicleCapability | None:

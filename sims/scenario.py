@@ -19,6 +19,19 @@ if TYPE_CHECKING:
 
 Vec3L = Annotated[list[float], Field(min_length=3, max_length=3)]
 
+#: Vehicle files flown by JSBSim through :mod:`sims.fixedwing_loop` rather than the multirotor model.
+FIXED_WING_VEHICLES = ("aerosonde",)
+
+#: The ground under a flight (flat, at home altitude, one texture everywhere): scikit-image's photographs
+#: (grass, gravel, brick), low texture (water) or a repetitive floor (tiles).
+Terrain = Literal["grass", "gravel", "brick", "water", "tiles"]
+#: The terrains over which the camera and VO are on unless the scenario says otherwise
+#: (``camera: auto``, the default). Not water: VO finds no corners and refuses every frame
+#: (``benchmarks/bench_vo.py``: 0 % valid), so the camera would cost CPU and add nothing. Not tiles: the
+#: motion is ambiguous by a period, refused without an accurate velocity prior, which is what a GPS loss
+#: takes away (``tests/vision/test_vision_vo.py``).
+CAMERA_TERRAINS: tuple[str, ...] = ("grass", "gravel", "brick")
+
 
 class S(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -202,10 +215,12 @@ class Expectation(S):
 
 class Camera(S):
     """A downward camera feeding visual odometry to the fusion EKF (``sims/vision_loop.py``,
-    ``docs/navigation.md``). The ground is one texture everywhere, at home altitude."""
+    ``docs/navigation.md``). The ground is one texture everywhere, at home altitude: the scenario's
+    ``terrain``."""
 
-    texture: Literal["grass", "gravel", "brick", "water", "tiles"] = Field(
-        "grass", description="photographs (grass, gravel, brick), low texture (water) or repetitive (tiles)")
+    texture: Terrain = Field(
+        "grass", description="the ground seen: photographs (grass, gravel, brick), low texture (water) or "
+                             "repetitive (tiles); in a scenario file, the scenario's terrain when not given")
     rate_hz: float = Field(15.0, ge=1.0, le=30.0, description="frames per second (VO runs on every frame)")
     width_px: int = Field(160, ge=64, le=640)
     height_px: int = Field(120, ge=48, le=480)
@@ -288,11 +303,50 @@ class Scenario(S):
     expectations: list[Expectation] = []
     log_rate_hz: float = Field(50.0, gt=0.0, le=400.0)
     redundancy: Redundancy = Redundancy()
-    camera: Camera | None = Field(None, description="downward camera + visual odometry (needs estimator: ekf)")
+    terrain: Terrain | None = Field(
+        None, description="the ground under the flight, what a downward camera sees; null: the camera's "
+                          "texture when there is a camera section, else grass (the two must not differ)")
+    camera: Camera | None = Field(
+        None, description="downward camera + visual odometry (needs estimator: ekf). Not given or 'auto': on "
+                          "where it can work (estimator ekf, a multirotor with shared navigation, terrain grass, "
+                          "gravel or brick), off elsewhere; null: off")
     sensors: SensorNoise = SensorNoise()
     accept_risk: list[str] = Field(
         [], description="cross-check errors (docs/crosschecks.md) this scenario flies on purpose, by id (e.g. "
                         "XC003 for a braking rate the vehicle cannot deliver); recorded in summary.json")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _terrain_and_camera(cls, data: Any) -> Any:
+        """The terrain from ``terrain`` or the camera's texture (they must agree), and ``camera`` not given
+        or ``auto`` resolved: on where :func:`camera_can_work`, off elsewhere."""
+        if not isinstance(data, dict):
+            return data
+        data = dict(data)
+        cam = data.get("camera", "auto")
+        cam_texture = cam.get("texture") if isinstance(cam, dict) else getattr(cam, "texture", None)
+        terrain = data.get("terrain")
+        if terrain is not None and cam_texture is not None and cam_texture != terrain:
+            raise ValueError(f"camera.texture {cam_texture!r} differs from terrain {terrain!r}: the camera sees the "
+                             "terrain; give one of them")
+        terrain = terrain if terrain is not None else (cam_texture if cam_texture is not None else "grass")
+        if cam == "auto":
+            red = data.get("redundancy") or {}
+            lane_nav = red.get("lane_navigation", "shared") if isinstance(red, dict) else red.lane_navigation
+            on = camera_can_work(data.get("estimator", cls.model_fields["estimator"].default),
+                                 str(data.get("vehicle", cls.model_fields["vehicle"].default)), lane_nav, terrain)
+            data["camera"] = {"texture": terrain} if on else None
+        elif isinstance(cam, dict) and "texture" not in cam:
+            data["camera"] = {**cam, "texture": terrain}
+        return data
+
+    @property
+    def ground(self) -> str:
+        """The terrain flown over: what the camera sees when there is one (validation makes it agree with
+        ``terrain``), else ``terrain``, else grass."""
+        if self.camera is not None:
+            return self.camera.texture
+        return self.terrain if self.terrain is not None else "grass"
 
     @model_validator(mode="after")
     def _camera_needs_ekf(self) -> Scenario:
@@ -313,6 +367,34 @@ class Scenario(S):
             raise ValueError("redundancy.lane_navigation 'own': the lanes' own filters fuse no VO; "
                              "remove camera or use lane_navigation: shared")
         return self
+
+
+def camera_can_work(estimator: str, vehicle: str, lane_navigation: str, terrain: str) -> bool:
+    """Whether the downward camera and VO are on by default: with the fusion EKF (the stand-in fuses no VO), on
+    a multirotor (the fixed wing's loop has no camera: at its ~100 m cruise the 70° footprint is wider than
+    the ground texture's period and the velocity error grows tenfold from 30 m, docs/benchmarks/nav.md,
+    "The camera by default"), with shared navigation (the lanes' own filters fuse no VO), over a terrain VO
+    can track (:data:`CAMERA_TERRAINS`)."""
+    return (estimator == "ekf" and vehicle not in FIXED_WING_VEHICLES and lane_navigation != "own"
+            and terrain in CAMERA_TERRAINS)
+
+
+def camera_statement(sc: Scenario) -> str:
+    """What a run's summary says about the camera: on (texture, size, rate), or off and why."""
+    if sc.camera is not None:
+        c = sc.camera
+        seen = "" if c.texture in CAMERA_TERRAINS else f" (VO cannot track {c.texture}: its frames are refused)"
+        return (f"on: downward camera over {c.texture}, {c.width_px}x{c.height_px} at {c.rate_hz:g} frames/s, visual"
+                f" odometry to the EKF{seen}")
+    if sc.estimator != "ekf":
+        return f"off: estimator {sc.estimator} fuses no visual odometry"
+    if sc.vehicle in FIXED_WING_VEHICLES:
+        return "off: no camera is modelled on the fixed wing"
+    if sc.redundancy.lane_navigation == "own":
+        return "off: the autopilot lanes' own filters fuse no visual odometry"
+    if sc.ground not in CAMERA_TERRAINS:
+        return f"off: terrain {sc.ground} (visual odometry cannot track it)"
+    return "off: the scenario has none (camera: null)"
 
 
 def load_scenario(path: str | Path, seed: int | None = None) -> tuple[Scenario, MerlinConfig]:

@@ -307,8 +307,11 @@ class FixedWingBehaviours:
                 self.escape_on_trusted_trip(t, decision, s)
             targets = self._trusted_targets(t, decision, s)
         if changed:
-            # Guidance first (above), then the loops from the surfaces last commanded: no bump.
-            self.cstate = fc.reset_from_state(self.cp, s, self.surfaces, targets)
+            # Guidance first (above), then the loops from the surfaces last commanded: no bump. From one of
+            # Merlin's own behaviours the lateral integrators carry on (the trim its loops found); from what
+            # another authority flew they start at trim (scenario fw_adv_grant_during_escape)
+            own = self.mode_key is not None and self.mode_key[0] == "trusted"
+            self.cstate = fc.reset_from_state(self.cp, s, self.surfaces, targets, self.cstate if own else None)
             self.mode_key = key
         return targets
 

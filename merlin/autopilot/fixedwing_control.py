@@ -25,10 +25,15 @@ TECS's underspeed trade (pitch for speed alone) at a takeover lost up to 11.7 m 
 just before the stall revocation (``fw_adv_push_before_stall_*``); this law loses under 3 m there.
 ``merlin/autopilot/fixedwing_recovery.py`` bounds the height it can cost.
 
-Takeover: :func:`reset_from_state` starts the integrators within ``takeover_integrator_band`` of trim, not
-at the surfaces an adversary left (a full nose-down elevator held in the integrator took seconds to
-unwind), and each surface then moves from the value taken over at :func:`takeover_slew_per_s` until it
-meets the loops' own command: bumpless (no step), without continuing the revoked command.
+Takeover: :func:`reset_from_state` starts the integrators at trim, not at the surfaces an adversary left
+(a full nose-down elevator held in the integrator took seconds to unwind), and each surface then moves from
+the value taken over at :func:`takeover_slew_per_s` until it meets the loops' own command: bumpless (no
+step), without continuing the revoked command. The elevator's integrator keeps the taken-over elevator
+within ``takeover_integrator_band`` of its cruise trim (the elevator a flight condition needs changes with
+the speed and the load factor, and the taken-over one estimates it); the aileron's and the rudder's start
+at their trim, zero (a symmetric airframe needs none at any steady bank). An aileron inherited within the
+band held the escape turn 10 deg short of its bank for seconds after a revocation, wider than the fence
+projection's turn at the bank limit (scenario ``fw_adv_grant_during_escape``: 2.3 m outside the range).
 
 Attitude: roll and pitch setpoints are slewed at a bounded rate (bumpless and gentle to the airframe),
 tracked by PI + rate damping loops whose proportional and damping gains scale with cruise/airspeed (surface
@@ -113,10 +118,10 @@ class FixedWingControlParams:
     # the angle-of-attack cap (TECS's own 1 eases a 1.5 m/s sink for seconds)
     recovery_pitch_p: float = 4.0
     recovery_exit_sink_mps: float = 1.0
-    # A takeover inherits each surface within this of its trim through the integrators (not an adversary's
-    # full deflection), and each moves from the value taken over at most at the loops' own slew
-    # (takeover_slew_per_s) until it meets the loops' own command: no step, and no continuing the revoked
-    # command.
+    # A takeover inherits the elevator within this of its trim through the integrator (not an adversary's
+    # full deflection; the aileron and the rudder start at their zero trim), and each surface moves from the
+    # value taken over at most at the loops' own slew (takeover_slew_per_s) until it meets the loops' own
+    # command: no step, and no continuing the revoked command.
     takeover_integrator_band: float = 0.2
     # Stall protection without an angle-of-attack vane: alpha ~ theta - gamma (still air), so the pitch
     # target is held below gamma + alpha_protect (the model stalls at 23.5 deg; trim at 18.5 m/s is 16 deg).
@@ -344,12 +349,18 @@ def reset_from_state(
     s: VehicleState,
     surfaces: SurfaceCommand,
     targets: FixedWingTargets | None = None,
+    own: FixedWingControlState | None = None,
 ) -> FixedWingControlState:
     """Initialise the loops so the first command equals ``surfaces`` (bumpless transfer).
 
+    ``own``: the loops' state when they flew ``surfaces`` for one of Merlin's own behaviours (a change of
+    trusted behaviour, or a grant: nothing taken over from another authority): the aileron's and the
+    rudder's integrators carry on from it, the trim those loops found.
+
     The attitude setpoints start at the current attitude (then slew towards the targets at their rate
-    limits), the surface integrators are set to the surface value the proportional and damping terms
-    leave over, and the throttle slews from its current value. TECS's integrators start from physical
+    limits), the surfaces slew from ``surfaces`` (``handover``) while the integrators start at trim (the
+    elevator's within the takeover band of the surface value the proportional and damping terms leave over;
+    the aileron's and the rudder's at zero), and the throttle slews from its current value. TECS's integrators start from physical
     estimates instead of the taken-over values: the throttle integrator at zero (the trim throttle) and the
     pitch integrator, which holds the trim angle of attack, at the current theta - gamma within
     [0, alpha_protect / 2]. ``targets`` defaults to holding the current height and airspeed; pass the
@@ -358,8 +369,8 @@ def reset_from_state(
     if targets is None:
         targets = FixedWingTargets(airspeed_mps=s.airspeed_mps, height_m=s.alt_m)
     phi, theta = s.att_rpy_rad[0], s.att_rpy_rad[1]
-    pr, qr, rr = s.rates_frd_radps
-    q_turn, r_turn = _turn_rates(s)
+    qr = s.rates_frd_radps[1]
+    q_turn = _turn_rates(s)[0]
     k = _scaler(p, s)
     v_rate = _speed_rate(s)
     del targets  # the first command equals ``surfaces`` whatever the targets (see the docstring)
@@ -372,11 +383,12 @@ def reset_from_state(
         throttle=surfaces.throttle,
         roll_sp_rad=phi,
         pitch_sp_rad=theta,
-        aileron_integ=_clip(surfaces.aileron - k * (-p.roll_d * pr), -band, band),
+        # the lateral axes at their trim (module docstring, "Takeover"); the surfaces stay bumpless through
+        # the takeover slew (``handover``), not through the integrators
+        aileron_integ=own.aileron_integ if own is not None else 0.0,
         elevator_integ=_clip(surfaces.elevator - k * (p.pitch_d * (qr - q_turn) * -1.0),
                              p.elevator_trim - band, p.elevator_trim + band),
-        rudder_integ=_clip(surfaces.rudder - k * (-p.yaw_d * (rr - r_turn) - p.sideslip_p * s.accel_frd_mps2[1]),
-                           -band, band),
+        rudder_integ=own.rudder_integ if own is not None else 0.0,
         handover=(surfaces.aileron, surfaces.elevator, surfaces.rudder),
         speed_rate_mps2=v_rate,
         initialized=True,

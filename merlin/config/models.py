@@ -483,6 +483,15 @@ class HandoverConfig(Strict):
     heartbeat_alive_min_s: float = Field(
         1.0, ge=0.0, le=60.0, description="controller heartbeat unbroken this long before a grant"
     )
+    # A monitor judged on the vehicle's state trips at once but must stay clear this long before a grant, as
+    # PX4 declares a lost position good again only after its checks pass for a probation time (COM_POS_FS_PROB,
+    # 1 s at the least): a fence monitor that flickers clear for one tick in the middle of a trusted escape
+    # turn is not a vehicle back inside its limits (scenario fw_adv_grant_during_escape)
+    monitors_clear_min_s: float = Field(
+        1.0, ge=0.0, le=60.0,
+        description="in flight, every monitor of the vehicle's state whose action would revoke the controller"
+                    " (envelope, geofence, navigation, battery) clear this long before a grant",
+    )
     max_setpoint_position_error_m: float = Field(
         10.0, gt=0.0, description="first position setpoint within this of the vehicle"
     )

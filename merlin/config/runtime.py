@@ -118,8 +118,29 @@ def guidance_policy(cfg: MerlinConfig, fence: Fence | None) -> GuidancePolicy[An
     return FixedWingGuidance(land_height_m(fence), FixedWingControlParams().sink_max_mps)
 
 
+def _handover_params(cfg: MerlinConfig) -> HandoverParams:
+    """The exchange's and the takeover's parameters in the core's units."""
+    h = cfg.handover
+    return HandoverParams(
+        ack_timeout_s=h.ack_timeout_s,
+        heartbeat_alive_min_s=h.heartbeat_alive_min_s,
+        monitors_clear_min_s=h.monitors_clear_min_s,
+        max_setpoint_position_error_m=h.max_setpoint_position_error_m,
+        max_setpoint_velocity_error_mps=h.max_setpoint_velocity_error_mps,
+        max_setpoint_attitude_error_rad=h.max_setpoint_attitude_error_deg * _DEG,
+        cooldown_s=h.cooldown_s,
+        max_revocations_per_flight=h.max_revocations_per_flight,
+        blend_window_s=h.blend_window_s,
+        max_accel_mps2=h.max_accel_mps2,
+        max_attitude_rate_radps=h.max_attitude_rate_degps * _DEG,
+        max_thrust_rate_per_s=h.max_thrust_rate_per_s,
+        min_grant_height_m=min_grant_height_m(cfg),
+        ground_takeoff_s=h.ground_takeoff_s,
+    )
+
+
 def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig:
-    h, o, t, v = cfg.handover, cfg.operator, cfg.trusted, cfg.vehicle
+    o, t, v = cfg.operator, cfg.trusted, cfg.vehicle
     rules = tuple(
         RuleRow(
             monitor=MonitorId(name),
@@ -146,21 +167,7 @@ def build_core_config(cfg: MerlinConfig, source: str = "<config>") -> CoreConfig
             rc_link_s=cfg.watchdogs.rc_link.timeout_s,
             gcs_link_s=cfg.watchdogs.gcs_link.timeout_s,
         ),
-        handover=HandoverParams(
-            ack_timeout_s=h.ack_timeout_s,
-            heartbeat_alive_min_s=h.heartbeat_alive_min_s,
-            max_setpoint_position_error_m=h.max_setpoint_position_error_m,
-            max_setpoint_velocity_error_mps=h.max_setpoint_velocity_error_mps,
-            max_setpoint_attitude_error_rad=h.max_setpoint_attitude_error_deg * _DEG,
-            cooldown_s=h.cooldown_s,
-            max_revocations_per_flight=h.max_revocations_per_flight,
-            blend_window_s=h.blend_window_s,
-            max_accel_mps2=h.max_accel_mps2,
-            max_attitude_rate_radps=h.max_attitude_rate_degps * _DEG,
-            max_thrust_rate_per_s=h.max_thrust_rate_per_s,
-            min_grant_height_m=min_grant_height_m(cfg),
-            ground_takeoff_s=h.ground_takeoff_s,
-        ),
+        handover=_handover_params(cfg),
         operator=OperatorParams(
             oversight_envelope=o.oversight_envelope,
             oversight_geofence=o.oversight_geofence,

@@ -86,6 +86,7 @@ class WatchdogTimeouts:
 class HandoverParams:
     ack_timeout_s: float = 1.0
     heartbeat_alive_min_s: float = 1.0
+    monitors_clear_min_s: float = 1.0  # the vehicle's monitors that revoke clear this long before a grant
     max_setpoint_position_error_m: float = 10.0
     max_setpoint_velocity_error_mps: float = 3.0
     max_setpoint_attitude_error_rad: float = 0.2618

@@ -109,6 +109,9 @@ _SHADOW_ENVELOPE_NAME: Final = f"{MonitorId.ENVELOPE.value} (commanded)"
 _SHADOW_GEOFENCE_NAME: Final = f"{MonitorId.GEOFENCE.value} (commanded)"
 #: The watchdogs (and the state's validity) that refuse a grant before anything else is looked at.
 _GRANT_WATCHDOGS: Final = (_M_STATE_INVALID, _M_CONTROLLER_HEARTBEAT, _M_SETPOINT_STALE, _M_SETPOINT_INVALID)
+#: The monitors of the controller's own link: their establishment before a grant is judged by the heartbeat's
+#: unbroken time and the first setpoint's checks, not by a probation (``_revoking_trip``).
+_CONTROLLER_LINK: Final = frozenset((_M_CONTROLLER_HEARTBEAT, _M_SETPOINT_STALE, _M_SETPOINT_INVALID))
 
 #: ``nav_gps_lost``'s reason depends on the navigation mode alone (it trips on every tick of a GPS outage):
 #: built once per mode. Read-only.
@@ -151,6 +154,9 @@ class CoreState(NamedTuple):
     # the trusted behaviour that completed on this tick (TAKEOFF at its height, MISSION flown): the next tick's
     # arbiter hands over to what follows it
     completed: Behavior | None = None
+    # the last tick a monitor of the vehicle's state whose action would revoke the controller was tripped, and
+    # its reason (None: never): a grant waits until it has been clear for handover.monitors_clear_min_s
+    revoking_trip: tuple[float, Reason] | None = None
 
 
 def initial_state(cfg: CoreConfig) -> CoreState:
@@ -342,8 +348,11 @@ def _grant_block(
     report: MonitorReport,
     now: float,
     shadow: bool,
+    last_trip: tuple[float, Reason] | None = None,
 ) -> Reason | None:
-    """The first precondition for a grant (to SHADOW with ``shadow``) that does not hold now (None: all hold)."""
+    """The first precondition for a grant (to SHADOW with ``shadow``) that does not hold now (None: all hold).
+    ``last_trip``: when a monitor of the vehicle's state that would revoke the controller last tripped, and why
+    (:data:`CoreState.revoking_trip`)."""
     tripped = report.tripped
     for name in _GRANT_WATCHDOGS:
         r = tripped.get(name)
@@ -364,6 +373,9 @@ def _grant_block(
         r = tripped.get(row.monitor)
         if r is not None and row.experimental >= Action.HOLD:
             return r
+    probation = _probation_block(cfg.handover.monitors_clear_min_s, last_trip, now)
+    if probation is not None:
+        return probation
     env = envelope.all_inside(cfg.envelope, report.env_values)  # as the monitor judged them this tick
     if env is not None:
         return env
@@ -383,6 +395,36 @@ def _grant_block(
     # recovery: scenario fw_adv_grant_below_recovery_height)
     return (_setpoint_consistency(sp, s, cfg) or _floor_block(cfg, s, report)
             or arbiter.grant_height_block(cfg.handover, s.alt_m))
+
+
+def _probation_block(clear_min_s: float, last_trip: tuple[float, Reason] | None, now: float) -> Reason | None:
+    """A monitor of the vehicle's state trips at once and clears only after a probation: no grant until every
+    one whose action would revoke the controller has been clear for ``clear_min_s`` (a monitor flickering at
+    its threshold, clear for a tick in the middle of a trusted fence escape, is not a vehicle back within its
+    limits: scenario ``fw_adv_grant_during_escape``)."""
+    if last_trip is None:
+        return None
+    t, reason = last_trip
+    clear_s = now - t
+    if clear_s + envelope.TIME_EPS_S >= clear_min_s:
+        return None
+    last = f" (last tripped: {reason.text})" if reason.text else ""
+    return Reason(ReasonCode.PRECONDITION, reason.monitor, "clear_s", clear_s, clear_min_s, clear_s,
+                  f"refused: {reason.monitor} clear for only {clear_s:.2f} s, {clear_min_s:.2f} s required{last}")
+
+
+def _revoking_trip(cfg: CoreConfig, st: CoreState, now: float, tripped: Mapping[MonitorId, Reason],
+                   landed: bool) -> tuple[float, Reason] | None:
+    """This tick's :data:`CoreState.revoking_trip`: now, if a monitor of the vehicle's state (not the
+    controller's link) whose action would revoke the controller is tripped in flight, else the previous one.
+    On the ground a grant is judged on its tick alone, as PX4 starts its position probation at the take-off:
+    the altitude floors a landed vehicle is below are the ground take-off's to defer (``_ground_takeoff``)."""
+    if tripped and not landed:
+        for row in cfg.rules:
+            r = tripped.get(row.monitor)
+            if r is not None and row.experimental >= Action.HOLD and row.monitor not in _CONTROLLER_LINK:
+                return (now, r)
+    return st.revoking_trip
 
 
 def _floor_block(cfg: CoreConfig, s: VehicleState, report: MonitorReport) -> Reason | None:
@@ -682,7 +724,7 @@ def _tick_view(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs, c: Ch
     needs them."""
     exp, op, tripped = inputs.experimental, inputs.operator, report.tripped
     need_block = bool(exp.requests) or st.arbiter.switch is not None
-    grant_block = _grant_block(cfg, c.s, inputs, report, now, False) if need_block else None
+    grant_block = _grant_block(cfg, c.s, inputs, report, now, False, st.revoking_trip) if need_block else None
     shadow_block = _grant_block(cfg, c.s, inputs, report, now, True) if need_block else None
     arm_block = _arm_block(cfg, c.s, tripped) if inputs.gcs_commands else None
     newly = frozenset(k for k in tripped if k not in st.reported) if tripped else _NO_MONITORS
@@ -918,6 +960,7 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
         report.floor_reached,  # floor_reached
         report.ground_takeoff_since_s,  # ground_takeoff_since_s
         trusted.completed,  # completed
+        _revoking_trip(cfg, st, now, report.tripped, checked.s.landed),  # revoking_trip
     )
     decision = Decision(now, authority, behavior, command, statuses, (*arb_events, *events), arb.armed,
                         arb.pending.seq if arb.pending is not None else 0, arb.revocations, failsafe)

@@ -3,22 +3,28 @@
 The pipeline for each new frame (Scaramuzza & Fraundorfer 2011, "Visual odometry [tutorial]", IEEE RAM
 18(4), the paper's reference 3; structure as in their Algorithm 1, feature-based, 2-D to 2-D):
 
-1. Features: FAST corners (Rosten & Drummond 2006) with an *absolute* intensity threshold on the
-   previous frame, kept strongest-first on a grid so they cover the image. The absolute threshold is what
-   lets the pipeline say "I cannot see": a relative threshold (Shi-Tomasi quality level) finds "corners"
-   in sensor noise over water. ``texture_score`` = the fraction of grid cells that hold a corner.
+1. Features: FAST corners (Rosten & Drummond 2006) with an *absolute* intensity threshold, kept
+   strongest-first on a grid so they cover the image. The absolute threshold is what lets the pipeline
+   say "I cannot see": a relative threshold (Shi-Tomasi quality level) finds "corners" in sensor noise
+   over water. ``texture_score`` = the fraction of grid cells that hold a corner. Features are tracked
+   on from frame to frame rather than detected in every frame (feature tracking as against matching,
+   Fraundorfer & Scaramuzza 2012, the tutorial's part II, IEEE RAM 19(2)) and detected again only when
+   too few survive (``VoConfig.redetect_fraction``); the texture and repetition scores are those of the
+   last detection.
 2. Tracking: pyramidal Lucas-Kanade (Bouguet 2000) from the previous to the current frame, started at the
    position predicted by the gyro-integrated rotation (and the prior velocity, if given), with a
    forward-backward check (Kalal et al. 2010) that discards tracks which do not return to their origin.
-3. Geometric verification: RANSAC homography (the ground is a plane; Hartley & Zisserman 2004, sec. 4.7)
-   gives the inliers and the reprojection error.
-4. De-rotation and metric scale: each inlier's pixel is turned into a ray, rotated into NED with the
+   With a velocity prior the residual motion is a fraction of the window and no pyramid level is built.
+3. De-rotation and metric scale: each tracked pixel is turned into a ray, rotated into NED with the
    attitude at its frame (which removes the camera's rotation between frames), and intersected with the
    ground plane at the height above ground. A ground point seen at unit-height offsets ``u1``, ``u2``
-   from the two camera positions satisfies ``h1 u1 = Δ + h2 u2``; least squares over all inliers gives
-   the horizontal displacement ``Δ`` and the new height ``h2`` (vertical motion from the scale change),
-   hence the velocity, and the residuals give its covariance. The covariance adds the scale error from
-   the height's uncertainty and the yaw uncertainty's rotation of the velocity.
+   from the two camera positions satisfies ``h1 u1 = Δ + h2 u2``: three unknowns, the horizontal
+   displacement ``Δ`` and the new height ``h2`` (vertical motion from the scale change).
+4. Geometric verification with that model (the ground is a plane and the rotation is the gyro's, so a
+   homography's eight unknowns are not needed; Hartley & Zisserman 2004, sec. 8.1.1 and 13.1): a robust
+   start at the median displacement, inliers by reprojection error in two rounds, least squares on the
+   inliers; the residuals give the covariance. The covariance adds the scale error from the height's
+   uncertainty and the yaw uncertainty's rotation of the velocity.
 
 The quality fields follow the paper's demand for "measures of accuracy ... based on computer vision
 theory"; when any is outside its limit the sample is marked invalid with an uninformative covariance,
@@ -60,6 +66,20 @@ class VoConfig:
     # strongest of every cell first, then the second strongest, and so on. Sparse scenes (the brick from
     # 10 m: 30-45 corners) keep them all; rich ones (grass: 144 after the grid) lose the weakest.
     max_tracked: int = 72
+    # Tracks carry over: the inliers of one frame pair are the next pair's features, and the frame's
+    # corners are detected again (FAST, the grid, the texture score) when fewer than redetect_fraction of
+    # the last detection's corners survive (points leave the image, fail the forward-backward check or the
+    # geometric test) or fewer than redetect_below; every redetect_every frames both the corners and the
+    # repetition score are measured afresh. Detection and the repetition test were ~30 % of a frame's cost.
+    # The filter weighs VO by its inlier count (NavConfig.vo_min_features 25 .. vo_good_features 80), so
+    # the carried set is kept large: grass keeps 62-72 tracks of 72, and a sparse scene (the brick from
+    # 10 m: 30-45 corners) has its corners detected every frame as before. The age limit bounds how stale
+    # the scene's scores are and lets a climb or a turn that brings new texture into view be seen: the
+    # takeoff's few corners from 1 m up are not tracked on into the hover (found in gps_loss_vo: 23
+    # features, under the filter's 25, for 10 s).
+    redetect_fraction: float = 0.85
+    redetect_below: int = 40
+    redetect_every: int = 6
     lk_window_px: int = 11
     lk_levels: int = 1
     fb_max_px: float = 0.5  # forward-backward disagreement tolerated
@@ -100,6 +120,8 @@ class _Frame:
     texture_score: float
     repetition: float
     period_px: float  # shortest repetition period found (inf when not repetitive)
+    detected: int  # corners found by the last detection (this frame's or the one its tracks came from)
+    age: int  # frames since the repetition score was measured (and, for carried tracks, since detection)
 
 
 class VisualOdometry:
@@ -118,7 +140,6 @@ class VisualOdometry:
         self._shift_rc: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 1), np.intp), np.zeros((1, 0), np.intp))
         self._lk = {
             "winSize": (config.lk_window_px, config.lk_window_px),
-            "maxLevel": config.lk_levels,
             "criteria": (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 10, 0.03),
         }
 
@@ -256,42 +277,78 @@ class VisualOdometry:
             raise ValueError(f"image must be 2-D uint8, got shape {image.shape} dtype {image.dtype}")
         R_nb = dcm_from_euler(*att_rpy_rad)
         R_gyro = None if gyro_att is None else quat_to_dcm(gyro_att)
-        points, texture = self._detect(image)
-        repetition, period = self._repetition(image) if texture >= cfg.min_texture_score else (0.0, math.inf)
-        frame = _Frame(t_s, image, R_nb, R_gyro, height_m, points, texture, repetition, period)
-        prev, self._prev = self._prev, frame
+        prev = self._prev
         if prev is None or t_s <= prev.t_s:
-            return _invalid(t_s, VoQuality(features=len(points), texture_score=texture))
+            frame = self._prev = self._detected(t_s, image, R_nb, R_gyro, height_m)
+            return _invalid(t_s, VoQuality(features=len(frame.points), texture_score=frame.texture_score))
         dt = t_s - prev.t_s
+        R_now = R_nb
         if R_gyro is not None and prev.R_gyro is not None:
             # this frame's attitude = the previous frame's, turned by the gyro's rotation in between
-            R_nb = prev.R_nb @ (prev.R_gyro.T @ R_gyro)
+            R_now = prev.R_nb @ (prev.R_gyro.T @ R_gyro)
+        # the scene's scores are those of the frame whose features are tracked (carried with the tracks)
+        texture = prev.texture_score
         refused = self._refused(prev, t_s, dt, texture, height_m, vel_prior_ned_mps)
         if refused is not None:
+            self._prev = self._detected(t_s, image, R_nb, R_gyro, height_m, prev)
             return refused
         p0 = prev.points
         n0 = p0.shape[0]
-        p1, ok = self._track(prev, image, self._predicted(prev, R_nb, vel_prior_ned_mps, dt))
+        g1 = prev.height_m * self._unit_ground(p0, prev.R_nb)  # ground under each feature, from camera 1
+        guess = self._predicted(prev, g1, R_now, vel_prior_ned_mps, dt)
+        p1, ok = self._track(prev, image, guess, self._lk_max_level(prev, vel_prior_ned_mps, dt))
         tracked = int(ok.sum())
         if tracked < max(cfg.min_features, 8):
+            self._prev = self._detected(t_s, image, R_nb, R_gyro, height_m, prev)
             return _invalid(
                 t_s, VoQuality(features=tracked, inlier_ratio=tracked / n0, texture_score=texture)
             )
-        a, b = p0[ok], p1[ok]
-        Hm, mask = cv2.findHomography(a, b, cv2.RANSAC, cfg.ransac_px)
-        if Hm is None:
+        b = p1[ok]
+        fit = self._fit(prev, R_now, g1[ok], b, vel_prior_ned_mps, dt)
+        if fit is None:
+            self._prev = self._detected(t_s, image, R_nb, R_gyro, height_m, prev)
             return _invalid(t_s, VoQuality(features=0, texture_score=texture))
-        inl = mask.ravel().astype(bool)
+        inl, sol, AtA_inv, resid_m, reproj = fit
         n_in = int(inl.sum())
         ratio = n_in / float(n0)
-        proj = cv2.perspectiveTransform(a[inl], Hm).reshape(-1, 2)
-        reproj = (
-            float(np.sqrt(np.mean(np.sum((proj - b[inl].reshape(-1, 2)) ** 2, axis=1)))) if n_in else math.inf
-        )
         quality = VoQuality(n_in, ratio, reproj, texture, False, prev.repetition)
         if n_in < cfg.min_features or ratio < cfg.min_inlier_ratio or reproj > cfg.max_reprojection_px:
+            self._prev = self._detected(t_s, image, R_nb, R_gyro, height_m, prev)
             return _invalid(t_s, quality)
-        return self._velocity(t_s, prev, R_nb, a[inl], b[inl], dt, quality)
+        self._prev = self._carried(prev, t_s, image, R_nb, R_gyro, height_m, b[inl])
+        return self._velocity(t_s, prev, sol, AtA_inv, resid_m, dt, quality)
+
+    def _detected(self, t_s: float, image: np.ndarray, R_nb: np.ndarray, R_gyro: np.ndarray | None,
+                  height_m: float, prev: _Frame | None = None) -> _Frame:
+        """The frame with its features and texture score detected afresh. The repetition score (the costliest
+        part: a transform of the image) is measured again every ``redetect_every`` frames and carried from
+        ``prev`` in between, like the tracks: it is a property of the scene, which changes slowly."""
+        cfg = self.cfg
+        points, texture = self._detect(image)
+        if texture < cfg.min_texture_score:
+            return _Frame(t_s, image, R_nb, R_gyro, height_m, points, texture, 0.0, math.inf, len(points), 0)
+        if prev is not None and prev.texture_score >= cfg.min_texture_score and prev.age + 1 < cfg.redetect_every:
+            return _Frame(t_s, image, R_nb, R_gyro, height_m, points, texture, prev.repetition, prev.period_px,
+                          len(points), prev.age + 1)
+        repetition, period = self._repetition(image)
+        return _Frame(t_s, image, R_nb, R_gyro, height_m, points, texture, repetition, period, len(points), 0)
+
+    def _carried(self, prev: _Frame, t_s: float, image: np.ndarray, R_nb: np.ndarray,
+                 R_gyro: np.ndarray | None, height_m: float, tracked: np.ndarray) -> _Frame:
+        """The frame whose features are the tracks that survived into it (away from the border, as detection
+        keeps them) with the scene's scores carried over; detected afresh when too few survive."""
+        h, w = image.shape
+        margin = self.cfg.lk_window_px // 2
+        q = tracked.reshape(-1, 2)
+        keep = (q[:, 0] >= margin) & (q[:, 1] >= margin) & (q[:, 0] < w - margin) & (q[:, 1] < h - margin)
+        n = int(keep.sum())
+        cfg = self.cfg
+        if n < cfg.redetect_fraction * prev.detected or n < cfg.redetect_below:
+            return self._detected(t_s, image, R_nb, R_gyro, height_m, prev)
+        if prev.age + 1 >= cfg.redetect_every:
+            return self._detected(t_s, image, R_nb, R_gyro, height_m)
+        return _Frame(t_s, image, R_nb, R_gyro, height_m, np.ascontiguousarray(tracked[keep]),
+                      prev.texture_score, prev.repetition, prev.period_px, prev.detected, prev.age + 1)
 
     def _refused(self, prev: _Frame, t_s: float, dt: float, texture: float, height_m: float,
                  vel_prior_ned_mps: tuple[float, float, float] | None) -> VoSample | None:
@@ -315,26 +372,39 @@ class VisualOdometry:
                 )
         return None
 
-    def _predicted(self, prev: _Frame, R_nb: np.ndarray, vel_prior_ned_mps: tuple[float, float, float] | None,
-                   dt: float) -> np.ndarray:
-        """The predicted positions of the previous frame's features: the ground point under each, seen from
-        the predicted new pose (the prior's velocity, none: still)."""
-        p0 = prev.points
-        n0 = p0.shape[0]
-        g1 = self._unit_ground(p0, prev.R_nb) * prev.height_m
+    def _predicted(self, prev: _Frame, g1: np.ndarray, R_nb: np.ndarray,
+                   vel_prior_ned_mps: tuple[float, float, float] | None, dt: float) -> np.ndarray:
+        """The predicted positions of the previous frame's features: the ground point under each (``g1``,
+        metres from the previous camera), seen from the predicted new pose (the prior's velocity, none:
+        still)."""
+        n0 = len(g1)
         v = np.zeros(3) if vel_prior_ned_mps is None else np.asarray(vel_prior_ned_mps, dtype=float)
-        rel = np.column_stack([g1, np.full(n0, prev.height_m)]) - v * dt
-        rel[:, 2] = np.maximum(rel[:, 2], 0.1)
+        rel = np.empty((n0, 3))
+        rel[:, :2] = g1 - v[:2] * dt
+        rel[:, 2] = max(prev.height_m - v[2] * dt, 0.1)
         guess: np.ndarray = self._project(rel, R_nb).astype(np.float32).reshape(-1, 1, 2)
         return guess
 
-    def _track(self, prev: _Frame, image: np.ndarray, guess: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _lk_max_level(self, prev: _Frame, vel_prior_ned_mps: tuple[float, float, float] | None,
+                      dt: float) -> int:
+        """The pyramid levels above the image that LK needs: none when the prior's velocity error
+        (``prior_sigma_mps``, 3 sigma) moves the ground by less than half the window in the image, as the
+        filter's velocity does at the scenarios' heights and rates (a coarser level is there to catch
+        motion the window cannot; building it cost a third of the tracking); ``lk_levels`` otherwise."""
+        cfg = self.cfg
+        if vel_prior_ned_mps is None:
+            return cfg.lk_levels
+        flow_3sigma_px = 3.0 * self.model.fx_px * cfg.prior_sigma_mps * dt / max(prev.height_m, cfg.min_height_m)
+        return 0 if flow_3sigma_px < 0.5 * cfg.lk_window_px else cfg.lk_levels
+
+    def _track(self, prev: _Frame, image: np.ndarray, guess: np.ndarray, max_level: int
+               ) -> tuple[np.ndarray, np.ndarray]:
         """Pyramidal Lucas-Kanade from the previous frame, started at ``guess``, then back: (the tracked
         positions, which tracks stayed in the image and came back within ``fb_max_px``)."""
         cfg = self.cfg
         p0 = prev.points
         p1, st, _ = cv2.calcOpticalFlowPyrLK(
-            prev.image, image, p0, guess.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk
+            prev.image, image, p0, guess.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, maxLevel=max_level, **self._lk
         )
         h, w = image.shape
         q = p1.reshape(-1, 2)
@@ -344,41 +414,69 @@ class VisualOdometry:
         fwd = np.flatnonzero(ok)
         if len(fwd):
             pb, stb, _ = cv2.calcOpticalFlowPyrLK(
-                image, prev.image, p1[fwd], p0[fwd], flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+                image, prev.image, p1[fwd], p0[fwd], flags=cv2.OPTFLOW_USE_INITIAL_FLOW, maxLevel=max_level,
                 **self._lk,
             )
             fb = np.linalg.norm((pb - p0[fwd]).reshape(-1, 2), axis=1)
             ok[fwd] = (stb.ravel() == 1) & (fb < cfg.fb_max_px)
         return p1, ok
 
-    def _velocity(self, t_s: float, prev: _Frame, R_nb: np.ndarray, a: np.ndarray, b: np.ndarray, dt: float,
-                  quality: VoQuality) -> VoSample:
-        """The metric, de-rotated displacement of the inliers ``a`` -> ``b`` over ``dt`` as a velocity with
-        its variance: ``h1 u1 = Δ + h2 u2`` by least squares."""
+    def _fit(self, prev: _Frame, R_nb: np.ndarray, rhs: np.ndarray, b: np.ndarray,
+             vel_prior_ned_mps: tuple[float, float, float] | None, dt: float
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float] | None:
+        """Geometric verification with the motion model the velocity is measured with: the rotation between
+        the frames is the gyro's, so over flat ground only the displacement ``Δ`` and the new height ``h2``
+        are unknown (``h1 u1 = Δ + h2 u2``). Started at the median of the per-track displacements (the
+        prior's height change), inliers within ``3 ransac_px`` and then ``ransac_px`` of the reprojected
+        model, each followed by the least-squares fit on them. A homography (8 unknowns, RANSAC and a
+        Levenberg-Marquardt refinement) accepted motions this model cannot explain and cost more than the
+        rest of this step. Returns (inlier mask, (Δn, Δe, h2), the normal matrix's inverse, the inliers'
+        ground residuals in metres, their RMS reprojection error in pixels), or None when fewer than 3
+        tracks fit."""
+        cfg = self.cfg
+        h1 = prev.height_m
+        u2 = self._unit_ground(b, R_nb)
+        vd = 0.0 if vel_prior_ned_mps is None else float(vel_prior_ned_mps[2])
+        h2 = max(h1 - vd * dt, cfg.min_height_m)
+        d0 = np.median(rhs - h2 * u2, axis=0)
+        sol = np.array([d0[0], d0[1], h2])
+        pix = b.reshape(-1, 2)
+        inl = np.ones(len(pix), bool)
+        AtA_inv = np.eye(3)
+        for threshold_px in (3.0 * cfg.ransac_px, cfg.ransac_px):
+            err = self._reprojection_px(rhs, sol, pix, R_nb)
+            inl = err < threshold_px
+            if int(inl.sum()) < 3:
+                return None
+            sol, AtA_inv = _ground_least_squares(rhs[inl], u2[inl])
+            if not sol[2] > 0.0:
+                return None
+        err = self._reprojection_px(rhs[inl], sol, pix[inl], R_nb)
+        reproj = float(np.sqrt(np.mean(err * err)))
+        resid_m = rhs[inl] - sol[:2] - sol[2] * u2[inl]
+        return inl, sol, AtA_inv, resid_m, reproj
+
+    def _reprojection_px(self, rhs: np.ndarray, sol: np.ndarray, pix: np.ndarray, R_nb: np.ndarray) -> np.ndarray:
+        """Distance in pixels between each tracked point and its ground point (``rhs`` = h1 u1) seen from
+        the new pose of the model ``sol`` = (Δn, Δe, h2)."""
+        rel = np.empty((len(rhs), 3))
+        rel[:, :2] = rhs - sol[:2]
+        rel[:, 2] = sol[2]
+        d = self._project(rel, R_nb) - pix
+        err: np.ndarray = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
+        return err
+
+    def _velocity(self, t_s: float, prev: _Frame, sol: np.ndarray, AtA_inv: np.ndarray, resid_m: np.ndarray,
+                  dt: float, quality: VoQuality) -> VoSample:
+        """The fitted displacement ``sol`` = (Δn, Δe, h2) of ``h1 u1 = Δ + h2 u2`` over ``dt`` as a
+        velocity with its variance (``resid_m``: the inliers' ground residuals)."""
         cfg = self.cfg
         n_in = quality.features
-        u1 = self._unit_ground(a, prev.R_nb)
-        u2 = self._unit_ground(b, R_nb)
-        # rows (1, 0, u2x) and (0, 1, u2y): the normal equations in closed sums (three unknowns; the
-        # general least-squares solver cost more than the rest of this step)
-        rhs = prev.height_m * u1
-        su = u2.sum(axis=0)
-        AtA = np.array([
-            [n_in, 0.0, su[0]],
-            [0.0, n_in, su[1]],
-            [su[0], su[1], float(np.einsum("ij,ij->", u2, u2))],
-        ])
-        Atb = np.array([rhs[:, 0].sum(), rhs[:, 1].sum(), float(np.einsum("ij,ij->", u2, rhs))])
-        AtA_inv = np.linalg.inv(AtA)
-        sol = AtA_inv @ Atb
         d_n, d_e, h2 = (float(x) for x in sol)
-        if not h2 > 0.0:
-            return _invalid(t_s, quality)
-        resid = rhs - sol[:2] - h2 * u2
         dof = max(1, 2 * n_in - 3)
         # residual scatter, floored by the tracking noise projected to the ground
         gsd = prev.height_m / self.model.fx_px
-        s2 = max(float(np.einsum("ij,ij->", resid, resid)) / dof, (cfg.pixel_sigma_floor_px * gsd) ** 2)
+        s2 = max(float(np.einsum("ij,ij->", resid_m, resid_m)) / dof, (cfg.pixel_sigma_floor_px * gsd) ** 2)
         cov = s2 * AtA_inv / (dt * dt)
         vel = np.array([d_n / dt, d_e / dt, (prev.height_m - h2) / dt])
         var = np.diag(cov).copy()
@@ -395,6 +493,31 @@ class VisualOdometry:
             (float(var[0]), float(var[1]), float(var[2])),
             valid_quality,
         )
+
+
+def _ground_least_squares(rhs: np.ndarray, u2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(Δn, Δe, h2) minimising |rhs - Δ - h2 u2|² over the rows, and the normal matrix's inverse. The rows
+    are (1, 0, u2x) and (0, 1, u2y), so the normal matrix is [[n, 0, a], [0, n, b], [a, b, c]] with
+    a, b the sums of u2 and c the sum of |u2|²; eliminating Δ (Schur complement s = c - (a² + b²)/n) gives
+    h2 and the inverse in closed form (the general solvers cost more than the rest of the fit)."""
+    n = float(len(rhs))
+    X = np.empty((len(rhs), 4))
+    X[:, :2] = u2
+    X[:, 2:] = rhs
+    sums = X.sum(axis=0)
+    a, b, ra, rb = (float(x) for x in sums)
+    c = float(np.einsum("ij,ij->", u2, u2))
+    cr = float(np.einsum("ij,ij->", u2, rhs))
+    s = c - (a * a + b * b) / n
+    h2 = (cr - (a * ra + b * rb) / n) / s
+    sol = np.array([(ra - a * h2) / n, (rb - b * h2) / n, h2])
+    ia, ib = a / (n * s), b / (n * s)
+    AtA_inv = np.array([
+        [1.0 / n + a * ia / n, a * ib / n, -ia],
+        [b * ia / n, 1.0 / n + b * ib / n, -ib],
+        [-ia, -ib, 1.0 / s],
+    ])
+    return sol, AtA_inv
 
 
 _NOISE_KERNEL = np.array([[1.0, -2.0, 1.0], [-2.0, 4.0, -2.0], [1.0, -2.0, 1.0]], np.float32)

@@ -118,3 +118,17 @@ def test_a_takeover_slews_from_the_surfaces_taken_over_and_does_not_keep_them(
     assert all(abs(a - b) <= step for prev, now in itertools.pairwise(seq) for a, b in zip(now, prev, strict=True))
     assert state.handover is None
     assert all(abs(a - b) <= cp.takeover_integrator_band + 1e-9 for a, b in zip(seq[-1], ref[-1], strict=True))
+
+
+@settings(max_examples=50, deadline=None)
+@given(aileron=st.floats(-1.0, 1.0), rudder=st.floats(-1.0, 1.0))
+def test_a_takeover_inherits_no_aileron_or_rudder(aileron: float, rudder: float) -> None:
+    """The lateral integrators start at their zero trim whatever the revoked controller left: once the takeover
+    slew has met the loops' own command, the aileron and the rudder are exactly those of a takeover at trim.
+    An aileron inherited through the integrator held Merlin's escape turn 10 deg short of its bank for
+    seconds after a revocation (scenario fw_adv_grant_during_escape)."""
+    cp = fc.FixedWingControlParams()
+    seq, state = _fly_takeover(cp, fc.SurfaceCommand(aileron, cp.elevator_trim, rudder, 0.7))
+    ref, _ = _fly_takeover(cp, fc.SurfaceCommand(0.0, cp.elevator_trim, 0.0, 0.7))
+    assert state.handover is None
+    assert seq[-1][0] == ref[-1][0] and seq[-1][2] == ref[-1][2], (seq[-1], ref[-1])

@@ -199,3 +199,55 @@ def test_tracked_corners_are_capped_round_by_round_over_the_grid():
     a, _ = VisualOdometry(SMALL)._detect(img)
     b, _ = VisualOdometry(SMALL, VoConfig(max_tracked=10_000))._detect(img)
     assert len(a) == len(b) <= VoConfig().max_tracked
+
+
+def test_features_are_tracked_on_and_detected_again_when_too_few_survive():
+    """Detection (FAST, the grid, the repetition test) runs on a fraction of the frames: the tracks that
+    pass the geometric test carry over, and a new detection comes when fewer than ``redetect_fraction`` of
+    the last one's corners survive; every sample keeps that many features for the filter."""
+    vo = VisualOdometry(SMALL)
+    calls = []
+    detect = vo._detect
+
+    def counted(image):
+        pts, score = detect(image)
+        calls.append(len(pts))
+        return pts, score
+
+    vo._detect = counted  # type: ignore[method-assign]
+    cam = DownwardCamera(load_texture("grass"), SMALL, CameraEffects(), np.random.default_rng(4))
+    v = np.array([4.0, 3.0, 0.0])
+    samples = []
+    for k in range(60):
+        t = k / 15.0
+        pos = np.array([0.0, 0.0, -20.0]) + v * t
+        att = (0.03 * math.sin(2 * t), -0.1, 0.5 + 0.1 * t)
+        samples.append(vo.process(cam.render(pos, att, v, t), t, att, 20.0, tuple(v)))
+    assert all(s.quality.valid for s in samples[1:])
+    assert 2 <= len(calls) <= 20  # detected again, but on a fraction of the 60 frames
+    floor = vo.cfg.redetect_fraction * min(calls)
+    assert min(s.quality.features for s in samples[1:]) >= floor - 5
+    err = np.array([np.subtract(s.vel_ned_mps, v)[:2] for s in samples[1:]])
+    assert np.abs(err).max() < 0.25
+
+
+def test_geometric_test_rejects_tracks_the_ground_motion_cannot_explain():
+    """Tracks that moved unlike the ground (a wrong LK lock, something moving) fail the three-unknown
+    ground-motion test and do not bias the velocity."""
+    vo = VisualOdometry(SMALL)
+    rng = np.random.default_rng(2)
+    R = np.eye(3)
+    h1, delta, h2 = 20.0, np.array([0.4, -0.2]), 19.9
+    pts = np.column_stack([rng.uniform(10, 150, 80), rng.uniform(10, 110, 80)]).astype(np.float32)
+    g1 = h1 * vo._unit_ground(pts, R)  # ground under each feature from the first camera
+    rel = np.column_stack([g1 - delta, np.full(80, h2)])
+    moved = vo._project(rel, R) + rng.normal(0.0, 0.1, (80, 2))
+    bad = np.arange(80) % 5 == 0  # one in five tracks off by 3-6 px
+    moved[bad] += rng.uniform(3.0, 6.0, (int(bad.sum()), 2)) * rng.choice([-1.0, 1.0], (int(bad.sum()), 2))
+    prev = vo._detected(0.0, np.zeros((120, 160), np.uint8), R, None, h1)
+    fit = vo._fit(prev, R, g1, moved.astype(np.float32).reshape(-1, 1, 2), None, 0.1)
+    assert fit is not None
+    inl, sol, _, _, reproj = fit
+    assert not inl[bad].any() and inl[~bad].mean() > 0.95
+    assert np.abs(sol[:2] - delta).max() < 0.01 and abs(sol[2] - h2) < 0.05
+    assert reproj < 0.3
