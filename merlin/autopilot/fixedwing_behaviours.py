@@ -576,8 +576,11 @@ class FixedWingBehaviours:
         turn stops as soon as its course is open (the path flown wings level for the projection's whole
         escape time, drifting with the wind, stays clear: :func:`merlin.core.geofence.straight_clearance`)
         and the aircraft holds that course (the run-out). The behaviour takes over from the run-out when what
-        it flies first is a turn the projection finds clear: RTL's (or LAND's) route turn-in, on its side
-        (the route's Dubins start, or the short way to its first point); a loiter, both turns. A run-out
+        it flies first is a turn the projection finds clear by the route's own margin
+        (:data:`merlin.autopilot.fixedwing_route.ROUTE_MARGIN_M`): RTL's (or LAND's) route turn-in, on its
+        side (the route's Dubins start, or the short way to its first point); a loiter, both turns. Clear by
+        centimetres was not enough: the flown turn-in tripped the monitor and the escape after it entered the
+        radio mast by 10.89 m (scenario ``fw_adv_mast_tailwind_handover``). A run-out
         whose course closes before that turns again, the side chosen again (:func:`escape_side`)."""
         fence = self.fence
         assert fence is not None
@@ -609,8 +612,8 @@ class FixedWingBehaviours:
             else:
                 target = route.legs_ne_m[1] if len(route.legs_ne_m) > 1 else _loiter.center_ne_m
                 side = _side_towards(s, target)
-            return (right if side > 0.0 else left) > 0.0
-        return right > 0.0 and left > 0.0
+            return (right if side > 0.0 else left) > fr.ROUTE_MARGIN_M
+        return right > fr.ROUTE_MARGIN_M and left > fr.ROUTE_MARGIN_M
 
 
 #: Rate of the fixed-wing guidance and inner loops (the gains were tuned at 100 Hz in tests/fixedwing; PX4
