@@ -172,3 +172,13 @@ def test_a_hand_over_from_the_escape_keeps_a_margin_at_the_mast_in_a_tailwind() 
     r, results = _run("fw_adv_mast_tailwind_handover.yaml")
     assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
     assert r.metrics["min_fence_margin_m"] > 0.0
+
+
+def test_a_ceiling_escape_and_its_return_stay_out_of_the_keep_out() -> None:
+    """The falsifier's climbing step under the ceiling towards the south-west keep-out (2,000-run search,
+    seed 4, evaluation 545): after the ceiling escape's run-out, the course closed on the keep-out and the
+    trusted escape that followed entered it by 5.89 m. With the run-out's hand-over needing the route's
+    margin: no breach."""
+    r, results = _run("fw_adv_ceiling_escape_keepout.yaml")
+    assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
+    assert r.metrics["max_fence_breach_m"] == 0.0
