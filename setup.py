@@ -61,7 +61,6 @@ COMPILED_MODULES = (
     "merlin/redundancy/sensor_suite.py",
     "merlin/nav/estimator.py",
     "merlin/nav/fusion_stage.py",
-    "merlin/pipeline.py",
 )
 
 # Name of mypyc's shared runtime library (a top-level module ``merlin_native__mypyc``).

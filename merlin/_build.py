@@ -43,7 +43,6 @@ COMPILED_MODULES: tuple[str, ...] = (
     "merlin.redundancy.sensor_suite",
     "merlin.nav.estimator",
     "merlin.nav.fusion_stage",
-    "merlin.pipeline",
 )
 
 #: Written by ``setup.py`` beside this file after a successful compiled build: module -> sha256 of the

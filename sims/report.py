@@ -80,7 +80,12 @@ _ENUMS = {"authority": Authority, "behavior": Behavior, "nav_mode": NavMode, "cm
 _BOOLS = ("armed", "landed")
 _UNITS = {"t": "s", "sigma_h": "m", "battery_frac": "1 (0..1)", "wind_n": "m/s", "wind_e": "m/s",
           "fence_margin": "m (signed: negative outside)", "cmd_thrust": "1 (0..1)", "cmd_blend": "1 (0..1)",
-          "m0": "1 (0..1)", "m1": "1 (0..1)", "m2": "1 (0..1)", "m3": "1 (0..1)"}
+          "m0": "1 (0..1)", "m1": "1 (0..1)", "m2": "1 (0..1)", "m3": "1 (0..1)",
+          # the sensor voter's column, in every EKF run's log since the EKF is the default
+          "imu_lanes_ok": "count (IMU lanes not isolated)", "imu_nav_health": "1 (0..1)",
+          "imu_fdi_state": "code (merlin.redundancy FDI state)", "ap_lane": "index (autopilot lane flown)",
+          "ap_lanes_live": "count (autopilot lanes alive)", "mag_lanes_ok": "count (lanes not isolated)",
+          "baro_lanes_ok": "count (lanes not isolated)", "gps_lanes_ok": "count (lanes not isolated)"}
 
 
 def _unit(name: str) -> str:

@@ -487,10 +487,14 @@ class HandoverConfig(Strict):
     # PX4 declares a lost position good again only after its checks pass for a probation time (COM_POS_FS_PROB,
     # 1 s at the least): a fence monitor that flickers clear for one tick in the middle of a trusted escape
     # turn is not a vehicle back inside its limits (scenario fw_adv_grant_during_escape)
+    # 0 (off) unless a configuration sets it: a multirotor's PX4 offboard flows ask for OFFBOARD as soon as
+    # Merlin's take-off has climbed through the envelope's altitude floor, and the probation cannot yet tell
+    # that climb-out from a trip (tests/serve/test_px4_offboard.py); the fixed-wing default sets 1 s
     monitors_clear_min_s: float = Field(
-        1.0, ge=0.0, le=60.0,
+        0.0, ge=0.0, le=60.0,
         description="in flight, every monitor of the vehicle's state whose action would revoke the controller"
-                    " (envelope, geofence, navigation, battery) clear this long before a grant",
+                    " (envelope, geofence, navigation, battery) clear this long before a grant (0: judged on the"
+                    " request's tick; examples/configs/fixedwing_default.yaml sets 1 s)",
     )
     max_setpoint_position_error_m: float = Field(
         10.0, gt=0.0, description="first position setpoint within this of the vehicle"

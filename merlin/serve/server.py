@@ -229,20 +229,8 @@ class Server:
                         {"merlin_config_sha256": config_sha256(self.cfg), "merlin_serve": 1}, "MERLIN_SERVE"),
             self.loop.core_cfg.envelope, every_ticks=round(opts.rate_hz / ULOG_RATE_HZ), fence=self.loop.core_cfg.fence)
         self._syncer = threading.Thread(target=self._sync_files, name="serve-fsync", daemon=True)
-        self.links: list[_LinkState] = []
+        self.links: list[_LinkState] = self._open_links(opts)
         sid, cid = opts.system_id, opts.component_id
-        if opts.serial is not None:
-            ep = MavlinkEndpoint.serial(opts.controller_policy, opts.serial[0], opts.serial[1], sid, cid, self.tlog,
-                                        key_file=opts.controller_key_file)
-            self.links.append(_LinkState("controller", LinkRole.CONTROLLER, ep))
-        elif opts.controller is not None:
-            ep = MavlinkEndpoint.udp(opts.controller_policy, opts.controller.bind, opts.controller.remote, sid, cid,
-                                     self.tlog, key_file=opts.controller_key_file)
-            self.links.append(_LinkState("controller", LinkRole.CONTROLLER, ep))
-        if opts.gcs is not None:
-            ep = MavlinkEndpoint.udp(opts.gcs_policy, opts.gcs.bind, opts.gcs.remote, sid, cid, self.tlog,
-                                     key_file=opts.gcs_key_file)
-            self.links.append(_LinkState("gcs", LinkRole.GCS, ep))
         self.tick_hz = opts.rate_hz
         self.defaults = {"controller": CONTROLLER_RATES_HZ, "gcs": GCS_RATES_HZ}
         self.streams: tuple[Stream, ...] = plan_streams(
@@ -301,6 +289,24 @@ class Server:
         self._t0_ns = time.monotonic_ns()
         self.stats = TickStats(period_ns=round(self.dt / opts.speedup * 1e9))
         self.on_tick: Callable[[Server], None] | None = None  # test/benchmark hook, after each tick
+
+    def _open_links(self, opts: ServeOptions) -> list[_LinkState]:
+        """The controller's link (serial or UDP) and the ground station's, as the options give them."""
+        links: list[_LinkState] = []
+        sid, cid = opts.system_id, opts.component_id
+        if opts.serial is not None:
+            ep = MavlinkEndpoint.serial(opts.controller_policy, opts.serial[0], opts.serial[1], sid, cid, self.tlog,
+                                        key_file=opts.controller_key_file)
+            links.append(_LinkState("controller", LinkRole.CONTROLLER, ep))
+        elif opts.controller is not None:
+            ep = MavlinkEndpoint.udp(opts.controller_policy, opts.controller.bind, opts.controller.remote, sid, cid,
+                                     self.tlog, key_file=opts.controller_key_file)
+            links.append(_LinkState("controller", LinkRole.CONTROLLER, ep))
+        if opts.gcs is not None:
+            ep = MavlinkEndpoint.udp(opts.gcs_policy, opts.gcs.bind, opts.gcs.remote, sid, cid, self.tlog,
+                                     key_file=opts.gcs_key_file)
+            links.append(_LinkState("gcs", LinkRole.GCS, ep))
+        return links
 
     # ---------------------------------------------------------------------------------- time
 

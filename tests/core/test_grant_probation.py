@@ -11,8 +11,13 @@ from dataclasses import replace
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from merlin.config.models import MerlinConfig
 from merlin.core.types import EventKind, ReasonCode
 from tests.core.harness import HOVER_10M, Harness
+
+#: the probation as the fixed-wing default configures it (the library's default is 0: off)
+PROBATION = MerlinConfig().model_copy(update={"handover": MerlinConfig().handover.model_copy(
+    update={"monitors_clear_min_s": 1.0})})
 
 #: beyond the conservative stage's roll limit (30 deg, no duration): the envelope trips on the tick
 ROLLED = replace(HOVER_10M, att_rpy_rad=(0.6, 0.0, 0.0))
@@ -24,7 +29,7 @@ def test_no_grant_within_the_probation_of_a_trip(segments: list[tuple[bool, int]
     """The envelope trips and clears in any pattern (single ticks included) while the controller requests on
     every tick: every grant comes at least ``monitors_clear_min_s`` after the last tick it was tripped; and
     once it has stayed clear that long, a request is granted."""
-    h = Harness()
+    h = Harness(cfg=PROBATION)
     h.airborne()
     need = h.cfg.handover.monitors_clear_min_s
     assert need > 0.0
@@ -48,7 +53,7 @@ def test_no_grant_within_the_probation_of_a_trip(segments: list[tuple[bool, int]
 
 
 def test_a_one_tick_clear_is_refused_with_the_probation_as_its_reason() -> None:
-    h = Harness()
+    h = Harness(cfg=PROBATION)
     h.airborne()
     h.state = ROLLED
     h.run(0.5)
