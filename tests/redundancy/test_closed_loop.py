@@ -40,7 +40,8 @@ def _scenario(**kw: Any) -> Scenario:
 @cache
 def _ekf_run(fault_lane: int | None) -> RunResult:
     faults = [] if fault_lane is None else [{"type": "imu_stuck", "start_s": 5.0, "lane": fault_lane}]
-    return run_scenario(_scenario(estimator="ekf", faults=faults), MerlinConfig())
+    # camera-less, as written: the voter's isolation is the subject, and VO would move both runs' estimates
+    return run_scenario(_scenario(estimator="ekf", camera=None, faults=faults), MerlinConfig())
 
 
 LANE_FAULT_T = 6.5  # after the take-off gate (fast preset: 5 s after the first flying tick, ~1 s)
