@@ -38,10 +38,11 @@ def register(sub: Any) -> None:
     p.add_argument("--realtime-priority", type=int, default=0, metavar="N",
                    help="route and tick SCHED_FIFO at priority N once the start-up check passed (Linux, needs the "
                         "privilege), as merlin serve --realtime-priority; 0 off")
-    p.add_argument("--sched-slice-us", type=int, default=100, metavar="US",
+    p.add_argument("--sched-slice-us", type=int, default=0, metavar="US",
                    help="without --realtime-priority: ask the kernel for a scheduler slice this short (Linux 6.12+ "
-                        "EEVDF, no privilege), so that a setpoint's wake-up preempts an ordinary process at once; "
-                        "100..100000, 0 the kernel's default (merlin/guard/scheduling.py)")
+                        "EEVDF, no privilege), so that a setpoint's wake-up may preempt an ordinary process at once; "
+                        "100..100000; 0 (default) the kernel's own (merlin/guard/scheduling.py; its effect on the "
+                        "p99 is not established, docs/benchmarks/guard.md)")
     p.add_argument("--signing-key", default=None, metavar="FILE",
                    help="MAVLink 2 signing key for every link (64 hex digits, 44 base64 characters or 32 raw bytes): "
                         "frames not signed with it are dropped, everything the guard sends is signed")

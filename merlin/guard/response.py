@@ -93,6 +93,11 @@ class BrakeMeter:
     def active(self) -> bool:
         return self._t0 is not None
 
+    def cancel(self) -> None:
+        """Authority went back to the controller before the measurement ended: what follows is not the
+        autopilot's answer to the revocation."""
+        self._t0 = None
+
     def start(self, t_s: float, vel_ned_mps: Vec3) -> bool:
         s = math.hypot(vel_ned_mps[0], vel_ned_mps[1])
         if s < MIN_SPEED_MPS:
@@ -222,6 +227,10 @@ class TurnMeter:
     def _speed(self, s: VehicleState) -> float:
         v = s.airspeed_mps
         return v if v >= MIN_AIRSPEED_MPS else math.hypot(s.vel_ned_mps[0], s.vel_ned_mps[1])
+
+    def cancel(self) -> None:
+        """Authority went back to the controller before the measurement ended (see :meth:`BrakeMeter.cancel`)."""
+        self._t0, self._samples = None, []
 
     def start(self, t_s: float, s: VehicleState) -> None:
         self._t0, self._side, self._speed0, self._roll0 = t_s, 0.0, self._speed(s), s.att_rpy_rad[0]

@@ -691,6 +691,8 @@ class Guard:
             # autopilot get the mode command, so it never flies the controller's setpoints before the core
             # has handed over
             self.supervising = True
+            self.brake.cancel()  # a measurement still running would measure the controller's flight
+            self.turn.cancel()
             self.intent.enter(self.telemetry._last_state)
             self.switch_deadline = t + SWITCH_TIMEOUT_S
             self.trusted_since = None

@@ -142,3 +142,15 @@ def test_the_turn_measurement_recovers_the_aircrafts_turn(bank: float, delay: fl
         assert m.ok is False and "later" in m.problems(), m.text()
     if bank >= cfg_bank and est <= cfg_reaction - 0.05:
         assert m.ok is True, m.text()
+
+
+def test_a_cancelled_measurement_reports_nothing() -> None:
+    """Authority back to the controller before the turn or the braking ended: no measurement of its flight."""
+    meter = TurnMeter(1.0, math.radians(30.0), G)
+    meter.start(0.0, VehicleState(airspeed_mps=22.0))
+    meter.cancel()
+    assert not meter.active and meter.update(30.0, VehicleState(att_rpy_rad=(0.5, 0.0, 1.0))) is None
+    brake = BrakeMeter(0.3, 4.0)
+    assert brake.start(0.0, (5.0, 0.0, 0.0))
+    brake.cancel()
+    assert not brake.active and brake.update(30.0, (0.0, 0.0, 0.0)) is None
