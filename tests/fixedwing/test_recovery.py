@@ -180,15 +180,21 @@ def _grid_state(v: float, sink: float, alpha_deg: float, q_degps: float, bank_de
 #: (docs/benchmarks/fixed-wing-recovery.md), each with the height it lost there: the worst of the bound's
 #: own grid (--grid: the stall speed, sinking at the envelope's 8 m/s at its 17 deg angle of attack, the nose
 #: rotating down at 90 deg/s with the elevator full down, banked 45 deg and rolling away at 150 deg/s), the
-#: worst corner of the box (--corners), the worst state drawn uniformly (--direct 150), and the state that
-#: lost 39.85 m before the dive recovery flew wings level, pulled harder and took over faster (now 23.2 m).
+#: worst corner of the box with any deflection and with the loops' surfaces (--corners), the worst states
+#: drawn uniformly with the loops' surfaces and with any deflection (--direct 150), and the state that lost
+#: 39.85 m before the dive recovery flew wings level, pulled harder and took over faster (now 23.2 m).
 WORST_BOX_STATES = (
     (_grid_state(15.527, 8.0, 17.0, -90.0, 45.0, 150.0, -1.0, 1.0, 1.0), 37.53),
+    ({"airspeed_mps": 16.0, "alpha_deg": -8.0, "pitch_deg": -30.0, "roll_deg": -45.0, "p_degps": 150.0,
+      "q_degps": -90.0, "r_degps": -90.0, "throttle": 1.0, "aileron": 1.0, "elevator": -1.0, "rudder": -1.0}, 37.21),
     ({"airspeed_mps": 16.0, "alpha_deg": -8.0, "pitch_deg": -30.0, "roll_deg": -45.0, "p_degps": 150.0,
       "q_degps": -90.0, "r_degps": -90.0, "throttle": 0.0, "aileron": 1.0, "elevator": 1.0, "rudder": 0.0}, 31.27),
     ({"airspeed_mps": 19.3, "alpha_deg": 4.93, "pitch_deg": -19.16, "roll_deg": 15.25, "p_degps": 135.77,
       "q_degps": -88.22, "r_degps": -29.77, "throttle": 0.99, "aileron": -0.9, "elevator": 1.0, "rudder": 0.49},
      19.47),
+    ({"airspeed_mps": 19.3, "alpha_deg": 4.93, "pitch_deg": -19.16, "roll_deg": 15.25, "p_degps": 135.77,
+      "q_degps": -88.22, "r_degps": -29.77, "throttle": 0.99, "aileron": 0.62, "elevator": -0.51, "rudder": 0.19},
+     26.33),
     ({"airspeed_mps": 16.77, "alpha_deg": 0.95, "pitch_deg": -22.54, "roll_deg": -37.17, "p_degps": -68.68,
       "q_degps": -17.98, "r_degps": 39.25, "throttle": 0.2, "aileron": 0.65, "elevator": -0.54, "rudder": -0.13},
      23.21),
@@ -196,7 +202,8 @@ WORST_BOX_STATES = (
 
 
 @pytest.mark.parametrize(("state", "measured_m"), WORST_BOX_STATES,
-                         ids=("grid_worst", "corner_worst", "uniform_worst", "steep_banked_dive"))
+                         ids=("grid_worst", "corner_any_surfaces", "corner_loop_surfaces", "uniform_loop_surfaces",
+                              "uniform_any_surfaces", "steep_banked_dive"))
 def test_the_worst_states_of_the_box_recover_within_the_derived_bound(state: dict[str, float],
                                                                       measured_m: float) -> None:
     """Within the bound derived from the aircraft model, and no worse than measured (1.5 m of slack: a
