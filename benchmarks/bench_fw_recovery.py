@@ -280,13 +280,17 @@ def grid_states(cfg: object) -> tuple[list[dict[str, float]], np.ndarray]:
     return out, model
 
 
-def run_grid(cfg: object) -> list[tuple[dict[str, float], dict[str, float]]]:
-    """Every state of the bound's grid flown in JSBSim (:func:`grid_states`), beside the model's loss."""
+def run_grid(cfg: object, throttle: float | None = None) -> list[tuple[dict[str, float], dict[str, float]]]:
+    """Every state of the bound's grid flown in JSBSim (:func:`grid_states`), beside the model's loss; with
+    ``throttle``, only the states handed over at that throttle (half the grid: a recovery from a slow state
+    goes to full power at once, so the two halves lose nearly alike)."""
     sim = FixedWingSim(pos_ned_m=(0.0, 0.0, -160.0), rate_hz=400.0)
     envelope = build_core_config(cfg).envelope  # type: ignore[arg-type]
     states, model = grid_states(cfg)
     rows = []
     for i, (st, m) in enumerate(zip(states, model, strict=True)):
+        if throttle is not None and st["throttle"] != throttle:
+            continue
         res = fly_direct(sim, st, cfg, envelope)
         res["model_m"] = float(m)
         rows.append((st, res))
@@ -309,13 +313,15 @@ def main() -> int:
     ap.add_argument("--corners", action="store_true", help="the direct states at the box's corners")
     ap.add_argument("--grid", action="store_true",
                     help="fly every entry state of the derived bound's grid in JSBSim, beside the model's loss")
+    ap.add_argument("--grid-throttle", type=float, default=None,
+                    help="with --grid, only the states handed over at this throttle (0 or 1)")
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
     _, cfg = load_scenario(SCENARIO)
     bound = rec.recovery_height_bound_m(cfg)
     direct_ok = True
     if args.grid:
-        grows = run_grid(cfg)
+        grows = run_grid(cfg, args.grid_throttle)
         gl = np.array([r["loss_m"] for _, r in grows])
         gm = np.array([r["model_m"] for _, r in grows])
         worst_st = grows[int(np.argmax(gl))][0]
