@@ -169,8 +169,9 @@ def test_a_hand_over_from_the_escape_keeps_a_margin_at_the_mast_in_a_tailwind() 
     """The falsifier's velocity step west at the radio mast, 10 m/s blowing west: after the left escape's
     run-out RTL took over at a right turn-in the projection found clear by centimetres, and the escape that
     followed entered the mast by 10.89 m. The hand-over now needs the route's own margin. (Outside the keep-out,
-    not beyond the widening: 11.69 m on the branch, 4.93 m once main's loop changes were merged; the margin
-    is not yet understood.)"""
+    not beyond the widening: 11.69 m on the branch, 4.93 m once main was merged into it, 7.21 m on main later:
+    the lateral integrators carried on across the escape's hand-over to RTL, docs/benchmarks/
+    fixed-wing-recovery.md.)"""
     r, results = _run("fw_adv_mast_tailwind_handover.yaml")
     assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
     assert r.metrics["min_fence_margin_m"] > 0.0
