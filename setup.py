@@ -61,6 +61,11 @@ COMPILED_MODULES = (
     "merlin/redundancy/sensor_suite.py",
     "merlin/nav/estimator.py",
     "merlin/nav/fusion_stage.py",
+    # the IMU voter's stage, the autopilot lanes and their voter, the multirotor's actuator stage (every tick;
+    # three lanes spend a fifth of a tick in them: docs/benchmarks/sim.md, "Where a simulated second goes")
+    "merlin/redundancy/lane_voter.py",
+    "merlin/redundancy/lanes.py",
+    "merlin/autopilot/multirotor_stage.py",
 )
 
 # Name of mypyc's shared runtime library (a top-level module ``merlin_native__mypyc``).

@@ -230,9 +230,13 @@ def _loop_scenario(case: str) -> tuple[Any, Any]:
 
     scen = ROOT / "examples" / "scenarios"
     if case.startswith("nominal"):
+        # Set both fields: the scenario's defaults (the EKF, and the camera over grass) would otherwise
+        # make the stand-in and the no-camera cases fly the camera-and-VO loop too.
         sc, cfg = load_scenario(scen / "nominal.yaml")
-        if case == "nominal_ekf":
-            sc = sc.model_copy(update={"estimator": "ekf"})
+        if case == "nominal_stand_in":
+            sc = sc.model_copy(update={"estimator": "truth_plus_noise", "camera": None})
+        elif case == "nominal_ekf":
+            sc = sc.model_copy(update={"estimator": "ekf", "camera": None})
         elif case == "nominal_ekf_camera":
             sc = sc.model_copy(update={"estimator": "ekf", "camera": Camera(texture="grass", rate_hz=15.0)})
     elif case == "three_lanes_ekf":

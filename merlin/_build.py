@@ -43,6 +43,9 @@ COMPILED_MODULES: tuple[str, ...] = (
     "merlin.redundancy.sensor_suite",
     "merlin.nav.estimator",
     "merlin.nav.fusion_stage",
+    "merlin.redundancy.lane_voter",
+    "merlin.redundancy.lanes",
+    "merlin.autopilot.multirotor_stage",
 )
 
 #: Written by ``setup.py`` beside this file after a successful compiled build: module -> sha256 of the

@@ -148,6 +148,16 @@ class VotedSensors(NamedTuple):
     gps: GpsSample | None = None
 
 
+def _hold_newest(held: list[Any], samples: Any) -> bool:
+    """Keep each unit's newest sample in ``held`` (one slot per unit); whether any unit delivered one."""
+    new = False
+    for i, smp in enumerate(samples):
+        if smp is not None:
+            held[i] = smp
+            new = True
+    return new
+
+
 class ImuVoterStage:
     """The three IMU lanes voted (with the degradation chain) before the estimator; one call per tick."""
 
@@ -188,17 +198,13 @@ class ImuVoterStage:
         if frame.gps_lanes:
             if len(frame.gps_lanes) != N_LANES:
                 raise ValueError(f"the sensor voter needs {N_LANES} GPS/baro/mag units, got {len(frame.gps_lanes)}")
-            new = [False, False, False]
-            for k, (held, lanes) in enumerate(((self._mags, frame.mag_lanes), (self._baros, frame.baro_lanes),
-                                               (self._gpss, frame.gps_lanes))):
-                for i, smp in enumerate(lanes):
-                    if smp is not None:
-                        held[i] = smp  # type: ignore[assignment]
-                        new[k] = True
+            new_mag = _hold_newest(self._mags, frame.mag_lanes)
+            new_baro = _hold_newest(self._baros, frame.baro_lanes)
+            new_gps = _hold_newest(self._gpss, frame.gps_lanes)
             out = self.suite.step(ts, self._imu, tuple(self._mags), tuple(self._baros), tuple(self._gpss))
-            mag = out.mag if new[0] else None
-            baro = out.baro if new[1] else None
-            gps = out.gps if new[2] else None
+            mag = out.mag if new_mag else None
+            baro = out.baro if new_baro else None
+            gps = out.gps if new_gps else None
         else:
             out = self.suite.step(ts, self._imu, (self._mag,), (frame.baro,), (frame.gps,))
         for r in out.events:
@@ -690,7 +696,7 @@ class VehicleRedundancy:
                  max_sigma_h_m: float = math.inf) -> None:
         """``lane_ekfs`` (fusion EKFs) or ``lane_standins`` (stand-in estimators), one per lane, are each
         lane's own estimator with ``lane_navigation: own``."""
-        rc = RedundancyConfig() if rc is None else rc
+        rc = RedundancyConfig.model_validate({}) if rc is None else rc  # its defaults (mypyc's mypy reads no pydantic plugin)
         fdi = setup.fdi_preset or rc.fdi_preset
         self.voter = ImuVoterStage(voter_rng, field_ned_gauss, fdi, channel_specs(rc)) if setup.sensor_voter \
             else None
