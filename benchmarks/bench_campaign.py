@@ -5,6 +5,12 @@ scheduling overhead per run (workers' capacity not spent inside ``run_scenario``
     .venv/bin/python benchmarks/bench_campaign.py --runs 1000     # the 1,000-run mixed campaign
 
     .venv/bin/python benchmarks/bench_campaign.py --runs 100 --configs ray2 --repeats 3
+    .venv/bin/python benchmarks/bench_campaign.py --runs 100 --configs cluster2   # a two-node Ray cluster
+
+``cluster2`` starts a real two-node Ray cluster on loopback (``ray start --head`` and a second
+``ray start --address``, one CPU each, each in its own process group) and flies the campaign with
+``--address`` against it, as an operator would on two machines; both nodes are ended by process group
+afterwards (never ``ray stop``, which would end every Ray on the machine).
 
 The mixed campaign is every file in ``examples/campaigns/`` (docs/campaigns.md lists them: nominal flight,
 every controller fault, every sensor / link / battery / wind fault on the fusion EKF, GPS faults with the
@@ -17,10 +23,17 @@ with the same seed, so all fly the same runs. The machine is shared: numbers var
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
+import signal
+import socket
 import statistics
+import subprocess
 import sys
 import tempfile
+import time
+from collections.abc import Iterator
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -28,6 +41,43 @@ sys.path.insert(0, str(ROOT))
 
 from merlin.campaign.aggregate import timing  # noqa: E402
 from merlin.campaign.scheduler import CampaignOptions, run_campaign  # noqa: E402
+
+
+@contextlib.contextmanager
+def two_node_cluster() -> Iterator[str]:
+    """A head and a second Ray node on loopback, one CPU each; yields the head's address."""
+    with socket.socket() as sk:
+        sk.bind(("127.0.0.1", 0))
+        port = sk.getsockname()[1]
+    ray_exe = Path(sys.executable).with_name("ray")
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
+    env |= {"RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
+    nodes: list[subprocess.Popen] = []
+    logs: list[Path] = []
+    try:
+        for i, extra in enumerate((["--head", f"--port={port}", "--include-dashboard=false"],
+                                   [f"--address=127.0.0.1:{port}"])):
+            log = Path(tempfile.gettempdir()) / f"merlin-bench-ray-{port}-{i}.log"
+            logs.append(log)
+            with log.open("wb") as f:
+                nodes.append(subprocess.Popen(
+                    [str(ray_exe), "start", "--block", "--num-cpus=1", "--node-ip-address=127.0.0.1",
+                     "--disable-usage-stats", f"--temp-dir={tempfile.gettempdir()}/merlin-bench-ray-{port}-{i}",
+                     *extra], env=env, stdout=f, stderr=subprocess.STDOUT, start_new_session=True))
+            deadline = time.monotonic() + 300
+            while "Ray runtime started" not in log.read_text(errors="replace"):
+                if nodes[-1].poll() is not None or time.monotonic() > deadline:
+                    raise RuntimeError(f"ray node {i} did not start:\n{log.read_text(errors='replace')[-2000:]}")
+                time.sleep(0.5)
+        yield f"127.0.0.1:{port}"
+    finally:
+        for proc in reversed(nodes):
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.killpg(proc.pid, signal.SIGKILL)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                proc.wait(timeout=30)
+        for log in logs:
+            log.unlink(missing_ok=True)
 
 
 def main() -> int:
@@ -39,13 +89,16 @@ def main() -> int:
     scenarios = tuple(str(p) for p in sorted((ROOT / "examples" / "campaigns").glob("*.yaml")))
     results = {}
     for name in args.configs.split(","):
-        backend = "ray" if name.startswith("ray") else "local"
-        workers = int(name.removeprefix("ray").removeprefix("local"))
+        backend = "ray" if name.startswith(("ray", "cluster")) else "local"
+        workers = int(name.removeprefix("ray").removeprefix("local").removeprefix("cluster"))
+        if name.startswith("cluster") and workers != 2:
+            raise SystemExit("cluster2 is the one cluster configuration (two nodes, one CPU each)")
         rates, overheads, fracs, after, startups, inside = [], [], [], [], [], []
         for _ in range(args.repeats):
-            with tempfile.TemporaryDirectory() as d:
+            with tempfile.TemporaryDirectory() as d, (
+                    two_node_cluster() if name.startswith("cluster") else contextlib.nullcontext(None)) as address:
                 o = run_campaign(CampaignOptions(scenarios=scenarios, runs=args.runs, out=Path(d), seed=1,
-                                                 backend=backend, workers=workers, quiet=False))
+                                                 backend=backend, address=address, workers=workers, quiet=False))
                 t = timing(list(o.records.values()), o.wall_s, workers, o.flown_now, o.startup_s)
                 passed = sum(1 for r in o.records.values() if r.get("passed"))
                 errors = sum(1 for r in o.records.values() if r.get("status") == "error")
