@@ -6,23 +6,30 @@ pull-up (1-6 deg/s to 20-40 deg at 0-0.3 throttle, banked up to 40 deg), then, j
 revocation (0-0.45 s after the airspeed fell below 18.5 m/s; one run in five never pushes), the nose pushed
 down to -20..0 deg at full or random throttle and up to 45 deg of bank, in a random steady wind (sigma
 2 m/s per axis). For each run: the state at the revocation (pitch, pitch rate, bank, throttle, airspeed,
-sink) and the height lost after it (the ``max_height_loss_after_revocation`` measure), the lowest airspeed
+sink), the surfaces handed over and the inner loops' integrators and setpoints that produced them, and the
+height lost after it (the ``max_height_loss_after_revocation`` measure), the lowest airspeed
 and the highest angle of attack after it, the largest bank Merlin flew.
 
 ``--direct N`` adds a sweep of N states drawn uniformly from the box the envelope allows at a revocation
 (airspeed 16-33 m/s, angle of attack -8..17 deg, pitch -30..30 deg with the sink within +-8 m/s, bank
-+-45 deg, body rates within the envelope's +-150/90/90 deg/s, any surface and throttle), set directly in
++-45 deg, body rates within the envelope's +-150/90/90 deg/s, any throttle; ``--surfaces any``: any
+surface deflection; ``--surfaces loops``, the default: the deflections Merlin's inner loops command in that
+state for some authority's command, which is what every authority is flown through, :func:`loop_surfaces`;
+``--corners``: every quantity at an end of its range), set directly in
 JSBSim (:meth:`sims.fixedwing.FixedWingSim.set_flight_state`) and handed to Merlin's actuator stage
 (:class:`merlin.autopilot.fixedwing_behaviours.FixedWingBehaviours`) flying RTL for 20 s: the states an
 adversary could reach by means this closed loop's inner loops would not let it (a controller driving the
-surfaces itself).
+surfaces itself, or a disturbance). For each: the height lost, and how fast the loops' own elevator and
+aileron commands moved once the takeover slew had ended while the recovery flew (the measure of "the
+trusted controller's own slew" in an upset, which the recovery's takeover slew stays within).
 
 The bound it is checked against is :func:`merlin.autopilot.fixedwing_recovery.recovery_height_bound_m`,
 derived from the aircraft model and the envelope (its docstring), so the benchmark reports the worst loss
 found, the bound, and the minimum grant height
 (:func:`merlin.autopilot.fixedwing_recovery.min_grant_height_m`) for the configuration.
 
-    MERLIN_USE_SOURCES=1 .venv/bin/python benchmarks/bench_fw_recovery.py --runs 120 --direct 400 --seed 1
+    MERLIN_USE_SOURCES=1 .venv/bin/python benchmarks/bench_fw_recovery.py --runs 60 --direct 150 --seed 1
+    MERLIN_USE_SOURCES=1 .venv/bin/python benchmarks/bench_fw_recovery.py --runs 0 --direct 150 --surfaces any
 """
 
 from __future__ import annotations
@@ -31,8 +38,10 @@ import argparse
 import math
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -44,8 +53,10 @@ from merlin.autopilot import fixedwing_guidance as fg  # noqa: E402
 from merlin.autopilot import fixedwing_recovery as rec  # noqa: E402
 from merlin.autopilot.fixedwing_behaviours import FixedWingBehaviours  # noqa: E402
 from merlin.config.runtime import build_core_config  # noqa: E402
-from merlin.core.types import Authority, Behavior, Command, CommandKind, Decision  # noqa: E402
+from merlin.core.types import Authority, Behavior, Command, CommandKind, Decision, VehicleState  # noqa: E402
+from sims import runner  # noqa: E402
 from sims.fixedwing import FixedWingSim, SurfaceCommand  # noqa: E402
+from sims.runner import make_loop as runner_make_loop  # noqa: E402
 from sims.runner import run_scenario  # noqa: E402
 from sims.scenario import load_scenario  # noqa: E402
 
@@ -68,6 +79,32 @@ def draw(rng: np.random.Generator) -> tuple[dict[str, float], tuple[float, float
     return params, wind
 
 
+def _watch_handover(loops: list[dict[str, float]]) -> Callable[..., Any]:
+    """A ``make_loop`` that notes, at the first tick Merlin flies after the experimental controller, the
+    surfaces handed over and the inner loops' state that produced them (their integrators and setpoints)."""
+    def make(*args: Any, **kwargs: Any) -> Any:
+        loop = runner_make_loop(*args, **kwargs)
+        stage = loop.stage
+        step = stage.step
+        seen = {"experimental": False}
+
+        def watched(t: float, decision: Decision, s: Any, takeoff_height_m: float) -> SurfaceCommand:
+            if decision.authority is Authority.EXPERIMENTAL:
+                seen["experimental"] = True
+            elif seen["experimental"] and not loops:
+                c, cp = stage.cstate, stage.cp
+                loops.append({"t": t, "elevator": stage.surfaces.elevator, "aileron": stage.surfaces.aileron,
+                              "rudder": stage.surfaces.rudder,
+                              "elevator_integ_from_trim": c.elevator_integ - cp.elevator_trim,
+                              "aileron_integ": c.aileron_integ, "rudder_integ": c.rudder_integ,
+                              "pitch_sp_deg": math.degrees(c.pitch_sp_rad), "roll_sp_deg": math.degrees(c.roll_sp_rad)})
+            return step(t, decision, s, takeoff_height_m)
+
+        stage.step = watched
+        return loop
+    return make
+
+
 def fly(params: dict[str, float], wind: tuple[float, float, float]) -> dict[str, float] | None:
     """One run; None when the envelope never revoked (nothing to recover from)."""
     sc, cfg = load_scenario(SCENARIO)
@@ -76,7 +113,12 @@ def fly(params: dict[str, float], wind: tuple[float, float, float]) -> dict[str,
         "wind": sc.wind.model_copy(update={"steady_ned_mps": list(wind)}),
         "expectations": [],
     })
-    r = run_scenario(sc, cfg)
+    handover: list[dict[str, float]] = []
+    runner.make_loop = _watch_handover(handover)
+    try:
+        r = run_scenario(sc, cfg)
+    finally:
+        runner.make_loop = runner_make_loop
     revs = [e for e in r.events if e["type"] == "revoked"]
     if not revs:
         return None
@@ -95,11 +137,54 @@ def fly(params: dict[str, float], wind: tuple[float, float, float]) -> dict[str,
         "max_alpha_after_deg": float(a["env_alpha_deg"][k:].max()),
         "max_bank_after_deg": float(np.degrees(np.abs(a["truth_roll"][k:])).max()),
         "excursions": float(len(excursions)),
+        **{f"handover_{k}": v for k, v in (handover[0] if handover else {}).items()},
     }
 
 
-def direct_states(n: int, rng: np.random.Generator) -> list[dict[str, float]]:
-    """``n`` states drawn uniformly from the envelope's box (module docstring), the sink within +-8 m/s."""
+def loop_surfaces(st: dict[str, float], rng: np.random.Generator, band: float) -> dict[str, float]:
+    """The surfaces Merlin's inner loops command in the state ``st`` for some authority's command: the attitude
+    setpoints anywhere within the loops' own limits (pitch +-20 deg, the bank limit), the integrators within
+    ``band`` of their trim, the rate damping of the state's body rates (what every authority is flown
+    through: there is no surface setpoint)."""
+    cp = fc.FixedWingControlParams()
+    roll, pitch = math.radians(st["roll_deg"]), math.radians(st["pitch_deg"])
+    v = st["airspeed_mps"]
+    gamma = pitch - math.radians(st["alpha_deg"]) * math.cos(roll)
+    s = VehicleState(vel_ned_mps=(v * math.cos(gamma), 0.0, -v * math.sin(gamma)), att_rpy_rad=(roll, pitch, 0.0),
+                     rates_frd_radps=(math.radians(st["p_degps"]), math.radians(st["q_degps"]),
+                                      math.radians(st["r_degps"])),
+                     airspeed_mps=v, armed=True, landed=False)
+    pitch_sp = float(rng.uniform(cp.pitch_min_rad, cp.pitch_max_rad))
+    roll_sp = float(rng.uniform(-fc.bank_limit_rad(cp), fc.bank_limit_rad(cp)))
+    state = fc.FixedWingControlState(
+        roll_sp_rad=roll_sp, pitch_sp_rad=pitch_sp, throttle=st["throttle"], initialized=True,
+        aileron_integ=float(rng.uniform(-band, band)), rudder_integ=float(rng.uniform(-band, band)),
+        elevator_integ=cp.elevator_trim + float(rng.uniform(-band, band)))
+    targets = fc.FixedWingTargets(airspeed_mps=v, height_m=None, roll_rad=roll_sp, pitch_rad=pitch_sp,
+                                  throttle=st["throttle"])
+    _, out = fc.control_step(cp, state, s, targets, 0.01)
+    return {"aileron": out.surfaces.aileron, "elevator": out.surfaces.elevator, "rudder": out.surfaces.rudder}
+
+
+class _Ends:
+    """Draws at either end of each range (the box's corners), with the generator's own coin."""
+
+    def __init__(self, rng: np.random.Generator) -> None:
+        self.rng = rng
+
+    def uniform(self, lo: float, hi: float) -> float:
+        return lo if self.rng.random() < 0.5 else hi
+
+    def random(self) -> float:
+        return float(self.rng.random())
+
+
+def direct_states(n: int, rng: np.random.Generator, surfaces: str = "any", band: float = 0.5,
+                  corners: bool = False) -> list[dict[str, float]]:
+    """``n`` states drawn uniformly from the envelope's box (module docstring), the sink within +-8 m/s;
+    ``surfaces`` "loops": the surfaces the inner loops would command there (:func:`loop_surfaces`), "any":
+    any deflection; ``corners``: every quantity at one end of its range."""
+    rng = _Ends(rng) if corners else rng  # type: ignore[assignment]
     out: list[dict[str, float]] = []
     while len(out) < n:
         st = {"airspeed_mps": float(rng.uniform(16.0, 33.0)), "alpha_deg": float(rng.uniform(-8.0, 17.0)),
@@ -110,6 +195,8 @@ def direct_states(n: int, rng: np.random.Generator) -> list[dict[str, float]]:
               "rudder": float(rng.uniform(-1.0, 1.0))}
         gamma = math.radians(st["pitch_deg"]) - math.radians(st["alpha_deg"]) * math.cos(math.radians(st["roll_deg"]))
         if abs(st["airspeed_mps"] * math.sin(gamma)) <= 8.0:
+            if surfaces == "loops":
+                st.update(loop_surfaces(st, rng, band))
             out.append(st)
     return out
 
@@ -134,9 +221,18 @@ def fly_direct(sim: FixedWingSim, st: dict[str, float], cfg: object, envelope: t
     h0 = tr.alt_m
     h_min, v_min, a_max, bank_max = h0, tr.airspeed_mps, tr.alpha_rad, 0.0
     crashed = False
+    own_prev: tuple[float, float] | None = None
+    own_rate = 0.0
     for k in range(round(duration_s * rate_hz)):
         vs = replace(tr.to_vehicle_state(), alpha_rad=tr.alpha_rad)  # the alpha vane, as the closed loop's
         out = stage.step(k * dt, decision, vs, 0.0)
+        # the loops' own commands (the takeover slew over) while the recovery flies, in the first 3 s
+        if stage.cstate.handover is None and stage.cstate.recovering and k * dt < 3.0:
+            if own_prev is not None:
+                own_rate = max(own_rate, abs(out.elevator - own_prev[0]) / dt, abs(out.aileron - own_prev[1]) / dt)
+            own_prev = (out.elevator, out.aileron)
+        else:
+            own_prev = None
         tr = sim.advance(out, frames)
         h_min, v_min, a_max = min(h_min, tr.alt_m), min(v_min, tr.airspeed_mps), max(a_max, tr.alpha_rad)
         if k * dt >= 3.0:
@@ -145,14 +241,15 @@ def fly_direct(sim: FixedWingSim, st: dict[str, float], cfg: object, envelope: t
     excursions = [e for e in stage.notes if e["type"] == "fixed_wing_trusted_excursion"]
     return {"loss_m": h0 - h_min, "min_airspeed_mps": v_min, "max_alpha_deg": math.degrees(a_max),
             "max_bank_after_3s_deg": math.degrees(bank_max), "excursions": float(len(excursions)),
-            "final_airspeed_mps": tr.airspeed_mps}
+            "final_airspeed_mps": tr.airspeed_mps, "own_rate_per_s": own_rate}
 
 
-def run_direct(n: int, rng: np.random.Generator, cfg: object) -> list[tuple[dict[str, float], dict[str, float]]]:
+def run_direct(n: int, rng: np.random.Generator, cfg: object, surfaces: str = "any", band: float = 0.5,
+               corners: bool = False) -> list[tuple[dict[str, float], dict[str, float]]]:
     sim = FixedWingSim(pos_ned_m=(0.0, 0.0, -160.0), rate_hz=400.0)
     envelope = build_core_config(cfg).envelope  # type: ignore[arg-type]
     rows = []
-    for i, st in enumerate(direct_states(n, rng)):
+    for i, st in enumerate(direct_states(n, rng, surfaces, band, corners)):
         res = fly_direct(sim, st, cfg, envelope)
         rows.append((st, res))
         print(f"state {i:3d}: V {st['airspeed_mps']:5.1f} alpha {st['alpha_deg']:5.1f} pitch {st['pitch_deg']:6.1f}"
@@ -163,27 +260,94 @@ def run_direct(n: int, rng: np.random.Generator, cfg: object) -> list[tuple[dict
     return rows
 
 
+def grid_states(cfg: object) -> tuple[list[dict[str, float]], np.ndarray]:
+    """The entry states the derived bound is taken over (:func:`merlin.autopilot.fixedwing_recovery.
+    entry_states`: the box's corners in angle of attack, pitch rate, bank and roll rate, surfaces and
+    throttle, over a grid of airspeeds and sinks), as direct states, and the model's height lost for each."""
+    cp = fc.FixedWingControlParams()
+    e = rec.entry_states(rec.AEROSONDE, *rec._limits(cfg, cp))  # type: ignore[arg-type]
+    model = rec.height_lost_m(rec.AEROSONDE, rec.AEROSONDE_MOMENTS, rec.AEROSONDE_PROPULSION, cp, e)
+    out = []
+    for k in range(len(e.airspeed_mps)):
+        v, sink, alpha, phi = (float(e.airspeed_mps[k]), float(e.sink_mps[k]), float(e.alpha_rad[k]),
+                               float(e.bank_rad[k]))
+        gamma = -math.asin(sink / v)
+        out.append({"airspeed_mps": v, "alpha_deg": math.degrees(alpha),
+                    "pitch_deg": math.degrees(gamma + alpha * math.cos(phi)), "roll_deg": math.degrees(phi),
+                    "p_degps": math.degrees(float(e.p_radps[k])), "q_degps": math.degrees(float(e.q_radps[k])),
+                    "r_degps": 0.0, "throttle": float(e.throttle[k]), "aileron": float(e.aileron[k]),
+                    "elevator": float(e.elevator[k]), "rudder": 0.0, "sink_mps": sink})
+    return out, model
+
+
+def run_grid(cfg: object, throttle: float | None = None) -> list[tuple[dict[str, float], dict[str, float]]]:
+    """Every state of the bound's grid flown in JSBSim (:func:`grid_states`), beside the model's loss; with
+    ``throttle``, only the states handed over at that throttle (half the grid: a recovery from a slow state
+    goes to full power at once, so the two halves lose nearly alike)."""
+    sim = FixedWingSim(pos_ned_m=(0.0, 0.0, -160.0), rate_hz=400.0)
+    envelope = build_core_config(cfg).envelope  # type: ignore[arg-type]
+    states, model = grid_states(cfg)
+    rows = []
+    for i, (st, m) in enumerate(zip(states, model, strict=True)):
+        if throttle is not None and st["throttle"] != throttle:
+            continue
+        res = fly_direct(sim, st, cfg, envelope)
+        res["model_m"] = float(m)
+        rows.append((st, res))
+        print(f"grid {i:4d}: V {st['airspeed_mps']:5.1f} sink {st['sink_mps']:5.1f} alpha {st['alpha_deg']:5.1f}"
+              f" q {st['q_degps']:6.1f} bank {st['roll_deg']:5.1f} p {st['p_degps']:6.1f} elevator"
+              f" {st['elevator']:5.2f} aileron {st['aileron']:5.2f} throttle {st['throttle']:4.2f} -> lost"
+              f" {res['loss_m']:5.2f} m (model {m:5.2f} m)", flush=True)
+    return rows
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=120)
     ap.add_argument("--direct", type=int, default=0, help="states set directly in JSBSim (module docstring)")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--surfaces", choices=("loops", "any"), default="loops",
+                    help="the direct states' surfaces: the inner loops' own command there, or any deflection")
+    ap.add_argument("--band", type=float, default=0.5,
+                    help="with --surfaces loops: the integrators' spread about trim")
+    ap.add_argument("--corners", action="store_true", help="the direct states at the box's corners")
+    ap.add_argument("--grid", action="store_true",
+                    help="fly every entry state of the derived bound's grid in JSBSim, beside the model's loss")
+    ap.add_argument("--grid-throttle", type=float, default=None,
+                    help="with --grid, only the states handed over at this throttle (0 or 1)")
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
     _, cfg = load_scenario(SCENARIO)
     bound = rec.recovery_height_bound_m(cfg)
     direct_ok = True
+    if args.grid:
+        grows = run_grid(cfg, args.grid_throttle)
+        gl = np.array([r["loss_m"] for _, r in grows])
+        gm = np.array([r["model_m"] for _, r in grows])
+        worst_st = grows[int(np.argmax(gl))][0]
+        print(f"\ngrid: {len(grows)} states; height lost median {np.median(gl):.2f} m, p95 {np.percentile(gl, 95):.2f}"
+              f" m, worst {gl.max():.2f} m at {worst_st}; the model's worst {gm.max():.2f} m (the bound);"
+              f" states over the bound {int((gl > bound).sum())}; states the model under-predicts by more than"
+              f" 0.5 m: {int((gl > gm + 0.5).sum())} (largest {float((gl - gm).max()):.2f} m, at a loss of"
+              f" {float(gl[int(np.argmax(gl - gm))]):.2f} m)\n")
+        direct_ok = bool(gl.max() <= bound)
     if args.direct:
-        drows = run_direct(args.direct, np.random.default_rng(args.seed + 1000), cfg)
+        drows = run_direct(args.direct, np.random.default_rng(args.seed + 1000), cfg, args.surfaces, args.band,
+                           args.corners)
         dl = np.array([r["loss_m"] for _, r in drows])
         worst_st = drows[int(np.argmax(dl))][0]
-        print(f"\ndirect: {len(drows)} states; height lost median {np.median(dl):.2f} m, p95"
+        print(f"\ndirect ({args.surfaces} surfaces{', corners' if args.corners else ''}): {len(drows)} states; height lost median {np.median(dl):.2f} m, p95"
               f" {np.percentile(dl, 95):.2f} m, worst {dl.max():.2f} m at {worst_st}")
         print(f"direct: lowest airspeed {min(r['min_airspeed_mps'] for _, r in drows):.2f} m/s, highest alpha"
               f" {max(r['max_alpha_deg'] for _, r in drows):.1f} deg, largest bank after 3 s"
               f" {max(r['max_bank_after_3s_deg'] for _, r in drows):.1f} deg; final airspeed"
               f" {min(r['final_airspeed_mps'] for _, r in drows):.1f}..{max(r['final_airspeed_mps'] for _, r in drows):.1f}"
-              f" m/s; derived bound {bound:.2f} m\n")
+              f" m/s; derived bound {bound:.2f} m; states over it {int((dl > bound).sum())}")
+        own = np.array([r["own_rate_per_s"] for _, r in drows if r["own_rate_per_s"] > 0.0])
+        if own.size:
+            print(f"direct: the loops' own elevator/aileron command rate in the recovery ({own.size} states):"
+                  f" median {np.median(own):.1f} /s, p10 {np.percentile(own, 10):.1f} /s, max {own.max():.1f} /s"
+                  f" (the recovery's takeover slew {fc.FixedWingControlParams().recovery_takeover_slew_per_s:.1f} /s)\n")
         direct_ok = bool(dl.max() <= bound)
     rows = []
     t0 = time.perf_counter()
@@ -199,12 +363,15 @@ def main() -> int:
               f" {row['airspeed_mps']:5.2f} m/s  sink {row['sink_mps']:5.2f} m/s -> lost {row['loss_m']:5.2f} m,"
               f" min airspeed {row['min_airspeed_after_mps']:5.2f}, max alpha {row['max_alpha_after_deg']:5.1f},"
               f" max bank {row['max_bank_after_deg']:5.1f}", flush=True)
+    if not args.runs:
+        return 0 if direct_ok else 1
     if not rows:
         print("no run revoked")
         return 1
-    def span(key: str) -> str:
-        v = [r[key] for r in rows]
-        return f"{min(v):.1f} .. {max(v):.1f}"
+    def span(key: str, among: list[dict[str, float]] | None = None) -> str:
+        v = [r[key] for r in (rows if among is None else among)]
+        nd = 1 if key.endswith(("_deg", "_degps", "_mps", "_m")) else 2
+        return f"{min(v):.{nd}f} .. {max(v):.{nd}f}"
     losses = np.array([r["loss_m"] for r in rows])
     worst = rows[int(np.argmax(losses))]
     print(f"\n{len(rows)} revoked runs of {args.runs} ({time.perf_counter() - t0:.0f} s)")
@@ -214,10 +381,18 @@ def main() -> int:
     print(f"height lost: median {np.median(losses):.2f} m, p95 {np.percentile(losses, 95):.2f} m,"
           f" worst {losses.max():.2f} m (pitch {worst['pitch_deg']:.1f}, q {worst['pitch_rate_degps']:.1f},"
           f" airspeed {worst['airspeed_mps']:.2f}, sink {worst['sink_mps']:.2f})")
+    ho = [r for r in rows if "handover_elevator" in r]
+    if ho:
+        print(f"at the handover ({len(ho)} runs, the loops' state under the experimental command): elevator"
+              f" {span('handover_elevator', ho)}, aileron {span('handover_aileron', ho)}, rudder {span('handover_rudder', ho)};"
+              f" integrators: elevator - trim {span('handover_elevator_integ_from_trim', ho)}, aileron"
+              f" {span('handover_aileron_integ', ho)}, rudder {span('handover_rudder_integ', ho)}; setpoints: pitch"
+              f" {span('handover_pitch_sp_deg', ho)} deg, roll {span('handover_roll_sp_deg', ho)} deg")
     print(f"after the revocation: lowest airspeed {span('min_airspeed_after_mps')} m/s, highest alpha"
           f" {span('max_alpha_after_deg')} deg, largest bank {span('max_bank_after_deg')} deg,"
           f" trusted excursions {int(sum(r['excursions'] for r in rows))}")
-    print(f"derived bound {bound:.2f} m; minimum grant height {rec.min_grant_height_m(cfg):.2f} m above home")
+    print(f"derived bound {bound:.2f} m;"
+          f" minimum grant height {rec.min_grant_height_m(cfg):.2f} m above home")
     return 0 if losses.max() <= bound and direct_ok else 1
 
 

@@ -13,7 +13,8 @@ PX4's proof of life, the same FORWARD path as under EXPERIMENTAL authority.
     PYTHONPATH=. MERLIN_USE_SOURCES=1 nice -n 10 python benchmarks/bench_guard.py --runs 3 --seconds 15
 
 ``--realtime-priority N`` runs the guard SCHED_FIFO (``merlin guard --realtime-priority``); a nice value given
-to this script applies to the guard too unless it runs real-time.
+to this script applies to the guard too unless it runs real-time. ``--sched-slice-us US`` passes the guard's own option
+(a short EEVDF slice, merlin/guard/scheduling.py; 0, the default, the kernel's own slice).
 """
 
 from __future__ import annotations
@@ -88,7 +89,7 @@ def pct(xs: list[float], q: float) -> float:
     return xs[min(len(xs) - 1, int(q * len(xs)))]
 
 
-def one_run(seconds: float, realtime_priority: int = 0) -> dict[str, float]:
+def one_run(seconds: float, realtime_priority: int = 0, sched_slice_us: int = 0) -> dict[str, float]:
     ap_port, ctl_port = free_port(), free_port()
     sim = TimedSim(Dialect.PX4, ap_port).start()
     cfg = ROOT / "out" / "bench_guard.yaml"
@@ -97,7 +98,8 @@ def one_run(seconds: float, realtime_priority: int = 0) -> dict[str, float]:
     proc = subprocess.Popen([sys.executable, "-m", "merlin.cli", "guard", "--autopilot", f"udpin:127.0.0.1:{ap_port}",
                              "--controller", f"udpin:127.0.0.1:{ctl_port}", "--config", str(cfg),
                              "--out", str(ROOT / "out" / "bench_guard"),
-                             "--realtime-priority", str(realtime_priority)], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+                             "--realtime-priority", str(realtime_priority), "--sched-slice-us", str(sched_slice_us)],
+                            cwd=ROOT, stdout=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None
         proc.stdout.readline()  # the start line: the failsafe check passed, routing begins
@@ -124,8 +126,10 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=15.0)
     ap.add_argument("--realtime-priority", type=int, default=0, metavar="N",
                     help="run the guard with merlin guard --realtime-priority N (SCHED_FIFO; needs the privilege)")
+    ap.add_argument("--sched-slice-us", type=int, default=0, metavar="US",
+                    help="merlin guard --sched-slice-us (0, the default: the kernel's own slice)")
     a = ap.parse_args()
-    runs = [one_run(a.seconds, a.realtime_priority) for _ in range(a.runs)]
+    runs = [one_run(a.seconds, a.realtime_priority, a.sched_slice_us) for _ in range(a.runs)]
     for r in runs:
         print(json.dumps({k: round(v, 4) for k, v in r.items()}))
     for k in ("p50_ms", "p99_ms", "max_ms", "direct_p50_ms", "direct_p99_ms", "cpu_frac"):

@@ -306,6 +306,8 @@ class FixedWingBehaviours:
             elif self.escape_turns and not self.escape_side and self.fence is not None:
                 self.escape_on_trusted_trip(t, decision, s)
             targets = self._trusted_targets(t, decision, s)
+            if self.escape_side:  # the escape turn goes on through a dive recovery (the projection's turn)
+                targets = replace(targets, keep_turning=True)
         if changed:
             # Guidance first (above), then the loops from the surfaces last commanded: no bump. From one of
             # Merlin's own behaviours the lateral integrators carry on (the trim its loops found); from what

@@ -118,6 +118,35 @@ class FixedWingControlParams:
     # the angle-of-attack cap (TECS's own 1 eases a 1.5 m/s sink for seconds)
     recovery_pitch_p: float = 4.0
     recovery_exit_sink_mps: float = 1.0
+    # The pitch loop's proportional gain is this many times pitch_p while a recovery pulls out of a dive
+    # (from the tick it sinks beyond the recovery's sink trigger to the recovery's end): a pull-out rotates
+    # the nose at the flight path's rate (10-20 deg/s), which the rate damping fights, so with pitch_p alone
+    # the nose lagged the angle-of-attack cap by 5 deg and the wing pulled 1.4 g instead of 1.9 g (a dive
+    # handed over at 17 m/s, 22 deg nose down, lost 26 m, 23 m with the gain doubled; without it the worst
+    # of 150 states drawn from the envelope's box lost 46.9 m; benchmarks/bench_fw_recovery.py). Not in a
+    # recovery from a slow state alone: there the harder pull took the push-before-stall handovers' worst
+    # loss from 4.3 m to 10.6 m.
+    # Where the recovery ends the integrator takes up the proportional term's change (no step nose down); an
+    # integrator that took it up where the recovery starts, with the nose far below its setpoint, held the
+    # elevator near trim through the whole pull-out (a dive lost 54 m).
+    recovery_pitch_p_scale: float = 2.0
+    # A takeover into the recovery moves the surfaces from the values taken over at this rate, not
+    # takeover_slew_per_s: in the upsets the recovery takes over, the loops' own elevator and aileron
+    # commands move at up to 6.8 /s through the rate damping alone (median 3.3 /s,
+    # benchmarks/bench_fw_recovery.py), the servos (12 /s) follow it without a step, and it stays within the
+    # 0.05 per 10 ms tick that fw_stall_protection's bumpless check allows. At 1.5 /s an aileron taken over
+    # at full travel in a 140 deg/s roll let the aircraft roll past 100 deg before the loops could stop it.
+    # merlin.autopilot.fixedwing_recovery's bound counts the time it takes (full travel at this rate).
+    recovery_takeover_slew_per_s: float = 4.8
+    # The same faster takeover in an upset the recovery does not start on (the angle of attack, theta - gamma
+    # on the air path, outside this band, or a body rate beyond what the loops' own setpoint slews fly), even
+    # before the recovery starts: a state handed over at 21 m/s climbing, the nose rotating up at 90 deg/s
+    # with the elevator full up, reached 50 deg of angle of attack while the elevator left full up at 1.5 /s,
+    # stalled, and lost 21 m (benchmarks/bench_fw_recovery.py).
+    upset_alpha_max_rad: float = math.radians(20.0)
+    upset_alpha_min_rad: float = math.radians(-10.0)
+    upset_pitch_rate_radps: float = math.radians(45.0)
+    upset_roll_rate_radps: float = math.radians(90.0)
     # A takeover inherits the elevator within this of its trim through the integrator (not an adversary's
     # full deflection; the aileron and the rudder start at their zero trim), and each surface moves from the
     # value taken over at most at the loops' own slew (takeover_slew_per_s) until it meets the loops' own
@@ -165,6 +194,8 @@ class FixedWingTargets:
     roll_rad: float = 0.0
     pitch_rad: float | None = None
     throttle: float | None = None
+    # a turn that must go on through a dive recovery (an escape turn), instead of rolling level to pull out
+    keep_turning: bool = False
 
     def __post_init__(self) -> None:
         if (self.pitch_rad is None) != (self.throttle is None):
@@ -186,6 +217,7 @@ class FixedWingControlState:
     throttle: float = 0.0  # the last throttle command (slewed)
     initialized: bool = False
     recovering: bool = False  # the recovery (control_step) is flown
+    pulling_out: bool = False  # the recovery pulls out of a dive (recovery_pitch_p_scale)
     # after a takeover: (aileron, elevator, rudder) last commanded, slewed towards the loops' own; None once
     # all three met it
     handover: tuple[float, float, float] | None = None
@@ -440,9 +472,11 @@ def control_step(
     e = _energy(p, s, targets, v_rate, recovering)
     tecs = _tecs(p, state, s, targets, e, recovering, dt_s)
     pitch_target = _cap_to_air_path(p, s, tecs.pitch_target_rad)
-    roll_sp, pitch_sp = _attitude_setpoints(p, state, s, targets, pitch_target, recovering, dt_s)
-    loops = _attitude_loops(p, state, s, roll_sp, pitch_sp, dt_s)
-    (aileron, elevator, rudder), handover = _takeover_slew(p, state.handover, loops, dt_s)
+    pulling_out = recovering and (state.pulling_out or _steep_sink(p, s))
+    roll_sp, pitch_sp = _attitude_setpoints(p, state, s, targets, pitch_target, recovering, pulling_out, dt_s)
+    loops = _attitude_loops(p, state, s, roll_sp, pitch_sp, dt_s, pulling_out, state.pulling_out)
+    (aileron, elevator, rudder), handover = _takeover_slew(p, state.handover, loops, dt_s,
+                                                           recovering or _alpha_upset(p, s))
     surfaces = SurfaceCommand(aileron=aileron, elevator=elevator, rudder=rudder, throttle=tecs.throttle).clipped()
 
     new_state = FixedWingControlState(
@@ -457,6 +491,7 @@ def control_step(
         throttle=tecs.throttle,
         initialized=True,
         recovering=recovering,
+        pulling_out=pulling_out,
         handover=handover,
     )
     return new_state, ControlOutput(
@@ -569,15 +604,22 @@ def _cap_to_air_path(p: FixedWingControlParams, s: VehicleState, pitch_target: f
 
 def _attitude_setpoints(p: FixedWingControlParams, state: FixedWingControlState, s: VehicleState,
                         targets: FixedWingTargets, pitch_target: float, recovering: bool,
-                        dt_s: float) -> tuple[float, float]:
+                        pulling_out: bool, dt_s: float) -> tuple[float, float]:
     """The roll and pitch setpoints, slewed at their rates (bumpless, and gentle on the airframe)."""
     phi = s.att_rpy_rad[0]
     # Near the minimum airspeed the bank is reduced (stall speed grows as 1/sqrt(cos bank)): wings level
     # first, then turn, as in a stall recovery.
-    # Wings level while recovering slow or from a bank beyond the limit; a recovery from a sink alone keeps
-    # turning (an escape turn must go on: the fence projection assumed it).
+    # Wings level while recovering slow, from a bank beyond the limit, or pulling out of a dive (from a sink
+    # beyond the one that starts the recovery to the recovery's end: the pull-out needs the whole lift; a
+    # dive handed over at 23 m/s lost 37 m turning at 43 deg of bank while it pulled out, and a zoom handed
+    # over at 15.5 m/s that dived lost 21.5 m, most of it in the 38 deg turn the loops rolled back into
+    # once the sink fell below the trigger, sinking 2-3 m/s for 6 s; benchmarks/bench_fw_recovery.py),
+    # unless the targets keep the turn (an escape turn: the fence projection planned it; rolling it level
+    # first cut the margin of fw_adv_dive_reversal from over 5 m to 3.3 m); a recovery from a smaller sink
+    # keeps turning.
     slow_or_upset = (s.airspeed_mps < p.airspeed_min_mps + p.recovery_exit_margin_mps
-                     or abs(phi) > p.bank_max_rad + p.recovery_bank_margin_rad)
+                     or abs(phi) > p.bank_max_rad + p.recovery_bank_margin_rad
+                     or (pulling_out and not targets.keep_turning))
     bank = 0.0 if recovering and slow_or_upset else bank_limit_rad(p) * _clip(
         (s.airspeed_mps - p.airspeed_min_mps) / p.bank_full_margin_mps, 0.0, 1.0)
     roll_sp = _slew(state.roll_sp_rad, _clip(targets.roll_rad, -bank, bank), p.roll_sp_rate_radps * dt_s)
@@ -585,10 +627,20 @@ def _attitude_setpoints(p: FixedWingControlParams, state: FixedWingControlState,
     return roll_sp, pitch_sp
 
 
+def _steep_sink(p: FixedWingControlParams, s: VehicleState) -> bool:
+    """Sinking faster than the sink that starts the recovery (:func:`_recovering`)."""
+    return s.vel_ned_mps[2] > p.sink_max_mps + p.recovery_sink_margin_mps
+
+
 def _attitude_loops(p: FixedWingControlParams, state: FixedWingControlState, s: VehicleState, roll_sp: float,
-                    pitch_sp: float, dt_s: float) -> _Surfaces:
+                    pitch_sp: float, dt_s: float, pulling_out: bool = False,
+                    was_pulling_out: bool = False) -> _Surfaces:
     """PI attitude loops with rate damping (the pitch and yaw rates of the coordinated turn taken out), scaled
-    by the airspeed; the rudder holds the sideslip (lateral specific force) at zero."""
+    by the airspeed; the rudder holds the sideslip (lateral specific force) at zero. While a recovery pulls
+    out of a dive, the pitch loop's proportional gain is ``recovery_pitch_p_scale`` times its own: where the
+    pull-out starts the pull that adds is its first action (at a takeover the takeover slew spreads it, like
+    the throttle's full power elsewhere); where it ends the integrator takes up the change, so the elevator
+    does not step nose down."""
     phi, theta = s.att_rpy_rad[0], s.att_rpy_rad[1]
     pr, qr, rr = s.rates_frd_radps
     k = _scaler(p, s)
@@ -598,22 +650,40 @@ def _attitude_loops(p: FixedWingControlParams, state: FixedWingControlState, s: 
     pitch_err = pitch_sp - theta
     aileron_integ = _clip(state.aileron_integ + p.roll_i_per_s * roll_err * dt_s, -imax, imax)
     elevator_integ = _clip(state.elevator_integ + p.pitch_i_per_s * pitch_err * dt_s, -imax, imax)
+    pitch_p = p.pitch_p * (p.recovery_pitch_p_scale if pulling_out else 1.0)
+    if was_pulling_out and not pulling_out:
+        # the pull-out's end: the integrator takes up the proportional term's change (no nose-down step)
+        elevator_integ = _clip(elevator_integ + k * (p.recovery_pitch_p_scale - 1.0) * p.pitch_p * pitch_err,
+                               -imax, imax)
     ay = s.accel_frd_mps2[1]
     rudder_integ = _clip(state.rudder_integ - p.sideslip_i_per_s * ay * dt_s, -imax, imax)
 
     aileron = k * (p.roll_p * roll_err - p.roll_d * pr) + aileron_integ
-    elevator = k * (p.pitch_p * pitch_err - p.pitch_d * (qr - q_turn)) + elevator_integ
+    elevator = k * (pitch_p * pitch_err - p.pitch_d * (qr - q_turn)) + elevator_integ
     rudder = k * (-p.yaw_d * (rr - r_turn) - p.sideslip_p * ay) + rudder_integ
     return _Surfaces(aileron, elevator, rudder, aileron_integ, elevator_integ, rudder_integ)
 
 
+def _alpha_upset(p: FixedWingControlParams, s: VehicleState) -> bool:
+    """The angle of attack on the air path (pitch less flight path, as :func:`_cap_to_air_path`) outside the
+    band ``upset_alpha_min_rad`` .. ``upset_alpha_max_rad``, or the pitch or roll rate beyond its upset rate."""
+    if abs(s.rates_frd_radps[1]) > p.upset_pitch_rate_radps or abs(s.rates_frd_radps[0]) > p.upset_roll_rate_radps:
+        return True
+    if s.airspeed_mps <= 3.0:
+        return False
+    alpha = s.att_rpy_rad[1] - math.asin(_clip(-s.vel_ned_mps[2] / s.airspeed_mps, -1.0, 1.0))
+    return not p.upset_alpha_min_rad <= alpha <= p.upset_alpha_max_rad
+
+
 def _takeover_slew(p: FixedWingControlParams, handover: tuple[float, float, float] | None, loops: _Surfaces,
-                   dt_s: float) -> tuple[tuple[float, float, float], tuple[float, float, float] | None]:
+                   dt_s: float, upset: bool = False
+                   ) -> tuple[tuple[float, float, float], tuple[float, float, float] | None]:
     """After a takeover the surfaces move from the values taken over towards the loops' own at
-    :func:`takeover_slew_per_s`, until all three have met them (then ``handover`` is None)."""
+    :func:`takeover_slew_per_s` (``recovery_takeover_slew_per_s`` while the recovery is flown or the angle of
+    attack is beyond its upset band), until all three have met them (then ``handover`` is None)."""
     aileron, elevator, rudder = loops.aileron, loops.elevator, loops.rudder
     if handover is not None:
-        step = takeover_slew_per_s(p) * dt_s
+        step = (p.recovery_takeover_slew_per_s if upset else takeover_slew_per_s(p)) * dt_s
         own = (_clip(aileron, -1.0, 1.0), _clip(elevator, -1.0, 1.0), _clip(rudder, -1.0, 1.0))
         if all(abs(o - h) <= step for o, h in zip(own, handover, strict=True)):
             handover = None

@@ -38,6 +38,11 @@ def register(sub: Any) -> None:
     p.add_argument("--realtime-priority", type=int, default=0, metavar="N",
                    help="route and tick SCHED_FIFO at priority N once the start-up check passed (Linux, needs the "
                         "privilege), as merlin serve --realtime-priority; 0 off")
+    p.add_argument("--sched-slice-us", type=int, default=0, metavar="US",
+                   help="without --realtime-priority: ask the kernel for a scheduler slice this short (Linux 6.12+ "
+                        "EEVDF, no privilege), so that a setpoint's wake-up may preempt an ordinary process at once; "
+                        "100..100000; 0 (default) the kernel's own (merlin/guard/scheduling.py; its effect on the "
+                        "p99 is not established, docs/benchmarks/guard.md)")
     p.add_argument("--signing-key", default=None, metavar="FILE",
                    help="MAVLink 2 signing key for every link (64 hex digits, 44 base64 characters or 32 raw bytes): "
                         "frames not signed with it are dropped, everything the guard sends is signed")
@@ -107,6 +112,21 @@ def _realtime(guard: Any, priority: int) -> None:
         guard.event({"t": guard.t(), "type": "realtime", "policy": "normal", "detail": str(exc)})
 
 
+def _short_slice(guard: Any, us: int) -> None:
+    """A short EEVDF slice for the routing loop (:mod:`merlin.guard.scheduling`): latency without the
+    privilege SCHED_FIFO needs. After the start-up check, as SCHED_FIFO; refused or unknown, the guard runs on
+    with the kernel's default and says so."""
+    from merlin.guard.scheduling import request_slice
+
+    try:
+        got = request_slice(us)
+        guard.event({"t": guard.t(), "type": "realtime", "policy": "normal", "slice_us": got, "asked_us": us})
+    except OSError as exc:
+        print(f"merlin guard: cannot shorten the scheduler slice ({exc}); running with the kernel's default",
+              file=sys.stderr)
+        guard.event({"t": guard.t(), "type": "realtime", "policy": "normal", "detail": str(exc)})
+
+
 def signing_keys(args: argparse.Namespace, with_gcs: bool) -> dict[str, bytes]:
     """Each link's MAVLink 2 signing key (link name -> key) from ``--signing-key`` and ``--<link>-signing-key``;
     a key file that cannot be read is a :class:`merlin.link.signing.KeyFileError` naming the option."""
@@ -143,6 +163,10 @@ def run(args: argparse.Namespace) -> int:
     if not 0 <= args.realtime_priority <= 99:
         print(f"merlin guard: --realtime-priority {args.realtime_priority}: allowed 0..99", file=sys.stderr)
         return 2
+    if args.sched_slice_us != 0 and not 100 <= args.sched_slice_us <= 100_000:
+        print(f"merlin guard: --sched-slice-us {args.sched_slice_us}: allowed 0 (the kernel's default) or "
+              "100..100000", file=sys.stderr)
+        return 2
     try:
         ap = parse_endpoint(args.autopilot, "--autopilot")
         ctl = parse_endpoint(args.controller, "--controller")
@@ -167,6 +191,8 @@ def run(args: argparse.Namespace) -> int:
               f"controller {ctl.describe()}, logs in {out}", flush=True)
     if args.realtime_priority > 0:
         _realtime(guard, args.realtime_priority)
+    elif args.sched_slice_us > 0:
+        _short_slice(guard, args.sched_slice_us)
     try:
         guard.run(args.duration)
     finally:

@@ -24,8 +24,9 @@ discards its surfaces, and reads off its guidance the point the autopilot should
 What this does not reproduce: the autopilot's own turn rate, bank limit and loiter radius are its
 parameters, not Merlin's; the fence projection's bank (``vehicle.bank_limit_deg``) and the RTL route's
 clearance assume Merlin's, so they must be set no tighter than the autopilot flies (``docs/guard.md``).
-The guard measures how the autopilot answered (``guard_brake_measured`` for a multirotor; for a fixed wing
-the turn is checked by the fence monitor, which keeps judging the trusted flight).
+The guard measures how the autopilot answered: the first turn after each revocation is checked against
+``vehicle.reaction_time_s`` and ``vehicle.bank_limit_deg`` (:class:`merlin.guard.response.TurnMeter`,
+``guard_turn_measured``), as a multirotor's braking is.
 """
 
 from __future__ import annotations
@@ -100,18 +101,18 @@ class FixedWingStream:
 
     def _ahead(self, s: VehicleState, height_m: float) -> GuidedTarget:
         """The escape's run-out: the open course held, a point far ahead on it."""
-        course = self._course(s)
+        course = self.course(s)
         r = RUN_OUT_TURN_RADII * self.turn_radius_m
         return GuidedTarget(s.pos_ned_m[0] + r * math.cos(course), s.pos_ned_m[1] + r * math.sin(course), height_m,
                             what="run-out")
 
     @staticmethod
-    def _course(s: VehicleState) -> float:
+    def course(s: VehicleState) -> float:
         vn, ve = s.vel_ned_mps[0], s.vel_ned_mps[1]
         return math.atan2(ve, vn) if math.hypot(vn, ve) > 1.0 else s.att_rpy_rad[2]
 
     def _abeam(self, s: VehicleState, right: bool, height_m: float) -> GuidedTarget:
-        side = self._course(s) + (math.pi / 2 if right else -math.pi / 2)
+        side = self.course(s) + (math.pi / 2 if right else -math.pi / 2)
         r = ABEAM_TURN_RADII * self.turn_radius_m
         return GuidedTarget(s.pos_ned_m[0] + r * math.cos(side), s.pos_ned_m[1] + r * math.sin(side), height_m,
                             what="turn")

@@ -28,6 +28,19 @@ What each autopilot honours, from its documentation:
   position until the controller is handed authority (the loiter GUIDED starts with), frozen at the
   transfer, moved by each goto and altitude change, and given to the core every tick while it stands.
 
+**PX4's fixed wing** takes the controller's far point at the transfer as readily as any other: its
+fixed-wing position controller (``FixedwingPositionControl::Run`` in ``src/modules/fw_pos_control``) makes
+each offboard ``trajectory_setpoint`` position the current waypoint and flies to it, with no check of its
+distance (Merlin's own trusted behaviour streams PX4 points two turn radii abeam and loiter centres
+kilometres away). The core's first-setpoint rule (``handover.max_setpoint_position_error_m``) is Merlin's,
+written for a multirotor, which a far position target sends off at its speed limit; a fixed wing flies any
+point the same way, turning at its own bank limit, which the envelope judges, and the fence projection
+judges the aircraft's state, not its target. So on a PX4 fixed wing, until the transfer (:meth:`enter`), a
+position target is given to the core as the aircraft's own position: outside OFFBOARD PX4 only counts the
+stream as proof of life, and the controller's point is judged from its first message after the transfer,
+as a Plane's goto is. (A point the envelope would refuse, above its altitude limits, is then revoked on,
+not denied at the request.)
+
 A message the core cannot judge (a mask or frame :func:`merlin.link.codec.decode` refuses: acceleration,
 terrain altitude, partial triples) never reaches the autopilot: :meth:`ControllerIntent.on_setpoint` returns
 the rejection and the guard drops it, as ``merlin serve`` does.
@@ -68,11 +81,15 @@ def _height_m(frame: int, alt_m: float, local: LocalFrame) -> float | None:
 class ControllerIntent:
     """The core's setpoint from the controller's messages, for one autopilot (module docstring).
 
-    ``standing``: the autopilot keeps a target of its own between messages (ArduPlane's GUIDED)."""
+    ``standing``: the autopilot keeps a target of its own between messages (ArduPlane's GUIDED).
+    ``enters_at_vehicle``: until the transfer a position target is the vehicle's own position (PX4's fixed
+    wing, module docstring)."""
 
-    def __init__(self, local: LocalFrame, standing: bool) -> None:
+    def __init__(self, local: LocalFrame, standing: bool, enters_at_vehicle: bool = False) -> None:
         self.local = local
         self.standing = standing
+        self.enters_at_vehicle = enters_at_vehicle
+        self._entered = False
         self._target_ne_m: tuple[float, float] | None = None  # None: where the vehicle is (GUIDED's entry loiter)
         self._height_m: float | None = None  # None: the vehicle's height
         #: ArduPlane flies the controller's forced attitude instead of its target while they stream: the core
@@ -99,12 +116,16 @@ class ControllerIntent:
             return Refused(f"{d.detail} ({w.message_name(rec.msg_id)})")
         yaw = s.att_rpy_rad[2]
         if isinstance(d, i.SetpointIn):
-            return d.to_setpoint(s.pos_ned_m, yaw)
-        if isinstance(d, i.GlobalSetpointIn):
-            return d.to_setpoint(self.local, yaw)
-        if isinstance(d, i.AttitudeTargetIn):
+            sp = d.to_setpoint(s.pos_ned_m, yaw)
+        elif isinstance(d, i.GlobalSetpointIn):
+            sp = d.to_setpoint(self.local, yaw)
+        elif isinstance(d, i.AttitudeTargetIn):
             return d.to_setpoint()
-        return Refused(f"{w.message_name(rec.msg_id)}: not a setpoint Merlin reads")
+        else:
+            return Refused(f"{w.message_name(rec.msg_id)}: not a setpoint Merlin reads")
+        if self.enters_at_vehicle and not self._entered and sp.kind is SetpointKind.POSITION:
+            return Setpoint(SetpointKind.POSITION, s.pos_ned_m, yaw_rad=sp.yaw_rad)
+        return sp
 
     def _plane_setpoint(self, rec: w.ControllerSetpoint, s: VehicleState) -> Setpoint | Refused | None:
         if rec.msg_id == w.SET_ATTITUDE_TARGET:
@@ -155,12 +176,14 @@ class ControllerIntent:
         point, at the height commanded so far (or its own)."""
         self._target_ne_m = (s.pos_ned_m[0], s.pos_ned_m[1])
         self._height_m = -s.pos_ned_m[2]
+        self._entered = True
 
     def reset(self) -> None:
         """The controller's GUIDED is over (a revocation, a release): the next one starts from the vehicle."""
         self._target_ne_m = None
         self._height_m = None
         self.attitude = False
+        self._entered = False
 
     def _current_height(self, s: VehicleState) -> float:
         return self._height_m if self._height_m is not None else -s.pos_ned_m[2]

@@ -34,7 +34,10 @@ in place of OFFBOARD/GUIDED, so standard tools see the revocation as the mode ch
 Logs in ``out_dir`` (pymavlink's tlog format): ``guard.tlog``, every frame received on every link once
 and every frame the guard originates (forwarded copies are not repeated); ``autopilot.tlog``, the
 autopilot's frames alone, which ``merlin replay`` reads as a flight log; ``events.jsonl``, the core's
-events and the guard's own (start check, requests, denials, revocations, braking, stop).
+events and the guard's own (start check, requests, denials, revocations, the braking or turn measured, stop).
+A frame's tlog records are written once it has been handled (a setpoint is forwarded before any file is
+written), and the controller's link is read again between the core's step and the rest of a tick: a setpoint
+that arrives during a tick waits for the core's decision, not for the tick's logs and trusted stream.
 """
 
 from __future__ import annotations
@@ -53,6 +56,7 @@ from typing import Any
 
 from merlin.config.models import MerlinConfig
 from merlin.config.runtime import build_core_config
+from merlin.core.geofence import STANDARD_GRAVITY_MPS2
 from merlin.core.step import TrustedCore
 from merlin.core.types import (
     Authority,
@@ -76,7 +80,7 @@ from merlin.guard.failsafe_params import ParamReader, Refusal, check, requiremen
 from merlin.guard.fixedwing_targets import FixedWingStream, GuidedTarget
 from merlin.guard.gate import GateContext, Route, classify
 from merlin.guard.intent import ControllerIntent, Refused
-from merlin.guard.response import BrakeMeter
+from merlin.guard.response import BrakeMeasurement, BrakeMeter, TurnMeasurement, TurnMeter
 from merlin.guard.telemetry import TelemetryState, stream_requests
 from merlin.guard.trusted import TrustedOutput, trusted_output
 from merlin.link import autopilot_wire as w
@@ -201,6 +205,13 @@ class Guard:
         self.intervals_us: dict[int, float] = {}
         v = cfg.vehicle
         self.brake = BrakeMeter(v.reaction_time_s, v.max_horizontal_decel_mps2)
+        # the fence projection's own bank, gravity and roll-out rate (merlin.config.fence_build)
+        fence = self.core_cfg.fence
+        self.turn = TurnMeter(v.reaction_time_s, math.radians(v.bank_limit_deg), STANDARD_GRAVITY_MPS2,
+                              fence.params.roll_rate_radps if fence is not None else 0.0)
+        #: set once a measured response (braking, turn) was worse than the configuration: the fence projection
+        #: is known to trust this autopilot more than it deserves, so no further grant is given this session
+        self.response_refusal: str | None = None
         self.counts: Counter[str] = Counter()
         self._denied_t: dict[str, float] = {}
         self._next_hb_t = 0.0
@@ -223,6 +234,8 @@ class Guard:
             self._inputs_fd = os.open(out_dir / "core_inputs.jsonl", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
             write_effective_config(out_dir, cfg, gcfg)
         self.on_forward: Callable[[str, Frame], None] | None = None  # benchmark hook: a frame forwarded
+        # tlog records not yet written: routing writes them once the frames they record have been handled
+        self._log_queue: list[tuple[TlogWriter, bytes, float]] = []
 
     # ------------------------------------------------------------------------------------------ basics
 
@@ -247,7 +260,7 @@ class Guard:
         link.transport.write(raw)
         link.frames_out += 1
         if originated and self.tlog is not None:
-            self.tlog.write(raw, time.time())
+            self._log_queue.append((self.tlog, raw, time.time()))
 
     @property
     def target(self) -> tuple[int, int]:
@@ -255,23 +268,37 @@ class Guard:
         return (ap.system_id, ap.component_id) if ap is not None else (1, 1)
 
     def _read(self, link: _Link, timeout_s: float) -> list[Frame]:
+        """The frames waiting on ``link``, logged (start-up; routing logs after it has forwarded them)."""
+        frames = self._receive(link, timeout_s)
+        self._write_logs()
+        return frames
+
+    def _receive(self, link: _Link, timeout_s: float) -> list[Frame]:
+        """The frames waiting on ``link`` (verified where it signs); their log records are queued for
+        :meth:`_write_logs`, so that a setpoint is forwarded before any file is written."""
         out: list[Frame] = []
         for data, addr in link.transport.read(timeout_s):
             frames, _errors = link.splitter.feed(data, final=link.transport.datagram)
             now_unix = time.time()
-            for fr in frames:
-                link.frames_in += 1
-                if self.tlog is not None:
-                    self.tlog.write(fr.raw, now_unix)
+            link.frames_in += len(frames)
+            if self.tlog is not None:
+                self._log_queue.extend((self.tlog, fr.raw, now_unix) for fr in frames)
             if link.verify is not None:
                 frames = self._verified(link, frames, now_unix)
             if frames and addr is not None and link.transport.datagram:
                 link.transport.remote = addr  # answer whoever sent valid (and, when signing, verified) MAVLink
             if link is self.ap_link and self.ap_tlog is not None:
-                for fr in frames:
-                    self.ap_tlog.write(fr.raw, now_unix)
+                self._log_queue.extend((self.ap_tlog, fr.raw, now_unix) for fr in frames)
             out.extend(frames)
         return out
+
+    def _write_logs(self) -> None:
+        """Write the queued tlog records, in the order they were queued (a frame received, then what the guard
+        sent in answer)."""
+        q = self._log_queue
+        for tlog, raw, unix_s in q:
+            tlog.write(raw, unix_s)
+        q.clear()
 
     def _verified(self, link: _Link, frames: list[Frame], now_unix: float) -> list[Frame]:
         """The frames of a signed link whose signature verifies with its key (MAVLink's replay rule included):
@@ -346,9 +373,11 @@ class Guard:
                 found = detect(rec.autopilot, rec.mav_type, fr.system_id, fr.component_id)
                 if found is not None:
                     self.autopilot, self.modes = found, mode_table(found)
-                    # ArduPlane's GUIDED keeps a target of its own between the controller's messages
-                    self.intent = ControllerIntent(self.telemetry.frame, found.dialect is Dialect.ARDUPILOT
-                                                   and found.vehicle is VehicleClass.FIXED_WING)
+                    # ArduPlane's GUIDED keeps a target of its own between the controller's messages; PX4's
+                    # fixed wing flies whatever point it has at the transfer (merlin.guard.intent)
+                    fw = found.vehicle is VehicleClass.FIXED_WING
+                    self.intent = ControllerIntent(self.telemetry.frame, found.dialect is Dialect.ARDUPILOT and fw,
+                                                   found.dialect is Dialect.PX4 and fw)
             if self.autopilot is not None and (fr.system_id, fr.component_id) == self.target:
                 self.ap_mode = rec.custom_mode
                 self._ap_seq = fr.seq
@@ -450,6 +479,9 @@ class Guard:
         streaming) is never denied for Merlin's own timing. While the controller's liveness is younger than
         ``handover.heartbeat_alive_min_s`` the guard holds it, answering COMMAND_ACK IN_PROGRESS (and again
         every 0.5 s, and to each retransmission), and passes it to the core once the rule can be met."""
+        if self.response_refusal is not None:
+            self._deny(fr, rec, self.response_refusal, t)
+            return
         cmd = rec.command if isinstance(rec, w.CommandIn) else None
         sender = (fr.system_id, fr.component_id)
         h = self.held
@@ -584,13 +616,18 @@ class Guard:
             self.inputs.setpoint(self.intent.standing_setpoint(state), t)
         inputs = self.inputs.build(state, tuple(self.commands))
         self.commands.clear()
-        if self._inputs_fd is not None:
-            os.write(self._inputs_fd, inputs_log.encode(t, inputs).encode())
         d = self.core.step(t, inputs)
         self.decision = d
         for e in d.events:
             self.event(e.to_dict())
             self._on_core_event(e.kind, e, t)
+        if self._routing:
+            # a setpoint that arrived during the core's step is judged by its decision and forwarded now, not
+            # after the rest of the tick (the input log, the trusted stream): the gate reads the decision, whose
+            # events have been acted on, and the controller's frames feed the next tick's inputs, built already
+            self._route(self.ctl_link)
+        if self._inputs_fd is not None:
+            os.write(self._inputs_fd, inputs_log.encode(t, inputs).encode())
         if d0 is not None and d0.authority is Authority.EXPERIMENTAL and d.authority is not Authority.EXPERIMENTAL:
             self.intent.reset()
             # a new stage per revocation: it enters the behaviour afresh
@@ -598,25 +635,52 @@ class Guard:
             self.trusted_since = t
             self.fallback_sent_t = None
             if self.modes is not None and self.modes.streams_setpoints:
-                # a multirotor brakes to a stop; a fixed wing turns at its speed (its turn is the fence
-                # monitor's to judge, which goes on judging the trusted flight)
+                # a multirotor brakes to a stop; a fixed wing cannot: it turns, and its first turn is measured
                 self.brake.start(t, state.vel_ned_mps)
-        measured = self.brake.update(t, state.vel_ned_mps)
-        if measured is not None:
-            ok = measured.reaction_ok and measured.decel_ok
-            self.event({"t": t, "type": "guard_brake_measured", "ok": ok, "speed0_mps": measured.speed0_mps,
-                        "reaction_s": measured.reaction_s, "decel_mps2": measured.decel_mps2,
-                        "detail": measured.text()})
-            if not ok:
-                text = "Merlin: autopilot brakes worse than configured (see events)"
-                for link in (self.ctl_link, self.gcs_link):
-                    self._send(link, self.enc.statustext(w.MAV_SEVERITY_WARNING, text))
+            elif self.modes is not None and not state.landed:
+                self.turn.start(t, state)
+        braked = self.brake.update(t, state.vel_ned_mps)
+        if braked is not None:
+            self._on_brake_measured(braked, t)
+        turned = self.turn.update(t, state)
+        if turned is not None:
+            self._on_turn_measured(turned, t)
         if (self._trusted_flying() and in_offboard) or (self.fallback_sent_t is not None and self.supervising):
             self._fly_trusted(d, t)
         if t >= self._next_hb_t:
             self._next_hb_t = t + HEARTBEAT_PERIOD_S
             self._send(self.ap_link, self.enc.heartbeat())
+        self._write_logs()
         return d
+
+    def _on_brake_measured(self, m: BrakeMeasurement, t: float) -> None:
+        ok = m.reaction_ok and m.decel_ok
+        self.event({"t": t, "type": "guard_brake_measured", "ok": ok, "speed0_mps": m.speed0_mps,
+                    "reaction_s": m.reaction_s, "decel_mps2": m.decel_mps2, "detail": m.text()})
+        if not ok:
+            self._response_worse("brakes worse than configured", "vehicle.reaction_time_s, "
+                                 "vehicle.max_horizontal_decel_mps2", m.text(), t)
+
+    def _on_turn_measured(self, m: TurnMeasurement, t: float) -> None:
+        self.event({"t": t, "type": "guard_turn_measured", "ok": m.ok, "speed_mps": m.speed_mps,
+                    "commanded": m.commanded, "heading_change_deg": m.heading_change_deg,
+                    "established_s": m.established_s, "bank_deg": m.bank_deg, "turn_rate_degps": m.turn_rate_degps,
+                    "radius_m": m.radius_m, "radius_limit_m": m.radius_limit_m, "detail": m.text()})
+        if m.ok is False:
+            self._response_worse(f"turns {' and '.join(m.problems())} than configured",
+                                 "vehicle.reaction_time_s, vehicle.bank_limit_deg", m.text(), t)
+
+    def _response_worse(self, what: str, fields: str, detail: str, t: float) -> None:
+        """The autopilot answered a revocation worse than the fence projection assumes: warned on the links,
+        and no further grant this session (the projection would judge the next flyaway on the same optimistic
+        figures); the fix is the configuration, with the guard restarted."""
+        text = f"Merlin: autopilot {what} (see events)"
+        for link in (self.ctl_link, self.gcs_link):
+            self._send(link, self.enc.statustext(w.MAV_SEVERITY_WARNING, text))
+        if self.response_refusal is None:
+            self.response_refusal = (f"no grant: the autopilot {what} ({detail}); set {fields} to what it flies "
+                                     "and restart the guard")
+            self.event({"t": t, "type": "guard_grants_refused", "detail": self.response_refusal})
 
     def _on_core_event(self, kind: EventKind, e: Any, t: float) -> None:
         if kind is EventKind.GRANTED:
@@ -627,6 +691,8 @@ class Guard:
             # autopilot get the mode command, so it never flies the controller's setpoints before the core
             # has handed over
             self.supervising = True
+            self.brake.cancel()  # a measurement still running would measure the controller's flight
+            self.turn.cancel()
             self.intent.enter(self.telemetry._last_state)
             self.switch_deadline = t + SWITCH_TIMEOUT_S
             self.trusted_since = None
@@ -670,6 +736,12 @@ class Guard:
             fw_target = self.fw_stream.target(t, d, state)
             for note in self.fw_stream.notes[n_notes:]:
                 self.event({**note, "t": t})
+            if fw_target.what == "turn" and t - since < 1.5 / self.gcfg.rate_hz:
+                # the escape turn starts in the tick of the revocation, to the side of its abeam point: its
+                # reaction is judged
+                course = FixedWingStream.course(state)
+                dn, de = fw_target.north_m - state.pos_ned_m[0], fw_target.east_m - state.pos_ned_m[1]
+                self.turn.commanded(right=math.cos(course) * de - math.sin(course) * dn > 0.0)
         out: TrustedOutput = trusted_output(d, self.modes, self.gcfg, t - since, state, fw_target)
         if out.target is not None:
             self._send_guided_target(out.target, t)
@@ -729,17 +801,23 @@ class Guard:
                 time.sleep(min(remaining, 0.001))
             # the controller's frames first: a setpoint waiting behind a burst of telemetry is added latency
             for fd in sorted(ready, key=lambda f: fds[f] is not self.ctl_link):
-                link = fds[fd]
-                for fr in self._read(link, 0.0):
-                    now = self.t()
-                    if link is self.ap_link:
-                        self._on_autopilot(fr, now)
-                    elif link is self.ctl_link:
-                        self._on_controller(fr, now)
-                    else:
-                        self._on_gcs(fr, now)
+                self._route(fds[fd])
             if not ready:
                 break
+
+    def _route(self, link: _Link) -> None:
+        """Handle what waits on ``link`` now, then write its logs (after the forwarding, not before it)."""
+        try:
+            for fr in self._receive(link, 0.0):
+                now = self.t()
+                if link is self.ap_link:
+                    self._on_autopilot(fr, now)
+                elif link is self.ctl_link:
+                    self._on_controller(fr, now)
+                else:
+                    self._on_gcs(fr, now)
+        finally:
+            self._write_logs()
 
     def run(self, duration_s: float | None = None) -> None:
         period = 1.0 / self.gcfg.rate_hz
@@ -757,6 +835,7 @@ class Guard:
         self._stop = True
 
     def close(self) -> None:
+        self._write_logs()
         self.event({"t": self.t(), "type": "guard_stopped", "counts": dict(self.counts)})
         for link in self.links:
             link.transport.close()

@@ -13,8 +13,11 @@ and the GCS failsafe: no HEARTBEAT from MAV_GCS_SYSID for FS_LONG_TIMEOUT with F
 in AUTO) runs FS_LONG_ACTN (0 Continue: an auto mode such as GUIDED stays; 1 RTL; 2 Glide as FBWA).
 
 The aircraft is a point mass at a constant 22 m/s (the Aerosonde's cruise, above the envelope's 18.5 m/s
-floor), turning at most 0.38 rad/s (a 30 deg bank) and climbing at most 3 m/s: enough to tell a mode from
-another and a return from a flyaway, not a flight model.
+floor), turning at most at a 30 deg bank (0.26 rad/s) and climbing at most 3 m/s: enough to tell a mode
+from another and a return from a flyaway, not a flight model. ``bank_deg`` sets another bank limit (Plane's
+ROLL_LIMIT_DEG, PX4's FW_R_LIM) and ``roll_rate_degps`` a roll rate (the bank then rolls in and out at it,
+as the autopilot's roll time constant and slew limit make it; None: at once), so that an autopilot turning
+more weakly or later than a configuration assumes can be flown.
 """
 
 from __future__ import annotations
@@ -29,7 +32,6 @@ from tests.guard.sim_autopilot import PX4_PARAMS, SimAutopilot
 
 PLANE_PARAMS = {"FS_GCS_ENABL": 1.0, "FS_LONG_TIMEOUT": 2.0, "FS_LONG_ACTN": 1.0, "MAV_GCS_SYSID": 255.0}
 CRUISE_MPS = 22.0
-TURN_RATE_RADPS = 9.81 * math.tan(math.radians(30.0)) / CRUISE_MPS
 LOITER_RADIUS_M = 80.0
 CLIMB_MPS = 3.0
 
@@ -38,8 +40,12 @@ class SimPlane(SimAutopilot):
     mav_type = mav.MAV_TYPE_FIXED_WING
 
     def __init__(self, guard_port: int, params: dict[str, float] | None = None,
-                 flying: tuple[float, float, float] | None = None, **kw: object) -> None:
+                 flying: tuple[float, float, float] | None = None, bank_deg: float = 30.0,
+                 roll_rate_degps: float | None = None, **kw: object) -> None:
         super().__init__(Dialect.ARDUPILOT, guard_port, dict(PLANE_PARAMS if params is None else params), **kw)  # type: ignore[arg-type]
+        self.bank_limit_rad = math.radians(bank_deg)
+        self.turn_rate_radps = 9.81 * math.tan(self.bank_limit_rad) / CRUISE_MPS
+        self.roll_rate_radps = None if roll_rate_degps is None else math.radians(roll_rate_degps)
         self.hold_mode = self.mode = int(PlaneMode.LOITER)
         self.offboard = int(PlaneMode.GUIDED)
         self.course = 0.0
@@ -152,9 +158,16 @@ class SimPlane(SimAutopilot):
             # toward the point, then around it clockwise at LOITER_RADIUS_M
             want = bearing if d > 2.0 * LOITER_RADIUS_M else bearing - math.pi / 2 * min(1.0, d / LOITER_RADIUS_M)
         err = (want - self.course + math.pi) % (2.0 * math.pi) - math.pi
-        turn = max(-TURN_RATE_RADPS * dt, min(TURN_RATE_RADPS * dt, err))
+        rate = self.turn_rate_radps
+        turn = max(-rate * dt, min(rate * dt, err))
+        if self.roll_rate_radps is None:
+            self.roll = math.atan(CRUISE_MPS * (turn / dt) / 9.81)  # the coordinated turn's bank, at once
+        else:
+            want_roll = math.atan(CRUISE_MPS * (turn / dt) / 9.81)
+            step = self.roll_rate_radps * dt
+            self.roll += max(-step, min(step, want_roll - self.roll))
+            turn = 9.81 * math.tan(self.roll) / CRUISE_MPS * dt
         self.course += turn
-        self.roll = math.atan(CRUISE_MPS * (turn / dt) / 9.81)  # the coordinated turn's bank
         climb = 0.0 if name == "FLY_BY_WIRE_A" else max(-CLIMB_MPS, min(CLIMB_MPS, self.alt_target + self.pos[2]))
         self.vel = [CRUISE_MPS * math.cos(self.course), CRUISE_MPS * math.sin(self.course), -climb]
         for i in range(3):
@@ -186,7 +199,7 @@ class SimPx4Plane(SimPlane):
 
     def __init__(self, guard_port: int, params: dict[str, float] | None = None,
                  flying: tuple[float, float, float] | None = None, **kw: object) -> None:
-        super().__init__(guard_port, dict(PX4_PARAMS if params is None else params), flying, **kw)
+        super().__init__(guard_port, dict(PX4_PARAMS if params is None else params), flying, **kw)  # type: ignore[arg-type]
         self.dialect = Dialect.PX4
         self.hold_mode = self.mode = _px4(Px4MainMode.AUTO, Px4AutoSubMode.LOITER)
         self.offboard = _px4(Px4MainMode.OFFBOARD)

@@ -119,7 +119,8 @@ class PlaneRig:
     """The simulated Plane already flying (loitering at ``flying``), the guard in a thread with the shipped
     fixed-wing configuration, and a pymavlink controller streaming GUIDED altitude targets."""
 
-    def __init__(self, tmp: Path, flying: tuple[float, float, float], guard_extra: str = "", px4: bool = False) -> None:
+    def __init__(self, tmp: Path, flying: tuple[float, float, float], guard_extra: str = "", px4: bool = False,
+                 **sim: float) -> None:
         from merlin.commands.guard import load
         from merlin.guard.endpoints import parse_endpoint
         from merlin.guard.runner import Guard
@@ -127,7 +128,7 @@ class PlaneRig:
 
         ap_port, ctl_port = free_port(), free_port()
         self.px4 = px4
-        self.sim = (SimPx4Plane if px4 else SimPlane)(ap_port, flying=flying).start()
+        self.sim = (SimPx4Plane if px4 else SimPlane)(ap_port, flying=flying, **sim).start()  # type: ignore[arg-type]
         cfg_file = tmp / "guard.yaml"
         cfg_file.write_text(FW_CONFIG + guard_extra)
         cfg, gcfg = load(str(cfg_file))
@@ -156,7 +157,8 @@ class PlaneRig:
         self.ctl.command_int(mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mav.MAV_CMD_DO_REPOSITION, -1, 0, 0, math.nan,
                              lat, lon, height_m)
 
-    def request_guided(self, height_m: float) -> None:
+    def request_guided(self, height_m: float, far_point: tuple[float, float] | None = None) -> None:
+        """Stream, then ask for GUIDED/OFFBOARD. PX4: the aircraft's own position, or ``far_point``."""
         c, s = self.ctl, self.sim
         wait_for(lambda: c.mode() is not None, 40, "the Plane's HEARTBEAT through the guard")
         lat, lon = self.latlon(s.pos[0], s.pos[1])
@@ -166,9 +168,9 @@ class PlaneRig:
         asked = False
         while time.monotonic() < end + 10.0 and (mav.MAV_CMD_DO_SET_MODE, 0) not in c.acks:
             if self.px4:
-                # PX4's first offboard point is the aircraft's own position (as it reads it in
-                # GLOBAL_POSITION_INT): within handover.max_setpoint_position_error_m of it
-                c.global_target = (*self.latlon(s.pos[0], s.pos[1]), height_m)
+                # PX4's first offboard point: the aircraft's own position (as it reads it in GLOBAL_POSITION_INT)
+                # or a point anywhere, which PX4 flies to as soon as it is in OFFBOARD
+                c.global_target = (*self.latlon(*(far_point or (s.pos[0], s.pos[1]))), height_m)
             if time.monotonic() >= end and not asked:
                 c.set_mode(*((6.0, 0.0) if self.px4 else (float(PlaneMode.GUIDED),)))
                 asked = True
@@ -220,12 +222,16 @@ def test_a_guided_flight_on_a_plane_passes_then_a_flyaway_is_revoked_and_the_ret
         wait_for(lambda: len(s.gotos) > n_gotos, 5, "the flyaway's point through the guard")
         wait_for(lambda: rig.authority() != "EXPERIMENTAL", 60, "Merlin's revocation of the flyaway")
         t_rev = time.monotonic()
-        # the controller's later points never reach the Plane, and the aircraft turns back inside the range
+        # the controller's later points never reach the Plane, and within 12 s the aircraft turns back inside the
+        # range, 50 m west of the furthest east it flew after the revocation
         rig.goto(0.0, 3000.0, 120.0)
-        time.sleep(12.0)
+
+        def heading_back() -> bool:
+            after = [p[1] for t, p in zip(s.track.t, s.track.pos, strict=False) if t + s.t0 >= t_rev]
+            return bool(after) and s.pos[1] < max(after) - 50.0
+
+        wait_for(heading_back, 12.0, "the aircraft heading back from the edge")
         assert max(p[1] for p in s.track.pos) < EAST_EDGE_M, "left the range"
-        i_rev = next(k for k, t in enumerate(s.track.t) if t + s.t0 >= t_rev)
-        assert s.pos[1] < max(p[1] for p in s.track.pos[i_rev:]) - 50.0, "not heading back from the edge"
         events = [json.loads(x) for x in (tmp_path / "out" / "events.jsonl").read_text().splitlines()]
         revoked = [e for e in events if e.get("type") == "revoked"]
         assert revoked and revoked[0]["reason"] == "geofence", revoked
@@ -239,6 +245,14 @@ def test_a_guided_flight_on_a_plane_passes_then_a_flyaway_is_revoked_and_the_ret
             assert targets and targets[0]["what"] == "turn" and targets[0]["t"] == revoked[0]["t"], targets[:2]
             assert ours, "no guided point from Merlin reached the Plane"
             assert any(e.get("type") == "fixed_wing_escape_turn" for e in events)
+            # the escape turn measured against the configuration: the simulated autopilot turns at the 30 deg
+            # bank vehicle.bank_limit_deg assumes, at once, so it passes and grants stay open
+            wait_for(lambda: any(e.get("type") == "guard_turn_measured" for e in _events(tmp_path)), 10,
+                     "the escape turn measured")
+            turns = [e for e in _events(tmp_path) if e.get("type") == "guard_turn_measured"]
+            assert len(turns) == 1 and turns[0]["ok"] is True and turns[0]["commanded"], turns
+            assert abs(turns[0]["bank_deg"] - 30.0) < 1.0 and turns[0]["established_s"] < 1.0, turns
+            assert rig.guard.response_refusal is None
         else:
             assert s.mode == int(PlaneMode.RTL) and not ours
     finally:
@@ -323,3 +337,63 @@ def test_merlins_streamed_return_on_a_plane_routes_around_the_keep_out(tmp_path:
     # the session's decisions re-run exactly from its logged inputs (merlin guard --replay)
     same, detail = replay_session(tmp_path / "out")
     assert same, detail
+
+
+def _events(tmp: Path) -> list[dict[str, object]]:
+    return [json.loads(x) for x in (tmp / "out" / "events.jsonl").read_text().splitlines()]
+
+
+@pytest.mark.parametrize(("px4", "sim", "problem"), [
+    (False, {"bank_deg": 20.0}, "wider"),  # Plane's ROLL_LIMIT_DEG 20 under a configuration's 30 deg
+    (True, {"roll_rate_degps": 8.0}, "later"),  # PX4 rolling into its 30 deg over ~4 s, not within the 1 s assumed
+], ids=["ardupilot-banks-20-deg", "px4-rolls-in-slowly"])
+def test_an_autopilot_turning_wider_or_later_than_configured_is_flagged_and_refused_further_grants(
+        px4: bool, sim: dict[str, float], problem: str, tmp_path: Path) -> None:
+    """The fence projection judged the flyaway on the configuration's turn (vehicle.reaction_time_s 1 s to full
+    bank, vehicle.bank_limit_deg 30); the autopilot's escape turn is measured on the revocation, found weaker,
+    warned about on the controller's link, and the controller is not given the aircraft again."""
+    rig = PlaneRig(tmp_path, flying=(0.0, 600.0, 100.0), px4=px4, **sim)
+    c = rig.ctl
+    try:
+        rig.request_guided(100.0)
+        rig.goto(0.0, 3000.0, 100.0)  # a flyaway east, out of the range
+        wait_for(lambda: rig.authority() != "EXPERIMENTAL", 60, "Merlin's revocation of the flyaway")
+        wait_for(lambda: rig.guard.response_refusal is not None, 30, "the escape turn measured and refused")
+        turn = next(e for e in _events(tmp_path) if e.get("type") == "guard_turn_measured")
+        assert turn["ok"] is False and turn["commanded"], turn
+        assert f"turns {problem} than configured" in str(rig.guard.response_refusal), rig.guard.response_refusal
+        if problem == "wider":
+            assert abs(turn["bank_deg"] - 20.0) < 1.0 and turn["radius_m"] > 1.3 * turn["radius_limit_m"], turn
+        else:
+            assert turn["established_s"] > 2.5 and abs(turn["bank_deg"] - 30.0) < 1.0, turn
+        wait_for(lambda: any(f"turns {problem}" in x for x in c.texts), 5, "the warning on the controller's link")
+        # the controller asks for the aircraft again: refused by the guard, whatever the core would say
+        n_acks = len(c.acks)
+        c.set_mode(*((6.0, 0.0) if px4 else (float(PlaneMode.GUIDED),)))
+        wait_for(lambda: (mav.MAV_CMD_DO_SET_MODE, mav.MAV_RESULT_DENIED) in c.acks[n_acks:], 5, "the denial")
+        denied = [e for e in _events(tmp_path) if e.get("type") == "guard_denied"]
+        assert denied and str(denied[-1]["detail"]).startswith("no grant: the autopilot turns"), denied
+        assert not any(e.get("type") == "guard_request" and e["t"] > turn["t"] for e in _events(tmp_path))
+    finally:
+        rig.close()
+
+
+def test_a_px4_fixed_wing_controller_may_stream_a_far_point_before_its_request(tmp_path: Path) -> None:
+    """PX4's fixed-wing offboard flies to whatever point it has, however far (FixedwingPositionControl makes the
+    offboard position the current waypoint): a controller streaming a point 800 m away from the start is
+    granted, PX4 flies to it, and the core judges that point from the transfer on."""
+    rig = PlaneRig(tmp_path, flying=(0.0, 600.0, 100.0), px4=True)
+    s = rig.sim
+    try:
+        rig.request_guided(100.0, far_point=(-500.0, 0.0))
+        assert math.dist((s.pos[0], s.pos[1]), (-500.0, 0.0)) > 500.0  # far beyond max_setpoint_position_error_m
+        wait_for(lambda: bool(s.gotos) and math.dist(s.gotos[-1][1], (-500.0, 0.0)) < 1.0, 5, "PX4 flying the point")
+        wait_for(lambda: (sp := rig.guard.inputs.setpoint_) is not None
+                 and math.dist(sp.pos_ned_m[:2], (-500.0, 0.0)) < 1.0, 5, "the core judging the point itself")
+        d0 = math.dist((s.pos[0], s.pos[1]), (-500.0, 0.0))
+        wait_for(lambda: math.dist((s.pos[0], s.pos[1]), (-500.0, 0.0)) < d0 - 100.0, 20, "the flight to the point")
+        assert rig.authority() == "EXPERIMENTAL"
+        events = _events(tmp_path)
+        assert not any(e.get("type") in ("denied", "revoked") for e in events), events
+    finally:
+        rig.close()

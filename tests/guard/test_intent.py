@@ -96,3 +96,25 @@ def test_arduplane_guided_stands_on_its_point_and_reads_only_the_altitude_of_a_p
     assert not isinstance(up, Refused) and up is not None and up.pos_ned_m[2] == -150.0
     intent.reset()
     assert intent.standing_setpoint(moved).pos_ned_m == moved.pos_ned_m
+
+
+def test_a_px4_fixed_wings_far_point_is_the_aircraft_until_the_transfer_then_the_point() -> None:
+    """PX4's fixed-wing offboard flies any point at the transfer (it has no distance check): until then the core
+    judges the aircraft's own position, so a controller may stream its far point from the start; from the
+    transfer on, the point itself (and again from the aircraft after a revocation)."""
+    intent = ControllerIntent(HOME, standing=False, enters_at_vehicle=True)
+    far = _global(POS_ONLY, 900.0, 700.0, 120.0)
+    before = intent.on_setpoint(far, STATE)
+    assert not isinstance(before, Refused) and before is not None
+    assert before.kind is SetpointKind.POSITION and before.pos_ned_m == STATE.pos_ned_m
+    m = mav.MAVLink(None, 1, 191)
+    vel = intent.on_setpoint(_rec(m.set_position_target_local_ned_encode(
+        0, 1, 1, mav.MAV_FRAME_LOCAL_NED, VEL_ONLY, 0, 0, 0, 20.0, 3.0, -1.0, 0, 0, 0, 0.0, 0)), STATE)
+    assert not isinstance(vel, Refused) and vel is not None and vel.vel_ned_mps == (20.0, 3.0, -1.0)  # as given
+    intent.enter(STATE)
+    after = intent.on_setpoint(far, STATE)
+    assert not isinstance(after, Refused) and after is not None
+    assert math.dist(after.pos_ned_m[:2], (900.0, 700.0)) < 0.05 and after.pos_ned_m[2] == -120.0
+    intent.reset()
+    again = intent.on_setpoint(far, STATE)
+    assert not isinstance(again, Refused) and again is not None and again.pos_ned_m == STATE.pos_ned_m

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from merlin.autopilot import fixedwing_recovery
 from sims.expectations import evaluate_all
 from sims.runner import run_scenario
 from sims.scenario import load_scenario
@@ -63,7 +64,7 @@ def test_a_slow_steep_climb_towards_the_notch_wall_stays_inside() -> None:
 
 
 def test_a_request_below_the_minimum_grant_height_is_refused_with_its_reason() -> None:
-    """The fixed-wing default derives its minimum grant height from the stall recovery's bound (53.8 m): the
+    """The fixed-wing default derives its minimum grant height from the stall recovery's bound (77.5 m): the
     push-before-stall adversary asking at 45 m is refused, naming the height and the limit."""
     r, results = _run("fw_adv_grant_below_recovery_height.yaml")
     assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
@@ -74,11 +75,12 @@ def test_a_request_below_the_minimum_grant_height_is_refused_with_its_reason() -
     if granted:
         h = -r.log["truth_d"]
         k = int(np.searchsorted(r.log["t"], granted[0]["t"]))
-        assert h[k] > 53.8
+        assert h[k] > fixedwing_recovery.min_grant_height_m(
+            load_scenario(SCENARIOS / "fw_adv_grant_below_recovery_height.yaml")[1])
 
 
 def test_a_dive_after_a_grant_above_the_minimum_height_is_revoked_above_the_recovery_height() -> None:
-    """Granted at 62 m (above the 53.8 m minimum grant height), the adversary sinks and dives: the floor's
+    """Granted at 86 m (above the 77.5 m minimum grant height), the adversary sinks and dives: the floor's
     projection counts the stall recovery's height bound, so it revokes while the recovery still keeps the
     floor (it revoked at 47.7 m and went 6.7 m through the floor when it counted only the sink's braking)."""
     r, results = _run("fw_adv_descend_after_grant.yaml")
@@ -167,8 +169,9 @@ def test_a_hand_over_from_the_escape_keeps_a_margin_at_the_mast_in_a_tailwind() 
     """The falsifier's velocity step west at the radio mast, 10 m/s blowing west: after the left escape's
     run-out RTL took over at a right turn-in the projection found clear by centimetres, and the escape that
     followed entered the mast by 10.89 m. The hand-over now needs the route's own margin. (Outside the keep-out,
-    not beyond the widening: 11.69 m on the branch, 4.93 m once main's loop changes were merged; the margin
-    is not yet understood.)"""
+    not beyond the widening: 11.69 m on the branch, 4.93 m once main was merged into it, 7.21 m on main later:
+    the lateral integrators carried on across the escape's hand-over to RTL, docs/benchmarks/
+    fixed-wing-recovery.md.)"""
     r, results = _run("fw_adv_mast_tailwind_handover.yaml")
     assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
     assert r.metrics["min_fence_margin_m"] > 0.0
