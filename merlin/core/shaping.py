@@ -53,17 +53,23 @@ def setpoint_to_command(sp: Setpoint, s: VehicleState, source: Authority, tp: Tr
             thrust=min(max(sp.thrust, 0.0), 1.0),
         )
     if sp.kind is _SP_POSITION:
-        # An experimental position setpoint is a place, not a speed: Merlin flies towards it at its own cruise
-        # speed (the climb and descent clamps follow in clamp_command), so a far target is not turned into a
-        # velocity the envelope revokes (cross-check XC024); the trusted autopilot limits its own setpoints.
+        # An experimental position setpoint is a place, not a speed: Merlin flies towards it at the speeds its
+        # own HOLD flies towards its anchor (cruise horizontally, climb_speed_mps up, twice land_speed_mps
+        # down; the clamps follow in clamp_command), so a far target is not turned into a velocity the
+        # envelope revokes (cross-check XC024). Vertically the clamp alone is not enough: PX4's 3 m/s climb
+        # clamp equals the default envelope's climb limit, and the vertical velocity loop settles onto a
+        # command from a few per cent above it for over a second (3.09 m/s on the default quadrotor), so a
+        # 10 m climb flown at the clamp was revoked on vel_d_mps after 0.5 s on the fusion EKF (MAVSDK's
+        # offboard_position_velocity_ned against merlin serve). The trusted autopilot limits its own setpoints.
+        trusted = source is _TRUSTED
         vel = position_to_velocity(
             sp.pos_ned_m,
             s.pos_ned_m,
             sp.vel_ned_mps,
             tp.position_gain_per_s,
-            math.inf if source is _TRUSTED else tp.cruise_speed_mps,
-            math.inf,
-            math.inf,
+            math.inf if trusted else tp.cruise_speed_mps,
+            math.inf if trusted else tp.climb_speed_mps,
+            math.inf if trusted else 2.0 * tp.land_speed_mps,
         )
         # positional, in Command's field order (built every tick)
         return Command(

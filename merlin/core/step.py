@@ -486,7 +486,16 @@ def _arm_block(cfg: CoreConfig, s: VehicleState, tripped: Mapping[MonitorId, Rea
     if r is not None:
         return r
     if cfg.fence is not None and not geofence.contains(cfg.fence, s.pos_ned_m):
-        return Reason(ReasonCode.OUTSIDE_FENCE, MonitorId.GEOFENCE, text="refused: arming outside the geofence")
+        # The estimated position itself, not the fence widened by its sigma: near an edge a GPS-aided start
+        # carries the receiver's slow wander and may lie outside with the truth inside. Say by how much, and
+        # how sure the estimate is, so that the refusal can be read without the log.
+        out_m = -geofence.signed_margin_m(cfg.fence, s.pos_ned_m)
+        if not math.isfinite(out_m):
+            return Reason(ReasonCode.OUTSIDE_FENCE, MonitorId.GEOFENCE,
+                          text="refused: arming outside the geofence: no finite position estimate")
+        return Reason(ReasonCode.OUTSIDE_FENCE, MonitorId.GEOFENCE, "position", out_m, 0.0, 0.0,
+                      f"refused: arming outside the geofence: the estimated position is {out_m:.2f} m outside"
+                      f" (position sigma {s.pos_sigma_h_m:.2f} m)")
     for name in (MonitorId.BATTERY_CRITICAL, MonitorId.NAV_LOST):
         r = tripped.get(name)
         if r is not None:

@@ -412,9 +412,10 @@ def test_a_pilot_never_flies_beyond_the_fence_wherever_the_takeover_starts(
     sc = Scenario.model_validate({
         "name": "pilot", "duration_s": t2 + 9.0, "seed": 5, "rc_connected": True,
         # the stand-in by name, as when this was written: the property is the pilot's fence. On the EKF a
-        # vehicle started in the air 1 m inside the corner is refused arming (its first position sigma widens
-        # the fence past it) and its logged fence margin is the estimate's, -19.9 m at 2.5 s, with the truth
-        # 1 m inside: an open finding of the EKF's airborne start, not of the pilot's fence
+        # vehicle started in the air 1 m inside the corner may be refused arming: its GPS-aided start takes
+        # the receiver's fix, which the receiver's wander can put outside the edge (the arming judges that
+        # estimate, not a sigma-widened fence; tests/nav/test_nav_airborne_start.py), and unarmed it falls
+        # through the 20 m floor (the -19.9 m margin is the truth's, on the ground)
         "estimator": "truth_plus_noise",
         "initial": {"pos_ned_m": [HALF - edge_m, HALF - edge_m - along_m, -h0], "yaw_deg": 0.0},
         "gcs": [{"t": 0.0, "command": "arm"}, {"t": 0.0, "command": "hold"}],

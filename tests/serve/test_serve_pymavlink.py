@@ -192,3 +192,16 @@ def test_sigkill_of_serve_loses_neither_tlog_nor_events(serve: ServeProc) -> Non
     ev = serve.events()  # every line parses: no torn record
     assert any(e["type"] == "command_ack" and e.get("command") == "ARM" for e in ev)
     assert not any(e["type"] == "serve_stop" for e in ev)
+
+
+def test_serve_flies_the_multirotor_on_the_fusion_ekf(serve: ServeProc) -> None:
+    """The real navigation stack by default: the multirotor is served on the fusion EKF, as `merlin sim` flies
+    it, and its start and stop records say so (the fixed wing's: tests/scenarios_fixedwing/test_serve_fixedwing.py)."""
+    m = gcs_connection(serve.gcs_port)
+    assert wait_for(m, lambda x: x.get_type() == "HEARTBEAT" and x.get_srcComponent() == 1) is not None
+    m.close()
+    stop(serve)
+    ev = serve.events()
+    start = next(e for e in ev if e["type"] == "serve_start")
+    assert start["estimator"] == "ekf" and start["estimator_note"].startswith("fusion EKF"), start
+    assert [e for e in ev if e["type"] == "serve_stop"][-1]["estimator"] == "ekf"
