@@ -688,11 +688,6 @@ class NavFilterConfig(Strict):
     gps_vo_match_s: float = Field(
         0.08, gt=0.0, le=1.0, description="the VO sample nearest the GPS time must be this close to be compared, s"
     )
-    imu_switch_exposure_s: float = Field(
-        1.0, ge=0.0, le=10.0,
-        description="at a change of the IMU source fed, the attitude variance widens by (gyro step × this)²: the"
-        " time the faulty source fed the filter before the switch, s",
-    )
     gps_readmit_gate_pos: float = Field(
         11.345, ge=1.0, le=1000.0, description="re-admission position gate, χ² 3 dof at 1e-2"
     )

