@@ -254,13 +254,38 @@ def test_a_fault_on_one_lane_never_isolates_another(lane, kind, size, t0, seed):
         assert lo - 1e-9 <= v <= hi + 1e-9
 
 
+def _corrupted(kind: int, vals: tuple[float, ...], prev: LaneSample | None, out_of_range: float,
+               wild_step: float) -> tuple[float, ...]:
+    """One lane's sample spoiled as anomaly ``kind`` 1-4 of the fast-path property tests: repeated (stuck)
+    values, NaN, out of range, or a miscompare of ``wild_step``."""
+    if kind == 1 and prev is not None:
+        return prev.values
+    if kind == 2:
+        return (math.nan, *vals[1:])
+    if kind == 3:
+        return (out_of_range, *vals[1:])
+    return (vals[0] + wild_step, *vals[1:])
+
+
+def _both_paths_agree(spec, s_fast, s_gen, t, samples):
+    """One tick on the fast and the general path: equal states, events and outputs (NaN equal to NaN)."""
+    from merlin.redundancy.sensor_voter import _vote_step_general
+
+    s_fast, out_f, ev_f = vote_step(spec, s_fast, t, tuple(samples))
+    s_gen, out_g, ev_g = _vote_step_general(spec, s_gen, t, tuple(samples))
+    assert s_fast == s_gen and ev_f == ev_g
+    assert out_f.values == out_g.values or (out_f.values is not None and out_g.values is not None
+                                            and all(a == b or (math.isnan(a) and math.isnan(b))
+                                                    for a, b in zip(out_f.values, out_g.values, strict=True)))
+    assert (out_f.valid, out_f.level, out_f.lanes_used) == (out_g.valid, out_g.level, out_g.lanes_used)
+    return s_fast, s_gen
+
+
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), p_anomaly=st.sampled_from([0.0, 0.02, 0.1]))
 def test_the_clean_tick_fast_path_returns_exactly_what_the_general_path_does(seed, p_anomaly):
     """vote_step takes a shortcut on clean triplex ticks; on any sequence -- clean, or with dropped,
     repeated, out-of-range, NaN or wild samples -- its states, outputs and events equal the general path's."""
-    from merlin.redundancy.sensor_voter import _vote_step_general
-
     rng = np.random.default_rng(seed)
     s_fast = s_gen = VoterState()
     prev: list[LaneSample | None] = [None, None, None]
@@ -275,23 +300,10 @@ def test_the_clean_tick_fast_path_returns_exactly_what_the_general_path_does(see
                 if kind == 0:
                     samples.append(prev[i])  # no new sample
                     continue
-                if kind == 1 and prev[i] is not None:
-                    vals = prev[i].values  # type: ignore[union-attr]  # repeated (stuck) values
-                elif kind == 2:
-                    vals = (math.nan, *vals[1:])
-                elif kind == 3:
-                    vals = (1e3, *vals[1:])  # out of range
-                else:
-                    vals = (vals[0] + 1.0, *vals[1:])  # miscompare
+                vals = _corrupted(int(kind), vals, prev[i], 1e3, 1.0)
             prev[i] = LaneSample(t, vals)
             samples.append(prev[i])
-        s_fast, out_f, ev_f = vote_step(IMU_SPEC, s_fast, t, tuple(samples))
-        s_gen, out_g, ev_g = _vote_step_general(IMU_SPEC, s_gen, t, tuple(samples))
-        assert s_fast == s_gen and ev_f == ev_g
-        assert out_f.values == out_g.values or (out_f.values is not None and out_g.values is not None
-                                                and all(a == b or (math.isnan(a) and math.isnan(b))
-                                                        for a, b in zip(out_f.values, out_g.values, strict=True)))
-        assert (out_f.valid, out_f.level, out_f.lanes_used) == (out_g.valid, out_g.level, out_g.lanes_used)
+        s_fast, s_gen = _both_paths_agree(IMU_SPEC, s_fast, s_gen, t, samples)
 
 
 @settings(max_examples=30, deadline=None)
@@ -303,8 +315,6 @@ def test_the_fast_path_between_a_slow_channels_samples_returns_what_the_general_
     phase); the fast path takes those ticks too. On any sequence -- clean, or with late, missing (long
     enough to time out), repeated, out-of-range, NaN or wild samples -- its states, outputs and events
     equal the general path's, tick by tick."""
-    from merlin.redundancy.sensor_voter import _vote_step_general
-
     spec = CHANNEL_SPECS[channel]
     n = len(spec.components)
     rng = np.random.default_rng(seed)
@@ -328,20 +338,7 @@ def test_the_fast_path_between_a_slow_channels_samples_returns_what_the_general_
                     silent_until[i] = k + int(rng.integers(1, 3)) * int(spec.timeout_s / 0.0025)  # a gap
                     samples.append(prev[i])
                     continue
-                if kind == 1 and prev[i] is not None:
-                    vals = prev[i].values  # type: ignore[union-attr]  # repeated (stuck) values
-                elif kind == 2:
-                    vals = (math.nan, *vals[1:])
-                elif kind == 3:
-                    vals = (1e9, *vals[1:])  # out of range
-                else:
-                    vals = (vals[0] + 5.0 * spec.miscompare[0], *vals[1:])  # miscompare
+                vals = _corrupted(int(kind), vals, prev[i], 1e9, 5.0 * spec.miscompare[0])
             prev[i] = LaneSample(t, vals, fix_type=3 if channel == "gps" else 99)
             samples.append(prev[i])
-        s_fast, out_f, ev_f = vote_step(spec, s_fast, t, tuple(samples))
-        s_gen, out_g, ev_g = _vote_step_general(spec, s_gen, t, tuple(samples))
-        assert s_fast == s_gen and ev_f == ev_g
-        assert out_f.values == out_g.values or (out_f.values is not None and out_g.values is not None
-                                                and all(a == b or (math.isnan(a) and math.isnan(b))
-                                                        for a, b in zip(out_f.values, out_g.values, strict=True)))
-        assert (out_f.valid, out_f.level, out_f.lanes_used) == (out_g.valid, out_g.level, out_g.lanes_used)
+        s_fast, s_gen = _both_paths_agree(spec, s_fast, s_gen, t, samples)
