@@ -232,8 +232,8 @@ def test_a_guided_flight_on_a_plane_passes_then_a_flyaway_is_revoked_and_the_ret
 
         wait_for(heading_back, 12.0, "the aircraft heading back from the edge")
         assert max(p[1] for p in s.track.pos) < EAST_EDGE_M, "left the range"
-        # the guard's log may reach the file a moment after the decision is seen in memory (the last CI run read
-        # it empty right after the turn back): wait for the record rather than read it at once
+        # the guard's log may reach the file a moment after the decision is seen in memory: wait for the record
+        # rather than read it at once
         wait_for(lambda: any(e.get("type") == "revoked" for e in _events(tmp_path)), 10, "the revocation's record")
         events = _events(tmp_path)
         revoked = [e for e in events if e.get("type") == "revoked"]
