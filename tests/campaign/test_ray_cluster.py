@@ -22,17 +22,13 @@ from pathlib import Path
 import pytest
 import yaml
 
+from tests.ports import reserve_port
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
 TINY = str(HERE / "tiny.yaml")
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _digests(out: Path) -> dict[str, str]:
@@ -46,7 +42,7 @@ def test_campaign_runs_unchanged_on_a_ray_cluster_address(tmp_path: Path) -> Non
     ray_exe = Path(sys.executable).with_name("ray")
     if not ray_exe.exists():
         pytest.skip("the ray command-line tool is not installed beside this Python")
-    port = _free_port()
+    port = reserve_port()
     # One authentication mode on both sides (Ray >= 2.5x may find a token file in ~/.ray otherwise).
     env = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
     temp = Path("/tmp") / f"merlin-ray-{port}"  # Ray's socket paths must stay short: not under tmp_path
@@ -164,7 +160,7 @@ def test_campaign_on_two_nodes_survives_losing_one(tmp_path: Path) -> None:
     ray_exe = Path(sys.executable).with_name("ray")
     if not ray_exe.exists():
         pytest.skip("the ray command-line tool is not installed beside this Python")
-    port = _free_port()
+    port = reserve_port()
     env = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
     env |= {"RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
     runs = 12

@@ -32,14 +32,12 @@ def test_bad_urls_name_the_option_the_text_and_the_forms(url: str, why: str) -> 
 
 
 def test_tcp_client_and_server_carry_frames_both_ways() -> None:
-    import socket
     import time
 
     from merlin.guard.endpoints import open_transport
+    from tests.ports import reserve_port
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = reserve_port()
     server = open_transport(parse_endpoint(f"tcpin:127.0.0.1:{port}"))
     client = open_transport(parse_endpoint(f"tcp:127.0.0.1:{port}"))
     try:

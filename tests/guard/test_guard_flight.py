@@ -13,7 +13,6 @@ import json
 import math
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -32,6 +31,7 @@ from merlin.replay.core_replay import home_frame, replay
 from merlin.replay.flightlog import read_log
 from tests.guard.controller import Controller
 from tests.guard.sim_autopilot import SimAutopilot
+from tests.ports import reserve_port
 
 ROOT = Path(__file__).resolve().parents[2]
 FENCE_RADIUS_M = 60.0
@@ -44,12 +44,6 @@ guard:
 """
 PX4_OFFBOARD = (6.0, 0.0)
 COPTER_GUIDED = (float(CopterMode.GUIDED), 0.0)
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def wait_for(cond: Callable[[], bool], timeout_s: float, what: str) -> None:
@@ -72,7 +66,7 @@ class Rig:
     """A simulated autopilot, the guard in a thread, a controller."""
 
     def __init__(self, dialect: Dialect, config: Path, out: Path) -> None:
-        ap_port, ctl_port = free_port(), free_port()
+        ap_port, ctl_port = reserve_port(), reserve_port()
         self.sim = SimAutopilot(dialect, ap_port).start()
         cfg, gcfg = load(str(config))
         self.guard = Guard(cfg, gcfg, parse_endpoint(f"udpin:127.0.0.1:{ap_port}"),
@@ -175,7 +169,7 @@ def _spawn_guard(ap_port: int, ctl_port: int, config: Path, out: Path) -> subpro
 @pytest.mark.parametrize("dialect", [Dialect.PX4, Dialect.ARDUPILOT], ids=["px4", "ardupilot"])
 def test_killing_the_guard_hands_the_vehicle_to_the_autopilots_failsafe(dialect: Dialect, config_file: Path,
                                                                         tmp_path: Path) -> None:
-    ap_port, ctl_port = free_port(), free_port()
+    ap_port, ctl_port = reserve_port(), reserve_port()
     sim = SimAutopilot(dialect, ap_port).start()
     proc = _spawn_guard(ap_port, ctl_port, config_file, tmp_path / "out")
     ctl = Controller(ctl_port).start()
@@ -211,7 +205,7 @@ def test_killing_the_guard_hands_the_vehicle_to_the_autopilots_failsafe(dialect:
 ], ids=["px4", "ardupilot"])
 def test_unsafe_failsafe_parameters_are_refused_at_start_up(dialect: Dialect, params: dict[str, float], name: str,
                                                           config_file: Path, tmp_path: Path) -> None:
-    ap_port, ctl_port = free_port(), free_port()
+    ap_port, ctl_port = reserve_port(), reserve_port()
     sim = SimAutopilot(dialect, ap_port, params).start()
     try:
         proc = _spawn_guard(ap_port, ctl_port, config_file, tmp_path / "out")

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import os
-import socket
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -21,7 +20,9 @@ from typing import Any
 
 import pytest
 
-from tests.guard.test_guard_flight import ROOT, free_port
+from tests.guard.test_guard_flight import ROOT
+from tests.ports import reserve_port
+from tests.serve.conftest import ServeProc, wait_ready
 from tests.serve.px4_examples import PX4_HOME
 
 pytest.importorskip("mavsdk_grpc", reason="the gRPC MAVSDK-Python (pip install mavsdk-grpc) runs the examples")
@@ -30,12 +31,6 @@ pytestmark = pytest.mark.integration
 HOME = f"home: {{lat_deg: {PX4_HOME[0]}, lon_deg: {PX4_HOME[1]}, alt_amsl_m: {PX4_HOME[2]}}}\n"
 GUARD_CONFIG = HOME + "geofence:\n  inclusion_circles:\n    - {name: t, center_ne_m: [0.0, 0.0], radius_m: 60.0}\n"
 FINISHED = "EXAMPLE FINISHED"
-
-
-def _free_tcp_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 class GuardedServe:
@@ -47,7 +42,7 @@ class GuardedServe:
         serve_cfg.write_text(HOME)
         guard_cfg = tmp / "guard.yaml"
         guard_cfg.write_text(guard_config)
-        ap, self.ctl, gcs = free_port(), free_port(), free_port()
+        ap, self.ctl, gcs = reserve_port(), reserve_port(), reserve_port()
         self.env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         self.out = tmp / "guard"
         self.procs = [
@@ -60,11 +55,16 @@ class GuardedServe:
                               "--out", str(self.out), "--duration", "300"],
                              cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=self.env),
         ]
+        try:  # serve up before an example's clock starts (start-up is slow on a loaded machine)
+            wait_ready(ServeProc(self.procs[0], gcs, ap, tmp / "serve"))
+        except BaseException:
+            self.close()
+            raise
 
     def run(self, name: str, timeout_s: float) -> str:
         """Run the program ``name`` to its end; its whole output (asserted to have finished without error)."""
         ex = subprocess.run([sys.executable, "-m", "tests.serve.px4_examples", name, f"udpin://0.0.0.0:{self.ctl}",
-                             str(_free_tcp_port())], cwd=ROOT, capture_output=True, text=True, env=self.env,
+                             str(reserve_port())], cwd=ROOT, capture_output=True, text=True, env=self.env,
                             timeout=timeout_s)
         out = ex.stdout + ex.stderr
         assert FINISHED in out and "failed with error code" not in out and "Traceback" not in out, out[-3000:]
@@ -129,7 +129,7 @@ def test_mavsdk_goto_without_authority_is_denied_as_px4_denies_a_command(guarded
     guard answers DO_REPOSITION with COMMAND_ACK DENIED (the controller moves the vehicle only while it holds
     authority, docs/guard.md), which MAVSDK raises as COMMAND_DENIED; the vehicle stays where it took off."""
     p = subprocess.Popen([sys.executable, "-m", "tests.serve.px4_examples", "goto", f"udpin://0.0.0.0:{guarded.ctl}",
-                          str(_free_tcp_port())], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                          str(reserve_port())], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                          env=guarded.env)
     try:
         assert p.stdout is not None

@@ -24,7 +24,8 @@ from merlin.commands.guard import replay_session
 from merlin.guard.dialects import PlaneMode
 from tests.guard.sim_autopilot import PX4_PARAMS
 from tests.guard.sim_plane import PLANE_PARAMS, SimPlane, SimPx4Plane
-from tests.guard.test_guard_flight import ROOT, free_port, wait_for
+from tests.guard.test_guard_flight import ROOT, wait_for
+from tests.ports import reserve_port
 
 pytestmark = pytest.mark.integration
 
@@ -47,10 +48,10 @@ def _spawn(ap_port: int, ctl_port: int, gcs_port: int, tmp: Path) -> subprocess.
 ], ids=["long-action-continue", "gcs-failsafe-auto-only"])
 def test_a_plane_that_would_not_come_home_without_the_guard_is_refused(param: str, value: float, said: str,
                                                                        tmp_path: Path) -> None:
-    ap_port = free_port()
+    ap_port = reserve_port()
     sim = SimPlane(ap_port, {**PLANE_PARAMS, param: value}).start()
     try:
-        proc = _spawn(ap_port, free_port(), free_port(), tmp_path)
+        proc = _spawn(ap_port, reserve_port(), reserve_port(), tmp_path)
         _out, err = proc.communicate(timeout=60)
         assert proc.returncode == 3, err
         assert said in err and param in err and "required" in err, err
@@ -77,9 +78,9 @@ class Gcs:
 
 
 def test_killing_the_guard_hands_a_plane_to_its_long_failsafe(tmp_path: Path) -> None:
-    ap_port, gcs_port = free_port(), free_port()
+    ap_port, gcs_port = reserve_port(), reserve_port()
     sim = SimPlane(ap_port).start()
-    proc = _spawn(ap_port, free_port(), gcs_port, tmp_path)
+    proc = _spawn(ap_port, reserve_port(), gcs_port, tmp_path)
     gcs = Gcs(gcs_port)
     try:
         assert proc.stdout is not None
@@ -126,7 +127,7 @@ class PlaneRig:
         from merlin.guard.runner import Guard
         from tests.guard.controller import Controller
 
-        ap_port, ctl_port = free_port(), free_port()
+        ap_port, ctl_port = reserve_port(), reserve_port()
         self.px4 = px4
         self.sim = (SimPx4Plane if px4 else SimPlane)(ap_port, flying=flying, **sim).start()  # type: ignore[arg-type]
         cfg_file = tmp / "guard.yaml"
@@ -263,10 +264,10 @@ def test_a_guided_flight_on_a_plane_passes_then_a_flyaway_is_revoked_and_the_ret
 
 
 def test_a_px4_fixed_wing_whose_offboard_loss_would_land_where_it_is_is_refused(tmp_path: Path) -> None:
-    ap_port = free_port()
+    ap_port = reserve_port()
     sim = SimPx4Plane(ap_port, {**PX4_PARAMS, "COM_OBL_RC_ACT": 4.0}).start()  # 4 Land: corkscrews down
     try:
-        proc = _spawn(ap_port, free_port(), free_port(), tmp_path)
+        proc = _spawn(ap_port, reserve_port(), reserve_port(), tmp_path)
         _out, err = proc.communicate(timeout=60)
         assert proc.returncode == 3, err
         assert "COM_OBL_RC_ACT" in err and "required" in err, err
@@ -278,9 +279,9 @@ def test_a_px4_fixed_wing_whose_offboard_loss_would_land_where_it_is_is_refused(
 def test_killing_the_guard_hands_a_px4_fixed_wing_to_its_offboard_loss_failsafe(tmp_path: Path) -> None:
     from tests.guard.controller import Controller
 
-    ap_port, ctl_port = free_port(), free_port()
+    ap_port, ctl_port = reserve_port(), reserve_port()
     sim = SimPx4Plane(ap_port, flying=(0.0, 0.0, 100.0)).start()
-    proc = _spawn(ap_port, ctl_port, free_port(), tmp_path)
+    proc = _spawn(ap_port, ctl_port, reserve_port(), tmp_path)
     ctl = Controller(ctl_port).start()
     try:
         assert proc.stdout is not None

@@ -22,7 +22,9 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from tests.guard.controller import Controller
-from tests.guard.test_guard_flight import CONFIG, FENCE_RADIUS_M, ROOT, free_port, wait_for
+from tests.guard.test_guard_flight import CONFIG, FENCE_RADIUS_M, ROOT, wait_for
+from tests.ports import reserve_port
+from tests.serve.conftest import ServeProc, wait_ready
 
 #: serve's configuration under the guard: the guard's home (its default), everything else serve's default;
 #: ``--autopilot-only`` takes Merlin's arbitration out of it
@@ -72,7 +74,7 @@ class Observer:
 
 class ServeRig:
     def __init__(self, tmp: Path, guard_config: str = CONFIG, serve_config: str = SERVE_HOME) -> None:
-        self.ap_port, self.ctl_port, gcs_port = free_port(), free_port(), free_port()
+        self.ap_port, self.ctl_port, gcs_port = reserve_port(), reserve_port(), reserve_port()
         serve_file = tmp / "serve.yaml"
         serve_file.write_text(serve_config)
         self.obs = Observer(gcs_port)
@@ -91,6 +93,11 @@ class ServeRig:
             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
         self.ctl = Controller(self.ctl_port).start()
         self.events = tmp / "guard" / "events.jsonl"
+        try:  # serve up before a test's clock starts (start-up is slow on a loaded machine)
+            wait_ready(ServeProc(self.serve, gcs_port, self.ap_port, tmp / "serve"))
+        except BaseException:
+            self.close()
+            raise
 
     def close(self) -> None:
         self.ctl.stop()

@@ -16,7 +16,8 @@ from merlin.guard.endpoints import parse_endpoint
 from merlin.guard.runner import Guard
 from tests.guard.controller import Controller
 from tests.guard.sim_autopilot import SimAutopilot
-from tests.guard.test_guard_flight import CONFIG, free_port, wait_for
+from tests.guard.test_guard_flight import CONFIG, wait_for
+from tests.ports import reserve_port
 
 pytestmark = pytest.mark.integration
 
@@ -24,7 +25,7 @@ ACCELERATION_ONLY = 0b0000_1100_0011_1111  # x y z and vx vy vz ignored, ax ay a
 
 
 def test_an_acceleration_setpoint_is_not_forwarded_and_a_velocity_setpoint_is(tmp_path: Path) -> None:
-    ap_port, ctl_port = free_port(), free_port()
+    ap_port, ctl_port = reserve_port(), reserve_port()
     sim = SimAutopilot(Dialect.PX4, ap_port).start()
     cfg_file = tmp_path / "guard.yaml"
     cfg_file.write_text(CONFIG)

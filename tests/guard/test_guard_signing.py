@@ -19,7 +19,8 @@ from merlin.guard.runner import Guard
 from merlin.link.signing import write_key_file
 from tests.guard.controller import Controller
 from tests.guard.sim_autopilot import SimAutopilot
-from tests.guard.test_guard_flight import CONFIG, free_port, wait_for
+from tests.guard.test_guard_flight import CONFIG, wait_for
+from tests.ports import reserve_port
 
 pytestmark = pytest.mark.integration
 
@@ -30,7 +31,7 @@ OTHER_KEY = bytes(range(1, 33))
 @pytest.mark.parametrize("controller_key", [None, OTHER_KEY, KEY], ids=["unsigned", "wrong-key", "signed"])
 def test_only_a_controller_signing_with_the_key_reaches_the_autopilot(controller_key: bytes | None,
                                                                        tmp_path: Path) -> None:
-    ap_port, ctl_port = free_port(), free_port()
+    ap_port, ctl_port = reserve_port(), reserve_port()
     sim = SimAutopilot(Dialect.PX4, ap_port).start()
     cfg_file = tmp_path / "guard.yaml"
     cfg_file.write_text(CONFIG)

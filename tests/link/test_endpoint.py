@@ -16,14 +16,7 @@ from merlin.link.endpoint import MavlinkEndpoint
 from merlin.link.px4_modes import OFFBOARD
 from merlin.link.security import LinkPolicy
 from tests.link.helpers import KEY
-
-
-def _free_port() -> int:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind(("127.0.0.1", 0))
-    port = int(s.getsockname()[1])
-    s.close()
-    return port
+from tests.ports import reserve_port
 
 
 def _recv(conn: Any, mtype: str, timeout_s: float = 5.0) -> Any:
@@ -41,7 +34,7 @@ def _poll_until(ep: MavlinkEndpoint, want: type, timeout_s: float = 5.0) -> list
 
 
 def test_udp_round_trip_with_mavutil_peer() -> None:
-    port = _free_port()
+    port = reserve_port()
     peer = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=42, source_component=191,
                                       dialect=register_with_mavutil())
     ep = MavlinkEndpoint.udp(LinkPolicy("controller"), bind=("127.0.0.1", 0), remote=("127.0.0.1", port))
@@ -163,3 +156,4 @@ def test_a_flood_is_read_in_bounded_batches() -> None:
     finally:
         tx.close()
         ep.close()
+

@@ -1,11 +1,19 @@
-"""``merlin serve`` as a real subprocess on loopback, with ports chosen per test, always killed at the end."""
+"""``merlin serve`` as a real subprocess on loopback, with ports reserved per test, always killed at the end.
+
+The ports a test listens on (the ground station's, the controller's) come from :func:`tests.ports.reserve_port`,
+never from binding port 0 and closing: between that pick and the test's own ``udpin`` bind (after take-off, for
+a controller port) another test or serve could be given the same port, and on UDP that collision is silent
+(the socket bound last receives every datagram; see :mod:`tests.ports`). :func:`start_serve` returns once
+serve has opened its links and recorded ``serve_start`` (its own readiness signal, however long start-up
+takes on a loaded machine), and serve's output goes to a file beside its logs, never to a pipe nobody reads
+(a full pipe would block serve's tick, and its telemetry with it).
+"""
 
 from __future__ import annotations
 
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -17,14 +25,13 @@ from typing import Any
 
 import pytest
 
+from tests.ports import reserve_port
+
 ROOT = Path(__file__).resolve().parents[2]
 STEP_TIMEOUT_S = 60.0  # generous and bounded: the CI machine is small and shared
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+# serve's start-up (imports, the vehicle and the trusted core built, links opened) on a 2-core machine at a
+# load of 10 and more: the bound of a wait on its own start record, not a delay
+STARTUP_TIMEOUT_S = 180.0
 
 
 @dataclass
@@ -34,6 +41,10 @@ class ServeProc:
     ctl_port: int
     out: Path
     extra: list[subprocess.Popen[str]] = field(default_factory=list)
+    log: Path | None = None  # serve's stdout and stderr
+
+    def output(self) -> str:
+        return self.log.read_text(errors="replace") if self.log is not None and self.log.exists() else ""
 
     def events(self) -> list[dict[str, Any]]:
         p = self.out / "events.jsonl"
@@ -50,14 +61,45 @@ class ServeProc:
 
 
 def start_serve(tmp_path: Path, *extra: str, duration_s: float = 240.0) -> ServeProc:
-    gcs, ctl = free_udp_port(), free_udp_port()
+    """``merlin serve`` sending to two reserved ports (the test's ground station and controller listen there),
+    its own ports ephemeral; returns once it is serving (:func:`wait_ready`)."""
+    gcs, ctl = reserve_port(), reserve_port()
     out = tmp_path / "serve"
+    log = tmp_path / "serve.log"
     cmd = [sys.executable, "-m", "merlin.cli", "serve", "--gcs-port", str(gcs), "--gcs-bind-port", "0",
            "--offboard-port", str(ctl), "--offboard-bind-port", "0", "--out", str(out),
            "--duration", str(duration_s), "--quiet", *extra]
-    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    return ServeProc(proc, gcs, ctl, out)
+    with log.open("w") as f:
+        proc = subprocess.Popen(cmd, cwd=ROOT, stdout=f, stderr=subprocess.STDOUT, text=True,
+                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    sp = ServeProc(proc, gcs, ctl, out, log=log)
+    try:
+        wait_ready(sp)
+    except BaseException:
+        stop(sp)
+        raise
+    return sp
+
+
+def wait_ready(sp: ServeProc, timeout_s: float = STARTUP_TIMEOUT_S) -> None:
+    """Until serve has recorded ``serve_start`` (its links are open and its first tick is next). Fails with
+    serve's output if it exits first or takes longer than ``timeout_s``."""
+    t_end = time.monotonic() + timeout_s
+    while not any(e["type"] == "serve_start" for e in _complete_events(sp)):
+        if sp.proc.poll() is not None:
+            pytest.fail(f"merlin serve exited ({sp.proc.returncode}) before serving:\n{sp.output()[-3000:]}")
+        if time.monotonic() > t_end:
+            pytest.fail(f"merlin serve not serving after {timeout_s:.0f} s:\n{sp.output()[-3000:]}")
+        time.sleep(0.1)
+
+
+def _complete_events(sp: ServeProc) -> list[dict[str, Any]]:
+    """The records written so far, without a last line still being written."""
+    p = sp.out / "events.jsonl"
+    if not p.exists():
+        return []
+    text = p.read_text()
+    return [json.loads(line) for line in text[:text.rfind("\n") + 1].splitlines() if line.strip()]
 
 
 def stop(sp: ServeProc) -> None:

@@ -6,24 +6,18 @@ link: PX4's parameters are written there, on the ground and disarmed (icd/ICD.md
 from __future__ import annotations
 
 import re
-import socket
 
 import pytest
 
+from tests.ports import reserve_port
 from tests.serve.conftest import ServeProc, lines_until
 
 pytestmark = pytest.mark.integration
 
 
-def _free_tcp_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def _run(serve: ServeProc, binding: str) -> dict[str, str]:
     p = serve.spawn("-m", "tests.serve.mavsdk_action_flows", binding, f"udpin://0.0.0.0:{serve.gcs_port}",
-                    str(_free_tcp_port()))
+                    str(reserve_port()))
     out = lines_until(p, "FLOW FINISHED", timeout_s=240)
     assert any("FLOW FINISHED" in x for x in out), "\n".join(out[-40:])
     return dict(m.groups() for x in out if (m := re.match(r"FLOW (\S+) (.*)$", x)))  # type: ignore[misc]

@@ -11,13 +11,13 @@ is revoked (the mode leaves OFFBOARD) and the vehicle stays inside.
 from __future__ import annotations
 
 import math
-import socket
 import time
 from pathlib import Path
 from typing import Any
 
 import pytest
 
+from tests.ports import reserve_port
 from tests.serve.conftest import (
     STEP_TIMEOUT_S,
     ServeProc,
@@ -35,16 +35,10 @@ pytestmark = pytest.mark.integration
 FINISHED = "EXAMPLE FINISHED"
 
 
-def _free_tcp_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def run_example(serve: ServeProc, name: str, timeout_s: float) -> str:
     """Run the program ``name`` to its end; its whole output."""
     p = serve.spawn("-m", "tests.serve.px4_examples", name, f"udpin://0.0.0.0:{serve.ctl_port}",
-                    str(_free_tcp_port()))
+                    str(reserve_port()))
     out = "\n".join(lines_until(p, FINISHED, timeout_s))
     assert FINISHED in out, f"{name} did not run to its end:\n{out[-3000:]}"
     assert "failed with error code" not in out, out[-3000:]
@@ -124,7 +118,7 @@ def test_offboard_attitude(serve: ServeProc) -> None:
     later hold and land. The program runs to its end."""
     m = gcs_connection(serve.gcs_port)
     p = serve.spawn("-m", "tests.serve.px4_examples", "offboard_attitude", f"udpin://0.0.0.0:{serve.ctl_port}",
-                    str(_free_tcp_port()))
+                    str(reserve_port()))
     highest = 0.0
     t_end = time.monotonic() + 90.0
     while time.monotonic() < t_end and p.poll() is None:
@@ -209,7 +203,7 @@ def test_goto_beyond_the_range_is_denied(serve: ServeProc) -> None:
     """With the built-in 300 m range the same program's goto_location is denied (Merlin's trusted autopilot
     never flies out of its fence; section 13 of the ICD): the example stops there with PX4's error."""
     p = serve.spawn("-m", "tests.serve.px4_examples", "goto", f"udpin://0.0.0.0:{serve.ctl_port}",
-                    str(_free_tcp_port()))
+                    str(reserve_port()))
     out = "\n".join(lines_until(p, "COMMAND_DENIED", 90))
     assert "goto_location" in out and "COMMAND_DENIED" in out, out[-2000:]
 
@@ -238,7 +232,7 @@ def test_offboard_example_flying_out_of_an_uploaded_fence_is_revoked_and_stays_i
     lat0, lon0 = home.latitude / 1e7, home.longitude / 1e7
     _upload_circle_fence(m, lat0, lon0, 25.0)
     p = serve.spawn("-m", "tests.serve.px4_examples", "offboard_position_velocity_ned",
-                    f"udpin://0.0.0.0:{serve.ctl_port}", str(_free_tcp_port()))
+                    f"udpin://0.0.0.0:{serve.ctl_port}", str(reserve_port()))
     farthest = 0.0
     t_end = time.monotonic() + 90.0
     while time.monotonic() < t_end and p.poll() is None:

@@ -229,13 +229,10 @@ def test_mavsdk_set_current_mission_item(serve: ServeProc) -> None:
     """MAVSDK's own call (MISSION_SET_CURRENT, then it waits for MISSION_CURRENT with the item): accepted, and
     MAVSDK's mission progress reads the item set."""
     pytest.importorskip("mavsdk_grpc")
-    import socket
-
+    from tests.ports import reserve_port
     from tests.serve.conftest import lines_until
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        grpc_port = s.getsockname()[1]
+    grpc_port = reserve_port()
     p = serve.spawn("-m", "tests.serve.mavsdk_mission_current", f"udpin://0.0.0.0:{serve.ctl_port}", str(grpc_port))
     out = "\n".join(lines_until(p, "FLOW FINISHED", 90))
     assert "FLOW FINISHED" in out and "FLOW progress 2/3" in out, out[-2000:]

@@ -4,7 +4,6 @@ PX4's port offsets and system id N + 1, so that two vehicles run side by side.""
 from __future__ import annotations
 
 import argparse
-import socket
 import sys
 from pathlib import Path
 from typing import Any
@@ -13,7 +12,8 @@ import pytest
 
 from merlin.commands.serve import PX4_SITL_HOME, options_from_args, register, sitl_ports
 from merlin.config.loader import ConfigError, load_config
-from tests.serve.conftest import ROOT, STEP_TIMEOUT_S, ServeProc, stop
+from tests.ports import hold_exact_ports
+from tests.serve.conftest import ROOT, STEP_TIMEOUT_S, ServeProc, stop, wait_ready
 
 
 def _args(*argv: str) -> argparse.Namespace:
@@ -87,34 +87,36 @@ def test_a_file_keeps_its_home_and_a_latlon_fence_refuses_to_be_left_behind(monk
     assert "PX4_HOME_LAT, PX4_HOME_LON" in text
 
 
-def _free(port: int) -> bool:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        try:
-            s.bind(("127.0.0.1", port))
-        except OSError:
-            return False
-    return True
-
-
 @pytest.mark.integration
 def test_two_instances_run_side_by_side_at_px4_sitl_home(tmp_path: Path) -> None:
+    instances = (5, 6)
+    ports = [sitl_ports(n) for n in instances]
+    fixed = [p[k] for p in ports for k in ("offboard_port", "offboard_bind_port", "gcs_bind_port")]
+    # PX4's own port numbers, not reserved ones: held against every other test using tests.ports (another
+    # run of this test in another checkout) for as long as the two instances fly
+    with hold_exact_ports(fixed) as held:
+        if not held:
+            pytest.skip("PX4 SITL's ports for instances 5 and 6 are in use on this machine")
+        _two_instances(tmp_path, instances, ports)
+
+
+def _two_instances(tmp_path: Path, instances: tuple[int, ...], ports: list[dict[str, int]]) -> None:
     import subprocess
 
     from pymavlink import mavutil
 
-    instances = (5, 6)
-    ports = [sitl_ports(n) for n in instances]
-    if not all(_free(p["offboard_port"]) and _free(p["offboard_bind_port"]) and _free(p["gcs_bind_port"])
-               for p in ports):
-        pytest.skip("PX4 SITL's ports for instances 5 and 6 are in use on this machine")
     procs = []
     for n in instances:
         out = tmp_path / f"v{n}"
+        log = tmp_path / f"v{n}.log"
         cmd = [sys.executable, "-m", "merlin.cli", "serve", "--instance", str(n), "--out", str(out),
                "--duration", "120", "--quiet"]
-        procs.append(ServeProc(subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                                text=True), 0, 0, out))
+        with log.open("w") as f:
+            procs.append(ServeProc(subprocess.Popen(cmd, cwd=ROOT, stdout=f, stderr=subprocess.STDOUT, text=True),
+                                   0, 0, out, log=log))
     try:
+        for sp in procs:
+            wait_ready(sp)
         for n, p in zip(instances, ports, strict=True):
             c = mavutil.mavlink_connection(f"udpin:127.0.0.1:{p['offboard_port']}", source_system=200 + n,
                                            dialect="common")
