@@ -11,7 +11,8 @@ same machine, or the kernel itself for an ephemeral port. And on UDP that collis
 then delivers every datagram for that port to the socket bound last. A test whose port was taken that way
 hears nothing (a controller port that never sees serve's HEARTBEAT), and the other test hears two vehicles.
 Nor does the kernel keep a socket that binds port 0 with SO_REUSEADDR off the ports other such sockets hold:
-it only avoids ports held by sockets without the option.
+it only avoids ports held by sockets without the option (docs/benchmarks/integration-ports.md), which is why
+:class:`merlin.link.endpoint.UdpTransport` sets the option only on a fixed port.
 
 A port from :func:`reserve_port` is safe from all of these:
 

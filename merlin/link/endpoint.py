@@ -43,7 +43,11 @@ class UdpTransport:
 
     def __init__(self, bind: Address, remote: Address | None) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        if bind[1] != 0:
+            # Not for an ephemeral port (0): Linux hands a socket with SO_REUSEADDR any port not held by a
+            # socket *without* it, so it could share a port with a ground station's listener (pymavlink's
+            # udpin sets the option) or another link, and the socket bound last takes every datagram for both.
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self.sock.bind(bind)
         self.sock.setblocking(False)
         self.remote = remote

@@ -12,7 +12,7 @@ from merlin.core.types import Authority, Behavior, ReasonCode
 from merlin.link import inbound as i
 from merlin.link import outbound as o
 from merlin.link.dialect import register_with_mavutil
-from merlin.link.endpoint import MavlinkEndpoint
+from merlin.link.endpoint import MavlinkEndpoint, UdpTransport
 from merlin.link.px4_modes import OFFBOARD
 from merlin.link.security import LinkPolicy
 from tests.link.helpers import KEY
@@ -157,3 +157,37 @@ def test_a_flood_is_read_in_bounded_batches() -> None:
         tx.close()
         ep.close()
 
+
+def test_an_ephemeral_link_never_shares_a_port_a_listener_holds() -> None:
+    """A link bound to port 0 (serve's and guard's own ports in every integration test) is kept off ports that
+    pymavlink ``udpin`` listeners hold: they set SO_REUSEADDR, and had the link set it too, Linux could give it
+    one of their ports, and the socket bound last would take every datagram meant for the other."""
+    listeners: list[socket.socket] = []
+    try:
+        for _ in range(400):
+            s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            listeners.append(s)
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as pymavlink's udpin binds
+            s.bind(("127.0.0.1", 0))
+        held = {s.getsockname()[1] for s in listeners}
+        landed = []
+        for _ in range(2000):  # had the links the option: 2000 * 400 / 28232 (a 32768..60999 range) = 28 expected
+            t = UdpTransport(("0.0.0.0", 0), None)
+            if t.local_address[1] in held:
+                landed.append(t.local_address[1])
+            t.close()
+        assert landed == []
+    finally:
+        for s in listeners:
+            s.close()
+
+
+def test_only_a_link_on_a_fixed_port_sets_so_reuseaddr() -> None:
+    ephemeral = UdpTransport(("127.0.0.1", 0), None)
+    fixed = UdpTransport(("127.0.0.1", reserve_port()), None)
+    try:
+        assert ephemeral.sock.getsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR) == 0
+        assert fixed.sock.getsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR) != 0
+    finally:
+        ephemeral.close()
+        fixed.close()
