@@ -85,8 +85,9 @@ RTL_AT_HOME_RADIAL_M = 15.0
 ROUTE_CHECK_S = 0.5
 #: A route's first point this close to dead astern (either side) leaves the side of guidance's first turn to
 #: a few degrees of course or of wind drift: a run-out hands over to it only with both turns clear, or with
-#: a route that starts with its own checked turn (our choice: twice the course change a 10 m/s crosswind
-#: gust makes at the escape airspeed).
+#: a route that starts with its own checked turn (our choice, a judgement rather than a measurement: several
+#: times the few degrees a wings-level run-out's course over the ground wanders in the scenarios' gusts
+#: between two checks, :data:`ROUTE_CHECK_S` apart).
 ASTERN_BAND_RAD = math.radians(10.0)
 
 
