@@ -83,6 +83,12 @@ RTL_AT_HOME_RADIAL_M = 15.0
 #: How often an escape turn held by a blocked turn checks whether RTL's route could take over (our choice:
 #: a plan costs milliseconds; half a second is 12 m of flight, inside the route's 10 m margin and the turn).
 ROUTE_CHECK_S = 0.5
+#: A route's first point this close to dead astern (either side) leaves the side of guidance's first turn to
+#: a few degrees of course or of wind drift: a run-out hands over to it only with both turns clear, or with
+#: a route that starts with its own checked turn (our choice, a judgement rather than a measurement: several
+#: times the few degrees a wings-level run-out's course over the ground wanders in the scenarios' gusts
+#: between two checks, :data:`ROUTE_CHECK_S` apart).
+ASTERN_BAND_RAD = math.radians(10.0)
 
 
 def land_height_m(fence: geofence.Fence | None) -> float:
@@ -112,9 +118,12 @@ def escape_side(fence: geofence.Fence, s: VehicleState, home_ne: tuple[float, fl
     (both margins <= 0). The side is the one whose closest approach to a hazard is the larger (the larger
     margin: how far it stays from the fence is what the turn is for); when both are within 1 m of each
     other (both cross a hazard: both margins are minus the widening), the one that flies farther before it
-    comes within the widening; when both are as good, the short way towards home. Path length first would
-    choose a turn deeper into the widening for a few metres more path
-    (``tests/scenarios_fixedwing/test_turn_side.py`` pins that geometry).
+    comes within the widening; when both are as good, the one that turns away from the nearest boundary
+    (both reach the widening on the straight reaction leg they share, after which the turn towards the wall
+    follows it and the other leaves it), and only without one the short way towards home. Path length first
+    would choose a turn deeper into the widening for a few metres more path
+    (``tests/scenarios_fixedwing/test_turn_side.py`` pins that geometry, and the tie: 60 m from the east
+    boundary at 80 deg, home just to the right of astern, the turn is still the left one).
     The turns are the core's, drifting with the wind-triangle wind (:func:`state_wind_ne`)."""
     right, left = geofence.turn_clearances(fence, s.pos_ned_m, s.vel_ned_mps, s.pos_sigma_h_m, state_wind_ne(s),
                                            s.att_rpy_rad[0])
@@ -126,6 +135,12 @@ def escape_side(fence: geofence.Fence, s: VehicleState, home_ne: tuple[float, fl
         return 1.0 if right.margin_m > left.margin_m else -1.0
     if not close(right.free_path_m, left.free_path_m):
         return 1.0 if right.free_path_m > left.free_path_m else -1.0
+    near = geofence.nearest_boundary_ne(fence, s.pos_ned_m[0], s.pos_ned_m[1])
+    if near is not None:
+        # (-ve, vn) is the right-hand side of the course: a boundary on the right is turned away from leftwards
+        towards_right = -s.vel_ned_mps[1] * near[1] + s.vel_ned_mps[0] * near[2]
+        if towards_right != 0.0:
+            return -1.0 if towards_right > 0.0 else 1.0
     return _side_towards(s, home_ne)
 
 
@@ -222,6 +237,8 @@ class FixedWingBehaviours:
         self._trip_clear_since: float | None = None  # the monitor seen clear since (no escape flying)
         self._rtl_at_home_noted = False
         self._route_checked_t = -math.inf  # when _route_takes_over last planned a route
+        #: the route a run-out's hand-over was judged on (:meth:`_open_course`): the RTL that follows flies it
+        self._handover_plan: tuple[fr.LoiterChoice, float, fr.Route] | None = None
         self.notes: list[dict[str, Any]] = [] if notes is None else notes
         self.surfaces = surfaces
         self.cstate = fc.reset_from_state(cp, s0, surfaces)
@@ -391,10 +408,12 @@ class FixedWingBehaviours:
         self._start_escape(t, fence, s)
         self.notes[-1]["under"] = "trusted"
 
-    def _start_rtl(self, t: float, s: VehicleState, height: float | None = None) -> fg.GuidanceState:
+    def _start_rtl(self, t: float, s: VehicleState, height: float | None = None,
+                   plan: tuple[fr.LoiterChoice, float, fr.Route] | None = None) -> fg.GuidanceState:
         """RTL (or LAND, at ``height``; None: the RTL height rule): the loiter over home, moved or shrunk off the keep-out zones
         if it must be, and the route to it around them (:mod:`merlin.autopilot.fixedwing_route`). While an
-        escape turn is flown the route waits for its end (planned from where the turn leaves the aircraft)."""
+        escape turn is flown the route waits for its end (planned from where the turn leaves the aircraft).
+        ``plan``: the loiter, clearance and route already planned from this state (a run-out's hand-over)."""
         fence = self.fence
         self._rtl_at_home_noted = False
         if fence is None or not self.rtl_routes or not fr.has_zones(fence):
@@ -402,7 +421,7 @@ class FixedWingBehaviours:
         if self.escape_side:
             loiter, clearance = self._rtl_loiter(t, s, note=True)
             return fg.start_rtl(self.gp, self.gstate, s, loiter.center_ne_m, (), loiter.radius_m, height)
-        loiter, clearance, route = self._rtl_plan(t, s, note=True)
+        loiter, clearance, route = self._rtl_plan(t, s, note=True) if plan is None else plan
         if route.status == "no_route":
             self.notes.append({"t": t, "type": "fixed_wing_rtl_no_route", "clearance_m": clearance,
                                "detail": "no route home keeps the clearance from the keep-out zones: loitering"
@@ -436,8 +455,10 @@ class FixedWingBehaviours:
                                "clearance_m": clearance})
         return loiter, clearance
 
-    def _rtl_plan(self, t: float, s: VehicleState, note: bool) -> tuple[fr.LoiterChoice, float, fr.Route]:
-        """The loiter, the clearance and the route to it from this state (:meth:`_start_rtl`)."""
+    def _rtl_plan(self, t: float, s: VehicleState, note: bool,
+                  turn_first: bool = False) -> tuple[fr.LoiterChoice, float, fr.Route]:
+        """The loiter, the clearance and the route to it from this state (:meth:`_start_rtl`); ``turn_first``:
+        a route that starts with its checked turn wherever one is valid, never a direct one."""
         fence = self.fence
         assert fence is not None
         loiter, clearance = self._rtl_loiter(t, s, note)
@@ -449,7 +470,7 @@ class FixedWingBehaviours:
         speed = max(math.hypot(vn, ve), self.gp.rtl_airspeed_mps + math.hypot(*wind))
         turn_r = fr.turn_radius_m(speed, fence.params.bank_limit_rad, fence.params.gravity_mps2)
         route = fr.plan_route(fence, pos, loiter.center_ne_m, loiter.radius_m, clearance,
-                              course_rad=math.atan2(ve, vn), turn_radius=turn_r)
+                              course_rad=math.atan2(ve, vn), turn_radius=turn_r, turn_first=turn_first)
         return loiter, clearance, route
 
     def _route_takes_over(self, t: float, decision: Decision, s: VehicleState) -> bool:
@@ -557,10 +578,12 @@ class FixedWingBehaviours:
             elif decision.behavior in (Behavior.RTL, Behavior.LAND):
                 # the route home is planned from where the escape turn leaves the aircraft
                 self.escape_side = 0.0
-                # (at the height the behaviour chose when it started)
-                self.gstate = self._start_rtl(t, s, self.gstate.loiter.height_m)
+                # (at the height the behaviour chose when it started), on the route the hand-over was
+                # judged on if there was one
+                self.gstate = self._start_rtl(t, s, self.gstate.loiter.height_m, self._handover_plan)
                 self.gstate, targets, _status = fg.guidance_step(self.gp, self.cp, self.gstate, s)
             self.escape_side = 0.0
+            self._handover_plan = None
             return targets
         # at the bank limit and the airspeed the fence projection assumed for the turn (fixed_wing_turn): a
         # slower cruise would fade the bank, a faster one widen the turn; on the open course, wings level
@@ -606,16 +629,43 @@ class FixedWingBehaviours:
             return False
         right, left = turn_clearances_m(fence, s)
         if decision.behavior in (Behavior.RTL, Behavior.LAND) and self.rtl_routes:
-            _loiter, _c, route = self._rtl_plan(t, s, note=False)
-            if route.status == "no_route":
-                return False
-            if route.turn is not None:
-                side = 1.0 if route.turn.clockwise else -1.0
-            else:
-                target = route.legs_ne_m[1] if len(route.legs_ne_m) > 1 else _loiter.center_ne_m
-                side = _side_towards(s, target)
-            return (right if side > 0.0 else left) > fr.ROUTE_MARGIN_M
+            plan = self._rtl_plan(t, s, note=False)
+            if not self._first_turn_clear(s, plan, right, left):
+                # The short way guidance would turn is blocked (or dead astern, either way): a route that starts
+                # with its own turn, on the side the planner checked, if the projection finds that side clear
+                # (scenario fw_velocity_crash_00750: guidance's short way to the loiter's tangent point, 6 deg
+                # off astern, turned through the notch's corner, 28.4 m outside)
+                plan = self._rtl_plan(t, s, note=False, turn_first=True)
+                if plan[2].turn is None or not self._first_turn_clear(s, plan, right, left):
+                    return False
+            self._handover_plan = plan
+            return True
         return right > fr.ROUTE_MARGIN_M and left > fr.ROUTE_MARGIN_M
+
+    @staticmethod
+    def _first_turn_clear(s: VehicleState, plan: tuple[fr.LoiterChoice, float, fr.Route], right: float,
+                          left: float) -> bool:
+        """Whether the first turn RTL's guidance flies on ``plan`` is one the projection finds clear by the
+        route's margin (``right``, ``left``: the projection's two turns). With a planned turn, its side; else
+        the short way to what L1 flies at first: the second point of the legs, or the loiter's tangent point
+        (:func:`merlin.autopilot.fixedwing_guidance.l1_circle` flies there, not at the centre, and the two
+        can lie on either side of the course when home is astern). A first point within
+        :data:`ASTERN_BAND_RAD` of astern needs both turns."""
+        loiter, _c, route = plan
+        if route.status == "no_route":
+            return False
+        if route.turn is not None:
+            return (right if route.turn.clockwise else left) > fr.ROUTE_MARGIN_M
+        pos = (s.pos_ned_m[0], s.pos_ned_m[1])
+        if len(route.legs_ne_m) > 1:
+            target = route.legs_ne_m[1]
+        else:
+            target = fr.tangent_point_ne(pos, loiter.center_ne_m, loiter.radius_m, True) or loiter.center_ne_m
+        course = math.atan2(s.vel_ned_mps[1], s.vel_ned_mps[0])
+        bearing = math.atan2(target[1] - pos[1], target[0] - pos[0])
+        if abs(math.remainder(bearing - course, math.tau)) > math.pi - ASTERN_BAND_RAD:
+            return right > fr.ROUTE_MARGIN_M and left > fr.ROUTE_MARGIN_M
+        return (right if _side_towards(s, target) > 0.0 else left) > fr.ROUTE_MARGIN_M
 
 
 #: Rate of the fixed-wing guidance and inner loops (the gains were tuned at 100 Hz in tests/fixedwing; PX4

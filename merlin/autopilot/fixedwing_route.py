@@ -148,10 +148,12 @@ def plan_route(
     clockwise: bool = True,
     course_rad: float | None = None,
     turn_radius: float | None = None,
+    turn_first: bool = False,
 ) -> Route:
     """The route from ``start_ne_m`` to the loiter circle (centre, radius > 0, direction) keeping
     ``clearance_m`` from every hazard of ``fence``: :func:`merlin.autopilot.route.plan` with a circle goal
-    (taken as clear: :func:`home_loiter`) and, given ``course_rad`` and ``turn_radius``, a Dubins start."""
+    (taken as clear: :func:`home_loiter`) and, given ``course_rad`` and ``turn_radius``, a Dubins start
+    (always tried first with ``turn_first``)."""
     if not (math.isfinite(radius_m) and radius_m > 0.0):
         raise ValueError(f"radius_m = {radius_m!r}: must be finite and > 0")
-    return plan(fence, start_ne_m, center_ne_m, radius_m, clearance_m, clockwise, course_rad, turn_radius)
+    return plan(fence, start_ne_m, center_ne_m, radius_m, clearance_m, clockwise, course_rad, turn_radius, turn_first)

@@ -486,6 +486,7 @@ def plan(
     clockwise: bool = True,
     course_rad: float | None = None,
     turn_radius: float | None = None,
+    turn_first: bool = False,
 ) -> Route:
     """The route from ``start_ne_m`` to the goal (a circle: centre, radius > 0, direction, taken as clear, as
     the fixed wing's :func:`merlin.autopilot.fixedwing_route.home_loiter` chooses it; or a point: radius 0,
@@ -496,7 +497,8 @@ def plan(
     at) the route starts with the turn the aircraft must fly anyway: round the right or the left turn circle
     until it heads for the first point (a Dubins start: Dubins 1957, "On curves of minimal length with a
     constraint on average curvature", Am. J. Math. 79(3)), the arc checked like a leg. Without a valid
-    turn-in the legs start at the position."""
+    turn-in the legs start at the position. ``turn_first``: no direct route (a straight line would leave the
+    side of the first turn to guidance); the route starts with its checked turn if one is valid."""
     _check_plan_args(start_ne_m, center_ne_m, radius_m, clearance_m)
     start = (float(start_ne_m[0]), float(start_ne_m[1]))
     center = (float(center_ne_m[0]), float(center_ne_m[1]))
@@ -519,7 +521,8 @@ def plan(
             shapely.prepare(start_goal_region)
     direct_region = start_goal_region if start_goal_region is not None else rs.region
     tangent = tangent_point_ne(start, center, radius_m, clockwise)
-    if tangent is not None and bool(segments_covered(direct_region, start, np.asarray([tangent]))[0]):
+    if (tangent is not None and not (turn_first and course_rad is not None)
+            and bool(segments_covered(direct_region, start, np.asarray([tangent]))[0])):
         return Route((), "direct", clearance_m, 0.0)
 
     nodes = _nodes(node_space, start, center)

@@ -185,3 +185,15 @@ def test_a_ceiling_escape_and_its_return_stay_out_of_the_keep_out() -> None:
     r, results = _run("fw_adv_ceiling_escape_keepout.yaml")
     assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
     assert r.metrics["max_fence_breach_m"] == 0.0
+
+
+def test_the_run_out_hands_rtl_the_turn_it_judged_with_home_astern() -> None:
+    """The falsifier's silent step towards the notch's inner corner under the ceiling (2,000-run search, seed 4,
+    evaluation 750): the run-out's hand-over was judged on the short way to home's centre (left), while RTL's
+    guidance flew the short way to the loiter's tangent point (right, through the notch): 28.42 m outside. The
+    hand-over now hands RTL a route that starts with the left turn it checked."""
+    r, results = _run("fw_adv_runout_home_astern.yaml")
+    assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
+    assert r.metrics["max_fence_breach_m"] == 0.0
+    route = [e for e in r.events if e.get("type") == "fixed_wing_rtl_route"]
+    assert route and route[0]["turn"] is not None and route[0]["turn"]["side"] == "left", route
