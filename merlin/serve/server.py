@@ -409,6 +409,12 @@ class Server:
         if hasattr(m, "mission_type"):
             self._on_mission_protocol(ls, rx, m, sender)
 
+    def _hold_on_ground(self, ls: _LinkState, m: Any, sender: tuple[int, int], t_s: float) -> None:
+        """Accept a controller link's HOLD on the ground (PX4 accepts Hold there; nothing flies)."""
+        self._send(ls, command_ack(m, sender, MAV_RESULT_ACCEPTED))
+        self.events.write({"t": t_s, "type": "hold_on_ground", "link": ls.name,
+                           "detail": "HOLD on the ground from the controller link: accepted, nothing flies"})
+
     def _on_command(self, ls: _LinkState, rx: i.Received, m: i.CommandIn, sender: tuple[int, int]) -> None:
         intents = interpret_command(m, ls.role, self.frame.alt0_amsl_m, rx.t_s, frame=self.frame,
                                     pos_ned_m=self.loop.state.pos_ned_m,
@@ -420,9 +426,7 @@ class Server:
                     # MAVSDK's offboard.stop() (AUTO.LOITER) after Merlin took authority back and landed: PX4
                     # accepts Hold on the ground and the vehicle stays there; so does Merlin, without asking the
                     # core for a HOLD it refuses on the ground (the RELEASE before it went to the core as usual)
-                    self._send(ls, command_ack(m, sender, MAV_RESULT_ACCEPTED))
-                    self.events.write({"t": rx.t_s, "type": "hold_on_ground", "link": ls.name,
-                                       "detail": "HOLD on the ground from the controller link: accepted, nothing flies"})
+                    self._hold_on_ground(ls, m, sender, rx.t_s)
                     acked = True
                     continue
                 intent, refused = self._fixed_wing_loiter(intent)
@@ -1167,10 +1171,18 @@ class Server:
             waiting = self._cmd_waiting.pop(e.seq, None)
             if waiting is not None:
                 ls, cmd, sender = waiting
-                self._send(ls, command_ack(cmd, sender, MAV_RESULT_ACCEPTED if e.accepted else MAV_RESULT_DENIED))
-                if not e.accepted and e.command is not None:  # why, for the sender's message panel
-                    self._send(ls, o.StatusTextOut(o.MAV_SEVERITY_WARNING,
-                                                   f"Merlin: {e.command.name} refused: {e.reason.describe()}"))
+                if (not e.accepted and ls.role is LinkRole.CONTROLLER and e.command is GcsCommandKind.HOLD
+                        and e.reason.code in (ReasonCode.LANDED, ReasonCode.NOT_ARMED) and self.loop.state.landed):
+                    # the same HOLD on the ground as above, when the touchdown came between its arrival and the
+                    # core's tick (the MAVSDK offboard example whose last setpoint is on the ground stops offboard
+                    # as it touches down); disarmed on the ground too, as PX4
+                    self._hold_on_ground(ls, cmd, sender, self.t)
+                else:
+                    self._send(ls, command_ack(cmd, sender,
+                                               MAV_RESULT_ACCEPTED if e.accepted else MAV_RESULT_DENIED))
+                    if not e.accepted and e.command is not None:  # why, for the sender's message panel
+                        self._send(ls, o.StatusTextOut(o.MAV_SEVERITY_WARNING,
+                                                       f"Merlin: {e.command.name} refused: {e.reason.describe()}"))
         if e.reason.code is not ReasonCode.NONE and e.kind in (EventKind.REVOKED, EventKind.DENIED):
             self._last_reason = e.reason.code
         text = o.statustext_for_event(e)

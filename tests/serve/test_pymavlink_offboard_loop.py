@@ -30,5 +30,9 @@ def test_pymavlink_offboard_loop_flies_its_triangle_and_lands(serve: ServeProc) 
     behaviours = [e["behavior"] for e in events if e["type"] == "behavior"]
     assert behaviours[:2] == ["TAKEOFF", "HOLD"] and "LAND" in behaviours, behaviours
     modes = next(line for line in out.splitlines() if line.startswith("loop: modes")).split()[2:]
-    # as pymavlink names PX4's modes (AUTO.READY, on the ground, is not in its table: UNKNOWN)
-    assert [x for x in modes if x != "UNKNOWN"] == ["TAKEOFF", "LOITER", "OFFBOARD", "LAND"], modes
+    # as pymavlink names PX4's modes (AUTO.READY, on the ground, is not in its table: UNKNOWN). The take-off's
+    # HOLD (asserted above from the core's own record) shows as LOITER only if a HEARTBEAT falls inside it: the
+    # loop asks for OFFBOARD 8 m up, so it can follow the take-off's end by a few ticks (32 ms in one run), as
+    # on PX4, where OFFBOARD requested during the take-off goes straight from TAKEOFF to OFFBOARD
+    seen = [x for x in modes if x != "UNKNOWN"]
+    assert seen in (["TAKEOFF", "LOITER", "OFFBOARD", "LAND"], ["TAKEOFF", "OFFBOARD", "LAND"]), modes
