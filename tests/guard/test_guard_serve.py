@@ -138,8 +138,9 @@ def test_offboard_flight_and_a_flyaway_through_the_guard_in_front_of_serve(rig: 
     rig.take_off_and_request()
     n0 = o.ned[0]
     c.vel = (2.0, 0.0, 0.0)
-    time.sleep(3.0)
-    assert o.ned[0] - n0 > 3.0, "the controller's setpoints did not reach serve"
+    # 2 m/s north moves the vehicle 3 m within 3 s in real time; serve (a real-time process) falls behind under
+    # the suite's load (2.49 m in 3 s in one full run), so the same displacement is waited for, up to 10 s
+    wait_for(lambda: o.ned[0] - n0 > 3.0, 10, "the controller's setpoints reaching serve (3 m north)")
     c.vel = (0.0, 8.0, 0.0)
     wait_for(lambda: '"type": "revoked"' in rig.events.read_text(), 30, "the guard's revocation")
     time.sleep(6.0)
