@@ -218,3 +218,17 @@ def lines_until(p: subprocess.Popen[str], needle: str, timeout_s: float = STEP_T
     if buf:
         out.append(buf.decode(errors="replace").rstrip())
     return out
+
+
+@pytest.fixture
+def server(tmp_path: Path) -> Iterator[Any]:
+    """An in-process ``merlin serve`` Server (no GCS link, a controller link on a port the kernel picks), for
+    tests that drive its ticks and handlers directly."""
+    from merlin.serve.server import ServeOptions, Server, UdpLinkSpec
+
+    opts = ServeOptions(gcs=None, controller=UdpLinkSpec(("127.0.0.1", 0), ("127.0.0.1", 9)), out_dir=tmp_path)
+    s = Server(opts)
+    try:
+        yield s
+    finally:
+        s.close()

@@ -4,9 +4,7 @@ touchdown."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from dataclasses import replace
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -14,21 +12,11 @@ import pytest
 from merlin.link import inbound as i
 from merlin.link import outbound as o
 from merlin.link.commands import MAV_RESULT_ACCEPTED, MAV_RESULT_DENIED
-from merlin.serve.server import ServeOptions, Server, UdpLinkSpec
+from merlin.serve.server import Server
 
 MAV_CMD_DO_SET_MODE = 176
 MAV_CMD_COMPONENT_ARM_DISARM = 400
 AUTO, LOITER = 4.0, 3.0  # PX4's AUTO.LOITER (Hold), as MAVSDK sends it
-
-
-@pytest.fixture
-def server(tmp_path: Path) -> Iterator[Server]:
-    opts = ServeOptions(gcs=None, controller=UdpLinkSpec(("127.0.0.1", 0), ("127.0.0.1", 9)), out_dir=tmp_path)
-    s = Server(opts)
-    try:
-        yield s
-    finally:
-        s.close()
 
 
 def _hold(server: Server, sent: list[Any]) -> list[int]:

@@ -3,25 +3,10 @@ merlin sim does: what the links delivered, and the vehicle's redundancy report, 
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from pathlib import Path
-
-import pytest
-
 from merlin.core.types import Inputs, OperatorInput
-from merlin.serve.server import ServeOptions, Server, UdpLinkSpec
+from merlin.serve.server import Server
 from sims.runner import make_loop
 from sims.scenario import Scenario
-
-
-@pytest.fixture
-def server(tmp_path: Path) -> Iterator[Server]:
-    opts = ServeOptions(gcs=None, controller=UdpLinkSpec(("127.0.0.1", 0), ("127.0.0.1", 9)), out_dir=tmp_path)
-    s = Server(opts)
-    try:
-        yield s
-    finally:
-        s.close()
 
 
 def _capture(server: Server) -> list[Inputs]:
