@@ -633,7 +633,7 @@ class FixedWingBehaviours:
             if not self._first_turn_clear(s, plan, right, left):
                 # The short way guidance would turn is blocked (or dead astern, either way): a route that starts
                 # with its own turn, on the side the planner checked, if the projection finds that side clear
-                # (scenario fw_velocity_crash_00750: guidance's short way to the loiter's tangent point, 6 deg
+                # (scenario fw_adv_runout_home_astern: guidance's short way to the loiter's tangent point, 6 deg
                 # off astern, turned through the notch's corner, 28.4 m outside)
                 plan = self._rtl_plan(t, s, note=False, turn_first=True)
                 if plan[2].turn is None or not self._first_turn_clear(s, plan, right, left):
