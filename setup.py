@@ -39,6 +39,7 @@ ROOT = Path(__file__).resolve().parent
 # added (docs/benchmarks/compiled.md); modules whose gain did not pay for their compile time stay out.
 COMPILED_MODULES = (
     "merlin/core/types.py",
+    "merlin/core/geofence.py",
     "merlin/core/config.py",
     "merlin/core/envelope.py",
     "merlin/core/watchdog.py",

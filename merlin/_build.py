@@ -23,6 +23,7 @@ from types import ModuleType
 #: The modules ``setup.py`` compiles (kept in step with its ``COMPILED_MODULES``; a test checks it).
 COMPILED_MODULES: tuple[str, ...] = (
     "merlin.core.types",
+    "merlin.core.geofence",
     "merlin.core.config",
     "merlin.core.envelope",
     "merlin.core.watchdog",

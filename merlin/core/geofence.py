@@ -48,7 +48,6 @@ Everything here is pure: a :class:`Fence` is built once, outside the tick, and n
 
 from __future__ import annotations
 
-import copy
 import math
 import re
 from collections.abc import Sequence
@@ -102,6 +101,15 @@ PointNE = tuple[float, float]
 
 
 # ------------------------------------------------------------------------------------------ parameters
+
+
+def _reduce_by_fields(obj: Any) -> tuple[Any, tuple[Any, ...]]:
+    """Pickling of this module's frozen dataclasses: rebuilt by their constructor from their fields.
+
+    Written out because the compiled build (mypyc) makes them native classes whose default pickling
+    restores the fields one ``setattr`` at a time, which a frozen dataclass refuses.
+    """
+    return type(obj), tuple(getattr(obj, f.name) for f in fields(obj))
 
 
 @dataclass(frozen=True, slots=True)
@@ -182,6 +190,9 @@ class FenceParams:
         if problems:
             raise ValueError("invalid FenceParams: " + "; ".join(problems))
 
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        return _reduce_by_fields(self)
+
 
 # ------------------------------------------------------------------------------------------- geometry
 
@@ -193,11 +204,17 @@ class PolygonNE:
     shell_ne_m: tuple[PointNE, ...]
     holes_ne_m: tuple[tuple[PointNE, ...], ...] = ()
 
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        return _reduce_by_fields(self)
+
 
 @dataclass(frozen=True, slots=True)
 class CircleNE:
     center_ne_m: PointNE
     radius_m: float
+
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        return _reduce_by_fields(self)
 
 
 @dataclass(frozen=True, slots=True)
@@ -388,22 +405,17 @@ class Fence:
         set_(self, "_arc_tables", tuple(tables))
         set_(self, "_local", _build_local_levels(forbidden, box))
 
-    def __setstate__(self, state: list[Any]) -> None:
-        # Unpickling (e.g. a campaign sending the configuration to worker processes) restores the shapely
-        # geometries without their prepared indexes; prepare them again so the check stays fast.
-        for f, value in zip(fields(self), state, strict=True):
-            object.__setattr__(self, f.name, value)
-        geoms = [self._allowed, self._forbidden, self._incl_hazard, self._excl_hazard, self._excl_boundary]
-        geoms += [t for lv in self._local for t in lv.tiles]
-        live = [g for g in geoms if g is not None]
-        if live:
-            shapely.prepare(np.array(live, dtype=object))
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        # Pickled (e.g. to a worker process) as the values of every field, derived ones included, so unpickling does not rebuild the geometry and the grid. Written
+        # out rather than left to the dataclass machinery because the compiled build (mypyc) makes this a
+        # native class, which neither ``copy.copy`` nor the default slot-state restore can set up.
+        return _fence_from_fields, (tuple(getattr(self, name) for name in _FENCE_FIELDS),)
 
     def with_params(self, params: FenceParams) -> Fence:
         """The same zones checked with other parameters (shares the prepared geometry and the grid)."""
-        new = copy.copy(self)
-        object.__setattr__(new, "params", params)
-        return new
+        values = [getattr(self, name) for name in _FENCE_FIELDS]
+        values[0] = params
+        return _fence_with_fields(values)
 
     @property
     def has_inclusion(self) -> bool:
@@ -418,6 +430,30 @@ class Fence:
     def exclusion_area(self) -> Any:
         """The union of the exclusion zones (shapely, x = north), or None."""
         return self._excl_hazard
+
+
+#: Every field of :class:`Fence`, derived ones included, in declaration order (``params`` first).
+_FENCE_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Fence))
+
+
+def _fence_with_fields(values: Sequence[Any]) -> Fence:
+    """A :class:`Fence` holding exactly ``values`` (one per :data:`_FENCE_FIELDS`), ``__post_init__`` not run."""
+    new: Fence = Fence.__new__(Fence)
+    for name, value in zip(_FENCE_FIELDS, values, strict=True):
+        object.__setattr__(new, name, value)
+    return new
+
+
+def _fence_from_fields(values: Sequence[Any]) -> Fence:
+    """Unpickling: the fence from its field values, its shapely geometries prepared again (pickling keeps
+    the geometries but not their prepared indexes, without which the check is slow)."""
+    new = _fence_with_fields(values)
+    geoms = [new._allowed, new._forbidden, new._incl_hazard, new._excl_hazard, new._excl_boundary]
+    geoms += [t for lv in new._local for t in lv.tiles]
+    live = [g for g in geoms if g is not None]
+    if live:
+        shapely.prepare(np.array(live, dtype=object))
+    return new
 
 
 def _build_grid(
@@ -463,6 +499,9 @@ class _LocalLevel:
     ni: int
     nj: int
     tiles: tuple[Any, ...]  # prepared clipped geometry per block, or None: nothing forbidden within reach
+
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        return _reduce_by_fields(self)
 
 
 def _build_local_levels(forbidden: Any, box: tuple[float, float, float, float]) -> tuple[_LocalLevel, ...]:
@@ -516,7 +555,7 @@ def _local_hazard(fence: Fence, n: float, e: float, need_m: float) -> Any:
 # ---------------------------------------------------------------------------------------------- result
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, eq=False)
 class FenceResult:
     """The verdict of one :func:`check`.
 
@@ -535,6 +574,31 @@ class FenceResult:
     kind: FenceKind
     stopping_distance_m: float
     clearance_m: float
+
+    # NaN is this record's "not computed" (the clearance when clear, both figures when invalid): two
+    # verdicts that leave the same figures out are the same verdict. The generated comparison got that
+    # only from the identity of the module's one NaN object, which the compiled build (floats stored
+    # unboxed, a new object at every read) does not keep; hence the comparison and the hash written out.
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, FenceResult):
+            return False
+        return (self.tripped == other.tripped and self.kind == other.kind
+                and _same_figure(self.stopping_distance_m, other.stopping_distance_m)
+                and _same_figure(self.clearance_m, other.clearance_m))
+
+    def __hash__(self) -> int:
+        return hash((self.tripped, self.kind, _figure_key(self.stopping_distance_m), _figure_key(self.clearance_m)))
+
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        return _reduce_by_fields(self)
+
+
+def _same_figure(a: float, b: float) -> bool:
+    return a == b or (a != a and b != b)
+
+
+def _figure_key(a: float) -> float | None:
+    return None if a != a else a
 
 
 _INVALID = FenceResult(True, "invalid", _NAN, _NAN)
