@@ -823,6 +823,33 @@ def test_fence_survives_pickling_with_prepared_geometry() -> None:
     assert check(f, (585.0, 100.0, -30.0), (10.0, 0.0, 0.0), SIG, SIG, True).tripped
 
 
+def test_with_params_shares_the_zones_and_changes_only_the_parameters() -> None:
+    f = mixed_fence()
+    prm = FenceParams(mode="position_only", altitude_floor_m=5.0)
+    g = f.with_params(prm)
+    assert g.params is prm and f.params is not prm
+    assert g.allowed_area is f.allowed_area and g.exclusion_area is f.exclusion_area  # not rebuilt
+    assert (g.inclusion_polygons, g.exclusion_circles) == (f.inclusion_polygons, f.exclusion_circles)
+    pos, vel = (200.0, 200.0, -30.0), (3.0, 4.0, 0.0)
+    assert check(g, pos, vel, SIG, SIG, True) == check(Fence(prm, f.inclusion_polygons, f.inclusion_circles,
+                                                              f.exclusion_polygons, f.exclusion_circles),
+                                                        pos, vel, SIG, SIG, True)
+
+
+def test_fence_result_compares_not_computed_figures_as_equal() -> None:
+    """NaN marks a figure not computed: two verdicts leaving out the same figures are equal (and hash
+    alike), whichever NaN object each holds; a computed figure still has to match."""
+    import pickle
+
+    a = FenceResult(False, "", 3.0, float("nan"))
+    b = FenceResult(False, "", 3.0, float("nan"))
+    assert a == b and hash(a) == hash(b)
+    assert a != FenceResult(False, "", 3.0, 0.0) and a != FenceResult(True, "", 3.0, float("nan"))
+    assert a != FenceResult(False, "", float("nan"), float("nan"))
+    assert pickle.loads(pickle.dumps(a)) == a
+    assert pickle.loads(pickle.dumps(MR)) == MR
+
+
 def _margin_fences() -> list[Fence]:
     floor = FenceParams(altitude_floor_m=2.0, altitude_ceiling_m=100.0)
     return [
