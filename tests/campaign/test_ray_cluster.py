@@ -13,7 +13,6 @@ import os
 import re
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -36,51 +35,6 @@ def _digests(out: Path) -> dict[str, str]:
     assert all(r["status"] == "ok" for r in rows), rows
     return {r["run_id"]: r["log_digest_sha256"] for r in rows}
 
-
-def test_campaign_runs_unchanged_on_a_ray_cluster_address(tmp_path: Path) -> None:
-    pytest.importorskip("ray")
-    ray_exe = Path(sys.executable).with_name("ray")
-    if not ray_exe.exists():
-        pytest.skip("the ray command-line tool is not installed beside this Python")
-    port = reserve_port()
-    # One authentication mode on both sides (Ray >= 2.5x may find a token file in ~/.ray otherwise).
-    env = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
-    temp = Path("/tmp") / f"merlin-ray-{port}"  # Ray's socket paths must stay short: not under tmp_path
-    head = subprocess.Popen(
-        [str(ray_exe), "start", "--head", "--block", f"--port={port}", "--num-cpus=1",
-         "--include-dashboard=false", "--disable-usage-stats", f"--temp-dir={temp}"],
-        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    try:
-        deadline = time.monotonic() + 120
-        while True:  # the head is up when its GCS port accepts connections
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=1).close()
-                break
-            except OSError:
-                assert head.poll() is None, "ray start --head exited"
-                assert time.monotonic() < deadline, "the Ray head did not come up in 120 s"
-                time.sleep(0.5)
-        cmd = [sys.executable, "-m", "merlin.cli", "campaign", TINY, "--runs", "2", "--seed", "11"]
-        on_cluster = subprocess.run(
-            [*cmd, "--backend", "ray", "--address", f"127.0.0.1:{port}", "--out", str(tmp_path / "cluster")],
-            cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
-        assert on_cluster.returncode == 0, on_cluster.stderr[-3000:]
-        local = subprocess.run([*cmd, "--workers", "1", "--out", str(tmp_path / "local")],
-                               cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
-        assert local.returncode == 0, local.stderr[-3000:]
-        got, want = _digests(tmp_path / "cluster"), _digests(tmp_path / "local")
-        assert len(got) == 2
-        assert got == want
-    finally:
-        try:
-            os.killpg(head.pid, signal.SIGTERM)  # --block: the head stops the processes it started
-            head.wait(timeout=60)
-        except (ProcessLookupError, subprocess.TimeoutExpired):
-            os.killpg(head.pid, signal.SIGKILL)
-        shutil.rmtree(temp, ignore_errors=True)
-
-
-# --------------------------------------------------------------------------- two nodes, one killed
 
 NODE_ID = re.compile(r"node_id=([0-9a-f]{40,})")
 
@@ -139,6 +93,38 @@ class _Node:
         shutil.rmtree(self.temp, ignore_errors=True)
         self.log.unlink(missing_ok=True)
 
+
+def test_campaign_runs_unchanged_on_a_ray_cluster_address(tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    ray_exe = Path(sys.executable).with_name("ray")
+    if not ray_exe.exists():
+        pytest.skip("the ray command-line tool is not installed beside this Python")
+    port = reserve_port()
+    # One authentication mode on both sides (Ray >= 2.5x may find a token file in ~/.ray otherwise).
+    env = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
+    # Ray's socket paths must stay short: not under tmp_path
+    head = _Node(ray_exe, ["--head", f"--port={port}", "--include-dashboard=false"],
+                 Path("/tmp") / f"merlin-ray-{port}", env)
+    try:
+        # Up means its raylet registered, not only its GCS port open: a driver that connects in between
+        # finds no node ("No node info found") when the machine is loaded.
+        head.wait_started()
+        cmd = [sys.executable, "-m", "merlin.cli", "campaign", TINY, "--runs", "2", "--seed", "11"]
+        on_cluster = subprocess.run(
+            [*cmd, "--backend", "ray", "--address", f"127.0.0.1:{port}", "--out", str(tmp_path / "cluster")],
+            cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+        assert on_cluster.returncode == 0, on_cluster.stderr[-3000:]
+        local = subprocess.run([*cmd, "--workers", "1", "--out", str(tmp_path / "local")],
+                               cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+        assert local.returncode == 0, local.stderr[-3000:]
+        got, want = _digests(tmp_path / "cluster"), _digests(tmp_path / "local")
+        assert len(got) == 2
+        assert got == want
+    finally:
+        head.close()
+
+
+# --------------------------------------------------------------------------- two nodes, one killed
 
 def _records(out: Path) -> list[dict]:
     path = out / "results.jsonl"
