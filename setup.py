@@ -67,6 +67,12 @@ COMPILED_MODULES = (
     "merlin/redundancy/lane_voter.py",
     "merlin/redundancy/lanes.py",
     "merlin/autopilot/multirotor_stage.py",
+    # the fixed wing's inner loops, guidance and actuator stage, and the JSBSim wrapper's per-frame truth
+    # (every tick of a fixed wing; docs/benchmarks/sim.md, "The fixed wing's closed loop")
+    "merlin/autopilot/fixedwing_control.py",
+    "merlin/autopilot/fixedwing_guidance.py",
+    "merlin/autopilot/fixedwing_behaviours.py",
+    "sims/fixedwing.py",
 )
 
 # Name of mypyc's shared runtime library (a top-level module ``merlin_native__mypyc``).

@@ -79,28 +79,44 @@ def draw(rng: np.random.Generator) -> tuple[dict[str, float], tuple[float, float
     return params, wind
 
 
+class _WatchedStage:
+    """The loop's actuator stage, seen through: :meth:`step` notes the first tick Merlin flies after the
+    experimental controller, everything else goes to the stage. A wrapper, not an instance attribute over
+    ``step``: the stage is a compiled (mypyc) class in the compiled build, whose methods cannot be
+    replaced on an instance."""
+
+    def __init__(self, stage: Any, loops: list[dict[str, float]]) -> None:
+        object.__setattr__(self, "_stage", stage)
+        object.__setattr__(self, "_loops", loops)
+        object.__setattr__(self, "_seen_experimental", False)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._stage, name)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        setattr(self._stage, name, value)
+
+    def step(self, t: float, decision: Decision, s: Any, takeoff_height_m: float) -> SurfaceCommand:
+        stage = self._stage
+        if decision.authority is Authority.EXPERIMENTAL:
+            object.__setattr__(self, "_seen_experimental", True)
+        elif self._seen_experimental and not self._loops:
+            c, cp = stage.cstate, stage.cp
+            self._loops.append({"t": t, "elevator": stage.surfaces.elevator, "aileron": stage.surfaces.aileron,
+                                "rudder": stage.surfaces.rudder,
+                                "elevator_integ_from_trim": c.elevator_integ - cp.elevator_trim,
+                                "aileron_integ": c.aileron_integ, "rudder_integ": c.rudder_integ,
+                                "pitch_sp_deg": math.degrees(c.pitch_sp_rad),
+                                "roll_sp_deg": math.degrees(c.roll_sp_rad)})
+        return stage.step(t, decision, s, takeoff_height_m)  # type: ignore[no-any-return]
+
+
 def _watch_handover(loops: list[dict[str, float]]) -> Callable[..., Any]:
     """A ``make_loop`` that notes, at the first tick Merlin flies after the experimental controller, the
     surfaces handed over and the inner loops' state that produced them (their integrators and setpoints)."""
     def make(*args: Any, **kwargs: Any) -> Any:
-        loop = runner_make_loop(*args, **kwargs)
-        stage = loop.stage
-        step = stage.step
-        seen = {"experimental": False}
-
-        def watched(t: float, decision: Decision, s: Any, takeoff_height_m: float) -> SurfaceCommand:
-            if decision.authority is Authority.EXPERIMENTAL:
-                seen["experimental"] = True
-            elif seen["experimental"] and not loops:
-                c, cp = stage.cstate, stage.cp
-                loops.append({"t": t, "elevator": stage.surfaces.elevator, "aileron": stage.surfaces.aileron,
-                              "rudder": stage.surfaces.rudder,
-                              "elevator_integ_from_trim": c.elevator_integ - cp.elevator_trim,
-                              "aileron_integ": c.aileron_integ, "rudder_integ": c.rudder_integ,
-                              "pitch_sp_deg": math.degrees(c.pitch_sp_rad), "roll_sp_deg": math.degrees(c.roll_sp_rad)})
-            return step(t, decision, s, takeoff_height_m)
-
-        stage.step = watched
+        loop: Any = runner_make_loop(*args, **kwargs)  # a FixedWingLoop (the scenario is the fixed wing's)
+        loop.stage = _WatchedStage(loop.stage, loops)
         return loop
     return make
 

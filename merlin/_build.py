@@ -47,6 +47,10 @@ COMPILED_MODULES: tuple[str, ...] = (
     "merlin.redundancy.lane_voter",
     "merlin.redundancy.lanes",
     "merlin.autopilot.multirotor_stage",
+    "merlin.autopilot.fixedwing_control",
+    "merlin.autopilot.fixedwing_guidance",
+    "merlin.autopilot.fixedwing_behaviours",
+    "sims.fixedwing",
 )
 
 #: Written by ``setup.py`` beside this file after a successful compiled build: module -> sha256 of the

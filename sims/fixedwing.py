@@ -166,6 +166,10 @@ class FixedWingSim:
         if not self._fdm.load_model(model):
             raise ValueError(f"JSBSim could not load aircraft model {model!r} from {root_dir}/aircraft")
         self._n_contacts = int(self._fdm["gear/num-units"])
+        # The inputs written every frame, through their nodes' setters, looked up once (as the truth's reads)
+        self._set_supply = self._node("motor/supply-scale").set_double_value
+        self._set_surfaces = tuple(self._node(n).set_double_value for n in (
+            "fcs/aileron-cmd-norm", "fcs/elevator-cmd-norm", "fcs/rudder-cmd-norm", "fcs/throttle-cmd-norm"))
         self._mass_kg = float(self._fdm["inertia/mass-slugs"]) * 14.59390294
         self._crashed = False
         self._frame = 0
@@ -223,7 +227,7 @@ class FixedWingSim:
             raise ValueError(f"frames must be at least 1, got {frames}")
         if wind_ned_mps is not None and wind_ned_mps != self._wind_ned_mps:
             self._set_wind(wind_ned_mps)
-        self._node("motor/supply-scale").set_double_value(min(max(supply_scale, 0.0), 1.0))
+        self._set_supply(min(max(supply_scale, 0.0), 1.0))
         self._apply(command)
         run = self._fdm.run
         for _ in range(frames):
@@ -343,10 +347,11 @@ class FixedWingSim:
     def _apply(self, command: SurfaceCommand) -> None:
         c = command.clipped()
         # JSBSim/book conventions inside the model: elevator > 0 and rudder > 0 push the nose down / left.
-        self._node("fcs/aileron-cmd-norm").set_double_value(c.aileron)
-        self._node("fcs/elevator-cmd-norm").set_double_value(-c.elevator)
-        self._node("fcs/rudder-cmd-norm").set_double_value(-c.rudder)
-        self._node("fcs/throttle-cmd-norm").set_double_value(c.throttle)
+        set_aileron, set_elevator, set_rudder, set_throttle = self._set_surfaces
+        set_aileron(c.aileron)
+        set_elevator(-c.elevator)
+        set_rudder(-c.rudder)
+        set_throttle(c.throttle)
 
     def _run_ic(self) -> None:
         if not self._fdm.run_ic():

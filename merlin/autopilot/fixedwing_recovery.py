@@ -189,13 +189,27 @@ def _slew_to(x: np.ndarray, target: np.ndarray, step: np.ndarray | float) -> np.
     return np.asarray(x + np.clip(target - x, -step, step))
 
 
+def _unless_done(live: np.ndarray | None, new: np.ndarray, old: np.ndarray) -> np.ndarray:
+    """``new`` where the state is live (all of them when ``live`` is None), ``old`` where it has recovered."""
+    return new if live is None else np.asarray(np.where(live, new, old))
+
+
 def height_lost_m(wing: WingModel, body: RigidBodyModel, prop: PropulsionModel, cp: FixedWingControlParams,
                   entry: EntryStates, trace: list[tuple[float, ...]] | None = None) -> np.ndarray:
     """Height lost by the recovery from each entry state (module docstring): the aircraft's own rotation and
     lift (``wing``, ``body``) under the recovery's loops (``cp``) from the surfaces handed over. ``inf``
     where it has not recovered within 40 s. ``trace``, if given, receives the first state's (t, V, gamma,
-    alpha, q, bank, h, elevator, throttle) at every step."""
+    alpha, q, bank, h, elevator, throttle) at every step.
+
+    The states are independent of one another (every operation is elementwise), so a state is dropped from
+    the arrays once it has recovered and its loss is kept: a few long recoveries no longer carry the whole
+    grid to their end (the bound is taken in every process that builds a fixed wing's configuration). The
+    losses are bit-identical to flying every state to the end (``tests/fixedwing/test_recovery.py``). With
+    ``trace`` nothing is dropped, so the first state's trace runs on after it has recovered, as it did."""
     g = G_MPS2
+    n_all = entry.airspeed_mps.shape[0]
+    lost = np.full(n_all, np.inf)  # each state's loss, filled in as it recovers
+    index = np.arange(n_all)  # which entry state each element of the working arrays is
     v = entry.airspeed_mps.astype(float).copy()
     gamma = -np.arcsin(np.clip(entry.sink_mps / v, -1.0, 1.0))
     alpha = entry.alpha_rad.astype(float).copy()
@@ -227,14 +241,16 @@ def height_lost_m(wing: WingModel, body: RigidBodyModel, prop: PropulsionModel, 
         # The loops (fixedwing_control.control_step while recovering): the pitch setpoint slews towards the
         # angle-of-attack cap on the flight path (within the pitch limit), the wings towards level; PD on the
         # attitude at the airspeed scaler, the pitch gain raised while pulling out of a dive.
-        sink = -v * np.sin(gamma)
+        # the trigonometry of this step's attitude and path, each taken once (the same values every use)
+        sin_gamma, cos_gamma, cos_phi = np.sin(gamma), np.cos(gamma), np.cos(phi)
+        sink = -v * sin_gamma
         pulling_out |= sink > cp.sink_max_mps + cp.recovery_sink_margin_mps
         recovering |= (pulling_out | (v < cp.airspeed_min_mps)
                        | (np.abs(phi) > cp.bank_max_rad + cp.recovery_bank_margin_rad))
         upset = (recovering | (alpha > cp.upset_alpha_max_rad) | (alpha < cp.upset_alpha_min_rad)
                  | (np.abs(q) > cp.upset_pitch_rate_radps) | (np.abs(p) > cp.upset_roll_rate_radps))
-        theta = gamma + alpha * np.cos(phi)
-        theta_target = np.minimum(gamma + alpha_cap * np.cos(phi), cp.pitch_max_rad)
+        theta = gamma + alpha * cos_phi
+        theta_target = np.minimum(gamma + alpha_cap * cos_phi, cp.pitch_max_rad)
         theta_sp = _slew_to(theta_sp, theta_target, cp.pitch_sp_rate_radps * _DT_S)
         phi_sp = _slew_to(phi_sp, np.zeros_like(phi_sp), cp.roll_sp_rate_radps * _DT_S)
         k = np.clip(cp.airspeed_cruise_mps / v, cp.scaler_min, cp.scaler_max)
@@ -258,16 +274,17 @@ def height_lost_m(wing: WingModel, body: RigidBodyModel, prop: PropulsionModel, 
         q_dot = qbar_s * body.chord_m * cm / body.iyy_kgm2
         cl_roll = body.cl_p * body.span_m / (2.0 * v) * p + body.cl_da_per_rad * travel * ail
         p_dot = qbar_s * body.span_m * cl_roll / body.ixx_kgm2
-        alpha_dot = q - g * (n - np.cos(gamma) * np.cos(phi)) / v
-        gamma_dot = g * (np.minimum(n, cp.load_factor_max) * np.cos(phi) - np.cos(gamma)) / v
-        live = ~done
-        v = np.where(live, np.maximum(v + (accel - g * np.sin(gamma)) * _DT_S, 1.0), v)
-        alpha = np.where(live, alpha + alpha_dot * _DT_S, alpha)
-        q = np.where(live, q + q_dot * _DT_S, q)
-        phi = np.where(live, phi + p * _DT_S, phi)
-        p = np.where(live, p + p_dot * _DT_S, p)
-        gamma = np.where(live, gamma + gamma_dot * _DT_S, gamma)
-        h = np.where(live, h + v * np.sin(gamma) * _DT_S, h)
+        alpha_dot = q - g * (n - cos_gamma * cos_phi) / v
+        gamma_dot = g * (np.minimum(n, cp.load_factor_max) * cos_phi - cos_gamma) / v
+        # without a trace the recovered states have been dropped: every state left is live
+        live = None if trace is None else ~done
+        v = _unless_done(live, np.maximum(v + (accel - g * sin_gamma) * _DT_S, 1.0), v)
+        alpha = _unless_done(live, alpha + alpha_dot * _DT_S, alpha)
+        q = _unless_done(live, q + q_dot * _DT_S, q)
+        phi = _unless_done(live, phi + p * _DT_S, phi)
+        p = _unless_done(live, p + p_dot * _DT_S, p)
+        gamma = _unless_done(live, gamma + gamma_dot * _DT_S, gamma)
+        h = _unless_done(live, h + v * np.sin(gamma) * _DT_S, h)
         h_min = np.minimum(h_min, h)
         t += _DT_S
         if trace is not None:
@@ -277,7 +294,16 @@ def height_lost_m(wing: WingModel, body: RigidBodyModel, prop: PropulsionModel, 
         level_capable = 0.5 * wing.rho_kgpm3 * v**2 * wing.wing_area_m2 * trim_cl >= weight
         done |= ((gamma >= 0.0) & (np.abs(phi) < math.radians(2.0)) & (np.abs(q) < math.radians(5.0))
                  & (alpha <= alpha_cap) & level_capable & (t > 0.5))
-    return np.where(done, -h_min, np.inf)
+        if trace is None and done.any():
+            lost[index[done]] = -h_min[done]
+            keep = ~done
+            index = index[keep]
+            v, gamma, alpha, q, phi, p = v[keep], gamma[keep], alpha[keep], q[keep], phi[keep], p[keep]
+            elev, ail, throttle, theta_sp, phi_sp = elev[keep], ail[keep], throttle[keep], theta_sp[keep], phi_sp[keep]
+            handed, pulling_out, recovering = handed[keep], pulling_out[keep], recovering[keep]
+            h, h_min, done = h[keep], h_min[keep], done[keep]
+    lost[index[done]] = -h_min[done]
+    return lost
 
 
 def _height_lost_m(wing: WingModel, cp: FixedWingControlParams, v0: float, sink0: float, alpha0: float) -> float:

@@ -265,6 +265,10 @@ class NavEstimator:
         self._vo_fused_t: float | None = None
         self._vo_lost_reported = True  # VO counts as lost until its first accepted sample
         self._vo_refused = 0  # frames refused by the quality test since the last usable one
+        # the previous VO sample's time (the start of the next sample's frame pair) and the time the IMU
+        # source feeding this filter last changed (widen_imu_bias): a pair spanning a change is not fused
+        self._vo_prev_t = -math.inf
+        self._imu_switch_t = -math.inf
         self._aid_t = init.t_s  # last position/velocity aid (GPS or VO)
         self._mode = NavMode.INERTIAL  # nothing fused yet
         if init.gps_aided:  # started from a fix (NavInit): that fix counts as the first one fused
@@ -676,6 +680,7 @@ class NavEstimator:
         failing quality field, its value and its limit, and the first usable frame after refused ones emits
         ``RECOVERED`` with the number of frames refused (``refused_frames``)."""
         cfg = self.cfg
+        pair_start_t, self._vo_prev_t = self._vo_prev_t, vo.t_s
         scale = vo_noise_scale(vo.quality, cfg)
         if scale is None:
             problem = vo_quality_problem(vo.quality, cfg)
@@ -695,17 +700,32 @@ class NavEstimator:
                 "VO quality acceptable again",
             )
             self._vo_refused = 0
+        if pair_start_t < self._imu_switch_t <= vo.t_s:
+            # The frames were de-rotated with the gyro attitude, integrated from the old source for part of
+            # the pair and the new one for the rest, each less this filter's one bias estimate: the sample's
+            # error follows neither source's bias, which is what the VO Jacobian's gyro-bias columns model.
+            # Fused, it pins the widened bias variance to a wrong value and the next frames are gated out
+            # (regression scenario: redundancy_imu_bias_camera_heading). Nor does it go to the GPS-VO check.
+            self._emit(NavEventKind.REJECTED, "vo", vo.t_s - pair_start_t, 0.0, "imu_source_changed",
+                       "VO frame pair spans an IMU source change")
+            self.last_vo = Check(vo.t_s, math.nan, False)
+            return self.last_vo
         var = [max(c, 0.0) * scale**2 + cfg.vo_sigma_floor_mps**2 for c in vo.vel_cov_m2ps2]
-        # kept for the GPS-VO velocity cross-check whatever the gate below says: the check must not
-        # depend on a filter velocity the GPS under test may already have dragged
-        self._vo_recent.append((vo.t_s, vo.vel_ned_mps[0], vo.vel_ned_mps[1], var[0], var[1]))
-        # Horizontal only: the vertical velocity, from the change of image scale between frames, is a
-        # weak and coloured measurement (docs/navigation.md, "VO"); the height is the barometer's and GPS's.
         if self._every_n > 1:  # applied at the filter's time
             self._predict_covariance()
+        H = self._vo_jacobian()
+        # Kept for the GPS-VO velocity cross-check whatever the gate below says: the check must not
+        # depend on a filter velocity the GPS under test may already have dragged. Its variance is the
+        # sample's own plus what the filter's height, heading and gyro bias (the VO Jacobian's other
+        # columns) put into it: after an IMU source change the widened gyro bias makes VO's velocity
+        # uncertain by about the height times the bias step, and a healthy GPS disagreeing with it by
+        # that much is no evidence against the GPS (regression scenario: redundancy_imu_bias_camera_heading).
+        var_n, var_e = kernels.vo_filter_variance(H, self.kf.P)
+        self._vo_recent.append((vo.t_s, vo.vel_ned_mps[0], vo.vel_ned_mps[1], var[0] + var_n, var[1] + var_e))
+        # Horizontal only: the vertical velocity, from the change of image scale between frames, is a
+        # weak and coloured measurement (docs/navigation.md, "VO"); the height is the barometer's and GPS's.
         v = self._v
         y = np.array((vo.vel_ned_mps[0] - v[0], vo.vel_ned_mps[1] - v[1]))  # z − h(x̂), h(x̂) = v̂_h
-        H = self._vo_jacobian()
         r = np.array(var[:2])
         nis = self._nis(H, r, y)
         fused = nis <= cfg.vo_gate
@@ -914,6 +934,7 @@ class NavEstimator:
         running one filter per IMU."""
         if self._every_n > 1:  # with every_n = 1 nothing is ever pending after predict()
             self._predict_covariance()
+        self._imu_switch_t = self._t
         P = self.kf.P
         for i in range(3):
             P[BA_.start + i, BA_.start + i] += float(accel_step_mps2[i]) ** 2

@@ -576,6 +576,24 @@ def vo_jacobian_into(s: np.ndarray, H: np.ndarray, coupling: bool) -> None:
 
 
 @_njit
+def vo_filter_variance(H: np.ndarray, P: np.ndarray) -> tuple[float, float]:
+    """The variance the filter's own errors put into each horizontal VO velocity component: row a of H
+    without its δv columns (3, 4), H_a P H_aᵀ (the VO Jacobian's nonzero columns besides δv are δp_d,
+    δθ_d and δb_g: 2, 8, 9-11)."""
+    out = [0.0, 0.0]
+    cols = (2, 8, 9, 10, 11)
+    for a in range(2):
+        acc = 0.0
+        for j in cols:
+            hj = H[a, j]
+            if hj != 0.0:
+                for k in cols:
+                    acc += hj * P[j, k] * H[a, k]
+        out[a] = max(acc, 0.0)
+    return out[0], out[1]
+
+
+@_njit
 def gps_innovation(
     s: np.ndarray,
     P: np.ndarray,

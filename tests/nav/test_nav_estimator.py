@@ -422,3 +422,61 @@ def test_widen_imu_bias_adds_the_step_squared_to_the_bias_variances_only():
     others[BA_] = others[BG_] = False
     assert np.allclose(d[others], 0.0)
     assert est.accel_bias_mps2 == ba and est.gyro_bias_radps == bg
+
+
+def test_a_vo_frame_pair_spanning_an_imu_source_change_is_not_fused():
+    """The VO velocity of a pair of frames between which the IMU source changed (widen_imu_bias) was
+    de-rotated with two sources' gyro, less one bias estimate: no state of the filter explains its error, so
+    it is neither fused nor kept for the GPS-VO check; it is reported once, and the next pair, wholly after
+    the change, is fused again (regression scenario: redundancy_imu_bias_camera_heading)."""
+    est = NavEstimator(NavConfig(), NavInit(pos_ned_m=(0.0, 0.0, -10.0)))
+    good_q = VoQuality(200, 0.95, 0.2, 0.9, valid=True)
+    level = (0.0, 0.0, -9.80665)
+    t = 0.0
+
+    def fly_to(t_end: float) -> float:
+        tt = t
+        while tt < t_end - 1e-9:
+            tt = round(tt + 0.0025, 6)
+            est.predict(ImuSample(tt, (0.0, 0.0, 0.0), level))
+        return tt
+
+    t = t1 = fly_to(1 / 15)
+    assert est.update_vo(VoSample(t, (0.0, 0.0, 0.0), (0.01, 0.01, 0.01), good_q)).fused
+    t = fly_to(0.1)
+    est.widen_imu_bias((0.0, 0.0, 0.0), (0.15, 0.0, 0.0))
+    est.pop_events()
+    t = fly_to(2 / 15)
+    v_before, recent = est.state().vel_ned_mps, len(est._vo_recent)
+    check = est.update_vo(VoSample(t, (0.0, 1.5, 0.0), (0.01, 0.01, 0.01), good_q))
+    assert check is not None and not check.fused and math.isnan(check.nis)
+    assert est.state().vel_ned_mps == v_before and len(est._vo_recent) == recent
+    ev = est.pop_events()
+    assert [(e.kind, e.source, e.parameter) for e in ev] == [(NavEventKind.REJECTED, "vo", "imu_source_changed")]
+    assert ev[0].statistic == pytest.approx(t - t1)  # the pair's length
+    t = fly_to(3 / 15)
+    after = est.update_vo(VoSample(t, (0.0, 0.0, 0.0), (0.01, 0.01, 0.01), good_q))
+    assert after is not None and after.fused and len(est._vo_recent) == recent + 1
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-50.0, 50.0), min_size=10, max_size=10),
+       st.lists(st.floats(-1.0, 1.0), min_size=19 * 19, max_size=19 * 19))
+def test_vo_filter_variance_is_h_p_ht_without_the_velocity_columns(h_vals, a_vals):
+    """The variance the filter's height, heading and gyro bias put into VO's horizontal velocity (the
+    GPS-VO check adds it to the sample's own) is row a of the VO Jacobian, its δv columns left out, times
+    P times its transpose: against numpy on random Jacobians of the VO's shape and random covariances."""
+    from merlin.nav.kernels import vo_filter_variance
+
+    H = np.zeros((2, 19))
+    H[0, 3] = H[1, 4] = 1.0
+    cols = [2, 8, 9, 10, 11]
+    H[0, cols] = h_vals[:5]
+    H[1, cols] = h_vals[5:]
+    A = np.array(a_vals).reshape(19, 19)
+    P = A @ A.T + 1e-6 * np.eye(19)
+    Hx = H.copy()
+    Hx[:, 3:5] = 0.0
+    want = np.diag(Hx @ P @ Hx.T)
+    got = vo_filter_variance(H, P)
+    assert got == pytest.approx(tuple(want), rel=1e-9, abs=1e-9)
