@@ -194,6 +194,22 @@ def _unless_done(live: np.ndarray | None, new: np.ndarray, old: np.ndarray) -> n
     return new if live is None else np.asarray(np.where(live, new, old))
 
 
+def _working_arrays(entry: EntryStates) -> tuple[np.ndarray, ...]:
+    """Float copies of the entry states the recovery integrates: airspeed, flight-path angle (from the sink),
+    angle of attack, pitch rate, bank, roll rate, elevator, aileron, throttle."""
+    v = entry.airspeed_mps.astype(float).copy()
+    gamma = -np.arcsin(np.clip(entry.sink_mps / v, -1.0, 1.0))
+    return (v, gamma, entry.alpha_rad.astype(float).copy(), entry.q_radps.astype(float).copy(),
+            entry.bank_rad.astype(float).copy(), entry.p_radps.astype(float).copy(),
+            entry.elevator.astype(float).copy(), entry.aileron.astype(float).copy(),
+            entry.throttle.astype(float).copy())
+
+
+def _kept(keep: np.ndarray, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Each working array without the states that have recovered (``keep`` False)."""
+    return tuple(a[keep] for a in arrays)
+
+
 def height_lost_m(wing: WingModel, body: RigidBodyModel, prop: PropulsionModel, cp: FixedWingControlParams,
                   entry: EntryStates, trace: list[tuple[float, ...]] | None = None) -> np.ndarray:
     """Height lost by the recovery from each entry state (module docstring): the aircraft's own rotation and
@@ -210,15 +226,7 @@ def height_lost_m(wing: WingModel, body: RigidBodyModel, prop: PropulsionModel, 
     n_all = entry.airspeed_mps.shape[0]
     lost = np.full(n_all, np.inf)  # each state's loss, filled in as it recovers
     index = np.arange(n_all)  # which entry state each element of the working arrays is
-    v = entry.airspeed_mps.astype(float).copy()
-    gamma = -np.arcsin(np.clip(entry.sink_mps / v, -1.0, 1.0))
-    alpha = entry.alpha_rad.astype(float).copy()
-    q = entry.q_radps.astype(float).copy()
-    phi = entry.bank_rad.astype(float).copy()
-    p = entry.p_radps.astype(float).copy()
-    elev = entry.elevator.astype(float).copy()
-    ail = entry.aileron.astype(float).copy()
-    throttle = entry.throttle.astype(float).copy()
+    v, gamma, alpha, q, phi, p, elev, ail, throttle = _working_arrays(entry)
     # the loops' setpoints start at the attitude taken over (merlin.autopilot.fixedwing_control.reset_from_state)
     theta_sp = gamma + alpha * np.cos(phi)
     phi_sp = phi.copy()
@@ -296,12 +304,9 @@ def height_lost_m(wing: WingModel, body: RigidBodyModel, prop: PropulsionModel, 
                  & (alpha <= alpha_cap) & level_capable & (t > 0.5))
         if trace is None and done.any():
             lost[index[done]] = -h_min[done]
-            keep = ~done
-            index = index[keep]
-            v, gamma, alpha, q, phi, p = v[keep], gamma[keep], alpha[keep], q[keep], phi[keep], p[keep]
-            elev, ail, throttle, theta_sp, phi_sp = elev[keep], ail[keep], throttle[keep], theta_sp[keep], phi_sp[keep]
-            handed, pulling_out, recovering = handed[keep], pulling_out[keep], recovering[keep]
-            h, h_min, done = h[keep], h_min[keep], done[keep]
+            (index, v, gamma, alpha, q, phi, p, elev, ail, throttle, theta_sp, phi_sp, handed, pulling_out,
+             recovering, h, h_min, done) = _kept(~done, index, v, gamma, alpha, q, phi, p, elev, ail, throttle,
+                                                 theta_sp, phi_sp, handed, pulling_out, recovering, h, h_min, done)
     lost[index[done]] = -h_min[done]
     return lost
 
