@@ -64,6 +64,20 @@ class _Node:
             assert time.monotonic() < deadline, f"the Ray node did not come up in {timeout_s:.0f} s"
             time.sleep(0.5)
 
+    def start_waiting(self, ray_exe: Path, args: list[str], env: dict[str, str], attempts: int = 3) -> str:
+        """:meth:`wait_started`, starting the node again (up to ``attempts`` times in all) when ``ray start``
+        itself gives up: on a loaded machine Ray's own start-up may time out ("The current node timed out
+        during startup", GCS deadline exceeded) before anything of Merlin's runs; an operator restarts it."""
+        for attempt in range(attempts):
+            try:
+                return self.wait_started()
+            except AssertionError:
+                if self.proc.poll() is None or attempt == attempts - 1:
+                    raise
+            self.close()
+            self.__init__(ray_exe, args, self.temp, env)  # type: ignore[misc]
+        raise AssertionError("unreachable")
+
     def pids(self) -> set[int]:
         """This node's processes: its process group, and any child that left it (by parent pid)."""
         procs = {}
@@ -103,12 +117,12 @@ def test_campaign_runs_unchanged_on_a_ray_cluster_address(tmp_path: Path) -> Non
     # One authentication mode on both sides (Ray >= 2.5x may find a token file in ~/.ray otherwise).
     env = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
     # Ray's socket paths must stay short: not under tmp_path
-    head = _Node(ray_exe, ["--head", f"--port={port}", "--include-dashboard=false"],
-                 Path("/tmp") / f"merlin-ray-{port}", env)
+    head_args = ["--head", f"--port={port}", "--include-dashboard=false"]
+    head = _Node(ray_exe, head_args, Path("/tmp") / f"merlin-ray-{port}", env)
     try:
         # Up means its raylet registered, not only its GCS port open: a driver that connects in between
         # finds no node ("No node info found") when the machine is loaded.
-        head.wait_started()
+        head.start_waiting(ray_exe, head_args, env)
         cmd = [sys.executable, "-m", "merlin.cli", "campaign", TINY, "--runs", "2", "--seed", "11"]
         on_cluster = subprocess.run(
             [*cmd, "--backend", "ray", "--address", f"127.0.0.1:{port}", "--out", str(tmp_path / "cluster")],
