@@ -46,11 +46,15 @@ class _Node:
     def __init__(self, ray_exe: Path, args: list[str], temp: Path, env: dict[str, str]) -> None:
         self.temp = temp
         self.log = temp.with_suffix(".log")
+        self._cmd = [str(ray_exe), "start", "--block", "--num-cpus=1", "--node-ip-address=127.0.0.1",
+                     "--disable-usage-stats", f"--temp-dir={temp}", *args]
+        self._env = env
+        self._launch()
+
+    def _launch(self) -> None:
         with self.log.open("wb") as log:
-            self.proc = subprocess.Popen(
-                [str(ray_exe), "start", "--block", "--num-cpus=1", "--node-ip-address=127.0.0.1",
-                 "--disable-usage-stats", f"--temp-dir={temp}", *args],
-                env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+            self.proc = subprocess.Popen(self._cmd, env=self._env, stdout=log, stderr=subprocess.STDOUT,
+                                         start_new_session=True)
 
     def wait_started(self, timeout_s: float = 180.0) -> str:
         """Block until the node is up; its Ray node id (from its raylet's log)."""
@@ -64,7 +68,7 @@ class _Node:
             assert time.monotonic() < deadline, f"the Ray node did not come up in {timeout_s:.0f} s"
             time.sleep(0.5)
 
-    def start_waiting(self, ray_exe: Path, args: list[str], env: dict[str, str], attempts: int = 3) -> str:
+    def start_waiting(self, attempts: int = 3) -> str:
         """:meth:`wait_started`, starting the node again (up to ``attempts`` times in all) when ``ray start``
         itself gives up: on a loaded machine Ray's own start-up may time out ("The current node timed out
         during startup", GCS deadline exceeded) before anything of Merlin's runs; an operator restarts it."""
@@ -74,8 +78,9 @@ class _Node:
             except AssertionError:
                 if self.proc.poll() is None or attempt == attempts - 1:
                     raise
-            self.close()
-            self.__init__(ray_exe, args, self.temp, env)  # type: ignore[misc]
+            self.kill()
+            shutil.rmtree(self.temp, ignore_errors=True)
+            self._launch()
         raise AssertionError("unreachable")
 
     def pids(self) -> set[int]:
@@ -117,12 +122,12 @@ def test_campaign_runs_unchanged_on_a_ray_cluster_address(tmp_path: Path) -> Non
     # One authentication mode on both sides (Ray >= 2.5x may find a token file in ~/.ray otherwise).
     env = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
     # Ray's socket paths must stay short: not under tmp_path
-    head_args = ["--head", f"--port={port}", "--include-dashboard=false"]
-    head = _Node(ray_exe, head_args, Path("/tmp") / f"merlin-ray-{port}", env)
+    head = _Node(ray_exe, ["--head", f"--port={port}", "--include-dashboard=false"],
+                 Path("/tmp") / f"merlin-ray-{port}", env)
     try:
         # Up means its raylet registered, not only its GCS port open: a driver that connects in between
         # finds no node ("No node info found") when the machine is loaded.
-        head.start_waiting(ray_exe, head_args, env)
+        head.start_waiting()
         cmd = [sys.executable, "-m", "merlin.cli", "campaign", TINY, "--runs", "2", "--seed", "11"]
         on_cluster = subprocess.run(
             [*cmd, "--backend", "ray", "--address", f"127.0.0.1:{port}", "--out", str(tmp_path / "cluster")],
