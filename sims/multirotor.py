@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
+from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -66,6 +66,12 @@ class MultirotorParams:
     crash_touchdown_speed_mps: float
     crash_touchdown_tilt_deg: float
     gravity_mps2: float
+    # Ground contact (optional keys; the defaults are a stiff skid gear on firm ground). The gear's stroke
+    # stops the body over ``gear_contact_time_s`` at a constant deceleration, and a tilted body rolls
+    # upright onto its skids at ``settle_rate_radps``: both are motions the accelerometer and the gyro
+    # measure, as a real IMU records a hard landing (clipped at its full scale when the impact exceeds it).
+    gear_contact_time_s: float = 0.04
+    settle_rate_radps: float = 4.0
 
     @property
     def max_thrust_n(self) -> float:
@@ -102,6 +108,8 @@ _BOUNDS: dict[str, tuple[float, float, bool]] = {
     "crash_touchdown_speed_mps": (0.0, 100.0, False),
     "crash_touchdown_tilt_deg": (0.0, 90.0, False),
     "gravity_mps2": (0.0, 100.0, False),
+    "gear_contact_time_s": (0.005, 1.0, True),
+    "settle_rate_radps": (0.1, 30.0, True),
 }
 
 
@@ -111,13 +119,15 @@ def multirotor_params_from_mapping(data: Any, source: str = "<multirotor params>
         raise ConfigError(source, [f"(top level): expected a mapping of keys, got {type(data).__name__}"])
     problems: list[str] = []
     names = [f.name for f in fields(MultirotorParams)]
+    optional = {f.name for f in fields(MultirotorParams) if f.default is not MISSING}
     for key in data:
         if key not in names:
             problems.append(f"{key}: unknown key; value {data[key]!r}; allowed keys: {', '.join(names)}")
     values: dict[str, float] = {}
     for key in names:
         if key not in data:
-            problems.append(f"{key}: required key is missing")
+            if key not in optional:
+                problems.append(f"{key}: required key is missing")
             continue
         v = data[key]
         lo, hi, lo_incl = _BOUNDS[key]
@@ -249,10 +259,15 @@ class Multirotor:
     __slots__ = (
         "_alpha",
         "_body",
+        "_contact_dv",
+        "_contact_n",
         "_ground",
         "_kf",
         "_kf_i",
         "_km",
+        "_settle_n",
+        "_settle_q",
+        "_settle_w",
         "_trans",
         "_wmax",
         "crashed",
@@ -340,6 +355,13 @@ class Multirotor:
             self.qw, self.qx, self.qy, self.qz = quat_from_rpy(0.0, 0.0, rpy_rad[2])
         self.landed = on_ground
         self.crashed = False
+        # an impact in progress: steps left, and the velocity the gear takes away per step (NED)
+        self._contact_n = 0
+        self._contact_dv: Vec3 = ZERO3
+        # a settle upright in progress: steps left, the body rate, the upright attitude it ends at
+        self._settle_n = 0
+        self._settle_w: Vec3 = ZERO3
+        self._settle_q: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
         self.touchdown_speed_mps = 0.0
         spin = (not on_ground) if motors_at_hover is None else motors_at_hover
         w_h = math.sqrt(params.mass_kg * params.gravity_mps2 / 4.0 / self._kf) if spin else 0.0
@@ -385,6 +407,10 @@ class Multirotor:
         kf0, kf1, kf2, kf3 = self._kf_i
         t0, t1, t2, t3 = kf0 * s0, kf1 * s1, kf2 * s2, kf3 * s3
         thrust = t0 + t1 + t2 + t3
+        if self._contact_n or self._settle_n:  # the gear is stopping the body: thrust cannot lift it yet
+            self.wind = wind_ned_mps
+            self._contact_step()
+            return
 
         # --- rotation FRD -> NED
         qw, qx, qy, qz = self.qw, self.qx, self.qy, self.qz
@@ -464,20 +490,83 @@ class Multirotor:
             self._touch_down(vz)
 
     def _touch_down(self, vz: float) -> None:
-        """Inelastic contact: the gear stops the body; it settles upright (tip-over is not modelled)."""
+        """Inelastic contact begins: the gear's stroke stops the body over ``gear_contact_time_s`` at a
+        constant deceleration, and a tilted body rolls upright onto its skids, keeping its heading, at
+        ``settle_rate_radps`` (a tip-over is not modelled). Both are real motions of the body, so the IMU
+        measures them: the regression scenario ``adv_tilt_sink_crash_flyaway`` is a 3.7 m/s crash with a
+        25 deg bank that the filter must see."""
         p = self.p
         roll, pitch, yaw = rpy_from_quat(self.qw, self.qx, self.qy, self.qz)
         tilt = math.degrees(math.acos(max(-1.0, min(1.0, math.cos(roll) * math.cos(pitch)))))
         self.touchdown_speed_mps = vz
         if vz > p.crash_touchdown_speed_mps or tilt > p.crash_touchdown_tilt_deg:
             self.crashed = True
-        self.pz = self._ground
-        self.vx = self.vy = self.vz = 0.0
-        self.wp = self.wq = self.wr = 0.0
-        self.qw, self.qx, self.qy, self.qz = quat_from_rpy(0.0, 0.0, yaw)
-        self.landed = True
-        g = p.gravity_mps2
-        self.sfx, self.sfy, self.sfz = 0.0, 0.0, -g
+        dt = self.dt_s
+        n = max(1, math.ceil(p.gear_contact_time_s / dt - 1e-9))
+        self._contact_n = n
+        self._contact_dv = (self.vx / n, self.vy / n, self.vz / n)
+        tw, tx, ty, tz = quat_from_rpy(0.0, 0.0, yaw)
+        qw, qx, qy, qz = self.qw, -self.qx, -self.qy, -self.qz  # conj(q) * upright: the rotation in body axes
+        ew = qw * tw - qx * tx - qy * ty - qz * tz
+        ex = qw * tx + qx * tw + qy * tz - qz * ty
+        ey = qw * ty - qx * tz + qy * tw + qz * tx
+        ez = qw * tz + qx * ty - qy * tx + qz * tw
+        if ew < 0.0:  # the shorter way round
+            ew, ex, ey, ez = -ew, -ex, -ey, -ez
+        sn = math.sqrt(ex * ex + ey * ey + ez * ez)
+        angle = 2.0 * math.atan2(sn, ew)
+        self._settle_q = (tw, tx, ty, tz)
+        if angle > 1e-9:
+            m = max(1, math.ceil(angle / (p.settle_rate_radps * dt) - 1e-9))
+            k = angle / (m * dt) / sn
+            self._settle_n = m
+            self._settle_w = (ex * k, ey * k, ez * k)
+        else:
+            self._settle_n = 0
+            self.qw, self.qx, self.qy, self.qz = tw, tx, ty, tz
+
+    def _contact_step(self) -> None:
+        """One step of the impact and the settle; at their end the body rests on the gear (``landed``)."""
+        dt = self.dt_s
+        an = ae = ad = 0.0
+        if self._contact_n > 0:
+            dvn, dve, dvd = self._contact_dv
+            self._contact_n -= 1
+            if self._contact_n == 0:
+                self.vx = self.vy = self.vz = 0.0
+            else:
+                self.vx, self.vy, self.vz = self.vx - dvn, self.vy - dve, self.vz - dvd
+            an, ae, ad = -dvn / dt, -dve / dt, -dvd / dt
+            # the gear compresses while it stops the body; it extends back to its static height at rest
+            self.px += self.vx * dt
+            self.py += self.vy * dt
+            self.pz += self.vz * dt
+        if self._settle_n > 0:
+            wp, wq, wr = self._settle_w
+            self.wp, self.wq, self.wr = wp, wq, wr
+            self._settle_n -= 1
+            if self._settle_n == 0:
+                self.qw, self.qx, self.qy, self.qz = self._settle_q
+            else:
+                half = 0.5 * math.sqrt(wp * wp + wq * wq + wr * wr) * dt
+                s = math.sin(half) * dt / (2.0 * half)
+                c = math.cos(half)
+                dx, dy, dz = wp * s, wq * s, wr * s
+                qw, qx, qy, qz = self.qw, self.qx, self.qy, self.qz
+                nqw = qw * c - qx * dx - qy * dy - qz * dz
+                nqx = qw * dx + qx * c + qy * dz - qz * dy
+                nqy = qw * dy - qx * dz + qy * c + qz * dx
+                nqz = qw * dz + qx * dy - qy * dx + qz * c
+                inv_n = 1.0 / math.sqrt(nqw * nqw + nqx * nqx + nqy * nqy + nqz * nqz)
+                self.qw, self.qx, self.qy, self.qz = nqw * inv_n, nqx * inv_n, nqy * inv_n, nqz * inv_n
+        else:
+            self.wp = self.wq = self.wr = 0.0
+        self.sfx, self.sfy, self.sfz = self._rotate_to_body(an, ae, ad - self.p.gravity_mps2)
+        self.t_s += dt
+        if self._contact_n == 0 and self._settle_n == 0:
+            self.pz = self._ground
+            self.vx = self.vy = self.vz = 0.0
+            self.landed = True
 
     # ----------------------------------------------------------------------------------------- truth
 

@@ -623,6 +623,16 @@ class NavFilterConfig(Strict):
         description="covariance prediction every n IMU samples (the nominal state integrates every one);"
         " 1 is the exact discrete filter",
     )
+    accel_clip_mps2: float = Field(
+        155.3, gt=0.0, le=2000.0,
+        description="an accelerometer reading at or beyond this magnitude on any axis is clipped at the"
+        " sensor's full scale (default 99 % of ±16 g): its excess is unobserved",
+    )
+    accel_clip_noise_mps2: float = Field(
+        156.9, ge=0.0, le=2000.0,
+        description="σ of the unobserved specific force of a clipped sample, added to the velocity's process"
+        " noise along each clipped axis (default: the ±16 g full scale itself)",
+    )
     # ------------------------------------------------------------------ GPS
     gps_min_fix_type: int = Field(
         3, ge=2, le=6, description="lowest usable GPS_RAW_INT fix_type (2 2D, 3 3D, 4 DGPS, 5/6 RTK)"

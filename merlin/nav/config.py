@@ -47,6 +47,15 @@ class NavConfig:
     # Covariance prediction every n IMU samples (nominal state still integrates every sample). 1 keeps
     # the exact discrete filter; see docs/benchmarks/nav.md for the cost at 400 Hz.
     cov_predict_every_n: int = 1
+    # Accelerometer clipping (a hard landing or crash): a sample at the sensor's full scale says only that
+    # the true specific force was at least that large. Its excess is unobserved, so along each clipped axis
+    # the velocity's process noise grows by (accel_clip_noise_mps2 dt)^2, as PX4's EKF2 inflates its
+    # accelerometer noise on clipped samples. Without it a 9.8 m/s touchdown, 9 g over 40 ms of gear stroke,
+    # left the filter 3.6 m/s wrong, confident, and excluding the healthy GPS that said so. The default
+    # threshold is 99 % of a +-16 g part; the noise is that full scale again (a rigid impact overshoots the
+    # range by its own order).
+    accel_clip_mps2: float = 155.3
+    accel_clip_noise_mps2: float = 156.9
 
     # ------------------------------------------------------------------ GPS
     gps_min_fix_type: int = 3  # GPS_RAW_INT fix_type: 3 = 3D fix
@@ -187,6 +196,7 @@ class NavConfig:
             "gps_window_sigma_m",
             "gps_window_eph_ratio",
             "inertial_time_limit_s",
+            "accel_clip_mps2",
         ):
             if not getattr(self, name) > 0.0:
                 problems.append(f"{name}={getattr(self, name)!r} must be > 0")

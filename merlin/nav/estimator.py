@@ -304,7 +304,29 @@ class NavEstimator:
         kernels.mechanise(
             self._s, self.kf.P, self._q_density, self._c, g[0], g[1], g[2], a[0], a[1], a[2], dt
         )
+        lim = self.cfg.accel_clip_mps2
+        if not (-lim < a[0] < lim and -lim < a[1] < lim and -lim < a[2] < lim):
+            self._clipped(a, dt)
         self._update_mode()
+
+    def _clipped(self, a: Vec3, dt: float) -> None:
+        """A sample clipped at the accelerometer's full scale: along each clipped body axis (in NED, the
+        column of R) the velocity's variance grows by (accel_clip_noise_mps2 dt)², the unobserved excess
+        of the specific force (NavConfig.accel_clip_mps2; the regression scenario
+        ``crash_clipped_impact_ekf``)."""
+        cfg = self.cfg
+        w, x, y, z = (float(v) for v in self._s[kernels.S_Q])
+        cols = (
+            (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)),
+            (2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x)),
+            (2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)),
+        )
+        q = (cfg.accel_clip_noise_mps2 * dt) ** 2
+        P = self.kf.P
+        for i in range(3):
+            if abs(a[i]) >= cfg.accel_clip_mps2:
+                r = np.array(cols[i])
+                P[3:6, 3:6] += q * np.outer(r, r)
 
     @property
     def _q(self) -> Quat:

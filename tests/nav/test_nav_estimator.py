@@ -480,3 +480,29 @@ def test_vo_filter_variance_is_h_p_ht_without_the_velocity_columns(h_vals, a_val
     want = np.diag(Hx @ P @ Hx.T)
     got = vo_filter_variance(H, P)
     assert got == pytest.approx(tuple(want), rel=1e-9, abs=1e-9)
+
+
+@settings(max_examples=25, deadline=None)
+@given(roll=st.floats(-1.0, 1.0), pitch=st.floats(-1.0, 1.0), yaw=st.floats(-3.0, 3.0), axis=st.integers(0, 2),
+       sign=st.sampled_from((-1.0, 1.0)))
+def test_a_clipped_accelerometer_sample_widens_the_velocity_along_its_axis(
+    roll: float, pitch: float, yaw: float, axis: int, sign: float
+) -> None:
+    """A sample at the accelerometer's full scale (a crash: scenario crash_clipped_impact_ekf) adds
+    (accel_clip_noise dt)^2 to the velocity's variance along the clipped body axis, in NED; one just
+    below the threshold adds nothing beyond the ordinary prediction."""
+    cfg = NavConfig()
+    dt = 1.0 / IMU_HZ
+    P = {}
+    for name, mag in (("clipped", cfg.accel_clip_mps2), ("below", cfg.accel_clip_mps2 - 1e-6)):
+        est = NavEstimator(cfg, NavInit(att_rpy_rad=(roll, pitch, yaw)))
+        est.predict(ImuSample(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, -cfg.gravity_mps2)))
+        f = [0.0, 0.0, -cfg.gravity_mps2]
+        f[axis] = sign * mag
+        est.predict(ImuSample(dt, (0.0, 0.0, 0.0), (f[0], f[1], f[2])))
+        P[name] = est.covariance[3:6, 3:6].copy()
+        q = est.quaternion
+    r = quat_to_dcm(q)[:, axis]
+    grown = P["clipped"] - P["below"]
+    assert np.allclose(grown, (cfg.accel_clip_noise_mps2 * dt) ** 2 * np.outer(r, r), atol=1e-9)
+    assert float(r @ grown @ r) > 0.15  # 0.39 m/s of sigma per clipped 400 Hz sample

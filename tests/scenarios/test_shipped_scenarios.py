@@ -39,9 +39,6 @@ KNOWN_OPEN: dict[str, str] = {
     # after the correct isolations the EKF excludes GPS (25.4 s) and authority is revoked; the scenario's subject,
     # which lane is isolated, passes
     "redundancy_duplex_instant_declaration": "never_revoked",
-    # a crash at 3.7 m/s after the correct revocation; the simulated IMU sees neither the impact nor the
-    # settle upright, the EKF keeps a 25 deg roll error and the RTL flies away (511 m beyond the range)
-    "adv_tilt_sink_crash_flyaway": "no_fence_breach",
 }
 
 
