@@ -269,6 +269,7 @@ class NavEstimator:
         # source feeding this filter last changed (widen_imu_bias): a pair spanning a change is not fused
         self._vo_prev_t = -math.inf
         self._imu_switch_t = -math.inf
+        self._clip_t = -math.inf  # the latest accelerometer sample clipped at full scale (_clipped)
         self._aid_t = init.t_s  # last position/velocity aid (GPS or VO)
         self._mode = NavMode.INERTIAL  # nothing fused yet
         if init.gps_aided:  # started from a fix (NavInit): that fix counts as the first one fused
@@ -315,6 +316,7 @@ class NavEstimator:
         of the specific force (NavConfig.accel_clip_mps2; the regression scenario
         ``crash_clipped_impact_ekf``)."""
         cfg = self.cfg
+        self._clip_t = self._t
         w, x, y, z = (float(v) for v in self._s[kernels.S_Q])
         cols = (
             (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)),
@@ -417,6 +419,15 @@ class NavEstimator:
             return None
         self._gps_seen_usable_t = t
         self._follow_receiver(gps)
+        if t <= self._clip_t:
+            # Valid before the accelerometer's latest clipped sample: carried forward to now with the
+            # acceleration of now, the epoch would keep the velocity the impact took away, and the velocity
+            # variance the clipping widened would admit it (a 6.4 m/s crash: the filter back at 6.3 m/s on
+            # the ground, GPS excluded; campaign adversarial_crash, regression scenario
+            # crash_stale_gps_after_impact). Neither fused nor counted against the receiver.
+            self._emit(NavEventKind.REJECTED, "gps", self._clip_t - t, 0.0, "accel_clipped",
+                       "GPS epoch from before a clipped impact not fused")
+            return None
         y, r, nis_p, nis_v, a_n, dr_ne = self._gps_innovation(gps)
         s_vo = self._vo_velocity_statistic(gps, a_n)
         if status is GpsStatus.EXCLUDED:

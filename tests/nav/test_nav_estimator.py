@@ -506,3 +506,30 @@ def test_a_clipped_accelerometer_sample_widens_the_velocity_along_its_axis(
     grown = P["clipped"] - P["below"]
     assert np.allclose(grown, (cfg.accel_clip_noise_mps2 * dt) ** 2 * np.outer(r, r), atol=1e-9)
     assert float(r @ grown @ r) > 0.15  # 0.39 m/s of sigma per clipped 400 Hz sample
+
+
+def test_a_gps_epoch_from_before_a_clipped_sample_is_not_fused() -> None:
+    """Regression scenario crash_stale_gps_after_impact: an epoch valid before the latest clipped sample,
+    carried forward with the acceleration of now, would restore the velocity the impact took away; it is
+    rejected (accel_clipped) without counting against the receiver, and the next epoch is fused."""
+    cfg = NavConfig()
+    dt = 1.0 / IMU_HZ
+    est = NavEstimator(cfg, NavInit(gps_aided=True))
+    rest = (0.0, 0.0, -cfg.gravity_mps2)
+    t = 0.0
+    for _ in range(40):
+        est.predict(ImuSample(t, (0.0, 0.0, 0.0), rest))
+        t += dt
+    est.predict(ImuSample(t, (0.0, 0.0, 0.0), (0.0, 0.0, -cfg.accel_clip_mps2)))  # clipped
+    t_clip = t
+    for _ in range(20):
+        t += dt
+        est.predict(ImuSample(t, (0.0, 0.0, 0.0), rest))
+    stale = GpsSample(t_clip - 0.05, (0.0, 0.0, 0.0), (0.0, 0.0, 6.0), 3, 14, 1.0, 1.5)
+    assert est.update_gps(stale) is None
+    ev = [e for e in est.pop_events() if e.kind is NavEventKind.REJECTED]
+    assert [(e.source, e.parameter) for e in ev] == [("gps", "accel_clipped")]
+    assert est.gps_status is GpsStatus.OK and est.state().vel_ned_mps[2] < 1.0
+    fresh = GpsSample(t_clip + 0.01, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 3, 14, 1.0, 1.5)
+    check = est.update_gps(fresh)
+    assert check is not None and check.fused_vel
