@@ -270,6 +270,9 @@ class NavEstimator:
         self._vo_prev_t = -math.inf
         self._imu_switch_t = -math.inf
         self._clip_t = -math.inf  # the latest accelerometer sample clipped at full scale (_clipped)
+        # per bias axis (gyro x3, accel x3), the variance widen_imu_bias added that the aiding has not yet
+        # taught away: a change back to a source the filter was just fed needs no second widening
+        self._bias_widening = [0.0] * 6
         self._aid_t = init.t_s  # last position/velocity aid (GPS or VO)
         self._mode = NavMode.INERTIAL  # nothing fused yet
         if init.gps_aided:  # started from a fix (NavInit): that fix counts as the first one fused
@@ -964,14 +967,27 @@ class NavEstimator:
         squared: the filter re-learns the biases from the aiding instead of finding the aiding inconsistent
         (without it a correct isolation of a 1.47 m/s^2 accelerometer bias was followed by a GPS exclusion
         1.8 s later; tests/nav/test_nav_estimator.py pins the widening). PX4 and ArduPilot avoid the step by
-        running one filter per IMU."""
+        running one filter per IMU.
+
+        Repeated changes do not stack. The steps of a back-and-forth between two sources (a duplex alert
+        feeds the lane with the smaller residual, which can flip every few milliseconds) are the same
+        difference of two biases, seen again: the estimate is no farther from the source fed after the
+        fourth change than after the first. So an axis is widened only by what its step squared exceeds the
+        widening still open from earlier changes (what they added, capped by the variance now, which the
+        aiding shrinks as it teaches the bias). Added up, six changes between lanes 0.63 rad/s apart in
+        160 ms made a gyro-bias sigma of 1.1 rad/s, the attitude all but unconstrained, and GPS was
+        excluded after the correct isolations (regression scenario: redundancy_duplex_instant_declaration)."""
         if self._every_n > 1:  # with every_n = 1 nothing is ever pending after predict()
             self._predict_covariance()
         self._imu_switch_t = self._t
         P = self.kf.P
-        for i in range(3):
-            P[BA_.start + i, BA_.start + i] += float(accel_step_mps2[i]) ** 2
-            P[BG_.start + i, BG_.start + i] += float(gyro_step_radps[i]) ** 2
+        open_var = self._bias_widening
+        for k, (i, step) in enumerate(zip(range(BG_.start, BA_.stop),
+                                          (*gyro_step_radps, *accel_step_mps2), strict=True)):
+            still_open = min(open_var[k], float(P[i, i]))
+            add = max(0.0, float(step) ** 2 - still_open)
+            P[i, i] += add
+            open_var[k] = still_open + add
 
     @property
     def gyro_bias_radps(self) -> Vec3:

@@ -424,6 +424,28 @@ def test_widen_imu_bias_adds_the_step_squared_to_the_bias_variances_only():
     assert est.accel_bias_mps2 == ba and est.gyro_bias_radps == bg
 
 
+def test_repeated_imu_source_changes_do_not_stack_the_bias_widening():
+    """A duplex alert feeds the lane with the smaller residual, which can flip between the two lanes every few
+    milliseconds: each step is the same difference of two biases seen again, so after six changes between
+    them the bias variances are widened by one step squared, not six; a larger step widens by what it
+    exceeds the open widening; once the aiding has taught the bias (the variance back down), a change
+    widens by its whole step again (regression scenario: redundancy_duplex_instant_declaration)."""
+    from merlin.nav.estimator import BA_, BG_
+
+    est = NavEstimator()
+    before = np.diag(est.covariance).copy()
+    for sign in (1.0, -1.0, 1.0, -1.0, 1.0, -1.0):
+        est.widen_imu_bias((0.16 * sign, 0.0, 0.0), (-0.63 * sign, 0.0, 0.02 * sign))
+    d = np.diag(est.covariance) - before
+    assert np.allclose(d[BG_], [0.63**2, 0.0, 0.02**2])
+    assert np.allclose(d[BA_], [0.16**2, 0.0, 0.0])
+    est.widen_imu_bias((0.0, 0.0, 0.0), (1.0, 0.0, 0.0))
+    assert est.covariance[BG_.start, BG_.start] - before[BG_.start] == pytest.approx(1.0)
+    est.kf.P[BG_.start, BG_.start] = 1e-6  # what the aiding leaves once it has learned the bias
+    est.widen_imu_bias((0.0, 0.0, 0.0), (-0.5, 0.0, 0.0))
+    assert est.covariance[BG_.start, BG_.start] == pytest.approx(0.25, rel=1e-5)
+
+
 def test_a_vo_frame_pair_spanning_an_imu_source_change_is_not_fused():
     """The VO velocity of a pair of frames between which the IMU source changed (widen_imu_bias) was
     de-rotated with two sources' gyro, less one bias estimate: no state of the filter explains its error, so

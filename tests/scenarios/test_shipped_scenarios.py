@@ -36,9 +36,6 @@ def _run(path: str, log_rate_hz: float | None = None) -> RunResult:
 # expectations are held as strictly as any scenario's, and the test fails as soon as the finding's
 # expectation passes (remove the entry then). docs/redundancy.md, "What remains", says what each one is.
 KNOWN_OPEN: dict[str, str] = {
-    # after the correct isolations the EKF excludes GPS (25.4 s) and authority is revoked; the scenario's subject,
-    # which lane is isolated, passes
-    "redundancy_duplex_instant_declaration": "never_revoked",
 }
 
 
