@@ -49,7 +49,7 @@ def _matches(e: dict[str, Any], x: Expectation) -> bool:
 def _describe(x: Expectation) -> str:
     if x.name:
         return x.name
-    parts = [x.type]
+    parts: list[str] = [x.type]
     for k in ("t", "authority", "behavior", "reason", "parameter", "event", "lane", "source", "after_s", "within_s",
               "m", "mps"):
         v = getattr(x, k)

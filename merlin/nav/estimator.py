@@ -270,16 +270,13 @@ class NavEstimator:
         self._vo_prev_t = -math.inf
         self._imu_switch_t = -math.inf
         self._clip_t = -math.inf  # the latest accelerometer sample clipped at full scale (_clipped)
-        # per bias axis (gyro x3, accel x3), the variance widen_imu_bias added that the aiding has not yet
-        # taught away: a change back to a source the filter was just fed needs no second widening
-        self._bias_widening = [0.0] * 6
+        self._bias_widening = [0.0] * 6  # per bias axis, what widen_imu_bias added and is still open
         self._aid_t = init.t_s  # last position/velocity aid (GPS or VO)
         self._mode = NavMode.INERTIAL  # nothing fused yet
         if init.gps_aided:  # started from a fix (NavInit): that fix counts as the first one fused
             self._gps_pos_fused_t = init.t_s
             self._mode = NavMode.GPS
         self._events: list[NavEvent] = []
-
         self.last_gps: GpsCheck | None = None
         self.last_vo: Check | None = None
         self.last_baro: Check | None = None
