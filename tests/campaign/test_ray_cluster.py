@@ -178,9 +178,9 @@ def test_campaign_on_two_nodes_survives_losing_one(tmp_path: Path) -> None:
     try:
         head = _Node(ray_exe, ["--head", f"--port={port}", "--include-dashboard=false"],
                      Path("/tmp") / f"merlin-ray-{port}-h", env)
-        head_id = head.wait_started()
+        head_id = head.start_waiting()
         second = _Node(ray_exe, [f"--address=127.0.0.1:{port}"], Path("/tmp") / f"merlin-ray-{port}-w", env)
-        second_id = second.wait_started()
+        second_id = second.start_waiting()
         assert head_id != second_id
 
         cmd = [sys.executable, "-m", "merlin.cli", "campaign", str(scenario), "--runs", str(runs), "--seed", "11",
