@@ -317,18 +317,12 @@ class NavEstimator:
         ``crash_clipped_impact_ekf``)."""
         cfg = self.cfg
         self._clip_t = self._t
-        w, x, y, z = (float(v) for v in self._s[kernels.S_Q])
-        cols = (
-            (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)),
-            (2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x)),
-            (2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y)),
-        )
+        R = quat_to_dcm(self._q)
         q = (cfg.accel_clip_noise_mps2 * dt) ** 2
         P = self.kf.P
         for i in range(3):
             if abs(a[i]) >= cfg.accel_clip_mps2:
-                r = np.array(cols[i])
-                P[3:6, 3:6] += q * np.outer(r, r)
+                P[3:6, 3:6] += q * np.outer(R[:, i], R[:, i])
 
     @property
     def _q(self) -> Quat:
