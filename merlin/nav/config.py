@@ -50,7 +50,7 @@ class NavConfig:
     # Accelerometer clipping (a hard landing or crash): a sample at the sensor's full scale says only that
     # the true specific force was at least that large. Its excess is unobserved, so along each clipped axis
     # the velocity's process noise grows by (accel_clip_noise_mps2 dt)^2, as PX4's EKF2 inflates its
-    # accelerometer noise on clipped samples. Without it a 9.8 m/s touchdown, 9 g over 40 ms of gear stroke,
+    # accelerometer noise on clipped samples. Without it a 9.8 m/s touchdown, 25 g over 40 ms of gear stroke,
     # left the filter 3.6 m/s wrong, confident, and excluding the healthy GPS that said so. The default
     # threshold is 99 % of a +-16 g part; the noise is that full scale again (a rigid impact overshoots the
     # range by its own order).
