@@ -80,14 +80,47 @@ def two_node_cluster() -> Iterator[str]:
             log.unlink(missing_ok=True)
 
 
+@contextlib.contextmanager
+def _campaign_dir(keep: Path | None, name: str) -> Iterator[Path]:
+    if keep is None:
+        with tempfile.TemporaryDirectory() as d:
+            yield Path(d)
+        return
+    d = keep / name
+    if d.exists() and any(d.iterdir()):
+        raise SystemExit(f"{d} is not empty: a kept campaign directory would be resumed, not flown")
+    d.mkdir(parents=True, exist_ok=True)
+    yield d
+
+
+def _compare(digests: dict[str, dict[str, str | None]]) -> dict[str, dict[str, int]]:
+    """Each configuration's runs against the first configuration's, by the decision log's digest: the same
+    seed must fly the same runs to the same decisions whatever the backend."""
+    if not digests:
+        return {}
+    first_name, first = next(iter(digests.items()))
+    out = {}
+    for name, d in digests.items():
+        if name == first_name:
+            continue
+        common = set(first) & set(d)
+        out[name] = {"runs_compared": len(common), "same_digest": sum(1 for k in common if first[k] == d[k]),
+                     "missing_runs": len(set(first) ^ set(d))}
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--runs", type=int, default=8)
     ap.add_argument("--repeats", type=int, default=1, help="repeat each configuration (median and spread)")
     ap.add_argument("--configs", default="local1,local2,ray2")
+    ap.add_argument("--keep", type=Path, default=None,
+                    help="keep each configuration's campaign directory under KEEP/<config> (else a temporary one); "
+                         "an existing one is flown again from scratch only if empty")
     args = ap.parse_args()
     scenarios = tuple(str(p) for p in sorted((ROOT / "examples" / "campaigns").glob("*.yaml")))
-    results = {}
+    results: dict = {}
+    digests: dict[str, dict[str, str | None]] = {}
     for name in args.configs.split(","):
         backend = "ray" if name.startswith(("ray", "cluster")) else "local"
         workers = int(name.removeprefix("ray").removeprefix("local").removeprefix("cluster"))
@@ -95,13 +128,14 @@ def main() -> int:
             raise SystemExit("cluster2 is the one cluster configuration (two nodes, one CPU each)")
         rates, overheads, fracs, after, startups, inside = [], [], [], [], [], []
         for _ in range(args.repeats):
-            with tempfile.TemporaryDirectory() as d, (
+            with _campaign_dir(args.keep, name) as d, (
                     two_node_cluster() if name.startswith("cluster") else contextlib.nullcontext(None)) as address:
                 o = run_campaign(CampaignOptions(scenarios=scenarios, runs=args.runs, out=Path(d), seed=1,
                                                  backend=backend, address=address, workers=workers, quiet=False))
                 t = timing(list(o.records.values()), o.wall_s, workers, o.flown_now, o.startup_s)
                 passed = sum(1 for r in o.records.values() if r.get("passed"))
                 errors = sum(1 for r in o.records.values() if r.get("status") == "error")
+                digests[name] = {k: r.get("log_digest_sha256") for k, r in o.records.items()}
             rates.append(t["runs_per_min"])
             overheads.append(t["overhead_per_run_s"])
             fracs.append(t["overhead_fraction"])
@@ -122,6 +156,7 @@ def main() -> int:
                          "worker_overhead_per_run_s_median": statistics.median(inside)}
     if "local1" in results and "local2" in results:
         results["speedup_2_over_1"] = results["local2"]["runs_per_min_median"] / results["local1"]["runs_per_min_median"]
+    results["identical_to_first"] = _compare(digests)
     print(json.dumps(results, indent=2))
     return 0
 
