@@ -817,7 +817,14 @@ class NavEstimator:
         The levelling uses the *estimated* tilt, so z is not the true yaw: with the global error
         R = (I + [δθ]×) R̂, R̂ m_b = m − δθ × m (m the NED field), and to first order
         z − ψ̂ = δθ_d − m_d (m_n δθ_n + m_e δθ_e) / |m_h|² (``mag_heading_jacobian``). The default treats the
-        tilt-induced part as part of the heading noise. The alternatives, kept for comparison, fuse with the
+        tilt-induced part as part of the heading noise, with the variance the tilt's uncertainty gives it:
+        R = σ² + J_t P_tt J_tᵀ (J_t that Jacobian's two tilt terms, P_tt the tilt block of P; the first-order
+        propagation of the tilt covariance through the levelling). Under GPS this adds ≈ 1° of heading σ to
+        the 2.9°; when the tilt is poorly known (a lane switch has just widened the gyro-bias variance) the
+        levelling error is many times σ, and fused with σ alone it moved the gyro bias, through the
+        bias-heading covariance a small pitch makes, to explain a heading error the tilt caused: the bias
+        estimate ran away (redundancy_duplex_instant_declaration: +2.9 rad/s against a true -0.002 within
+        0.25 s, GPS excluded 3 s later). The alternatives, kept for comparison, fuse with the
         optimal gain: ``"tilt_coupled"`` with that exact Jacobian (in the closed loop it let the unobservable
         tilt / accelerometer-bias combination wander by ~1° under GPS), ``"euler_yaw"`` with the Euler yaw's
         Jacobian (``yaw_jacobian_global``; a hard pitch-up leaked ~2° into roll, and under manoeuvres the
@@ -835,9 +842,13 @@ class NavEstimator:
             H[0, 6:9] = yaw_jacobian_global(quat_to_dcm(self._q))
         else:
             H = _H_HEADING
-        r = np.array((cfg.mag_heading_sigma_rad**2,))
         if self._every_n > 1:  # applied at the filter's time
             self._predict_covariance()
+        r = np.array((cfg.mag_heading_sigma_rad**2,))
+        if cfg.mag_fusion == "heading":
+            jn, je, _ = mag_heading_jacobian(quat_rotate(self._q, mag.field_frd_gauss))
+            P = self.kf.P
+            r[0] += jn * jn * P[6, 6] + 2.0 * jn * je * P[6, 7] + je * je * P[7, 7]
         y = np.array((wrap_pi(heading - yaw),))  # z − h(x̂), h(x̂) = ψ̂, wrapped
         nis = self._nis(H, r, y)
         fused = nis <= cfg.mag_gate

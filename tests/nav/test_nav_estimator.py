@@ -400,6 +400,33 @@ def test_heading_only_magnetometer_never_moves_roll_or_pitch():
     assert moved["euler_yaw"] > 1e-3
 
 
+def test_a_heading_error_the_tilt_causes_moves_neither_yaw_nor_gyro_bias():
+    """mag_fusion="heading" levels the field with the estimated tilt, so a roll error shows as a heading
+    error (here 0.05 rad of roll, at a 66° dip, about 6° of heading while the yaw is exact). Its noise
+    carries the tilt's variance, so one update barely moves the yaw, nor the gyro bias whose variance a lane
+    switch has just widened (through the bias-heading covariance a small pitch makes). With σ alone it moved
+    the yaw by 0.9° and the bias by 0.07 rad/s per update, and in the loop the bias ran away (regression
+    scenario: redundancy_duplex_instant_declaration)."""
+    from merlin.measurements import MagSample
+
+    cfg = NavConfig()
+    rpy_true = (0.0, 0.045, 0.3)
+    q_true = quat_from_euler(*rpy_true)
+    q_conj = (q_true[0], -q_true[1], -q_true[2], -q_true[3])
+    m_body = quat_rotate(q_conj, (0.20, 0.0, 0.45))
+    f_body = quat_rotate(q_conj, (0.0, 0.0, -cfg.gravity_mps2))
+    est = NavEstimator(cfg, NavInit(att_rpy_rad=(-0.05, 0.045, 0.3), tilt_sigma_rad=0.05, yaw_sigma_rad=0.02))
+    est.predict(ImuSample(0.0, (0.0, 0.0, 0.0), f_body))
+    est.widen_imu_bias((0.0, 0.0, 0.0), (0.63, 0.0, 0.0))
+    for k in range(1, 41):
+        est.predict(ImuSample(k * 0.0025, (0.0, 0.0, 0.0), f_body))
+    bias_before, yaw_before = est.gyro_bias_radps[0], est.state().att_rpy_rad[2]
+    check = est.update_mag(MagSample(0.1, m_body))
+    assert check is not None and check.fused and check.nis < 1.0
+    assert abs(est.state().att_rpy_rad[2] - yaw_before) < 0.1 * math.radians(1.0)
+    assert abs(est.gyro_bias_radps[0] - bias_before) < 0.01
+
+
 def test_an_unknown_mag_fusion_is_refused():
     with pytest.raises(ValueError, match="mag_fusion='exact' must be one of"):
         NavConfig(mag_fusion="exact")
