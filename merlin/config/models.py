@@ -688,7 +688,7 @@ class NavFilterConfig(Strict):
         3.0, gt=0.0, le=60.0, description="window of the GPS-versus-mechanisation displacement test, s"
     )
     gps_window_sigma_m: float = Field(
-        0.6, gt=0.0, le=20.0, description="receiver short-term stability over the window, 1σ per axis: the floor, m"
+        0.7, gt=0.0, le=20.0, description="receiver short-term stability over the window, 1σ per axis: the floor, m"
     )
     gps_window_eph_ratio: float = Field(
         0.575, gt=0.0, le=10.0,

@@ -95,18 +95,26 @@ class NavConfig:
     # position-only spoof that drags the estimate slowly is visible here long before in the innovations.
     # The window sigma max(gps_window_sigma_m, gps_window_eph_ratio x eph) is the receiver's short-term
     # stability: the 1-sigma change of its position error over the window, per axis (far smaller than eph,
-    # which describes the slowly wandering absolute error). The floor 0.6 m is the figure tuned for a
-    # receiver at its datasheet accuracy (docs/benchmarks/nav.md, nominal flight); the ratio scales it for a
-    # receiver that reports itself noisier. The true 3 s change is 0.37 eph for the simulator's receiver
-    # (Gauss-Markov tau 60 s plus 15 % white) and 0.50 eph for merlin.nav.synthetic's (30 % white): 0.575
-    # covers both, and at either receiver's datasheet accuracy it stays at the floor (0.58 m, 0.60 m). At
-    # twice the noise 0.55 (1.11 m) let the marginal seed-5 gravel flight exclude GPS; 0.575 (1.16 m) did
-    # not (docs/benchmarks/nav.md). An absolute 0.6 m alone lets a healthy receiver at twice the datasheet
-    # noise (0.75 m over 3 s) be excluded before any fault (examples/scenarios/gps_noisy_receiver.yaml,
-    # tests/nav/test_nav_receiver_accuracy.py). The window statistic d^T C^-1 d / 2 (mean 1) feeds a second CUSUM with the same
-    # allowance, threshold and clip.
+    # which describes the slowly wandering absolute error). The floor sits well clear of the simulator's
+    # receiver at its datasheet accuracy, whose true 3 s change is 0.37 eph (Gauss-Markov tau 60 s plus
+    # 15 % white): the CUSUM's false alarms fall steeply with sigma_w over that, and a Monte Carlo of the test
+    # on that error model (benchmarks/bench_gps_window.py, docs/benchmarks/nav.md "False exclusions of the
+    # window test") gives 0.044-0.074 per flight-hour at 0.6 m, 0.008 at 0.65 m and 0.002 at 0.7 m, while a
+    # 1 m/s position-only drag is still caught in 2.2 s (1.9 s at 0.6 m; 5 s is required). At 0.6 m a
+    # campaign flight excluded a healthy GPS (window CUSUM 12.02 of 12) and the receiver's own wander did
+    # it (examples/scenarios/gps_window_false_exclusion.yaml pins that flight). The ratio scales the
+    # sigma for a receiver that reports itself noisier; it stays at 0.575, below the floor up to eph 1.22 m:
+    # the true 3 s change is 0.50 eph for merlin.nav.synthetic's receiver (30 % white), and a larger ratio
+    # (0.67) let a 1 m/s position-only spoof of a receiver at twice the datasheet noise run past the 5 s
+    # required (tests/nav/test_nav_receiver_accuracy.py). Such a receiver keeps the thinner margin
+    # (1.16 m against the simulator's 0.76 m true change, the ratio 0.6 m has at datasheet accuracy): its
+    # false-alarm rate is the 0.6 m figure's, the price of the 5 s. At twice the noise 0.55 (1.11 m) let the
+    # marginal seed-5 gravel flight exclude GPS; 0.575 (1.16 m) did not. An absolute floor alone lets a
+    # healthy receiver at twice the datasheet noise (0.75 m over 3 s) be excluded before any fault
+    # (examples/scenarios/gps_noisy_receiver.yaml, tests/nav/test_nav_receiver_accuracy.py). The window
+    # statistic d^T C^-1 d / 2 (mean 1) feeds a second CUSUM with the same allowance, threshold and clip.
     gps_window_s: float = 3.0
-    gps_window_sigma_m: float = 0.6
+    gps_window_sigma_m: float = 0.7
     gps_window_eph_ratio: float = 0.575
     # GPS velocity against VO velocity (cross-correlation between redundant systems, paper "Navigational
     # Failsafe"): at each GPS epoch, the VO sample nearest the GPS time of validity (within
