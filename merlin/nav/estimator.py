@@ -834,9 +834,13 @@ class NavEstimator:
         heading, strength = _mag_heading(mag.field_frd_gauss, roll, pitch, cfg.mag_declination_rad)
         if strength < cfg.mag_min_horizontal_gauss:
             return None
+        # the levelling's Jacobian: the exact H of "tilt_coupled", the tilt terms of R for "heading"
+        jac = (0.0, 0.0, 0.0)
+        if cfg.mag_fusion != "euler_yaw":
+            jac = mag_heading_jacobian(quat_rotate(self._q, mag.field_frd_gauss))
         if cfg.mag_fusion == "tilt_coupled":
             H = np.zeros((1, N_ERR))
-            H[0, 6:9] = mag_heading_jacobian(quat_rotate(self._q, mag.field_frd_gauss))
+            H[0, 6:9] = jac
         elif cfg.mag_fusion == "euler_yaw":
             H = np.zeros((1, N_ERR))
             H[0, 6:9] = yaw_jacobian_global(quat_to_dcm(self._q))
@@ -846,7 +850,7 @@ class NavEstimator:
             self._predict_covariance()
         r = np.array((cfg.mag_heading_sigma_rad**2,))
         if cfg.mag_fusion == "heading":
-            jn, je, _ = mag_heading_jacobian(quat_rotate(self._q, mag.field_frd_gauss))
+            jn, je, _ = jac
             P = self.kf.P
             r[0] += jn * jn * P[6, 6] + 2.0 * jn * je * P[6, 7] + je * je * P[7, 7]
         y = np.array((wrap_pi(heading - yaw),))  # z − h(x̂), h(x̂) = ψ̂, wrapped
