@@ -115,8 +115,8 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=1, help="repeat each configuration (median and spread)")
     ap.add_argument("--configs", default="local1,local2,ray2")
     ap.add_argument("--keep", type=Path, default=None,
-                    help="keep each configuration's campaign directory under KEEP/<config> (else a temporary one); "
-                         "an existing one is flown again from scratch only if empty")
+                    help="keep each configuration's campaign directory under KEEP/<config> (KEEP/<config>-<n> with "
+                         "--repeats; else a temporary one); one that is not empty is refused, not resumed")
     args = ap.parse_args()
     scenarios = tuple(str(p) for p in sorted((ROOT / "examples" / "campaigns").glob("*.yaml")))
     results: dict = {}
@@ -127,8 +127,9 @@ def main() -> int:
         if name.startswith("cluster") and workers != 2:
             raise SystemExit("cluster2 is the one cluster configuration (two nodes, one CPU each)")
         rates, overheads, fracs, after, startups, inside = [], [], [], [], [], []
-        for _ in range(args.repeats):
-            with _campaign_dir(args.keep, name) as d, (
+        for rep in range(args.repeats):
+            kept = name if args.repeats == 1 else f"{name}-{rep + 1}"
+            with _campaign_dir(args.keep, kept) as d, (
                     two_node_cluster() if name.startswith("cluster") else contextlib.nullcontext(None)) as address:
                 o = run_campaign(CampaignOptions(scenarios=scenarios, runs=args.runs, out=Path(d), seed=1,
                                                  backend=backend, address=address, workers=workers, quiet=False))
