@@ -77,6 +77,8 @@ def ensure_env() -> Path:
         rc = _run(cmd)
         if rc != 0:
             sys.exit(f"run.py: install step failed ({rc}): {' '.join(map(str, cmd))}")
+    # pip --quiet hides setup.py's warning when the hot path could not be compiled: say which build this is
+    _run([py, "-c", "import merlin._build as b; print('run.py: installed build:', b.describe())"])
     STAMP.write_text(fp)
     return py
 

@@ -81,6 +81,11 @@ GROUP_NAME = "merlin_native"
 # Where merlin._build.stale_modules() finds which source each compiled module was built from.
 MANIFEST = "merlin/_compiled_sources.json"
 
+# Why the build installed pure Python (written instead of MANIFEST): merlin._build.pure_build_reason() reads
+# it, so that a fallback nobody asked for is reported (run.py, tests/test_compiled.py) instead of only
+# printed in a pip log that ``--quiet`` hides.
+PURE_REASON = "merlin/_pure_build.json"
+
 # Only these commands build; metadata queries (egg_info, dist_info, sdist) must not pay for mypyc.
 _BUILD_COMMANDS = {"build", "build_ext", "bdist_wheel", "editable_wheel", "install", "develop", "bdist_egg"}
 
@@ -95,10 +100,26 @@ def _warn(message: str) -> None:
     print(f"merlin setup.py: {message}", file=sys.stderr, flush=True)
 
 
-def _fail_or_warn(message: str) -> None:
+# Why this build is pure Python, if it is: (kind, message); kind "requested", "unavailable" or "failed".
+_PURE: list[tuple[str, str]] = []
+
+
+def _fail_or_warn(message: str, kind: str = "failed") -> None:
     if _flag("MERLIN_REQUIRE_COMPILED"):
         raise SystemExit(f"merlin setup.py: {message} (MERLIN_REQUIRE_COMPILED is set)")
     _warn(f"{message}; installing pure Python")
+    _PURE[:] = [(kind, message)]
+
+
+def _write_pure_reason(root: Path) -> None:
+    """Record why the build is pure (or remove an old record when it is not) under ``root``."""
+    path = root / PURE_REASON
+    if not _PURE:
+        path.unlink(missing_ok=True)
+        return
+    kind, message = _PURE[0]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"kind": kind, "reason": message}, indent=1) + "\n", encoding="utf-8")
 
 
 # Packages whose modules may be compiled; an extension beside one of their .py files is a build product.
@@ -155,14 +176,15 @@ def _have_c_compiler() -> bool:
 def _mypyc_extensions() -> list[Extension]:
     if _flag("MERLIN_PURE_PYTHON"):
         _warn("MERLIN_PURE_PYTHON is set; installing pure Python")
+        _PURE[:] = [("requested", "MERLIN_PURE_PYTHON is set")]
         return []
     try:
         from mypyc.build import mypycify
     except ImportError:
-        _fail_or_warn("mypyc (part of mypy) is not importable")
+        _fail_or_warn("mypyc (part of mypy) is not importable", "unavailable")
         return []
     if not _have_c_compiler():
-        _fail_or_warn("no C compiler found")
+        _fail_or_warn("no C compiler found", "unavailable")
         return []
     for module in COMPILED_MODULES:
         _SOURCE_HASHES[_module_name(module)] = hashlib.sha256((ROOT / module).read_bytes()).hexdigest()
@@ -207,7 +229,10 @@ class BuildExtOrPure(build_ext):
                 _remove_inplace_outputs()
             self.extensions = []
             self.distribution.ext_modules = []
+            _write_pure_reason(ROOT if self.inplace else Path(self.build_lib))
             return
+        _PURE.clear()
+        _write_pure_reason(ROOT if self.inplace else Path(self.build_lib))
         manifest = (ROOT if self.inplace else Path(self.build_lib)) / MANIFEST
         manifest.parent.mkdir(parents=True, exist_ok=True)
         manifest.write_text(json.dumps(_SOURCE_HASHES, indent=1, sort_keys=True) + "\n", encoding="utf-8")
@@ -226,6 +251,8 @@ class BuildPyWithData(build_py):
         super().run()
         if self.editable_mode:  # an editable install reads the repository's own files
             return
+        if _PURE:  # a wheel without extension modules says why (build_ext does not run without any)
+            _write_pure_reason(Path(self.build_lib))
         target = Path(self.build_lib) / "merlin" / "_data"
         for tree, patterns in PACKAGE_DATA_TREES:
             for pattern in patterns:
@@ -241,6 +268,8 @@ def _ext_modules() -> list[Extension]:
     extensions = _mypyc_extensions()
     if _builds_in_place():
         _remove_inplace_outputs(keep=COMPILED_MODULES if extensions else ())
+        if not extensions:  # build_ext has nothing to run, so the record is written here
+            _write_pure_reason(ROOT)
     return extensions
 
 

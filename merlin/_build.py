@@ -57,6 +57,9 @@ COMPILED_MODULES: tuple[str, ...] = (
 #: source it was compiled from.
 SOURCES_MANIFEST = Path(__file__).with_name("_compiled_sources.json")
 
+#: Written by ``setup.py`` beside this file when the build installed pure Python: why.
+PURE_REASON_FILE = Path(__file__).with_name("_pure_build.json")
+
 _PROBE = "merlin.core.step"
 
 
@@ -88,7 +91,26 @@ def describe() -> str:
     flags = compiled_modules()
     n = sum(flags.values())
     kind = "compiled (mypyc)" if compiled() else "pure Python"
-    return f"{kind}: {n}/{len(flags)} hot modules are extension modules"
+    why = pure_build_reason() if not compiled() else None
+    because = f" (the build fell back: {why['reason']})" if why is not None and why["kind"] != "requested" else ""
+    return f"{kind}: {n}/{len(flags)} hot modules are extension modules{because}"
+
+
+def pure_build_reason() -> dict[str, str] | None:
+    """Why the installed build is pure Python, as ``setup.py`` recorded it: ``{"kind": ..., "reason": ...}``.
+
+    ``kind`` is ``"requested"`` (``MERLIN_PURE_PYTHON``), ``"unavailable"`` (no mypyc, no C compiler) or
+    ``"failed"`` (mypyc or the C compiler failed on the sources: a defect of the build, e.g. mypyc type-checking
+    the hot path without the libraries whose types it uses). None when the build recorded nothing (a compiled
+    build, or an install from before the record existed).
+    """
+    try:
+        data = json.loads(PURE_REASON_FILE.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(data, dict):
+        return None
+    return {"kind": str(data.get("kind", "?")), "reason": str(data.get("reason", "?"))}
 
 
 def source_sha256(path: Path) -> str:
