@@ -22,8 +22,11 @@ import pytest
 
 from tests.guard.test_guard_flight import ROOT
 from tests.ports import reserve_port
-from tests.serve.conftest import ServeProc, wait_ready
+from tests.serve.conftest import ServeProc, lines_until, wait_ready
 from tests.serve.px4_examples import PX4_HOME
+
+#: connect, wait for a position, arm, take off, then the goto: a few tens of seconds here, bounded generously
+GOTO_TIMEOUT_S = 300.0
 
 pytest.importorskip("mavsdk_grpc", reason="the gRPC MAVSDK-Python (pip install mavsdk-grpc) runs the examples")
 pytestmark = pytest.mark.integration
@@ -132,13 +135,12 @@ def test_mavsdk_goto_without_authority_is_denied_as_px4_denies_a_command(guarded
                           str(reserve_port())], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                          env=guarded.env)
     try:
-        assert p.stdout is not None
-        lines = []
-        for line in p.stdout:  # the program raises, then MAVSDK's server keeps the process alive: read, then stop
-            lines.append(line)
-            if line.startswith("mavsdk_grpc.action.ActionError"):  # the exception's message, last in its traceback
-                break
-        out = "".join(lines)
+        # The program raises, then MAVSDK's server keeps the process alive: read up to the exception's message
+        # (last in its traceback), then stop. Bounded: a program that never gets there (it was waiting for a
+        # position on a slow machine) fails here with its output instead of holding a worker until pytest's
+        # own timeout.
+        lines = lines_until(p, "mavsdk_grpc.action.ActionError", GOTO_TIMEOUT_S)
+        out = "\n".join(lines)
         assert "COMMAND_DENIED" in out and "goto_location" in out, out[-3000:]
     finally:
         p.kill()
