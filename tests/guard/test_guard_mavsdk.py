@@ -10,10 +10,12 @@ grants it; the example flies to its end and releases with AUTO.LOITER.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -127,6 +129,17 @@ def test_mavsdk_takeoff_and_land_and_the_info_examples_run_unchanged_through_the
     assert "COM_OF_LOSS_T" in out and "COM_OBL_RC_ACT" in out, out[-2000:]
 
 
+def _children(pid: int) -> list[str]:
+    """The command lines of ``pid``'s children (the example's ``mavsdk_server``), for a failure's message."""
+    found = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        with contextlib.suppress(OSError):
+            for child in (task / "children").read_text().split():
+                with contextlib.suppress(OSError):
+                    found.append(Path(f"/proc/{child}/cmdline").read_bytes().replace(b"\0", b" ").decode().strip())
+    return found
+
+
 def test_mavsdk_goto_without_authority_is_denied_as_px4_denies_a_command(guarded: GuardedServe) -> None:
     """The goto example repositions the vehicle from the controller link without asking for authority: the
     guard answers DO_REPOSITION with COMMAND_ACK DENIED (the controller moves the vehicle only while it holds
@@ -139,9 +152,12 @@ def test_mavsdk_goto_without_authority_is_denied_as_px4_denies_a_command(guarded
         # (last in its traceback), then stop. Bounded: a program that never gets there (it was waiting for a
         # position on a slow machine) fails here with its output instead of holding a worker until pytest's
         # own timeout.
+        t0 = time.monotonic()
         lines = lines_until(p, "mavsdk_grpc.action.ActionError", GOTO_TIMEOUT_S)
         out = "\n".join(lines)
-        assert "COMMAND_DENIED" in out and "goto_location" in out, out[-3000:]
+        assert "COMMAND_DENIED" in out and "goto_location" in out, (
+            f"after {time.monotonic() - t0:.0f} s, exit status {p.poll()}, children {_children(p.pid)}:\n"
+            + out[-3000:])
     finally:
         p.kill()
         p.wait(timeout=20)
