@@ -90,8 +90,9 @@ def describe() -> str:
     """One line for benchmark output and reports."""
     flags = compiled_modules()
     n = sum(flags.values())
-    kind = "compiled (mypyc)" if compiled() else "pure Python"
-    why = pure_build_reason() if not compiled() else None
+    is_compiled = compiled()
+    kind = "compiled (mypyc)" if is_compiled else "pure Python"
+    why = None if is_compiled else pure_build_reason()
     because = f" (the build fell back: {why['reason']})" if why is not None and why["kind"] != "requested" else ""
     return f"{kind}: {n}/{len(flags)} hot modules are extension modules{because}"
 
