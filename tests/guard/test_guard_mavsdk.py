@@ -22,6 +22,7 @@ from typing import Any
 
 import pytest
 
+from tests.guard.procs import output, spawn_guard, wait_guard
 from tests.guard.test_guard_flight import ROOT
 from tests.ports import reserve_port
 from tests.serve.conftest import ServeProc, lines_until, wait_ready
@@ -50,18 +51,17 @@ class GuardedServe:
         ap, self.ctl, gcs = reserve_port(), reserve_port(), reserve_port()
         self.env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         self.out = tmp / "guard"
-        self.procs = [
+        self.procs: list[subprocess.Popen[Any]] = [
             subprocess.Popen([sys.executable, "-m", "merlin.cli", "serve", "--autopilot-only", "--config",
                               str(serve_cfg), "--gcs-port", str(gcs), "--gcs-bind-port", "0", "--offboard-port",
                               str(ap), "--offboard-bind-port", "0", "--out", str(tmp / "serve"), "--duration", "300",
-                              "--quiet"], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=self.env),
-            subprocess.Popen([sys.executable, "-m", "merlin.cli", "guard", "--autopilot", f"udpin:127.0.0.1:{ap}",
-                              "--controller", f"udpout:127.0.0.1:{self.ctl}", "--config", str(guard_cfg),
-                              "--out", str(self.out), "--duration", "300"],
-                             cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=self.env),
-        ]
-        try:  # serve up before an example's clock starts (start-up is slow on a loaded machine)
+                              "--quiet"], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=self.env)]
+        try:  # serve up, then the guard in front of it, both before an example's clock starts (tests.guard.procs)
             wait_ready(ServeProc(self.procs[0], gcs, ap, tmp / "serve"))
+            self.procs.append(spawn_guard(["--autopilot", f"udpin:127.0.0.1:{ap}", "--controller",
+                                           f"udpout:127.0.0.1:{self.ctl}", "--config", str(guard_cfg),
+                                           "--duration", "300"], self.out, self.env))
+            wait_guard(self.procs[1], self.out)
         except BaseException:
             self.close()
             raise
@@ -81,7 +81,7 @@ class GuardedServe:
         return [e for e in ev if kind is None or e["type"] == kind]
 
     def close(self) -> None:
-        for p in self.procs:
+        for p in reversed(self.procs):
             p.terminate()
             p.wait(timeout=20)
 
@@ -156,8 +156,9 @@ def test_mavsdk_goto_without_authority_is_denied_as_px4_denies_a_command(guarded
         lines = lines_until(p, "mavsdk_grpc.action.ActionError", GOTO_TIMEOUT_S)
         out = "\n".join(lines)
         assert "COMMAND_DENIED" in out and "goto_location" in out, (
-            f"after {time.monotonic() - t0:.0f} s, exit status {p.poll()}, children {_children(p.pid)}:\n"
-            + out[-3000:])
+            f"after {time.monotonic() - t0:.0f} s, exit status {p.poll()}, children {_children(p.pid)}, guard's "
+            f"exit status {guarded.procs[1].poll()}, guard's output:\n{output(guarded.out)[-1500:]}\nexample's "
+            f"output:\n" + out[-3000:])
     finally:
         p.kill()
         p.wait(timeout=20)

@@ -22,6 +22,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from tests.guard.controller import Controller
+from tests.guard.procs import output, spawn_guard, wait_guard
 from tests.guard.test_guard_flight import CONFIG, FENCE_RADIUS_M, ROOT, wait_for
 from tests.ports import reserve_port
 from tests.serve.conftest import ServeProc, wait_ready
@@ -73,7 +74,8 @@ class Observer:
 
 
 class ServeRig:
-    def __init__(self, tmp: Path, guard_config: str = CONFIG, serve_config: str = SERVE_HOME) -> None:
+    def __init__(self, tmp: Path, guard_config: str = CONFIG, serve_config: str = SERVE_HOME,
+                 routing: bool = True) -> None:
         self.ap_port, self.ctl_port, gcs_port = reserve_port(), reserve_port(), reserve_port()
         serve_file = tmp / "serve.yaml"
         serve_file.write_text(serve_config)
@@ -84,17 +86,19 @@ class ServeRig:
              "--gcs-port", str(gcs_port),
              "--gcs-bind-port", "0", "--offboard-port", str(self.ap_port), "--offboard-bind-port", "0",
              "--out", str(tmp / "serve"), "--duration", "240", "--quiet"],
-            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True, env=env)
         cfg = tmp / "guard.yaml"
         cfg.write_text(guard_config)
-        self.guard = subprocess.Popen(
-            [sys.executable, "-m", "merlin.cli", "guard", "--autopilot", f"udpin:127.0.0.1:{self.ap_port}",
-             "--controller", f"udpin:127.0.0.1:{self.ctl_port}", "--config", str(cfg), "--out", str(tmp / "guard")],
-            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+        self.out = tmp / "guard"
+        self.events = self.out / "events.jsonl"
+        self.guard: subprocess.Popen[str] | None = None
         self.ctl = Controller(self.ctl_port).start()
-        self.events = tmp / "guard" / "events.jsonl"
-        try:  # serve up before a test's clock starts (start-up is slow on a loaded machine)
+        try:  # serve up, then the guard in front of it, both before a test's clock starts (tests.guard.procs)
             wait_ready(ServeProc(self.serve, gcs_port, self.ap_port, tmp / "serve"))
+            self.guard = spawn_guard(["--autopilot", f"udpin:127.0.0.1:{self.ap_port}", "--controller",
+                                      f"udpin:127.0.0.1:{self.ctl_port}", "--config", str(cfg)], self.out, env)
+            if routing:
+                wait_guard(self.guard, self.out)
         except BaseException:
             self.close()
             raise
@@ -102,7 +106,7 @@ class ServeRig:
     def close(self) -> None:
         self.ctl.stop()
         for p in (self.guard, self.serve):
-            if p.poll() is None:
+            if p is not None and p.poll() is None:
                 p.send_signal(signal.SIGTERM)
                 try:
                     p.wait(timeout=10)
@@ -154,6 +158,7 @@ def test_killing_the_guard_lets_serves_offboard_loss_failsafe_take_over(rig: Ser
     rig.take_off_and_request()
     c.vel = (1.0, 0.0, 0.0)
     time.sleep(1.0)
+    assert rig.guard is not None
     rig.guard.send_signal(signal.SIGKILL)
     rig.guard.wait(timeout=10)
     t_kill = time.monotonic()
@@ -164,9 +169,11 @@ def test_killing_the_guard_lets_serves_offboard_loss_failsafe_take_over(rig: Ser
 
 
 def test_serve_with_an_unsafe_offboard_loss_action_is_refused(tmp_path: Path) -> None:
-    r = ServeRig(tmp_path, serve_config=SERVE_HOME + "links: {offboard_loss_timeout_s: 5.0}\n")
+    r = ServeRig(tmp_path, serve_config=SERVE_HOME + "links: {offboard_loss_timeout_s: 5.0}\n", routing=False)
     try:
-        _out, err = r.guard.communicate(timeout=90)
+        assert r.guard is not None
+        r.guard.wait(timeout=90)
+        err = output(r.out)
         assert r.guard.returncode == 3, err
         assert "COM_OF_LOSS_T = 5" in err and "<= 1 s" in err, err
     finally:
