@@ -562,14 +562,21 @@ class Server:
         if d is None or not self.takeoff.shows_offboard:
             return
         s = self.loop.state
+        need = self.cfg.handover.heartbeat_alive_min_s
         step = self.takeoff.step(Facts(bool(d.armed), bool(s.landed), s.alt_m, d.authority, d.behavior,
-                                       self._streaming(t), self._handover_alt_m()))
+                                       self._streaming(t), self._handover_alt_m(), self._alive_s(t) + 1e-9 >= need,
+                                       t, self.cfg.links.offboard_request_wait_s))
         if step.takeoff:
             self._cmd_seq += 1
             p.commands.append(GcsCommand(GcsCommandKind.TAKEOFF, param=math.nan, seq=self._cmd_seq))
             self.events.write({"t": t, "type": "offboard_takeoff", "phase": "climbing",
                                "detail": f"Merlin's take-off to {self.cfg.trusted.takeoff_altitude_m:g} m;"
                                f" the request at {self._handover_alt_m():g} m"})
+        if step.waiting:
+            self.events.write({"t": t, "type": "offboard_takeoff", "phase": "waiting", "alt_m": round(s.alt_m, 3),
+                               "detail": f"controller alive {self._alive_s(t):.2f} s of the "
+                               f"{self.cfg.handover.heartbeat_alive_min_s:.2f} s required: the request waits (at most"
+                               f" {self.cfg.links.offboard_request_wait_s:g} s, links.offboard_request_wait_s)"})
         if step.request and self._takeoff_cmd is not None:
             ls, cmd, sender = self._takeoff_cmd
             self.bridge.requested(cmd, sender, answered=True)
@@ -578,6 +585,20 @@ class Server:
             self.events.write({"t": t, "type": "offboard_takeoff", "phase": "requested", "alt_m": round(s.alt_m, 3)})
         if step.ended:
             self._end_takeoff(t, step.ended)
+
+    def _takeoff_denied(self, e: Event) -> None:
+        """The take-off flow's request denied, when asked or at the exchange's switch: waiting again for a
+        denial on Merlin's liveness rule alone (OffboardTakeoff.denied), else the flow ends and every link
+        shows the truth (a denial at the switch used to leave the controller's link showing OFFBOARD while
+        Merlin held: the regression test_a_stream_that_stutters_during_merlins_take_off_is_handed_over_as_px4_would)."""
+        t = self.t
+        liveness = e.reason.code is ReasonCode.HEARTBEAT_NOT_ESTABLISHED
+        if self.takeoff.denied(t, liveness, self._streaming(t), self.cfg.links.offboard_request_wait_s):
+            self.events.write({"t": t, "type": "offboard_takeoff", "phase": "waiting", "alt_m":
+                               round(self.loop.state.alt_m, 3), "detail": f"denied: {e.reason.describe()}; setpoints "
+                               "streaming: the request goes again once the rule is met"})
+            return
+        self._end_takeoff(t, f"denied: {e.reason.describe()}")
 
     def _cancel_standard_request(self, t: float, why: str) -> None:
         """A controller leaving OFFBOARD (a mode command from its link) while its OFFBOARD request is held or
@@ -1147,8 +1168,8 @@ class Server:
             auth = Authority.SHADOW if e.to is Authority.SHADOW else Authority.EXPERIMENTAL
             self._broadcast(o.grant_from_event(e, ms, peer, req_id, auth, hc.ack_timeout_s, hc.blend_window_s))
         elif e.kind is EventKind.DENIED:
-            if self.takeoff.phase.value == "requested" and e.seq == 0:
-                self._end_takeoff(self.t, f"denied: {e.reason.describe()}")
+            if self.takeoff.phase.value == "requested" and e.to is not None:
+                self._takeoff_denied(e)
             req_id = self._take_request_id() if e.seq == 0 else 0
             retry = hc.cooldown_s - (self.t - self._last_revoke_t) if (
                 e.reason.code is ReasonCode.COOLDOWN and self._last_revoke_t is not None) else 0.0

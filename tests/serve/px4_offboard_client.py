@@ -49,6 +49,7 @@ class Client:
         self.t_first: float | None = None
         self.stop = False
         self.target = (1, 1)
+        self.silent_until = 0.0  # a stutter: nothing at all is sent before this (monotonic)
 
     def elapsed(self) -> float:
         return 0.0 if self.t_first is None else time.monotonic() - self.t_first
@@ -72,6 +73,9 @@ class Client:
         next_hb = 0.0
         while not self.stop:
             now = time.monotonic()
+            if now < self.silent_until:
+                time.sleep(0.01)
+                continue
             if now >= next_hb:  # 1 Hz, as MAVSDK and MAVROS send theirs
                 self.m.mav.heartbeat_send(self.mav_type, 8, 0, 0, 0)
                 next_hb = now + 1.0
@@ -113,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
     end = time.monotonic() + args.fly_s
     last_mode: int | None = None
     offboard_seen = False
+    stutter_at = args.stutter_at_alt
     while time.monotonic() < end:
         if switch_at is not None and time.monotonic() >= switch_at:
             if args.arm_first:  # MAVSDK's offboard examples: arm, then OFFBOARD on the ground
@@ -144,8 +149,13 @@ def run(args: argparse.Namespace) -> int:
                 elif offboard_seen:
                     c.say("mode left OFFBOARD")
                 last_mode = main
-        elif kind == "LOCAL_POSITION_NED" and args.report_position:
-            c.say(f"position {msg.x:.2f} {msg.y:.2f} {msg.z:.2f} horizontal {math.hypot(msg.x, msg.y):.2f}")
+        elif kind == "LOCAL_POSITION_NED":
+            if args.report_position:
+                c.say(f"position {msg.x:.2f} {msg.y:.2f} {msg.z:.2f} horizontal {math.hypot(msg.x, msg.y):.2f}")
+            if stutter_at is not None and -msg.z >= stutter_at:
+                c.silent_until = time.monotonic() + args.stutter_s
+                c.say(f"stutter {args.stutter_s:g} s at {-msg.z:.2f} m")
+                stutter_at = None
     c.stop = True
     return 0
 
@@ -165,6 +175,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--arm-first", action="store_true", help="take-off flow: arm, then OFFBOARD")
     ap.add_argument("--fly-s", type=float, default=60.0)
     ap.add_argument("--report-position", action="store_true")
+    ap.add_argument("--stutter-at-alt", type=float, default=None,
+                    help="once this high (m), send nothing (heartbeat, setpoints) for --stutter-s")
+    ap.add_argument("--stutter-s", type=float, default=0.7)
     return run(ap.parse_args(argv))
 
 

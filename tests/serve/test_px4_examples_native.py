@@ -16,6 +16,7 @@ from tests.serve.conftest import (
     ServeProc,
     gcs_connection,
     lines_until,
+    refused_to_the_client,
     start_serve,
     stop,
     wait_for,
@@ -63,7 +64,7 @@ def test_native_offboard_velocity_ned(serve: ServeProc) -> None:
     run_native(serve, "offboard_velocity_ned", 120)
     events = serve.events()
     assert any(e["type"] == "granted" for e in events)
-    assert not any(e["type"] == "denied" for e in events)
+    assert not refused_to_the_client(events), refused_to_the_client(events)
     # flown to its end inside the default envelope: no revocation
     assert not any(e["type"] == "revoked" for e in events), [e for e in events if e["type"] == "revoked"]
 
@@ -73,9 +74,10 @@ def _types(serve: ServeProc, kind: str) -> list[dict[str, Any]]:
 
 
 def _flown(serve: ServeProc, revoked_on: tuple[str, ...] = ()) -> None:
-    """Granted, never denied, revoked only on ``revoked_on`` (the envelope parameters the example leaves)."""
+    """Granted, never refused to the example (tests.serve.conftest.refused_to_the_client), revoked only on
+    ``revoked_on`` (the envelope parameters the example leaves)."""
     assert _types(serve, "granted"), "never granted OFFBOARD"
-    assert not _types(serve, "denied"), _types(serve, "denied")
+    assert not refused_to_the_client(serve.events()), refused_to_the_client(serve.events())
     revoked = _types(serve, "revoked")
     assert [(r["reason"], r["reason_detail"]["parameter"]) for r in revoked] == [
         ("envelope", p) for p in revoked_on], revoked

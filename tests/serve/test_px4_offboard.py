@@ -176,6 +176,32 @@ def test_px4_tutorial_take_off_in_offboard_is_flown_by_merlin_then_handed_over(s
     assert got is not None
 
 
+def test_a_stream_that_stutters_during_merlins_take_off_is_handed_over_as_px4_would(serve: ServeProc) -> None:
+    """The controller's link goes silent for 0.7 s as Merlin's climb nears the hand-over height (a loaded
+    machine, MAVSDK's server starved): longer than the controller watchdog's 0.5 s, so Merlin's liveness rule
+    (1 s unbroken) fails at the request or between the grant and its ACK; shorter than PX4's COM_OF_LOSS_T
+    (1 s), so PX4 would not have refused. The flow waits for the rule and asks again: the controller's link
+    keeps showing OFFBOARD, and it is handed over. (Before, a denial at the exchange's switch left the
+    controller's link showing OFFBOARD while Merlin held, for good.)"""
+    out, m = _takeoff_flow(serve, "5", "--arm-first", "--stutter-at-alt", "3.5", "--stutter-s", "0.7")
+    ctl = serve.extra[-1]
+    out += lines_until(ctl, "stutter", timeout_s=60)
+    assert any("stutter" in x for x in out), [x for x in out if "position" not in x]
+    off = wait_for(m, lambda x: x.get_type() == "HEARTBEAT" and x.get_srcComponent() == 1
+                   and (x.custom_mode >> 16) & 0xFF == 6, timeout_s=30)
+    ev = serve.events()
+    flow = [e for e in ev if e["type"] in ("denied", "offboard_takeoff", "authority")]
+    assert off is not None, flow
+    phases = [e["phase"] for e in ev if e["type"] == "offboard_takeoff"]
+    assert phases[:2] == ["accepted", "climbing"] and "waiting" in phases and phases[-1] == "requested", phases
+    for k, e in enumerate(flow):  # a denial only on the liveness rule, and the flow waits again after it
+        if e["type"] == "denied":
+            assert e["reason"] == "heartbeat_not_established", flow
+            assert flow[k + 1].get("phase") == "waiting", flow
+    assert [e["to"] for e in ev if e["type"] == "authority"] == ["EXPERIMENTAL"], flow
+    assert not any("mode left OFFBOARD" in x for x in out + lines_until(ctl, "mode left OFFBOARD", timeout_s=2))
+
+
 def test_px4_tutorial_with_a_setpoint_below_the_envelope_takes_off_and_is_refused_with_its_reason(
         serve: ServeProc) -> None:
     # the tutorial's 2 m is below the conservative envelope's altitude_m.min (3 m): Merlin flies its take-off,
