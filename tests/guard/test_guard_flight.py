@@ -33,6 +33,10 @@ from tests.guard.controller import Controller
 from tests.guard.sim_autopilot import SimAutopilot
 from tests.ports import reserve_port
 
+# real time on real sockets (a simulated autopilot, the guard, a controller): the integration pool's,
+# never a niced CPU-bound worker's, where a stalled guard thread lets the double's failsafe fire
+pytestmark = pytest.mark.integration
+
 ROOT = Path(__file__).resolve().parents[2]
 FENCE_RADIUS_M = 60.0
 CONFIG = f"""

@@ -27,6 +27,10 @@ from tests.guard.test_guard_flight import CONFIG, FENCE_RADIUS_M, ROOT, wait_for
 from tests.ports import reserve_port
 from tests.serve.conftest import ServeProc, wait_ready
 
+# real time on real sockets (a simulated autopilot, the guard, a controller): the integration pool's,
+# never a niced CPU-bound worker's, where a stalled guard thread lets the double's failsafe fire
+pytestmark = pytest.mark.integration
+
 #: serve's configuration under the guard: the guard's home (its default), everything else serve's default;
 #: ``--autopilot-only`` takes Merlin's arbitration out of it
 SERVE_HOME = "home: {lat_deg: 29.6516, lon_deg: -82.3248, alt_amsl_m: 30.0}\n"
