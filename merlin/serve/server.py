@@ -288,6 +288,11 @@ class Server:
         self._sp_rx_t: float | None = None  # when the latest valid setpoint arrived (core clock)
         self.takeoff = OffboardTakeoff()  # PX4's offboard take-off flow (merlin.serve.offboard_takeoff)
         self._takeoff_cmd: tuple[_LinkState, i.CommandIn, tuple[int, int]] | None = None
+        #: the standard OFFBOARD request the core is deciding (command, sender, when received), while its
+        #: grant can still be refused at the exchange's switch; and one such refusal on the liveness rule
+        #: alone, waiting to be asked again (:meth:`_switch_denied`)
+        self._standard_request: tuple[i.CommandIn, tuple[int, int], float] | None = None
+        self._requeued = False
         self._stop = False
         self._read_ns = 0  # when the datagram being handled was read from its socket (monotonic ns)
         self._t0_ns = time.monotonic_ns()
@@ -469,6 +474,7 @@ class Server:
                         continue
                     self.bridge.requested(m, sender)
                     self._exchange_peer = (ls, sender)
+                    self._standard_request, self._requeued = (m, sender, rx.t_s), False
                     if self._hold_standard_request(rx.t_s):
                         self._send(ls, self.bridge.hold(rx.t_s))
                         self.events.write({"t": rx.t_s, "type": "offboard_request_held", "link": ls.name,
@@ -600,9 +606,43 @@ class Server:
             return
         self._end_takeoff(t, f"denied: {e.reason.describe()}")
 
+    def _switch_denied(self, e: Event) -> None:
+        """A standard OFFBOARD request's grant refused at the exchange's switch. Its sender was answered
+        ACCEPTED at the grant (as PX4 answers), so a refusal on Merlin's liveness rule alone (the link went
+        quiet between the grant and its ACK, shorter than PX4's COM_OF_LOSS_T) is asked again, silently, once
+        the rule is met, while the setpoints stream and within ``links.offboard_request_wait_s`` of the
+        request; any other refusal stands (its DENY message and STATUSTEXT say why)."""
+        assert self._standard_request is not None
+        t = self.t
+        received = self._standard_request[2]
+        if (e.reason.code is ReasonCode.HEARTBEAT_NOT_ESTABLISHED and self._streaming(t)
+                and t - received < self.cfg.links.offboard_request_wait_s):
+            self._requeued = True
+            self.events.write({"t": t, "type": "offboard_request_held", "detail": f"denied at the switch: "
+                               f"{e.reason.describe()}; setpoints streaming: asked again once the rule is met"})
+            return
+        self._standard_request, self._requeued = None, False
+
+    def _advance_requeued(self, t: float, requests: list[AuthorityRequest]) -> None:
+        """At a tick: the request :meth:`_switch_denied` kept goes to the core again once it can decide (the
+        rule met, the stream lost, or the wait over), answered to no one (its sender has its ACCEPTED)."""
+        if not self._requeued or self._standard_request is None:
+            return
+        cmd, sender, received = self._standard_request
+        need = self.cfg.handover.heartbeat_alive_min_s
+        if (self._streaming(t) and self._alive_s(t) + 1e-9 < need
+                and t - received < self.cfg.links.offboard_request_wait_s):
+            return
+        self._requeued = False
+        self.bridge.requested(cmd, sender, answered=True)
+        requests.append(AuthorityRequest(RequestKind.REQUEST, t_s=t))
+        self.events.write({"t": t, "type": "offboard_request_released", "requeued": True,
+                           "streaming": self._streaming(t), "alive_s": round(self._alive_s(t), 4)})
+
     def _cancel_standard_request(self, t: float, why: str) -> None:
         """A controller leaving OFFBOARD (a mode command from its link) while its OFFBOARD request is held or
         its take-off flow runs: the held request is answered DENIED and never goes to the core; the flow ends."""
+        self._standard_request, self._requeued = None, False
         held = self.bridge.cancel_held()
         if held is not None and self._exchange_peer is not None:
             self._send(self._exchange_peer[0], held)
@@ -1014,6 +1054,7 @@ class Server:
         p = self.pending
         self.pending = _Pending()
         self._advance_held_request(t, p.requests)
+        self._advance_requeued(t, p.requests)
         self._advance_takeoff(t, p)
         sp_arrival_ns = 0
         if p.setpoint is not None:
@@ -1170,12 +1211,19 @@ class Server:
         elif e.kind is EventKind.DENIED:
             if self.takeoff.phase.value == "requested" and e.to is not None:
                 self._takeoff_denied(e)
+            elif e.to is not None and self._standard_request is not None:
+                if e.seq != 0:
+                    self._switch_denied(e)
+                else:  # refused when asked: its sender hears why (the bridge's COMMAND_ACK)
+                    self._standard_request, self._requeued = None, False
             req_id = self._take_request_id() if e.seq == 0 else 0
             retry = hc.cooldown_s - (self.t - self._last_revoke_t) if (
                 e.reason.code is ReasonCode.COOLDOWN and self._last_revoke_t is not None) else 0.0
             self._broadcast(o.deny_from_event(e, ms, peer, req_id, max(0.0, retry)))
         elif e.kind is EventKind.ACKNOWLEDGED:
             self._grant_seq_active = e.seq
+        elif e.kind is EventKind.AUTHORITY and e.to is Authority.EXPERIMENTAL:
+            self._standard_request, self._requeued = None, False
         elif e.kind is EventKind.REVOKED or e.kind is EventKind.RELEASED:
             released = e.kind is EventKind.RELEASED or e.reason.code is ReasonCode.RELEASED
             cooldown = 0.0 if released else hc.cooldown_s

@@ -234,11 +234,18 @@ def server(tmp_path: Path) -> Iterator[Any]:
         s.close()
 
 
+def _asked_again(e: dict[str, Any]) -> bool:
+    return e.get("phase") == "waiting" or (e["type"] == "offboard_request_held"
+                                           and e.get("detail", "").startswith("denied at the switch"))
+
+
 def refused_to_the_client(events: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The core's denials the example would have seen. Not those the offboard take-off flow answered by
-    waiting and asking again (the next record, phase ``waiting``): a denial on Merlin's liveness rule when the
-    link went quiet between a grant and its ACK on a loaded machine, which PX4 would not have refused and the
-    example never hears of (test_a_stream_that_stutters_during_merlins_take_off_is_handed_over_as_px4_would)."""
-    flow = [e for e in events if e["type"] in ("denied", "offboard_takeoff")]
+    """The core's denials the example would have seen. Not those serve answered by waiting and asking again
+    (the next record: the offboard take-off flow's phase ``waiting``, or a standard request held again): a
+    denial on Merlin's liveness rule when the link went quiet between a grant and its ACK on a loaded
+    machine, which PX4 would not have refused and the example never hears of
+    (test_a_stream_that_stutters_during_merlins_take_off_is_handed_over_as_px4_would; tick by tick for both
+    kinds of request: tests/serve/test_exchange_stutter.py)."""
+    flow = [e for e in events if e["type"] in ("denied", "offboard_takeoff", "offboard_request_held")]
     return [e for k, e in enumerate(flow) if e["type"] == "denied"
-            and not (k + 1 < len(flow) and flow[k + 1].get("phase") == "waiting")]
+            and not (k + 1 < len(flow) and _asked_again(flow[k + 1]))]
