@@ -288,11 +288,9 @@ class Server:
         self._sp_rx_t: float | None = None  # when the latest valid setpoint arrived (core clock)
         self.takeoff = OffboardTakeoff()  # PX4's offboard take-off flow (merlin.serve.offboard_takeoff)
         self._takeoff_cmd: tuple[_LinkState, i.CommandIn, tuple[int, int]] | None = None
-        #: the standard OFFBOARD request the core is deciding (command, sender, when received), while its
-        #: grant can still be refused at the exchange's switch; and one such refusal on the liveness rule
-        #: alone, waiting to be asked again (:meth:`_switch_denied`)
+        # the standard OFFBOARD request being decided (command, sender, received), for :meth:`_switch_denied`
         self._standard_request: tuple[i.CommandIn, tuple[int, int], float] | None = None
-        self._requeued = False
+        self._requeued = False  # that request, refused at the switch on the liveness rule, to be asked again
         self._stop = False
         self._read_ns = 0  # when the datagram being handled was read from its socket (monotonic ns)
         self._t0_ns = time.monotonic_ns()
