@@ -519,6 +519,13 @@ class Server:
             return 0.0
         return max(0.0, t - since)
 
+    def _can_decide(self, t: float, since: float) -> bool:
+        """Whether a request kept since ``since`` for Merlin's liveness rule goes to the core now: the rule
+        met, the stream lost, or ``links.offboard_request_wait_s`` over."""
+        need = self.cfg.handover.heartbeat_alive_min_s
+        return (not self._streaming(t) or self._alive_s(t) + 1e-9 >= need
+                or t - since >= self.cfg.links.offboard_request_wait_s)
+
     def _hold_standard_request(self, t: float) -> bool:
         """Whether a standard OFFBOARD request is held instead of decided now: PX4 would accept it (setpoints
         streaming) and only Merlin's heartbeat rule is not met yet. Anything else the core decides at once,
@@ -627,9 +634,7 @@ class Server:
         if not self._requeued or self._standard_request is None:
             return
         cmd, sender, received = self._standard_request
-        need = self.cfg.handover.heartbeat_alive_min_s
-        if (self._streaming(t) and self._alive_s(t) + 1e-9 < need
-                and t - received < self.cfg.links.offboard_request_wait_s):
+        if not self._can_decide(t, received):
             return
         self._requeued = False
         self.bridge.requested(cmd, sender, answered=True)
@@ -669,9 +674,7 @@ class Server:
         held = self.bridge.held_since_s
         if held is None:
             return
-        need = self.cfg.handover.heartbeat_alive_min_s
-        if (not self._streaming(t) or self._alive_s(t) + 1e-9 >= need
-                or t - held >= self.cfg.links.offboard_request_wait_s):
+        if self._can_decide(t, held):
             self.bridge.release()
             requests.append(AuthorityRequest(RequestKind.REQUEST, t_s=t))
             self.events.write({"t": t, "type": "offboard_request_released", "held_s": round(t - held, 4),

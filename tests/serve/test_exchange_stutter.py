@@ -95,6 +95,19 @@ class Rig:
         return [(round(e["t"], 3), e["type"], e.get("phase") or e.get("reason") or e.get("to"))
                 for e in self.events if e["type"] in kinds]
 
+    def request_in_the_air(self) -> None:
+        """Take off from the controller link, stream 2 s (the liveness rule met), ask for OFFBOARD, and go
+        quiet for QUIET_S once it is granted."""
+        self.command(ARM, 1)
+        self.tick()
+        self.command(TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, math.nan)
+        self.until("the take-off", lambda: self.s.loop.state.alt_m > 8.0, 30.0)
+        self.setpoint = (MASK_VELOCITY, (0.0, 0.0, 0.0), (0.5, 0.0, 0.0))
+        for _ in range(500):
+            self.tick()
+        self.command(DO_SET_MODE, 1, 6)
+        self.quiet_after_the_grant()
+
     def quiet_after_the_grant(self) -> None:
         """Tick until the core grants, then nothing from the controller for QUIET_S."""
         n = sum(e["type"] == "granted" for e in self.events)
@@ -135,15 +148,7 @@ def test_the_take_off_flows_grant_refused_at_the_switch_for_a_quiet_link_is_aske
 
 def test_a_standard_requests_grant_refused_at_the_switch_for_a_quiet_link_is_asked_again(rig: Rig) -> None:
     r = rig
-    r.command(ARM, 1)
-    r.tick()
-    r.command(TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, math.nan)
-    r.until("the take-off", lambda: r.s.loop.state.alt_m > 8.0, 30.0)
-    r.setpoint = (MASK_VELOCITY, (0.0, 0.0, 0.0), (0.5, 0.0, 0.0))
-    for _ in range(500):  # 2 s streaming: the liveness rule met before the request
-        r.tick()
-    r.command(DO_SET_MODE, 1, 6)
-    r.quiet_after_the_grant()
+    r.request_in_the_air()
     _handed_over_after_one_liveness_denial(r)
     assert r.acks == [0], r.acks  # ACCEPTED at the grant, and nothing after it
     assert r.seen("offboard_request_released", requeued=True), r.flow()
@@ -153,15 +158,7 @@ def test_a_refusal_at_the_switch_for_anything_else_stands(rig: Rig) -> None:
     """A quiet link longer than the request wait (links.offboard_request_wait_s, 3 s): the switch's refusal
     is not asked again forever; and the stream lost, nothing is asked again at all."""
     r = rig
-    r.command(ARM, 1)
-    r.tick()
-    r.command(TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, math.nan)
-    r.until("the take-off", lambda: r.s.loop.state.alt_m > 8.0, 30.0)
-    r.setpoint = (MASK_VELOCITY, (0.0, 0.0, 0.0), (0.5, 0.0, 0.0))
-    for _ in range(500):
-        r.tick()
-    r.command(DO_SET_MODE, 1, 6)
-    r.quiet_after_the_grant()
+    r.request_in_the_air()
     r.quiet_until = r.s.t + 5.0  # the stream lost (PX4's COM_OF_LOSS_T passed): no ACK, no grant
     for _ in range(round(8.0 * 250)):
         r.tick()
