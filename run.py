@@ -83,6 +83,22 @@ def ensure_env() -> Path:
     return py
 
 
+# The project's own sources, compiled to bytecode once before the suite or the demo starts its processes.
+BYTECODE_DIRS = ["merlin", "sims", "experimental_controllers", "examples", "benchmarks", "tests"]
+
+
+def compile_bytecode(py: Path) -> None:
+    """Write the project's bytecode before the suite or the demo starts its many processes (each `merlin
+    serve`, guard, client, campaign worker and CLI run). Where ``PYTHONDONTWRITEBYTECODE`` is set, as on this
+    project's machines, Python never writes it and every process compiled the ~90 modules it imports from
+    source again: about 1 s of CPU per `merlin serve` on a 2-core machine (docs/benchmarks/sim.md, "Process
+    start"). Python still reads bytecode that exists and checks it against each source's mtime and size, so
+    an edited file is compiled afresh, never run stale. Best effort: a failure here only costs that time."""
+    rc = _run([py, "-m", "compileall", "-q", "-j", "0", *BYTECODE_DIRS])
+    if rc != 0:
+        print("run.py: some sources could not be compiled to bytecode (the checks below name them)", flush=True)
+
+
 def ensure_chromium() -> None:
     """The campaign report is checked in a real browser (headless Chromium). Install Debian's package when
     it is missing and this is a Debian machine where we are root (CI, a fresh development machine); else
@@ -108,6 +124,7 @@ def ensure_chromium() -> None:
 
 def cmd_test(py: Path, extra: list[str]) -> int:
     ensure_chromium()
+    compile_bytecode(py)
     env = dict(os.environ)
     env.setdefault("MPLBACKEND", "Agg")
     checks = [
@@ -177,6 +194,7 @@ def _run_split_suite(py: Path, workers: str, env: dict[str, str]) -> int:
 
 
 def cmd_demo(py: Path, extra: list[str]) -> int:
+    compile_bytecode(py)
     env = dict(os.environ)
     env.setdefault("MPLBACKEND", "Agg")
     return _run([py, "-m", "merlin.cli", "demo", *extra], env=env)

@@ -40,13 +40,27 @@ class GroundTexture:
     m_per_px: float  # ground metres per texture pixel
 
 
+def _photo(name: str) -> np.ndarray:
+    """scikit-image's bundled photograph ``name`` as 2-D uint8, read with OpenCV: the same pixels as
+    ``skimage.data.<name>()`` (lossless PNG; tests/vision/test_vision_camera.py compares them) without importing
+    scikit-image's image I/O, about a second of a process's start on a 2-core machine that every run with a
+    camera, and `merlin serve`, paid. A scikit-image that does not ship the file gets its own loader."""
+    from importlib.resources import files
+
+    path = files("skimage") / "data" / f"{name}.png"
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if path.is_file() else None
+    if img is None or img.ndim != 2:
+        from skimage import data
+
+        img = getattr(data, name)()
+    return np.asarray(img, dtype=np.uint8)
+
+
 def load_texture(name: str, m_per_px: float = 0.1, seed: int = 0) -> GroundTexture:
     """A ground texture by name: one of PHOTO_TEXTURES (scikit-image's bundled photographs) or
     SYNTHETIC_TEXTURES. Photographs are tiled with mirrored copies so the tiling has no seams."""
     if name in PHOTO_TEXTURES:
-        from skimage import data
-
-        img = np.asarray(getattr(data, name)(), dtype=np.uint8)
+        img = _photo(name)
         img = np.block([[img, img[:, ::-1]], [img[::-1, :], img[::-1, ::-1]]])  # seamless 2x2 mirror tile
     elif name == "water":
         rng = np.random.default_rng(seed)

@@ -144,7 +144,7 @@ class VisionLoop:
                 "fused_pos": float(g.fused_pos), "fused_vel": float(g.fused_vel),
                 "excluded": float(g.status is GpsStatus.EXCLUDED),
                 "window_sigma_m": g.window_sigma_m, "sigma_v_m": ekf.pos_sigma_v_m,
-                "vel_sigma_h_mps": math.sqrt(max(ekf.kf.P[3, 3], ekf.kf.P[4, 4])),
+                "vel_sigma_h_mps": math.sqrt(max(ekf.P[3, 3], ekf.P[4, 4])),
             })
         if self.camera is None or self.vo is None or t < self._next_s - 1e-9:
             return None

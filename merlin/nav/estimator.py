@@ -7,11 +7,12 @@ sample; a 19-element error state ``δx = [δp, δv, δθ, δb_g, δb_a, δb_gps,
 expressed in the NED frame ("global" error, Solà sec. 7) carries the covariance. ``b_gps`` (the receiver's
 slowly wandering position error, first-order Gauss-Markov) and ``b_baro`` (the barometer's drifting offset,
 a random walk) are there because treating either error as white lets the filter average it away and
-publish a sigma several times smaller than the true error. The error-state Kalman filter itself is
-filterpy's :class:`~filterpy.kalman.ExtendedKalmanFilter`, used as the textbook equations it implements:
-``predict()`` propagates ``P = F P Fᵀ + Q`` and ``update(z, HJacobian, Hx, R)`` computes the gain and the
-Joseph-form covariance; after each update the error mean is injected into the nominal state and reset to
-zero (Solà sec. 6.2-6.3, 7.3).
+publish a sigma several times smaller than the true error. The error-state Kalman filter's equations are
+those of filterpy's :class:`~filterpy.kalman.ExtendedKalmanFilter`: ``predict()`` propagates
+``P = F P Fᵀ + Q`` and ``update(z, HJacobian, Hx, R)`` computes the gain and the Joseph-form covariance;
+:mod:`merlin.nav.kernels` runs them on the covariance :attr:`NavEstimator.P` (the tests compare each step
+with filterpy's), and :attr:`NavEstimator.kf` shows the filter as filterpy's object. After each update the
+error mean is injected into the nominal state and reset to zero (Solà sec. 6.2-6.3, 7.3).
 
 Every measurement goes through a normalised innovation squared (NIS) test before it is fused: with
 innovation ``y = z - h(x̂)`` and ``S = H P Hᵀ + R``, ``NIS = yᵀ S⁻¹ y`` is chi-square with dim(z) degrees
@@ -27,10 +28,9 @@ from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import Enum
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter
 
 from merlin.core.types import ZERO3, NavMode, Vec3, VehicleState
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample, VoQuality, VoSample
@@ -210,9 +210,8 @@ class NavEstimator:
         self._last_gyro: Vec3 = ZERO3
         self._last_accel: Vec3 = (0.0, 0.0, -config.gravity_mps2)
 
-        kf = ExtendedKalmanFilter(dim_x=N_ERR, dim_z=3)
-        kf.x = np.zeros((N_ERR, 1))
-        kf.P = np.diag(
+        #: the error state's covariance, updated in place by the kernels: never rebind it (``kf`` shares it)
+        self.P: np.ndarray = np.diag(
             [init.pos_sigma_m**2] * 3
             + [init.vel_sigma_mps**2] * 3
             + [init.tilt_sigma_rad**2] * 2
@@ -224,7 +223,7 @@ class NavEstimator:
             + [config.gps_bias_sigma_v_m**2]
             + [config.init_baro_bias_sigma_m**2]
         )
-        self.kf = kf  # kf.P is updated in place by the kernels: never rebind it
+        self._kf: Any = None  # built on first use (the kf property)
         self._q_density = np.array(
             [0.0] * 3
             + [config.accel_noise_mps2_rthz**2] * 3
@@ -282,6 +281,22 @@ class NavEstimator:
         self.last_baro: Check | None = None
         self.last_mag: Check | None = None
 
+    @property
+    def kf(self) -> Any:
+        """The filter as filterpy's :class:`~filterpy.kalman.ExtendedKalmanFilter`: its ``P`` is this filter's
+        covariance (the same array, so the kernels' updates show in it) and its ``x`` the error mean, zero
+        between updates. Built on first use: importing filterpy imports scipy.stats, about a second of every
+        process's start on a 2-core machine (docs/benchmarks/sim.md, "Process start"), which every flight,
+        `merlin serve` and campaign worker paid while only the tests and tools read this."""
+        if self._kf is None:
+            from filterpy.kalman import ExtendedKalmanFilter
+
+            kf = ExtendedKalmanFilter(dim_x=N_ERR, dim_z=3)
+            kf.x = np.zeros((N_ERR, 1))
+            kf.P = self.P
+            self._kf = kf
+        return self._kf
+
     # ------------------------------------------------------------------------------ prediction
 
     def predict(self, imu: ImuSample) -> None:
@@ -303,7 +318,7 @@ class NavEstimator:
         g, a = imu.gyro_frd_radps, imu.accel_frd_mps2
         self._last_gyro, self._last_accel = g, a
         kernels.mechanise(
-            self._s, self.kf.P, self._q_density, self._c, g[0], g[1], g[2], a[0], a[1], a[2], dt
+            self._s, self.P, self._q_density, self._c, g[0], g[1], g[2], a[0], a[1], a[2], dt
         )
         lim = self.cfg.accel_clip_mps2
         if not (-lim < a[0] < lim and -lim < a[1] < lim and -lim < a[2] < lim):
@@ -319,7 +334,7 @@ class NavEstimator:
         self._clip_t = self._t
         R = quat_to_dcm(self._q)
         q = (cfg.accel_clip_noise_mps2 * dt) ** 2
-        P = self.kf.P
+        P = self.P
         for i in range(3):
             if abs(a[i]) >= cfg.accel_clip_mps2:
                 P[3:6, 3:6] += q * np.outer(R[:, i], R[:, i])
@@ -347,7 +362,7 @@ class NavEstimator:
         δṗ = δv, δv̇ = -[R f]× δθ - R δb_a, δθ̇ = -R δb_g, biases random walks; F and Q as filterpy's
         ``predict`` takes them are ``kernels.transition`` and ``diag(q_density dt)``, evaluated on F's
         non-identity blocks (``kernels.cov_predict``)."""
-        kernels.cov_predict(self._s, self.kf.P, self._q_density, self.cfg.gps_bias_tau_s)
+        kernels.cov_predict(self._s, self.P, self._q_density, self.cfg.gps_bias_tau_s)
 
     # ------------------------------------------------------------------------------ measurement update
 
@@ -363,13 +378,13 @@ class NavEstimator:
 
     def _nis(self, H: np.ndarray, r: np.ndarray, y: np.ndarray, lo: int = 0, hi: int = -1) -> float:
         """yᵀ S⁻¹ y over the rows lo..hi (all by default) with S = H P Hᵀ + R, R = diag(r)."""
-        return float(kernels.nis(H, self.kf.P, r, y, lo, len(y) if hi < 0 else hi))
+        return float(kernels.nis(H, self.P, r, y, lo, len(y) if hi < 0 else hi))
 
     def _fuse(self, y: np.ndarray, H: np.ndarray, r: np.ndarray) -> None:
         """filterpy's EKF update on the error state (prior error mean zero: K = P Hᵀ S⁻¹, δx = K y, Joseph
         form P = (I − K H) P (I − K H)ᵀ + K R Kᵀ), then inject δx and reset (Solà sec. 6.2-6.3, 7.3);
         evaluated on the non-zero entries of H in one kernel (``kernels.fuse``)."""
-        kernels.fuse(self._s, self.kf.P, H, r, y, False)
+        kernels.fuse(self._s, self.P, H, r, y, False)
 
     def _fuse_heading_only(self, y: np.ndarray, H: np.ndarray, r: np.ndarray) -> None:
         """An update whose gain may not touch the tilt: K = P Hᵀ S⁻¹ with its δθ_n, δθ_e rows set to zero,
@@ -378,7 +393,7 @@ class NavEstimator:
         covariance must follow the gain actually applied: the Joseph form
         P⁺ = (I − K H) P (I − K H)ᵀ + K R Kᵀ holds for any gain (Simon 2006, "Optimal State Estimation",
         sec. 5.2; filterpy's ``update`` uses it with the optimal K), so the same kernel serves."""
-        kernels.fuse(self._s, self.kf.P, H, r, y, True)
+        kernels.fuse(self._s, self.P, H, r, y, True)
 
     def update_gps(self, gps: GpsSample) -> GpsCheck | None:
         """One GPS epoch: filterpy's ``update`` with the tests that guard it, one step per method.
@@ -481,7 +496,7 @@ class NavEstimator:
         r = self._gps_r
         nis_p, nis_v, an, ae, ad, dr_n, dr_e = kernels.gps_innovation(
             self._s,
-            self.kf.P,
+            self.P,
             _H_GPS,
             float(pn),
             float(pe),
@@ -632,7 +647,7 @@ class NavEstimator:
             self._gps_bias_var_h = self._gps_bias_var_h * relax + var_h * (1.0 - relax)
             self._gps_bias_var_v = self._gps_bias_var_v * relax + var_v * (1.0 - relax)
         self._gps_acc_t = gps.t_s
-        P = self.kf.P
+        P = self.P
         if var_h > self._gps_bias_var_h:
             P[15, 15] += var_h - self._gps_bias_var_h
             P[16, 16] += var_h - self._gps_bias_var_h
@@ -660,7 +675,7 @@ class NavEstimator:
             return math.nan, math.nan
         d_n = (pos_ned_m[0] - n0) - (dr_n - dn0)
         d_e = (pos_ned_m[1] - e0) - (dr_e - de0)
-        P = self.kf.P
+        P = self.P
         sigma_w = max(cfg.gps_window_sigma_m, cfg.gps_window_eph_ratio * eph_m)
         var = sigma_w * sigma_w + max(P[3, 3], P[4, 4]) * w * w
         return float((d_n * d_n + d_e * d_e) / var / 2.0), math.sqrt(var)
@@ -747,7 +762,7 @@ class NavEstimator:
         # columns) put into it: after an IMU source change the widened gyro bias makes VO's velocity
         # uncertain by about the height times the bias step, and a healthy GPS disagreeing with it by
         # that much is no evidence against the GPS (regression scenario: redundancy_imu_bias_camera_heading).
-        var_n, var_e = kernels.vo_filter_variance(H, self.kf.P)
+        var_n, var_e = kernels.vo_filter_variance(H, self.P)
         self._vo_recent.append((vo.t_s, vo.vel_ned_mps[0], vo.vel_ned_mps[1], var[0] + var_n, var[1] + var_e))
         # Horizontal only: the vertical velocity, from the change of image scale between frames, is a
         # weak and coloured measurement (docs/navigation.md, "VO"); the height is the barometer's and GPS's.
@@ -851,7 +866,7 @@ class NavEstimator:
         r = np.array((cfg.mag_heading_sigma_rad**2,))
         if cfg.mag_fusion == "heading":
             jn, je, _ = jac
-            P = self.kf.P
+            P = self.P
             r[0] += jn * jn * P[6, 6] + 2.0 * jn * je * P[6, 7] + je * je * P[7, 7]
         y = np.array((wrap_pi(heading - yaw),))  # z − h(x̂), h(x̂) = ψ̂, wrapped
         nis = self._nis(H, r, y)
@@ -958,13 +973,13 @@ class NavEstimator:
     @property
     def pos_sigma_h_m(self) -> float:
         """Square root of the larger eigenvalue of the horizontal position covariance (conservative)."""
-        P = self.kf.P
+        P = self.P
         a, b, d = P[0, 0], P[0, 1], P[1, 1]
         return math.sqrt(max(0.0, 0.5 * (a + d) + math.sqrt(0.25 * (a - d) ** 2 + b * b)))
 
     @property
     def pos_sigma_v_m(self) -> float:
-        return math.sqrt(max(0.0, self.kf.P[2, 2]))
+        return math.sqrt(max(0.0, self.P[2, 2]))
 
     def widen_imu_bias(self, accel_step_mps2: Sequence[float], gyro_step_radps: Sequence[float]) -> None:
         """The IMU source feeding the filter changed (a redundancy lane switch: the pair's mean to one lane,
@@ -986,7 +1001,7 @@ class NavEstimator:
         if self._every_n > 1:  # with every_n = 1 nothing is ever pending after predict()
             self._predict_covariance()
         self._imu_switch_t = self._t
-        P = self.kf.P
+        P = self.P
         open_var = self._bias_widening
         for k, (i, step) in enumerate(zip(range(BG_.start, BA_.stop),
                                           (*gyro_step_radps, *accel_step_mps2), strict=True)):
@@ -1017,7 +1032,7 @@ class NavEstimator:
     def covariance(self) -> np.ndarray:
         if self._every_n > 1:  # with every_n = 1 nothing is ever pending after predict()
             self._predict_covariance()
-        P: np.ndarray = np.array(self.kf.P, dtype=float)
+        P: np.ndarray = np.array(self.P, dtype=float)
         return P
 
     def state(self, airspeed_mps: float = 0.0, armed: bool = False, landed: bool = True,
@@ -1027,7 +1042,7 @@ class NavEstimator:
         read every tick, by every lane's filter: a ``dataclasses.replace`` afterwards cost as much as
         building it)."""
         s = self._s.tolist()  # one conversion: the state is read every tick
-        p = self.kf.P
+        p = self.P
         a_, b_, d_, pzz = float(p[0, 0]), float(p[0, 1]), float(p[1, 1]), float(p[2, 2])
         g, a = self._last_gyro, self._last_accel
         # pos_sigma_h_m, pos_sigma_v_m and inertial_s inlined (same expressions, same floats)

@@ -137,3 +137,27 @@ def test_flag_and_state_constants_match_the_dialect(M: Any) -> None:
         "MERLIN_ENVELOPE_STATE_DISABLED": o.ENVELOPE_DISABLED, "MERLIN_ENVELOPE_STATE_INSIDE": o.ENVELOPE_INSIDE,
         "MERLIN_ENVELOPE_STATE_EXCEEDING": o.ENVELOPE_EXCEEDING, "MERLIN_ENVELOPE_STATE_TRIPPED": o.ENVELOPE_TRIPPED,
     }
+
+
+def test_the_bindings_bytecode_is_written_once_and_again_when_the_source_changes(tmp_path, monkeypatch):
+    """Python never writes the generated bindings' bytecode where PYTHONDONTWRITEBYTECODE is set, and each
+    process compiled 1.8 MB of source: the loader writes it, and rewrites it when the source is regenerated."""
+    import importlib.util
+
+    monkeypatch.setattr(sys, "dont_write_bytecode", True)
+    src = tmp_path / "bindings.py"
+    src.write_text("X = 1\n")
+    cached = Path(importlib.util.cache_from_source(str(src)))
+    assert not dialect._bytecode_current(src, cached)
+    dialect._write_bytecode(src)
+    assert cached.is_file() and dialect._bytecode_current(src, cached)
+    first = cached.read_bytes()
+    dialect._write_bytecode(src)  # current: left alone
+    assert cached.read_bytes() == first
+    src.write_text("X = 22\n")  # regenerated: another size, a later mtime
+    os.utime(src, (os.path.getmtime(cached) + 5, os.path.getmtime(cached) + 5))
+    assert not dialect._bytecode_current(src, cached)
+    dialect._write_bytecode(src)
+    assert dialect._bytecode_current(src, cached) and cached.read_bytes() != first
+    module = dialect._load(src)
+    assert module.X == 22

@@ -319,6 +319,27 @@ def test_filterpy_attributes_stay_the_filter_covariance():
     e.predict(ImuSample(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, -9.8)))
     e.predict(ImuSample(0.01, (0.0, 0.0, 0.0), (0.0, 0.0, -9.8)))
     e.update_baro(BaroSample(0.01, 0.1))
-    assert e.kf.P is P
+    assert e.kf.P is P and e.P is P
     assert np.array_equal(e.covariance, P)
     assert isinstance(e.kf, ExtendedKalmanFilter)
+
+
+def test_a_filter_built_after_a_flight_shares_its_covariance_and_flying_imports_no_filterpy():
+    """Flying the filter never imports filterpy (its import of scipy.stats is most of a process's start);
+    ``kf`` read late is still the flown filter's covariance, and its error mean is zero."""
+    code = (
+        "import sys\n"
+        "from merlin.measurements import BaroSample, ImuSample\n"
+        "from merlin.nav.estimator import NavEstimator\n"
+        "e = NavEstimator()\n"
+        "for k in range(40):\n"
+        "    e.predict(ImuSample(0.0025 * k, (0.01, 0.0, 0.0), (0.0, 0.0, -9.8)))\n"
+        "e.update_baro(BaroSample(0.1, 0.3))\n"
+        "assert 'filterpy' not in sys.modules, 'flying the filter imported filterpy'\n"
+        "kf = e.kf\n"
+        "assert 'filterpy.kalman' in sys.modules\n"
+        "assert kf.P is e.P and kf is e.kf and not kf.x.any()\n"
+        "print('ok')\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    assert res.returncode == 0 and res.stdout.strip() == "ok", res.stderr[-2000:]

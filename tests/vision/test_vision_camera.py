@@ -21,6 +21,16 @@ def test_bundled_textures_load_offline():
         assert tex.image.dtype == np.uint8 and tex.image.ndim == 2 and tex.image.std() > 10
 
 
+@pytest.mark.parametrize("name", PHOTO_TEXTURES)
+def test_a_photograph_read_with_opencv_is_scikit_images_own_pixel_for_pixel(name):
+    from skimage import data
+
+    ours = load_texture(name).image
+    theirs = np.asarray(getattr(data, name)(), dtype=np.uint8)
+    tile = np.block([[theirs, theirs[:, ::-1]], [theirs[::-1, :], theirs[::-1, ::-1]]])
+    assert ours.shape == tile.shape and np.array_equal(ours, tile)
+
+
 def test_unknown_texture_names_the_allowed_ones():
     with pytest.raises(ValueError, match="grass"):
         load_texture("lava")
