@@ -252,19 +252,22 @@ def _loop_scenario(case: str) -> tuple[Any, Any]:
     return sc, cfg
 
 
-def loop_once(case: str) -> dict[str, Any]:
-    """Fly one case once in this process; its simulated duration, process CPU time and build."""
+def loop_once(case: str, dt_s: float | None = None) -> dict[str, Any]:
+    """Fly one case once in this process (at the tick period ``dt_s`` instead of its scenario's, when
+    given); its simulated duration, process CPU time and build."""
     from merlin import _build
     from sims.runner import run_scenario
 
     sc, cfg = _loop_scenario(case)
+    if dt_s is not None:
+        sc = sc.model_copy(update={"dt_s": dt_s})
     c0 = time.process_time()
     run_scenario(sc, cfg)
     cpu = time.process_time() - c0
     return {"sim_s": float(sc.duration_s), "cpu_s": cpu, "build": _build.describe()}
 
 
-def _child(case: str, tree: Path, build: str = "sources") -> dict[str, Any]:
+def _child(case: str, tree: Path, build: str = "sources", dt_s: float | None = None) -> dict[str, Any]:
     """One run of ``case`` in a fresh process on ``tree``: its ``.py`` sources (``build="sources"``,
     MERLIN_USE_SOURCES=1), or whatever that tree has built (``"installed"``: its mypyc extension modules
     when ``setup.py build_ext --inplace`` or an editable install compiled them there)."""
@@ -274,25 +277,32 @@ def _child(case: str, tree: Path, build: str = "sources") -> dict[str, Any]:
     else:
         env.pop("MERLIN_USE_SOURCES", None)
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", case]
+    if dt_s is not None:
+        cmd += ["--dt-s", repr(dt_s)]
     res = subprocess.run(cmd, env=env, cwd=str(tree), capture_output=True, text=True, check=True)
     return dict(json.loads(res.stdout.strip().splitlines()[-1]))
 
 
 def bench_loop(runs: int, cases: list[str], baseline: Path | None, this_tree: Path = ROOT,
-               build: str = "sources") -> None:
-    trees = [("this tree", this_tree)] + ([("baseline", baseline)] if baseline is not None else [])
+               build: str = "sources", periods: list[float] | None = None) -> None:
+    """``periods``: fly each case at each of these tick periods too (each a column of its own, interleaved
+    with the others), beside its scenario's own period."""
+    roots = [("this tree", this_tree)] + ([("baseline", baseline)] if baseline is not None else [])
+    dts: list[float | None] = [None, *(periods or [])]
+    trees = [(name if dt is None else f"{name}, tick {dt * 1e3:g} ms", tree, dt)
+             for name, tree in roots for dt in dts]
     print("| case | tree | build | real-time factor (CPU), median | spread | target | runs |")
     print("|---|---|---|---|---|---|---|")
     for case in cases:
-        rtf: dict[str, list[float]] = {name: [] for name, _ in trees}
+        rtf: dict[str, list[float]] = {name: [] for name, _, _ in trees}
         kind: dict[str, str] = {}
-        for name, tree in trees:  # warm-up (numba's cache, imports), not counted
-            kind[name] = str(_child(case, tree, build).get("build", "?"))
+        for name, tree, dt in trees:  # warm-up (numba's cache, imports), not counted
+            kind[name] = str(_child(case, tree, build, dt).get("build", "?"))
         for _ in range(runs):
-            for name, tree in trees:
-                r = _child(case, tree, build)
+            for name, tree, dt in trees:
+                r = _child(case, tree, build, dt)
                 rtf[name].append(r["sim_s"] / r["cpu_s"])
-        for name, _ in trees:
+        for name, _, _ in trees:
             v = rtf[name]
             target = LOOP_TARGETS.get(case)
             print(
@@ -313,6 +323,9 @@ def main() -> None:
     ap.add_argument("--build", choices=["sources", "installed"], default="sources",
                     help="--part loop: run the trees' .py sources (MERLIN_USE_SOURCES=1), or their compiled "
                          "modules where built (mypyc, setup.py build_ext --inplace)")
+    ap.add_argument("--dt-s", type=float, nargs="*", default=[],
+                    help="--part loop: also fly every case at these tick periods (s), e.g. 0.004 for 250 Hz, "
+                         "`merlin serve`'s default; the targets are for the scenarios' own period")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if hasattr(os, "sched_setaffinity"):
@@ -321,7 +334,7 @@ def main() -> None:
         print(json.dumps(bench_steps(a.runs)))
         return
     if a.child:
-        print(json.dumps(loop_once(a.child)))
+        print(json.dumps(loop_once(a.child, a.dt_s[0] if a.dt_s else None)))
         return
     from merlin.nav import kernels
 
@@ -356,7 +369,7 @@ def main() -> None:
                 f" {f'≤ {t:g}' if t else '—'} |"
             )
     if a.part in ("loop", "all"):
-        bench_loop(a.runs, a.cases, a.baseline_tree, a.this_tree.resolve(), a.build)
+        bench_loop(a.runs, a.cases, a.baseline_tree, a.this_tree.resolve(), a.build, a.dt_s)
 
 
 if __name__ == "__main__":
