@@ -99,6 +99,25 @@ def compile_bytecode(py: Path) -> None:
         print("run.py: some sources could not be compiled to bytecode (the checks below name them)", flush=True)
 
 
+# A short flight of the nominal scenario (the fusion EKF, the camera and VO): every navigation kernel it calls
+# is compiled by numba and cached beside the sources.
+WARM_UP = ("from pathlib import Path\n"
+           "from sims.runner import run_scenario\n"
+           "from sims.scenario import load_scenario\n"
+           "sc, cfg = load_scenario(Path('examples/scenarios/nominal.yaml'))\n"
+           "run_scenario(sc.model_copy(update={'duration_s': 3.0, 'expectations': []}), cfg)\n")
+
+
+def warm_up_kernels(py: Path) -> None:
+    """Compile the navigation filter's numba kernels once, before the suite's pools start. numba compiles them
+    on their first call and caches them; in a fresh clone the first processes of both pools (a `merlin
+    serve` per integration test among them) all compiled them at once, for 10 s and more each under that load,
+    and a serve compiling them in its first tick sent its first HEARTBEAT that late. Best effort: a failure
+    here only leaves the compiling to the tests."""
+    if _run([py, "-c", WARM_UP]) != 0:
+        print("run.py: the warm-up flight failed (the tests below will say why)", flush=True)
+
+
 def ensure_chromium() -> None:
     """The campaign report is checked in a real browser (headless Chromium). Install Debian's package when
     it is missing and this is a Debian machine where we are root (CI, a fresh development machine); else
@@ -125,6 +144,7 @@ def ensure_chromium() -> None:
 def cmd_test(py: Path, extra: list[str]) -> int:
     ensure_chromium()
     compile_bytecode(py)
+    warm_up_kernels(py)
     env = dict(os.environ)
     env.setdefault("MPLBACKEND", "Agg")
     checks = [

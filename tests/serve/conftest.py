@@ -11,6 +11,7 @@ takes on a loaded machine), and serve's output goes to a file beside its logs, n
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -82,15 +83,23 @@ def start_serve(tmp_path: Path, *extra: str, duration_s: float = 240.0) -> Serve
 
 
 def wait_ready(sp: ServeProc, timeout_s: float = STARTUP_TIMEOUT_S) -> None:
-    """Until serve has recorded ``serve_start`` (its links are open and its first tick is next). Fails with
-    serve's output if it exits first or takes longer than ``timeout_s``."""
+    """Until serve is up as a PX4 SITL is up: it has recorded ``serve_start`` (its links are open) and sent its
+    first frames (its first tick's HEARTBEAT, in ``flight.tlog``). The first tick can take seconds: numba
+    compiles the filter's kernels there when their cache is cold, as in a fresh clone's first processes, and
+    a peer with a short clock of its own (``merlin guard``'s 10 s for the autopilot's HEARTBEAT) must not be
+    started before it. Fails with serve's output if serve exits first or takes longer than ``timeout_s``."""
     t_end = time.monotonic() + timeout_s
-    while not any(e["type"] == "serve_start" for e in _complete_events(sp)):
+    while not (any(e["type"] == "serve_start" for e in _complete_events(sp)) and _has_sent(sp)):
         if sp.proc.poll() is not None:
             pytest.fail(f"merlin serve exited ({sp.proc.returncode}) before serving:\n{sp.output()[-3000:]}")
         if time.monotonic() > t_end:
             pytest.fail(f"merlin serve not serving after {timeout_s:.0f} s:\n{sp.output()[-3000:]}")
         time.sleep(0.1)
+
+
+def _has_sent(sp: ServeProc) -> bool:
+    p = sp.out / "flight.tlog"
+    return p.exists() and p.stat().st_size > 0
 
 
 def _complete_events(sp: ServeProc) -> list[dict[str, Any]]:
@@ -103,6 +112,7 @@ def _complete_events(sp: ServeProc) -> list[dict[str, Any]]:
 
 
 def stop(sp: ServeProc) -> None:
+    close_gcs_clients(sp.gcs_port)
     for p in [*sp.extra, sp.proc]:
         if p.poll() is None:
             p.send_signal(signal.SIGTERM)
@@ -122,6 +132,22 @@ def serve(tmp_path: Path) -> Iterator[ServeProc]:
         stop(sp)
 
 
+#: the ground-station connections per ground-station port (:func:`gcs_connection`), closed with their serve
+_GCS_CLIENTS: dict[int, list[Any]] = {}
+
+
+def close_gcs_clients(port: int) -> None:
+    """Close the ground-station connections on ``port`` and end their heartbeat threads. A connection left
+    open kept heartbeating, after its test, to the address it had learned: its serve's ephemeral port. When
+    the kernel handed that port to a later test's serve, the straggler's HEARTBEATs were accepted there, and
+    serve's ground-station link, whose remote follows whoever is accepted (as PX4's does), sent its streams
+    to the straggler: the later test's ground station never heard a HEARTBEAT."""
+    for m in _GCS_CLIENTS.pop(port, []):
+        m.closed = True
+        with contextlib.suppress(Exception):
+            m.close()
+
+
 def gcs_connection(port: int) -> Any:
     from pymavlink import mavutil
 
@@ -130,6 +156,7 @@ def gcs_connection(port: int) -> Any:
     dialect = register_with_mavutil()
     m = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255, source_component=190,
                                    dialect=dialect)
+    _GCS_CLIENTS.setdefault(port, []).append(m)
     hb = m.wait_heartbeat(timeout=STEP_TIMEOUT_S)
     assert hb is not None, "no HEARTBEAT from merlin serve"
     m.mav.heartbeat_send(6, 8, 0, 0, 0)
