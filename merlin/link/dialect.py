@@ -30,6 +30,7 @@ bindings through :func:`mavlink_module`. Nothing outside ``merlin.link`` imports
 
 from __future__ import annotations
 
+import compileall
 import contextlib
 import hashlib
 import importlib.resources
@@ -208,29 +209,13 @@ def _load(path: Path) -> ModuleType:
 
 
 def _write_bytecode(path: Path) -> None:
-    """Compile the bindings' bytecode beside them once. The module is 1.8 MB of source: compiling it costs
-    about 0.4 s of every process that speaks MAVLink (`merlin serve`, the guard, each client), and Python
-    never caches it where ``PYTHONDONTWRITEBYTECODE`` is set; it still reads a cache that exists. Best
-    effort: an unwritable cache directory only costs the compile."""
-    cached = Path(importlib.util.cache_from_source(str(path)))
-    with contextlib.suppress(OSError, py_compile.PyCompileError):
-        if not _bytecode_current(path, cached):
-            py_compile.compile(str(path), cfile=str(cached), doraise=True,
-                               invalidation_mode=py_compile.PycInvalidationMode.TIMESTAMP)
-
-
-def _bytecode_current(path: Path, cached: Path) -> bool:
-    """Whether ``cached`` is the bytecode Python would accept for ``path`` (PEP 552's timestamp header: magic
-    number, flags 0, the source's mtime and size), as a regenerated source makes it stale."""
-    try:
-        with cached.open("rb") as f:
-            head = f.read(16)
-    except OSError:
-        return False
-    st = path.stat()
-    return (len(head) == 16 and head[:4] == importlib.util.MAGIC_NUMBER and head[4:8] == b"\0\0\0\0"
-            and int.from_bytes(head[8:12], "little") == int(st.st_mtime) & 0xFFFFFFFF
-            and int.from_bytes(head[12:16], "little") == st.st_size & 0xFFFFFFFF)
+    """Compile the bindings' bytecode beside them, unless what is there is current (``compileall``'s own check
+    of the timestamp header). The module is 1.8 MB of source: compiling it costs about 0.4 s of every process
+    that speaks MAVLink (`merlin serve`, the guard, each client), and Python never caches it where
+    ``PYTHONDONTWRITEBYTECODE`` is set; it still reads a cache that exists, and checks it against the source.
+    Best effort: an unwritable cache directory only costs the compile."""
+    with contextlib.suppress(OSError):
+        compileall.compile_file(str(path), quiet=2, invalidation_mode=py_compile.PycInvalidationMode.TIMESTAMP)
 
 
 def register_with_mavutil() -> str:
