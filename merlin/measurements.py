@@ -9,19 +9,32 @@ vehicle clock; ``lane`` tells which redundant unit produced it (0, 1, 2).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Final
 
-from merlin.core.types import ZERO3, Vec3
+from merlin.core.types import ZERO3, Vec3, defined_native, set_frozen_fields
+
+#: whether this module is mypyc's extension module (``merlin.core.types``: the records' own ``__init__``)
+NATIVE: Final = defined_native(lambda: None)
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, init=False)
 class ImuSample:
     t_s: float
     gyro_frd_radps: Vec3
     accel_frd_mps2: Vec3  # specific force: about (0, 0, -9.81) at rest, level
     lane: int = 0
 
+    def __init__(self, t_s: float, gyro_frd_radps: Vec3, accel_frd_mps2: Vec3, lane: int = 0) -> None:
+        if NATIVE:
+            self.t_s = t_s  # type: ignore[misc]
+            self.gyro_frd_radps = gyro_frd_radps  # type: ignore[misc]
+            self.accel_frd_mps2 = accel_frd_mps2  # type: ignore[misc]
+            self.lane = lane  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (t_s, gyro_frd_radps, accel_frd_mps2, lane))
 
-@dataclass(frozen=True, slots=True)
+
+@dataclass(frozen=True, slots=True, init=False)
 class GpsSample:
     t_s: float
     pos_ned_m: Vec3  # already in the local frame about home (the edge converts from WGS84)
@@ -32,19 +45,49 @@ class GpsSample:
     epv_m: float = 2.5
     lane: int = 0
 
+    def __init__(self, t_s: float, pos_ned_m: Vec3, vel_ned_mps: Vec3, fix_type: int, satellites: int,
+                 eph_m: float = 1.5, epv_m: float = 2.5, lane: int = 0) -> None:
+        if NATIVE:
+            self.t_s = t_s  # type: ignore[misc]
+            self.pos_ned_m = pos_ned_m  # type: ignore[misc]
+            self.vel_ned_mps = vel_ned_mps  # type: ignore[misc]
+            self.fix_type = fix_type  # type: ignore[misc]
+            self.satellites = satellites  # type: ignore[misc]
+            self.eph_m = eph_m  # type: ignore[misc]
+            self.epv_m = epv_m  # type: ignore[misc]
+            self.lane = lane  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (t_s, pos_ned_m, vel_ned_mps, fix_type, satellites, eph_m, epv_m, lane))
 
-@dataclass(frozen=True, slots=True)
+
+@dataclass(frozen=True, slots=True, init=False)
 class BaroSample:
     t_s: float
     alt_m: float  # height above home from pressure, positive up
     lane: int = 0
 
+    def __init__(self, t_s: float, alt_m: float, lane: int = 0) -> None:
+        if NATIVE:
+            self.t_s = t_s  # type: ignore[misc]
+            self.alt_m = alt_m  # type: ignore[misc]
+            self.lane = lane  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (t_s, alt_m, lane))
 
-@dataclass(frozen=True, slots=True)
+
+@dataclass(frozen=True, slots=True, init=False)
 class MagSample:
     t_s: float
     field_frd_gauss: Vec3
     lane: int = 0
+
+    def __init__(self, t_s: float, field_frd_gauss: Vec3, lane: int = 0) -> None:
+        if NATIVE:
+            self.t_s = t_s  # type: ignore[misc]
+            self.field_frd_gauss = field_frd_gauss  # type: ignore[misc]
+            self.lane = lane  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (t_s, field_frd_gauss, lane))
 
 
 @dataclass(frozen=True, slots=True)

@@ -52,11 +52,16 @@ import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
-from typing import Any, Literal, NamedTuple
+from typing import Any, Final, Literal, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 import shapely
+
+from merlin.core.types import defined_native, set_frozen_fields
+
+#: whether this module is mypyc's extension module (``merlin.core.types``: the records' own ``__init__``)
+NATIVE: Final = defined_native(lambda: None)
 
 FenceModeName = Literal["velocity_projection", "position_only"]
 VehicleKind = Literal["multirotor", "fixed_wing"]
@@ -555,7 +560,7 @@ def _local_hazard(fence: Fence, n: float, e: float, need_m: float) -> Any:
 # ---------------------------------------------------------------------------------------------- result
 
 
-@dataclass(frozen=True, slots=True, eq=False)
+@dataclass(frozen=True, slots=True, init=False, eq=False)
 class FenceResult:
     """The verdict of one :func:`check`.
 
@@ -574,6 +579,15 @@ class FenceResult:
     kind: FenceKind
     stopping_distance_m: float
     clearance_m: float
+
+    def __init__(self, tripped: bool, kind: FenceKind, stopping_distance_m: float, clearance_m: float) -> None:
+        if NATIVE:
+            self.tripped = tripped  # type: ignore[misc]
+            self.kind = kind  # type: ignore[misc]
+            self.stopping_distance_m = stopping_distance_m  # type: ignore[misc]
+            self.clearance_m = clearance_m  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (tripped, kind, stopping_distance_m, clearance_m))
 
     # NaN is this record's "not computed" (the clearance when clear, both figures when invalid): two
     # verdicts that leave the same figures out are the same verdict. The generated comparison got that

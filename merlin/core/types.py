@@ -15,16 +15,48 @@ every attribute lookup on an enum class through CPython's slow path (3.12 remove
 run every tick (the core's step, shaping and guidance, the inner loops, the simulator's runner) therefore
 bind the members they read per tick to module constants once (``_SHADOW: Final = Authority.SHADOW``): the
 same objects, so every comparison gives what it gave; about 2.5 µs of a closed-loop tick.
+
+The records built on every tick of the closed loop (:class:`VehicleState`, :class:`Inputs`,
+:class:`Reason`, :class:`MonitorStatus`, :class:`ExperimentalInput`, the sensor samples of
+``merlin.measurements``, the fence's verdict) write their ``__init__`` out instead of letting
+``dataclasses`` generate it. The generated one is Python source that ``dataclasses`` compiles at import,
+so it runs interpreted even in the mypyc build, through ``object.__setattr__`` once per field (a frozen
+class refuses ``self.x = x``): about 1.3 µs for three fields, 2.5 µs for eleven, ~3,300 constructions per
+simulated second in the nominal closed loop. Written out, mypyc compiles ``self.x = x`` to a store into the
+native slot (0.07 µs; ``docs/benchmarks/sim.md``, "The frozen records' constructors"); the interpreted
+build, where that assignment would raise, sets the fields as the generated code does
+(:func:`set_frozen_fields`). Each such module reads which build it is with its own :data:`NATIVE`; the
+classes keep everything else ``dataclasses`` generates (comparison, hash, ``repr``, ``replace``,
+``FrozenInstanceError`` on assignment), and ``tests/core/test_frozen_records.py`` checks every written-out
+``__init__`` against its class's fields.
 """
 
 from __future__ import annotations
 
+import types
 from dataclasses import dataclass, field
 from enum import Enum, IntEnum, StrEnum
-from typing import NamedTuple
+from typing import Any, Final, NamedTuple
 
 Vec3 = tuple[float, float, float]
 ZERO3: Vec3 = (0.0, 0.0, 0.0)
+
+
+def defined_native(probe: object) -> bool:
+    """Whether ``probe``, a function defined in the calling module (``lambda: None``), was compiled by mypyc:
+    then that module runs as an extension module, whose functions are not Python functions."""
+    return not isinstance(probe, types.FunctionType)
+
+
+#: this module's build (see the module docstring): a frozen record's own ``__init__`` may store its fields
+NATIVE: Final = defined_native(lambda: None)
+
+
+def set_frozen_fields(obj: Any, values: tuple[Any, ...]) -> None:
+    """The interpreted build's half of a written-out ``__init__`` of a frozen record: its fields, in their
+    declared order, set to ``values`` as the ``__init__`` that ``dataclasses`` generates sets them."""
+    for name, value in zip(obj.__dataclass_fields__, values, strict=True):
+        object.__setattr__(obj, name, value)
 
 
 class Authority(IntEnum):
@@ -170,7 +202,7 @@ class ReasonCode(IntEnum):
     REDUNDANCY_DEGRADED = 29
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, init=False)
 class Reason:
     """Why something happened: the monitor, the parameter, the measured value, its limit and for how long."""
 
@@ -181,6 +213,19 @@ class Reason:
     limit: float = 0.0
     duration_s: float = 0.0
     text: str = ""
+
+    def __init__(self, code: ReasonCode, monitor: str = "", parameter: str = "", value: float = 0.0,
+                 limit: float = 0.0, duration_s: float = 0.0, text: str = "") -> None:
+        if NATIVE:
+            self.code = code  # type: ignore[misc]
+            self.monitor = monitor  # type: ignore[misc]
+            self.parameter = parameter  # type: ignore[misc]
+            self.value = value  # type: ignore[misc]
+            self.limit = limit  # type: ignore[misc]
+            self.duration_s = duration_s  # type: ignore[misc]
+            self.text = text  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (code, monitor, parameter, value, limit, duration_s, text))
 
     def describe(self) -> str:
         if self.text:
@@ -199,7 +244,7 @@ NO_REASON = Reason(ReasonCode.NONE)
 # ----------------------------------------------------------------------------------------------- inputs
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, init=False)
 class VehicleState:
     """The navigation solution handed to the core, with its uncertainty and health.
 
@@ -221,6 +266,31 @@ class VehicleState:
     landed: bool = True
     battery_frac: float = 1.0
     alpha_rad: float = 0.0  # angle of attack (fixed wing); 0 where it does not apply
+
+    def __init__(self, pos_ned_m: Vec3 = ZERO3, vel_ned_mps: Vec3 = ZERO3, att_rpy_rad: Vec3 = ZERO3,
+                 rates_frd_radps: Vec3 = ZERO3, accel_frd_mps2: Vec3 = (0.0, 0.0, -9.80665),
+                 airspeed_mps: float = 0.0, pos_sigma_h_m: float = 0.5, pos_sigma_v_m: float = 0.5,
+                 nav_mode: NavMode = NavMode.GPS, nav_inertial_s: float = 0.0, armed: bool = False,
+                 landed: bool = True, battery_frac: float = 1.0, alpha_rad: float = 0.0) -> None:
+        if NATIVE:
+            self.pos_ned_m = pos_ned_m  # type: ignore[misc]
+            self.vel_ned_mps = vel_ned_mps  # type: ignore[misc]
+            self.att_rpy_rad = att_rpy_rad  # type: ignore[misc]
+            self.rates_frd_radps = rates_frd_radps  # type: ignore[misc]
+            self.accel_frd_mps2 = accel_frd_mps2  # type: ignore[misc]
+            self.airspeed_mps = airspeed_mps  # type: ignore[misc]
+            self.pos_sigma_h_m = pos_sigma_h_m  # type: ignore[misc]
+            self.pos_sigma_v_m = pos_sigma_v_m  # type: ignore[misc]
+            self.nav_mode = nav_mode  # type: ignore[misc]
+            self.nav_inertial_s = nav_inertial_s  # type: ignore[misc]
+            self.armed = armed  # type: ignore[misc]
+            self.landed = landed  # type: ignore[misc]
+            self.battery_frac = battery_frac  # type: ignore[misc]
+            self.alpha_rad = alpha_rad  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (pos_ned_m, vel_ned_mps, att_rpy_rad, rates_frd_radps, accel_frd_mps2,
+                                     airspeed_mps, pos_sigma_h_m, pos_sigma_v_m, nav_mode, nav_inertial_s, armed,
+                                     landed, battery_frac, alpha_rad))
 
     @property
     def alt_m(self) -> float:
@@ -249,7 +319,7 @@ class AuthorityRequest:
     t_s: float = 0.0
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, init=False)
 class ExperimentalInput:
     """What the edge knows of the experimental controller at this tick (times are the core's clock)."""
 
@@ -257,6 +327,16 @@ class ExperimentalInput:
     setpoint: Setpoint | None = None
     setpoint_t_s: float | None = None  # time the latest setpoint was received
     requests: tuple[AuthorityRequest, ...] = ()
+
+    def __init__(self, heartbeat_t_s: float | None = None, setpoint: Setpoint | None = None,
+                 setpoint_t_s: float | None = None, requests: tuple[AuthorityRequest, ...] = ()) -> None:
+        if NATIVE:
+            self.heartbeat_t_s = heartbeat_t_s  # type: ignore[misc]
+            self.setpoint = setpoint  # type: ignore[misc]
+            self.setpoint_t_s = setpoint_t_s  # type: ignore[misc]
+            self.requests = requests  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (heartbeat_t_s, setpoint, setpoint_t_s, requests))
 
 
 @dataclass(frozen=True, slots=True)
@@ -293,7 +373,14 @@ class RedundancyReport:
     cause: str = ""
 
 
-@dataclass(frozen=True, slots=True)
+# The defaults of Inputs' own ``__init__``: what each field's ``default_factory`` builds. The records are
+# immutable, so one instance serves every Inputs that leaves the field out.
+_DEFAULT_STATE: Final = VehicleState()
+_DEFAULT_EXPERIMENTAL: Final = ExperimentalInput()
+_DEFAULT_OPERATOR: Final = OperatorInput()
+
+
+@dataclass(frozen=True, slots=True, init=False)
 class Inputs:
     state: VehicleState = field(default_factory=VehicleState)
     experimental: ExperimentalInput = field(default_factory=ExperimentalInput)
@@ -301,6 +388,19 @@ class Inputs:
     gcs_link_t_s: float | None = None  # time of the latest ground-station heartbeat
     gcs_commands: tuple[GcsCommand, ...] = ()
     redundancy: RedundancyReport | None = None  # None: the vehicle reports no redundancy (nothing to monitor)
+
+    def __init__(self, state: VehicleState = _DEFAULT_STATE, experimental: ExperimentalInput = _DEFAULT_EXPERIMENTAL,
+                 operator: OperatorInput = _DEFAULT_OPERATOR, gcs_link_t_s: float | None = None,
+                 gcs_commands: tuple[GcsCommand, ...] = (), redundancy: RedundancyReport | None = None) -> None:
+        if NATIVE:
+            self.state = state  # type: ignore[misc]
+            self.experimental = experimental  # type: ignore[misc]
+            self.operator = operator  # type: ignore[misc]
+            self.gcs_link_t_s = gcs_link_t_s  # type: ignore[misc]
+            self.gcs_commands = gcs_commands  # type: ignore[misc]
+            self.redundancy = redundancy  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (state, experimental, operator, gcs_link_t_s, gcs_commands, redundancy))
 
 
 # ---------------------------------------------------------------------------------------------- outputs
@@ -378,7 +478,7 @@ class Event:
         return d
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, init=False)
 class MonitorStatus:
     """One monitor's verdict this tick: whether it is tripped, and the worst offending reason."""
 
@@ -387,6 +487,16 @@ class MonitorStatus:
     reason: Reason = NO_REASON
     # envelope: per-parameter elapsed violation time (s), 0 where inside bounds; fence: projected margin
     detail: tuple[tuple[str, float], ...] = ()
+
+    def __init__(self, name: str, tripped: bool, reason: Reason = NO_REASON,
+                 detail: tuple[tuple[str, float], ...] = ()) -> None:
+        if NATIVE:
+            self.name = name  # type: ignore[misc]
+            self.tripped = tripped  # type: ignore[misc]
+            self.reason = reason  # type: ignore[misc]
+            self.detail = detail  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (name, tripped, reason, detail))
 
 
 class Decision(NamedTuple):

@@ -37,8 +37,13 @@ Two of the thesis's admitted flaws (§6) are fixed here:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Final
 
+from merlin.core.types import defined_native, set_frozen_fields
 from merlin.redundancy.events import FaultKind, FaultReport
+
+#: whether this module is mypyc's extension module (``merlin.core.types``: the records' own ``__init__``)
+NATIVE: Final = defined_native(lambda: None)
 
 N_LANES = 3
 _EPS_S = 1e-6
@@ -92,7 +97,7 @@ FAST = LaneVoterConfig("fast", exchange_hz=50.0, persistence_s=0.1, latch_s=600.
 PRESETS: dict[str, LaneVoterConfig] = {c.name: c for c in (THESIS, THESIS_SITL, FAST)}
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, init=False)
 class LaneMessage:
     """What a lane sends its peers each exchange tick."""
 
@@ -102,16 +107,34 @@ class LaneMessage:
     vote: int = 0
     hears: tuple[bool, bool, bool] = (True, True, True)  # which lanes the sender currently hears
 
+    def __init__(self, sender: int, t_sent_s: float, flags: tuple[bool, ...], vote: int = 0,
+                 hears: tuple[bool, bool, bool] = (True, True, True)) -> None:
+        if NATIVE:
+            self.sender = sender  # type: ignore[misc]
+            self.t_sent_s = t_sent_s  # type: ignore[misc]
+            self.flags = flags  # type: ignore[misc]
+            self.vote = vote  # type: ignore[misc]
+            self.hears = hears  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (sender, t_sent_s, flags, vote, hears))
 
-@dataclass(frozen=True, slots=True)
+
+@dataclass(frozen=True, slots=True, init=False)
 class Received:
     """A peer message as the receiving lane saw it: the arrival time is the receiver's clock."""
 
     t_rx_s: float
     msg: LaneMessage
 
+    def __init__(self, t_rx_s: float, msg: LaneMessage) -> None:
+        if NATIVE:
+            self.t_rx_s = t_rx_s  # type: ignore[misc]
+            self.msg = msg  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (t_rx_s, msg))
 
-@dataclass(frozen=True, slots=True)
+
+@dataclass(frozen=True, slots=True, init=False)
 class LaneVoterState:
     since: tuple[tuple[float | None, ...], ...] = ()  # [lane][flag]: first tick the disagreement was seen
     latched_until: tuple[tuple[float, ...], ...] = ()
@@ -120,8 +143,22 @@ class LaneVoterState:
     self_isolated: bool = False
     gated: bool = True
 
+    def __init__(self, since: tuple[tuple[float | None, ...], ...] = (),
+                 latched_until: tuple[tuple[float, ...], ...] = (),
+                 silent: tuple[bool, bool, bool] = (False, False, False), vote: int = 0,
+                 self_isolated: bool = False, gated: bool = True) -> None:
+        if NATIVE:
+            self.since = since  # type: ignore[misc]
+            self.latched_until = latched_until  # type: ignore[misc]
+            self.silent = silent  # type: ignore[misc]
+            self.vote = vote  # type: ignore[misc]
+            self.self_isolated = self_isolated  # type: ignore[misc]
+            self.gated = gated  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (since, latched_until, silent, vote, self_isolated, gated))
 
-@dataclass(frozen=True, slots=True)
+
+@dataclass(frozen=True, slots=True, init=False)
 class LaneVote:
     t_s: float
     lane: int
@@ -133,6 +170,24 @@ class LaneVote:
     gated: bool
     message: LaneMessage  # to send to the peers and the selector
     events: tuple[FaultReport, ...] = ()
+
+    def __init__(self, t_s: float, lane: int, vote: int, counters: tuple[int, int, int],
+                 priorities: tuple[int, int, int], silent: tuple[bool, bool, bool], self_isolated: bool,
+                 gated: bool, message: LaneMessage, events: tuple[FaultReport, ...] = ()) -> None:
+        if NATIVE:
+            self.t_s = t_s  # type: ignore[misc]
+            self.lane = lane  # type: ignore[misc]
+            self.vote = vote  # type: ignore[misc]
+            self.counters = counters  # type: ignore[misc]
+            self.priorities = priorities  # type: ignore[misc]
+            self.silent = silent  # type: ignore[misc]
+            self.self_isolated = self_isolated  # type: ignore[misc]
+            self.gated = gated  # type: ignore[misc]
+            self.message = message  # type: ignore[misc]
+            self.events = events  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (t_s, lane, vote, counters, priorities, silent, self_isolated, gated,
+                                     message, events))
 
 
 def priorities_from_counters(counters: tuple[int, ...], silent: tuple[bool, ...]) -> tuple[int, int, int]:
