@@ -18,7 +18,8 @@ same objects, so every comparison gives what it gave; about 2.5 µs of a closed-
 
 The records built on every tick of the closed loop (:class:`VehicleState`, :class:`Inputs`,
 :class:`Reason`, :class:`MonitorStatus`, :class:`ExperimentalInput`, the sensor samples of
-``merlin.measurements``, the fence's verdict) write their ``__init__`` out instead of letting
+``merlin.measurements``, the fence's verdict, the autopilot lanes' exchange records of
+``merlin.redundancy.lane_voter``) write their ``__init__`` out instead of letting
 ``dataclasses`` generate it. The generated one is Python source that ``dataclasses`` compiles at import,
 so it runs interpreted even in the mypyc build, through ``object.__setattr__`` once per field (a frozen
 class refuses ``self.x = x``): about 1.3 µs for three fields, 2.5 µs for eleven, ~3,300 constructions per
