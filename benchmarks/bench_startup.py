@@ -12,6 +12,11 @@ build of this tree, so the figures come from the same minutes:
 - ``filterpy``: imported at the start of the process (``-c "import filterpy.kalman; ..."``: the import the
   navigation filter's module made when it was loaded) or only if something reads ``NavEstimator.kf``.
 
+With ``--exit``, the variants are instead how the process leaves (bytecode written, filterpy lazy): through
+the ``merlin`` program's own entry point, which freezes the collector's generations first
+(:mod:`merlin._exit`), or through ``merlin.cli.main`` and ``sys.exit``, as before, where CPython's exit
+walks everything alive with the cyclic collector.
+
 The commands: ``serve`` is ``merlin serve --duration 0.1`` (start, a few ticks, clean stop: the quadrotor
 with the fusion EKF and the camera); ``import`` is ``import sims.runner`` and the MAVLink bindings.
 
@@ -33,10 +38,12 @@ ROOT = Path(__file__).resolve().parents[1]
 PROJECT_DIRS = ("merlin", "sims", "experimental_controllers")
 
 
-def _program(command: str, eager_filterpy: bool, out_dir: Path) -> str:
+def _program(command: str, eager_filterpy: bool, out_dir: Path, frozen_exit: bool = True) -> str:
     pre = "import filterpy.kalman\n" if eager_filterpy else ""
     if command == "serve":
         argv = ["merlin", "serve", "--out", str(out_dir), "--quiet", "--duration", "0.1"]
+        if not frozen_exit:  # the program as it was: main, then sys.exit with every generation walked
+            return pre + f"import sys\nfrom merlin.cli import main\nrc = main({argv[1:]!r})\nassert not rc, rc\n"
         return pre + f"import runpy, sys\nsys.argv = {argv!r}\ntry:\n    runpy.run_module('merlin.cli', run_name='__main__')\n" \
                      "except SystemExit as e:\n    assert not e.code, e.code\n"
     if command == "import":
@@ -90,7 +97,11 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--commands", nargs="*", default=["serve", "import"])
+    ap.add_argument("--exit", action="store_true",
+                    help="vary how serve leaves (frozen generations or walked) instead of bytecode and filterpy")
     args = ap.parse_args()
+    if args.exit:
+        return _exit_variants(args.runs)
     subprocess.run([sys.executable, "-m", "compileall", "-q", *PROJECT_DIRS], cwd=ROOT, check=True)
     from merlin.link.dialect import mavlink_module
 
@@ -120,6 +131,28 @@ def main() -> int:
     for (command, bc, fp), xs in results.items():
         print(f"| {command} | {'yes' if bc else 'no'} | {'yes' if fp else 'no (lazy)'} | "
               f"{statistics.median(xs):.2f} ({min(xs):.2f}-{max(xs):.2f}) |")
+    return 0
+
+
+def _exit_variants(runs: int) -> int:
+    """``serve`` leaving through the program's entry point (generations frozen) against ``main`` and
+    ``sys.exit`` (walked), alternating run by run."""
+    subprocess.run([sys.executable, "-m", "compileall", "-q", *PROJECT_DIRS], cwd=ROOT, check=True)
+    from merlin.link.dialect import mavlink_module
+
+    mavlink_module()
+    results: dict[bool, list[float]] = {True: [], False: []}
+    with tempfile.TemporaryDirectory() as tmp:
+        for run in range(runs):
+            for frozen in (False, True):
+                results[frozen].append(_cpu_of(_program("serve", False, Path(tmp) / f"out{run}{frozen}", frozen)))
+            print(f"run {run + 1}/{runs} done", file=sys.stderr, flush=True)
+    print(f"CPU seconds of `merlin serve --duration 0.1`, median (min-max) of {runs}, {os.cpu_count()} cores")
+    print("| leaves through | CPU s |")
+    print("|---|---|")
+    for frozen, xs in results.items():
+        how = "the program's entry point (generations frozen)" if frozen else "main + sys.exit (walked)"
+        print(f"| {how} | {statistics.median(xs):.2f} ({min(xs):.2f}-{max(xs):.2f}) |")
     return 0
 
 

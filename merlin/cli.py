@@ -12,8 +12,10 @@ import importlib
 import os
 import pkgutil
 import sys
+from typing import NoReturn
 
 import merlin.commands
+from merlin._exit import freeze_for_exit
 from merlin.config.loader import ConfigError
 
 
@@ -46,5 +48,13 @@ def main(argv: list[str] | None = None) -> int:
     return int(rc or 0)
 
 
+def entry() -> NoReturn:
+    """The ``merlin`` program (the console script and ``python -m merlin.cli``): :func:`main`, then exit
+    without the collector's last walks over everything alive (:mod:`merlin._exit`)."""
+    rc = main()
+    freeze_for_exit()
+    sys.exit(rc)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

@@ -24,6 +24,7 @@ from multiprocessing.connection import wait as mp_wait
 from pathlib import Path
 from typing import Any
 
+from merlin._exit import freeze_for_exit
 from merlin.campaign.execute import death_cause, execute, worker_died_record, write_run_yaml
 from merlin.campaign.spec import CampaignScenario, RunSpec, derive_run, load_campaign_scenario
 from merlin.campaign.store import ResultStore, read_results
@@ -138,10 +139,11 @@ def _worker_main(conn: Any) -> None:
         try:
             spec = conn.recv()
         except (EOFError, OSError):  # the driver is gone
-            return
+            break
         if spec is None:
-            return
+            break
         conn.send(execute(spec))
+    freeze_for_exit()  # the worker process ends here: no last walks over its objects (merlin._exit)
 
 
 def _start_worker(ctx: Any) -> _Worker:
