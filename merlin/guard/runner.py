@@ -513,10 +513,11 @@ class Guard:
             return
         hb_t = self.inputs.heartbeat_t
         if hb_t is None or t - hb_t > self.cfg.links.offboard_loss_timeout_s:
-            # the controller went silent while its request was held: PX4 would refuse OFFBOARD now
+            # the controller went silent while its request was held: PX4 would refuse OFFBOARD now (logged
+            # before it is answered, as every denial: _deny)
+            self.event({"t": t, "type": "guard_request_dropped", "detail": "the controller went silent"})
             if h.command is not None:
                 self._send(self.ctl_link, w.Encoder(*self.target).command_ack(h.sender, h.command, w.MAV_RESULT_DENIED))
-            self.event({"t": t, "type": "guard_request_dropped", "detail": "the controller went silent"})
             self.held = None
             return
         if t >= h.release_t:
@@ -555,13 +556,17 @@ class Guard:
 
     def _deny(self, fr: Frame, rec: object | None, reason: str, t: float) -> None:
         self.counts[f"denied: {reason}"] += 1
+        tell = t - self._denied_t.get(reason, -math.inf) >= STATUSTEXT_REPEAT_S
+        if tell:
+            # recorded before the controller is answered: whoever holds the answer finds it in the log (the
+            # test that asks again after a weak escape turn reads the log as soon as its DENIED arrives)
+            self._denied_t[reason] = t
+            self.event({"t": t, "type": "guard_denied", "detail": reason})
         if isinstance(rec, w.CommandIn):
             self._send(self.ctl_link, w.Encoder(*self.target).command_ack(
                 (fr.system_id, fr.component_id), rec.command, w.MAV_RESULT_DENIED))
-        if t - self._denied_t.get(reason, -math.inf) >= STATUSTEXT_REPEAT_S:
-            self._denied_t[reason] = t
+        if tell:
             self._send(self.ctl_link, self.enc.statustext(w.MAV_SEVERITY_WARNING, f"Merlin: {reason}"))
-            self.event({"t": t, "type": "guard_denied", "detail": reason})
 
     def _on_behaviour_request(self, fr: Frame, rec: object, reason: str, kind: GcsCommandKind | None,
                               t: float) -> None:

@@ -53,3 +53,31 @@ def test_an_acceleration_setpoint_is_not_forwarded_and_a_velocity_setpoint_is(tm
         thread.join(timeout=5)
         guard.close()
         sim.stop()
+
+
+def test_a_denial_is_in_the_log_before_the_controller_is_answered(tmp_path: Path) -> None:
+    """The guard writes ``guard_denied`` before it sends the COMMAND_ACK and the STATUSTEXT: a controller (or a
+    test) that reads the log once its DENIED arrives finds the denial there, and a guard killed between the
+    two has not answered anything it did not log."""
+    from merlin.link import autopilot_wire as w
+    from merlin.link.frames import Frame
+
+    ap_port, ctl_port = reserve_port(), reserve_port()
+    cfg_file = tmp_path / "guard.yaml"
+    cfg_file.write_text(CONFIG)
+    cfg, gcfg = load(str(cfg_file))
+    guard = Guard(cfg, gcfg, parse_endpoint(f"udpin:127.0.0.1:{ap_port}"),
+                  parse_endpoint(f"udpin:127.0.0.1:{ctl_port}"), None, tmp_path / "out")
+    order: list[str] = []
+    guard.event = lambda record: order.append(f"event {record['type']}")  # type: ignore[method-assign]
+    guard._send = lambda link, raw, originated=True: order.append("sent")  # type: ignore[method-assign]
+    try:
+        fr = Frame(b"", 2, 0, 1, 191, 76, False)
+        rec = w.CommandIn(176, (1.0, 6.0, 0.0, 0.0, 0.0, 0.0, 0.0), 1, 1, False)
+        guard._deny(fr, rec, "no grant: the autopilot turns wider than configured", 10.0)
+        assert order == ["event guard_denied", "sent", "sent"]  # the log, then the ACK and the STATUSTEXT
+        order.clear()
+        guard._deny(fr, rec, "no grant: the autopilot turns wider than configured", 10.5)
+        assert order == ["sent"]  # asked again at once: answered, not told or logged again
+    finally:
+        guard.close()
