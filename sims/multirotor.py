@@ -156,6 +156,15 @@ def multirotor_params_from_mapping(data: Any, source: str = "<multirotor params>
     raise ConfigError(source, problems)
 
 
+#: Vehicle files already parsed in this process, by path and text. A process flying many runs (a campaign
+#: worker, a test worker) loads the same vehicle for each, and parsing its YAML cost about 50 million
+#: instructions, a third of what a simulated second of the nominal loop costs (docs/benchmarks/sim.md,
+#: "Counting instructions"). Keyed by the file's text, so an edited file is parsed again; the parameters are
+#: frozen floats, so runs can share them. Bounded: the oldest entry goes first.
+_PARSED: dict[tuple[str, str], MultirotorParams] = {}
+_PARSED_MAX = 16
+
+
 def load_multirotor_params(path: str | Path = DEFAULT_PARAMS_PATH) -> MultirotorParams:
     """Load and validate a vehicle YAML file; raise ConfigError naming file, key and value."""
     p = Path(path)
@@ -163,8 +172,15 @@ def load_multirotor_params(path: str | Path = DEFAULT_PARAMS_PATH) -> Multirotor
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(str(p), [f"cannot read the file: {exc.strerror or exc}"]) from None
-    data, _ = parse_yaml(text, str(p))
-    return multirotor_params_from_mapping(data, str(p))
+    key = (str(p), text)
+    params = _PARSED.get(key)
+    if params is None:
+        data, _ = parse_yaml(text, str(p))
+        params = multirotor_params_from_mapping(data, str(p))
+        if len(_PARSED) >= _PARSED_MAX:
+            del _PARSED[next(iter(_PARSED))]
+        _PARSED[key] = params
+    return params
 
 
 # ------------------------------------------------------------------------------------------ attitude math

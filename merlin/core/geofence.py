@@ -349,6 +349,20 @@ class Fence:
     _local: tuple[_LocalLevel, ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
+        key = (self.inclusion_polygons, self.inclusion_circles, self.exclusion_polygons, self.exclusion_circles,
+               self.grid_cells)
+        derived = _DERIVED.get(key)
+        if derived is None:
+            self._derive()
+            if len(_DERIVED) >= _DERIVED_MAX:
+                del _DERIVED[next(iter(_DERIVED))]
+            _DERIVED[key] = tuple(getattr(self, name) for name in _DERIVED_FIELDS)
+        else:
+            for name, value in zip(_DERIVED_FIELDS, derived, strict=True):
+                object.__setattr__(self, name, value)
+
+    def _derive(self) -> None:
+        """The geometries, the grid and the local levels from the zones (``__post_init__``, once per zones)."""
         set_ = object.__setattr__
         incl = [_polygon_geom(p, f"inclusion_polygons[{i}]") for i, p in enumerate(self.inclusion_polygons)]
         incl += [
@@ -439,6 +453,17 @@ class Fence:
 
 #: Every field of :class:`Fence`, derived ones included, in declaration order (``params`` first).
 _FENCE_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Fence))
+#: The fields ``__post_init__`` derives from the zones and ``grid_cells`` (the parameters play no part).
+_DERIVED_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Fence) if not f.init)
+
+#: What the zones derived, by zones and ``grid_cells``, for the fences built after in this process. A process
+#: flying many runs over one range (a campaign worker, a test worker) builds the same fence for each, and the
+#: geometry, the distance grid and the local levels cost about 190 million instructions, more than a
+#: simulated second of the nominal loop (docs/benchmarks/sim.md, "Counting instructions"). Everything derived
+#: is immutable and already shared between fences (:meth:`Fence.with_params`). A range given again after a
+#: failed build is validated again: only successful builds are kept. Bounded: the oldest entry goes first.
+_DERIVED: dict[tuple[Any, ...], tuple[Any, ...]] = {}
+_DERIVED_MAX = 16
 
 
 def _fence_with_fields(values: Sequence[Any]) -> Fence:

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from operator import le, sub
 from typing import NamedTuple
 
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
@@ -242,6 +241,11 @@ def _clean_triplex_tick(
         return None
     lanes: list[LaneState] = []
     vecs: list[tuple[float, ...]] = []
+    lo, hi = spec.range_min, spec.range_max
+    # The per-component loops are written out: compiled, each comparison is a native one on unboxed floats,
+    # twice as fast as map() with operator functions, which calls through Python per component
+    # (docs/benchmarks/sim.md, "The voter's clean tick"). The interpreted build pays for it; it is the
+    # reference build, not the fast one.
     for ln, smp in zip(state.lanes, samples, strict=True):
         if ln.isolated or ln.fault is not None or ln.miscompare or ln.counter_s != 0.0:
             return None
@@ -259,18 +263,24 @@ def _clean_triplex_tick(
         vals = smp.values
         if vals == last_vals or smp.fix_type < spec.min_fix_type:
             return None
-        # map() with operator functions keeps the per-component loop in C; a NaN fails every <=
-        if len(vals) != len(spec.range_min) or not (all(map(le, spec.range_min, vals))
-                                                    and all(map(le, vals, spec.range_max))):
+        n = len(vals)
+        if n != len(lo) or n != len(hi):
             return None
+        for i in range(n):
+            x = vals[i]
+            if not (lo[i] <= x and x <= hi[i]):  # a NaN fails both
+                return None
         lanes.append(LaneState(smp.t_s, vals))
         vecs.append(vals)
     a, b, c = vecs
-    mid = tuple(map(_median3, a, b, c))
+    m = min(len(a), len(b), len(c))
+    mid = tuple([_median3(a[i], b[i], c[i]) for i in range(m)])
     thr = spec.miscompare
+    k = min(m, len(thr))
     for v in vecs:
-        if not all(map(le, map(abs, map(sub, v, mid)), thr)):
-            return None
+        for i in range(min(k, len(v))):
+            if not abs(v[i] - mid[i]) <= thr[i]:
+                return None
     out = VotedOutput(t_s, mid, True, RedundancyLevel.TRIPLEX, _ALL_LANES, False)
     return VoterState((lanes[0], lanes[1], lanes[2]), t_s, RedundancyLevel.TRIPLEX, mid), out, _NO_EVENTS
 
