@@ -39,6 +39,7 @@ from merlin.core.types import (
     RedundancyReport,
     Setpoint,
     VehicleState,
+    new_record,
 )
 from merlin.redundancy.lanes import VehicleRedundancy, VotedSensors
 
@@ -168,7 +169,7 @@ class VehicleTick:
         voted = None
         if self.voter is not None and self.vote_before_estimate:
             voted = self.voter.vote(t, frame)
-        return Sensed(t, frame, voted, self.estimator.estimate(t, frame, voted))
+        return new_record(Sensed, (t, frame, voted, self.estimator.estimate(t, frame, voted)))
 
     def report(self, t: float) -> RedundancyReport | None:
         """The redundancy report for the core's inputs at ``t`` (None when the vehicle reports none)."""

@@ -17,6 +17,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from merlin.core.types import new_record
+
 # (state of charge, cell open-circuit volts), ascending; typical LiPo at C/5 discharge.
 LIPO_OCV_CURVE: tuple[tuple[float, float], ...] = (
     (0.00, 3.30),
@@ -127,4 +129,4 @@ class Battery:
         scale = v / (p.cells * p.full_authority_cell_v)
         scale = scale if scale > 0.0 else 0.0
         scale = scale if scale < 1.0 else 1.0
-        return BatteryStatus(t_s, v, current, soc, consumed, scale)
+        return new_record(BatteryStatus, (t_s, v, current, soc, consumed, scale))

@@ -32,7 +32,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from merlin.config.loader import ConfigError, parse_yaml
-from merlin.core.types import ZERO3, Vec3, VehicleState
+from merlin.core.types import ZERO3, Vec3, VehicleState, new_record
 
 DEFAULT_PARAMS_PATH = Path(__file__).resolve().parent / "vehicles" / "quadrotor_default.yaml"
 DEFAULT_DT_S = 1.0 / 400.0
@@ -644,7 +644,7 @@ class Multirotor:
                 + self.p.gravity_mps2,
             )
         vx, vy, vz, w = self.vx, self.vy, self.vz, self.wind
-        return MultirotorTruth(
+        return new_record(MultirotorTruth, (
             self.t_s,
             (self.px, self.py, self.pz),
             (vx, vy, vz),
@@ -659,4 +659,4 @@ class Multirotor:
             self.landed,
             self.crashed,
             self.touchdown_speed_mps,
-        )
+        ))

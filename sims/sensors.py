@@ -29,7 +29,7 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from merlin.config.loader import ConfigError
-from merlin.core.types import Vec3
+from merlin.core.types import Vec3, new_record
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
 
 _BLOCK = 1024
@@ -639,14 +639,17 @@ class SensorSuite:
             g = tuple([u.step(t, pos, vel) for u in self.gpss])
             b = tuple([u.step(t, pos) for u in self.baros])
             m = tuple([u.step(t, q) for u in self.mags])
-            return SensorFrame(t, imu, g[0], b[0], m[0], g, b, m)
-        return SensorFrame(
+            return new_record(SensorFrame, (t, imu, g[0], b[0], m[0], g, b, m))
+        return new_record(SensorFrame, (
             t,
             imu,
             self.gps.step(t, pos, truth.vel_ned_mps),
             self.baro.step(t, pos),
             self.mag.step(t, truth.quat_wxyz),
-        )
+            (),  # gps_lanes: one unit
+            (),  # baro_lanes
+            (),  # mag_lanes
+        ))
 
 
 # ------------------------------------------------------------------------------------- configuration

@@ -31,7 +31,16 @@ from merlin.autopilot import route
 from merlin.core.config import TrustedParams
 from merlin.core.geofence import Fence
 from merlin.core.kinematics import limit_velocity_change, position_to_velocity, stopping_point
-from merlin.core.types import Behavior, NavMode, Setpoint, SetpointKind, Vec3, VehicleState
+from merlin.core.types import (
+    Behavior,
+    NavMode,
+    Setpoint,
+    SetpointKind,
+    Vec3,
+    VehicleState,
+    new_record,
+    new_setpoint,
+)
 
 RTL_CLIMB, RTL_RETURN, RTL_DESCEND = 0, 1, 2
 #: Vertical distance within which a climb or takeoff counts as complete, m.
@@ -238,7 +247,7 @@ def _route_velocity(g: GuidanceState, s: VehicleState, cfg: TrustedParams, down_
     k = speed / d if d > 1e-9 else 0.0
     vd = min(max(cfg.position_gain_per_s * (down_m - p[2]), -cfg.climb_speed_mps), cfg.land_speed_mps * 2.0)
     target = (wp[0], wp[1], down_m)
-    return Setpoint(_SP_VELOCITY, pos_ned_m=target, vel_ned_mps=(dn * k, de * k, vd), yaw_rad=g.yaw_rad)
+    return new_setpoint(_SP_VELOCITY, pos_ned_m=target, vel_ned_mps=(dn * k, de * k, vd), yaw_rad=g.yaw_rad)
 
 
 def _hold(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> Setpoint:
@@ -253,7 +262,7 @@ def _hold(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> Setpoint:
         cfg.climb_speed_mps,
         cfg.land_speed_mps * 2.0,
     )
-    return Setpoint(_SP_VELOCITY, pos_ned_m=g.anchor_ned_m, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
+    return new_setpoint(_SP_VELOCITY, pos_ned_m=g.anchor_ned_m, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
 
 
 def _descend_speed(s: VehicleState, cfg: TrustedParams) -> float:
@@ -328,7 +337,7 @@ def _land_at(xy: Vec3, g: GuidanceState, s: VehicleState, cfg: TrustedParams) ->
     # keep commanding descent on the ground: the velocity loop then winds the collective down and the
     # vehicle stays down until it is disarmed (a zero command would hover it back up)
     down = _descend_speed(s, cfg)
-    return Setpoint(
+    return new_setpoint(
         _SP_VELOCITY,
         pos_ned_m=(xy[0], xy[1], 0.0),
         vel_ned_mps=(vel[0], vel[1], down),
@@ -377,11 +386,11 @@ def step(g: GuidanceState, s: VehicleState, cfg: TrustedParams, dt: float) -> tu
             ff = (dn / dt, de / dt, 0.0)
     # g2 with vel_cmd=v and sp with vel_ned_mps=v (built directly: this runs every tick)
     return (
-        GuidanceState(
+        new_record(GuidanceState, (
             g2.behavior, g2.anchor_ned_m, g2.yaw_rad, g2.phase, g2.mission_index, g2.done, v, g2.path_ne_m,
             g2.leg, g2.fallback, g2.note, g2.goto_ned_m, brake, ff,
-        ),
-        Setpoint(sp.kind, sp.pos_ned_m, v, sp.yaw_rad, sp.yaw_rate_radps, sp.att_rpy_rad, sp.thrust),
+        )),
+        new_setpoint(sp.kind, sp.pos_ned_m, v, sp.yaw_rad, sp.yaw_rate_radps, sp.att_rpy_rad, sp.thrust),
     )
 
 
@@ -413,7 +422,7 @@ def _target(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[Guid
             cfg.climb_speed_mps, cfg.land_speed_mps,
         )
         g2 = g if done == g.done else g._replace(done=done)
-        return g2, Setpoint(_SP_VELOCITY, pos_ned_m=target, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
+        return g2, new_setpoint(_SP_VELOCITY, pos_ned_m=target, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
 
     if b is _LAND:
         if g.path_ne_m and not g.done:  # to the safe point first, at the present height, then land there
@@ -451,7 +460,7 @@ def _target(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[Guid
             target, s.pos_ned_m, (0.0, 0.0, 0.0), cfg.position_gain_per_s, cfg.cruise_speed_mps,
             cfg.climb_speed_mps, cfg.land_speed_mps * 2.0,
         )
-        return g2, Setpoint(_SP_VELOCITY, pos_ned_m=target, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
+        return g2, new_setpoint(_SP_VELOCITY, pos_ned_m=target, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
 
     if b is _MISSION:
         wps = cfg.mission_ned_m
@@ -471,10 +480,10 @@ def _target(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[Guid
             cfg.climb_speed_mps, cfg.land_speed_mps * 2.0,
         )
         g2 = g if i == g.mission_index else g._replace(mission_index=i, done=False)
-        return g2, Setpoint(_SP_VELOCITY, pos_ned_m=wp, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
+        return g2, new_setpoint(_SP_VELOCITY, pos_ned_m=wp, vel_ned_mps=vel, yaw_rad=g.yaw_rad)
 
     # IDLE and TERMINATE: nothing to fly; the command stage turns the motors off.
-    return g, Setpoint(SetpointKind.VELOCITY, pos_ned_m=s.pos_ned_m, yaw_rad=g.yaw_rad)
+    return g, new_setpoint(SetpointKind.VELOCITY, pos_ned_m=s.pos_ned_m, yaw_rad=g.yaw_rad)
 
 
 # --------------------------------------------------------------------- GOTO, ORBIT, DO_CHANGE_SPEED
@@ -548,7 +557,7 @@ def orbit_step(g: GuidanceState, s: VehicleState, cfg: TrustedParams, dt: float,
     vel = limit_velocity_change(g.vel_cmd, (vn, ve, vd), cfg.max_horizontal_decel_mps2 * dt,
                                 cfg.max_vertical_decel_mps2 * dt)
     yaw = math.atan2(-ue, -un)
-    return g._replace(vel_cmd=vel), Setpoint(_SP_VELOCITY, pos_ned_m=on_circle, vel_ned_mps=vel, yaw_rad=yaw)
+    return g._replace(vel_cmd=vel), new_setpoint(_SP_VELOCITY, pos_ned_m=on_circle, vel_ned_mps=vel, yaw_rad=yaw)
 
 
 @dataclass(frozen=True, slots=True)

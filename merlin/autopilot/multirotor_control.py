@@ -32,7 +32,7 @@ import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from merlin.core.types import ZERO3, Command, CommandKind, Vec3, VehicleState
+from merlin.core.types import ZERO3, Command, CommandKind, Vec3, VehicleState, new_record
 
 GRAVITY_MPS2 = 9.80665
 MotorCommands = tuple[float, float, float, float]
@@ -425,8 +425,8 @@ def control_step(
                                                         st, g, dt)
     if sat_thr > 0:
         sat_t = 1
-    return motors, ControllerState(True, ixy, h, rate_int, (wx, wy, wz), d_filt, sat, sat_xy, sat_t,
-                                   (rsx, rsy, rsz), collective)
+    return motors, new_record(ControllerState, (True, ixy, h, rate_int, (wx, wy, wz), d_filt, sat, sat_xy, sat_t,
+                                                (rsx, rsy, rsz), collective))
 
 
 def _kinematic_acceleration(est: VehicleState, q: tuple[float, float, float, float],

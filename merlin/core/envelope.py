@@ -32,7 +32,7 @@ import math
 from typing import NamedTuple
 
 from merlin.core.config import EnvelopeLimit
-from merlin.core.types import MonitorId, Reason, ReasonCode, Setpoint, SetpointKind, VehicleState
+from merlin.core.types import MonitorId, Reason, ReasonCode, Setpoint, SetpointKind, VehicleState, new_record
 
 #: One nanosecond: far below any tick period, far above the rounding error of a sum of tick periods.
 TIME_EPS_S = 1e-9
@@ -146,11 +146,11 @@ def _budget_accrue(ring: BudgetRing, lim: EnvelopeLimit, now: float, dt: float) 
             slots = list(ring.ring)
             for j in range(ring.bucket, k):
                 slots[j % BUDGET_BUCKETS] = ring.current_s if j == ring.bucket else 0.0
-        ring = BudgetRing(k, 0.0, tuple(slots), math.fsum(slots))
+        ring = new_record(BudgetRing, (k, 0.0, tuple(slots), math.fsum(slots)))
     elif k < ring.bucket:  # time went back (a new run with a reused state): start again
         ring = BudgetRing(k)
-    if dt > 0.0:  # positional, not _replace: this runs on every tick a parameter is outside
-        ring = BudgetRing(ring.bucket, ring.current_s + dt, ring.ring, ring.ring_s)
+    if dt > 0.0:  # every field, not _replace: this runs on every tick a parameter is outside
+        ring = new_record(BudgetRing, (ring.bucket, ring.current_s + dt, ring.ring, ring.ring_s))
     return ring
 
 
@@ -247,8 +247,8 @@ def update(
     if best is None and budget_hit is not None:  # the paper's continuous duration reports first
         best = budget_hit
     out_budget = budget if rings is None else tuple(rings)
-    return EnvelopeResult(tuple(new_since), best is not None, best, tuple(violating),
-                          () if out_budget is None else out_budget)
+    return new_record(EnvelopeResult, (tuple(new_since), best is not None, best, tuple(violating),
+                                       () if out_budget is None else out_budget))
 
 
 def all_inside(limits: tuple[EnvelopeLimit, ...], values: tuple[float, ...]) -> Reason | None:

@@ -28,6 +28,7 @@ from merlin.core.types import (
     SetpointKind,
     Vec3,
     VehicleState,
+    new_command,
 )
 
 # Enum members read on every tick, bound once (``merlin.core.types``, "Enum members on the hot path").
@@ -45,7 +46,7 @@ def _wrap_pi(x: float) -> float:
 def setpoint_to_command(sp: Setpoint, s: VehicleState, source: Authority, tp: TrustedParams) -> Command:
     """A source's setpoint as a command at the actuator stage's level (position closed by the P loop)."""
     if sp.kind is _SP_ATTITUDE:
-        return Command(
+        return new_command(
             _CMD_ATTITUDE,
             source,
             att_rpy_rad=sp.att_rpy_rad,
@@ -72,7 +73,7 @@ def setpoint_to_command(sp: Setpoint, s: VehicleState, source: Authority, tp: Tr
             math.inf if trusted else 2.0 * tp.land_speed_mps,
         )
         # positional, in Command's field order (built every tick)
-        return Command(
+        return new_command(
             _CMD_VELOCITY,  # kind
             source,  # source
             vel,  # vel_ned_mps
@@ -82,7 +83,7 @@ def setpoint_to_command(sp: Setpoint, s: VehicleState, source: Authority, tp: Tr
             0.0,  # thrust: Command's default
             sp.pos_ned_m,  # pos_target_ned_m
         )
-    return Command(  # positional, as above
+    return new_command(  # positional, as above
         _CMD_VELOCITY,  # kind
         source,  # source
         sp.vel_ned_mps,  # vel_ned_mps
@@ -306,7 +307,7 @@ def operator_command(
             # the ramp shares its step between the braking and the free motion along the edge; the flown
             # command keeps the braking whole (a stick along a curved keep-out turned the ramp sideways)
             vn, ve, vd = _fence_pilot(fence, s, (vn, ve, vd), tp, floor_applies, prev, dt)
-    cmd = Command(
+    cmd = new_command(
         CommandKind.VELOCITY,
         Authority.OPERATOR,
         vel_ned_mps=(vn, ve, vd),
@@ -419,10 +420,10 @@ def blend_start(last: Command | None, incoming: Command, s: VehicleState, hover_
     if incoming.kind is CommandKind.ATTITUDE:
         thrust = last.thrust if last is not None and last.kind is CommandKind.ATTITUDE else hover_thrust
         att = s.att_rpy_rad if all(math.isfinite(a) for a in s.att_rpy_rad) else (0.0, 0.0, 0.0)
-        return Command(CommandKind.ATTITUDE, incoming.source, att_rpy_rad=att, yaw_rad=att[2], thrust=thrust)
+        return new_command(CommandKind.ATTITUDE, incoming.source, att_rpy_rad=att, yaw_rad=att[2], thrust=thrust)
     v = s.vel_ned_mps if all(math.isfinite(x) for x in s.vel_ned_mps) else (0.0, 0.0, 0.0)
     yaw = s.att_rpy_rad[2] if math.isfinite(s.att_rpy_rad[2]) else incoming.yaw_rad
-    return Command(CommandKind.VELOCITY, incoming.source, vel_ned_mps=v, yaw_rad=yaw)
+    return new_command(CommandKind.VELOCITY, incoming.source, vel_ned_mps=v, yaw_rad=yaw)
 
 
 def _toward(prev: float, target: float, max_step: float) -> float:
@@ -464,7 +465,7 @@ def shape(
         step_att = hp.max_attitude_rate_radps * dt
         att = tuple(_toward_angle(last.att_rpy_rad[i], tgt_att[i], step_att) for i in range(3))
         thrust = _toward(last.thrust, tgt_thrust, hp.max_thrust_rate_per_s * dt)
-        out = Command(
+        out = new_command(
             CommandKind.ATTITUDE,
             incoming.source,
             att_rpy_rad=(att[0], att[1], att[2]),
@@ -487,7 +488,7 @@ def shape(
         vel = (lv[0] + dv[0], lv[1] + dv[1], lv[2] + dv[2])
         yaw_t = _wrap_pi(a.yaw_rad + alpha * _wrap_pi(incoming.yaw_rad - a.yaw_rad))
         yaw = _toward_angle(last.yaw_rad, yaw_t, hp.max_attitude_rate_radps * dt)
-        out = Command(
+        out = new_command(
             CommandKind.VELOCITY,
             incoming.source,
             vel_ned_mps=vel,

@@ -60,6 +60,8 @@ from merlin.core.types import (
     SetpointKind,
     Vec3,
     VehicleState,
+    new_command,
+    new_record,
 )
 
 #: Magnitudes beyond these are not a vehicle state or a setpoint but a fault (``invalid_input``).
@@ -575,7 +577,7 @@ def _validate(st: CoreState, inputs: Inputs) -> Checked:
         sp_bad = st.checked_setpoint_bad
     else:
         sp_bad = validate_setpoint(sp)
-    return Checked(s, state_bad, sp, sp_bad)
+    return new_record(Checked, (s, state_bad, sp, sp_bad))
 
 
 class MonitorReport(NamedTuple):
@@ -634,8 +636,8 @@ def monitor(cfg: CoreConfig, st: CoreState, now: float, dt: float, inputs: Input
     if st.arbiter.authority is _SHADOW:
         shadow_tripped, shadow_since = _shadow_monitors(cfg, st.shadow_env_since, now, c, tripped, floor_reached,
                                                         wind_ne)
-    return MonitorReport(tripped, shadow_tripped, env, env_values, shadow_since, budget_auth, floor_reached,
-                         ground_takeoff, hb_since, rc_lost)
+    return new_record(MonitorReport, (tripped, shadow_tripped, env, env_values, shadow_since, budget_auth,
+                                      floor_reached, ground_takeoff, hb_since, rc_lost))
 
 
 def _fence_monitor(cfg: CoreConfig, fence: geofence.Fence, last: Command | None, c: Checked, floor_reached: bool,
@@ -737,11 +739,11 @@ def _tick_view(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs, c: Ch
     shadow_block = _grant_block(cfg, c.s, inputs, report, now, True) if need_block else None
     arm_block = _arm_block(cfg, c.s, tripped) if inputs.gcs_commands else None
     newly = frozenset(k for k in tripped if k not in st.reported) if tripped else _NO_MONITORS
-    return TickView(
+    return new_record(TickView, (
         now, tripped, report.shadow_tripped, newly, grant_block, shadow_block, arm_block,
         bool(op.takeover) and not report.rc_lost and op.link_t_s is not None,  # takeover
         bool(c.s.landed), exp.requests, inputs.gcs_commands, st.completed,
-    )
+    ))
 
 
 class TrustedStep(NamedTuple):
@@ -764,7 +766,7 @@ def _fly_trusted(cfg: CoreConfig, st: CoreState, arb: ArbiterState, behavior: Be
     if jumped:
         mission_index = arb.mission_jump_index
     if not (arb.authority in (_TRUSTED, _SHADOW) and arb.armed) or behavior is _IDLE or behavior is _TERMINATE:
-        return TrustedStep(None, None, mission_index, None)
+        return new_record(TrustedStep, (None, None, mission_index, None))
     if g is None or g.behavior is not behavior or arb.target_seq != before.target_seq or (
             arb.target_ned_m is None and before.target_ned_m is not None):  # new behaviour, GOTO/ORBIT, or target dropped
         g = policy.enter(behavior, s, cfg.trusted, cfg.fence, g, arb.takeoff_alt_m, mission_index)
@@ -788,7 +790,7 @@ def _fly_trusted(cfg: CoreConfig, st: CoreState, arb: ArbiterState, behavior: Be
         mission_index = g.mission_index
         if g.done:  # flown: a later start flies it again from the first waypoint
             mission_index, completed = 0, _MISSION
-    return TrustedStep(g, setpoint, mission_index, completed)
+    return new_record(TrustedStep, (g, setpoint, mission_index, completed))
 
 
 def _route_warning(events: list[Event], now: float, what: str, note: str) -> None:
@@ -806,9 +808,9 @@ def _incoming(cfg: CoreConfig, st: CoreState, arb: ArbiterState, source: tuple[A
         op_mem = _operator_memory(st, s, _M_GEOFENCE in arb.grace_monitors)
     flies_trusted = (authority is _TRUSTED or authority is _SHADOW) and arb.armed
     if not arb.armed or (flies_trusted and behavior is _IDLE):
-        return op_mem, Command(_CMD_IDLE, authority)
+        return op_mem, new_command(_CMD_IDLE, authority)
     if flies_trusted and behavior is _TERMINATE:
-        return op_mem, Command(_CMD_TERMINATE, authority)
+        return op_mem, new_command(_CMD_TERMINATE, authority)
     if authority is _OPERATOR:
         return operator_command(op, s, op_mem, dt, cfg.operator, cfg.trusted, cfg.fence, floor_reached)
     if authority is _EXPERIMENTAL and sp is not None and c.setpoint_bad is None:
@@ -821,7 +823,7 @@ def _incoming(cfg: CoreConfig, st: CoreState, arb: ArbiterState, source: tuple[A
         own = setpoint_to_command(trusted_sp, s, _TRUSTED, cfg.trusted)
         return op_mem, own if trusted_ff is None else own._replace(accel_ned_mps2=trusted_ff)
     # unreachable in practice: EXPERIMENTAL without a valid setpoint is revoked this tick
-    return op_mem, Command(_CMD_VELOCITY, _TRUSTED, yaw_rad=s.att_rpy_rad[2])
+    return op_mem, new_command(_CMD_VELOCITY, _TRUSTED, yaw_rad=s.att_rpy_rad[2])
 
 
 def _feedforward(memory: GuidanceMemory | None) -> Vec3 | None:
@@ -884,7 +886,7 @@ def _statuses(cfg: CoreConfig, st: CoreState, now: float, authority: Authority, 
     (reported when tripped, again when cleared), and the failsafe in force."""
     tripped, was_reported, violating = report.tripped, st.reported, report.env.violating
     if not tripped and not was_reported and not violating and not report.shadow_tripped:
-        return Statuses(st.clear_statuses, _NO_MONITORS, _NO_ACTION)  # a quiet tick: every row clear
+        return new_record(Statuses, (st.clear_statuses, _NO_MONITORS, _NO_ACTION))  # a quiet tick: every row clear
     statuses: list[MonitorStatus] = []
     reported: set[MonitorId] = set()
     failsafe = _NO_ACTION
@@ -909,7 +911,7 @@ def _statuses(cfg: CoreConfig, st: CoreState, now: float, authority: Authority, 
     for name, reason in report.shadow_tripped.items():
         if name is _M_ENVELOPE or name is _M_GEOFENCE:
             statuses.append(MonitorStatus(f"shadow_{name}", True, reason))
-    return Statuses(tuple(statuses), frozenset(reported) if reported else _NO_MONITORS, failsafe)
+    return new_record(Statuses, (tuple(statuses), frozenset(reported) if reported else _NO_MONITORS, failsafe))
 
 
 # -------------------------------------------------------------------------------------------------- step
@@ -944,8 +946,8 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
     flies_trusted = (authority is _TRUSTED or authority is _SHADOW) and arb.armed
     blend, command = _bumpless(cfg, st, source, flies_trusted, now, dt, checked.s, incoming)
     statuses, reported, failsafe = _statuses(cfg, st, now, authority, report, events)
-    # positional, in field order (built every tick); the names are CoreState's
-    new_state = CoreState(
+    # in field order (built every tick); the names are CoreState's
+    new_state = new_record(CoreState, (
         now,  # t_s
         arb,  # arbiter
         report.env.since,  # env_since
@@ -970,9 +972,9 @@ def step(cfg: CoreConfig, st: CoreState, now: float, inputs: Inputs) -> tuple[Co
         report.ground_takeoff_since_s,  # ground_takeoff_since_s
         trusted.completed,  # completed
         _revoking_trip(cfg, st, now, report.tripped, checked.s.landed),  # revoking_trip
-    )
-    decision = Decision(now, authority, behavior, command, statuses, (*arb_events, *events), arb.armed,
-                        arb.pending.seq if arb.pending is not None else 0, arb.revocations, failsafe)
+    ))
+    decision = new_record(Decision, (now, authority, behavior, command, statuses, (*arb_events, *events), arb.armed,
+                                     arb.pending.seq if arb.pending is not None else 0, arb.revocations, failsafe))
     return new_state, decision
 
 

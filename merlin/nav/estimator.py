@@ -32,7 +32,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from merlin.core.types import ZERO3, NavMode, Vec3, VehicleState
+from merlin.core.types import ZERO3, NavMode, Vec3, VehicleState, new_record
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample, VoQuality, VoSample
 from merlin.nav import kernels
 from merlin.nav.config import NavConfig
@@ -780,7 +780,7 @@ class NavEstimator:
                 self._emit(NavEventKind.RECOVERED, "vo", nis, cfg.vo_gate, "nis", "VO accepted")
         else:
             self._emit(NavEventKind.REJECTED, "vo", nis, cfg.vo_gate, "nis", "VO velocity inconsistent")
-        self.last_vo = Check(vo.t_s, nis, fused)
+        self.last_vo = new_record(Check, (vo.t_s, nis, fused))
         self._update_mode()
         return self.last_vo
 
@@ -817,7 +817,7 @@ class NavEstimator:
             self._fuse(y, _H_BARO, r)
         else:
             self._emit(NavEventKind.REJECTED, "baro", nis, cfg.baro_gate, "nis", "baro altitude inconsistent")
-        self.last_baro = Check(baro.t_s, nis, fused)
+        self.last_baro = new_record(Check, (baro.t_s, nis, fused))
         return self.last_baro
 
     def update_mag(self, mag: MagSample) -> Check | None:
@@ -880,7 +880,7 @@ class NavEstimator:
             self._emit(
                 NavEventKind.REJECTED, "mag", nis, cfg.mag_gate, "nis", "magnetic heading inconsistent"
             )
-        self.last_mag = Check(mag.t_s, nis, fused)
+        self.last_mag = new_record(Check, (mag.t_s, nis, fused))
         return self.last_mag
 
     # ------------------------------------------------------------------------------ modes and output

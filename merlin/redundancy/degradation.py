@@ -20,6 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from merlin.core.types import new_record
 from merlin.redundancy.accel_attribution import (
     ACCEL_SUB_ALERT,
     AccelAttribution,
@@ -59,6 +60,12 @@ class ChainOutput(NamedTuple):  # built every tick: a NamedTuple (merlin.redunda
     # the IMU source fed changed this tick (a lane switch at duplex or simplex): new source's values less
     # the old source's, both now (gyro x3, accel x3); None otherwise
     source_step: tuple[float, ...] | None = None
+
+
+def new_chain_output(imu: VotedOutput, level: RedundancyLevel, nav_health: float, fdi: FdiOutput | None,
+                     events: tuple[FaultReport, ...], source_step: tuple[float, ...] | None = None) -> ChainOutput:
+    """``ChainOutput(...)`` at half the cost (:data:`merlin.core.types.new_record`)."""
+    return new_record(ChainOutput, (imu, level, nav_health, fdi, events, source_step))
 
 
 class ImuDegradationChain:
@@ -128,7 +135,7 @@ class ImuDegradationChain:
         elif out.level is RedundancyLevel.SIMPLEX and self.fdi is not None:
             ev.append(self._enter_simplex(t_s))
         step = self._source_step(imu, out)
-        return ChainOutput(out, out.level, self._health(out), fdi_out, tuple(ev), step)
+        return new_chain_output(out, out.level, self._health(out), fdi_out, tuple(ev), step)
 
     def _enter_duplex(self, t_s: float, pair: tuple[int, int]) -> FaultReport:
         """Two lanes left (or a new pair): a fresh duplex FDI on them, and fresh attribution layers."""

@@ -64,6 +64,7 @@ from merlin.core.types import (
     NavMode,
     RedundancyReport,
     VehicleState,
+    new_record,
 )
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
 from merlin.redundancy.duplex_fdi import FDI_PRESETS, FdiState
@@ -148,6 +149,14 @@ class VotedSensors(NamedTuple):
     gps: GpsSample | None = None
 
 
+def new_voted_sensors(imu: ImuSample | None, imu_source_step: tuple[float, ...] | None,
+                      imu_lanes: tuple[ImuSample | None, ...], imu_isolated: tuple[bool, ...],
+                      mag: MagSample | None = None, baro: BaroSample | None = None,
+                      gps: GpsSample | None = None) -> VotedSensors:
+    """``VotedSensors(...)`` at half the cost (:data:`merlin.core.types.new_record`)."""
+    return new_record(VotedSensors, (imu, imu_source_step, imu_lanes, imu_isolated, mag, baro, gps))
+
+
 def _hold_newest(held: list[Any], samples: Any) -> bool:
     """Keep each unit's newest sample in ``held`` (one slot per unit); whether any unit delivered one."""
     new = False
@@ -212,7 +221,7 @@ class ImuVoterStage:
         self.levels = dict(out.levels)
         self.level = self.levels["imu"]
         self.nav_health = out.nav_health
-        return VotedSensors(out.imu, out.imu_source_step, self._imu, self.isolated, mag, baro, gps)
+        return new_voted_sensors(out.imu, out.imu_source_step, self._imu, self.isolated, mag, baro, gps)
 
     @property
     def isolated(self) -> tuple[bool, ...]:
@@ -256,7 +265,10 @@ def track_actuated(st: ControllerState, own: MotorCommands, actuated: tuple[floa
     rate_int = (min(lim, max(-lim, ix + gain * dr)), min(lim, max(-lim, iy + gain * dp)),
                 min(ylim, max(-ylim, iz + gain * dy)))
     h = min(gains.hover_thrust_max, max(gains.hover_thrust_min, st.hover_thrust_est + gain * dc))
-    return st._replace(rate_int=rate_int, hover_thrust_est=h)
+    # every field, not _replace (interpreted): per tick and lane
+    return new_record(ControllerState, (st.active, st.vel_int_xy_mps2, h, rate_int, st.rate_prev_frd_radps,
+                                         st.rate_d_filt, st.sat_rpy, st.sat_xy, st.sat_thrust, st.rate_sp_frd_radps,
+                                         st.collective))
 
 
 #: A failed lane's mode: "silent" (it stops), "garbage" (it keeps talking nonsense and commands random

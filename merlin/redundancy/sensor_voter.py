@@ -35,6 +35,7 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from merlin.core.types import new_record
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
 from merlin.redundancy.events import FaultKind, FaultReport, RedundancyLevel
 
@@ -100,8 +101,11 @@ class LaneState(NamedTuple):
     clean_s: float = 0.0  # time valid and within threshold while isolated (reintegration)
 
 
+_NEW_LANES: tuple[LaneState, ...] = (LaneState(), LaneState(), LaneState())
+
+
 class VoterState(NamedTuple):
-    lanes: tuple[LaneState, ...] = (LaneState(), LaneState(), LaneState())
+    lanes: tuple[LaneState, ...] = _NEW_LANES
     t_s: float | None = None
     level: RedundancyLevel = RedundancyLevel.TRIPLEX
     output: tuple[float, ...] | None = None
@@ -116,23 +120,49 @@ class VotedOutput(NamedTuple):
     duplex_miscompare: bool = False  # two candidates disagree: the caller's duplex FDI must decide
 
 
+def new_lane_sample(t_s: float, values: tuple[float, ...], fix_type: int = 99) -> LaneSample:
+    """``LaneSample(...)`` at half the cost (:data:`merlin.core.types.new_record`)."""
+    return new_record(LaneSample, (t_s, values, fix_type))
+
+
+def new_lane_state(last_t_s: float | None = None, last_values: tuple[float, ...] | None = None, identical: int = 0,
+                   fault: FaultKind | None = None, miscompare: bool = False, counter_s: float = 0.0,
+                   isolated: bool = False, isolated_t_s: float | None = None, clean_s: float = 0.0) -> LaneState:
+    """``LaneState(...)`` at half the cost (:data:`merlin.core.types.new_record`)."""
+    return new_record(LaneState, (last_t_s, last_values, identical, fault, miscompare, counter_s, isolated,
+                                  isolated_t_s, clean_s))
+
+
+def new_voter_state(lanes: tuple[LaneState, ...] = _NEW_LANES, t_s: float | None = None,
+                    level: RedundancyLevel = RedundancyLevel.TRIPLEX,
+                    output: tuple[float, ...] | None = None) -> VoterState:
+    """``VoterState(...)`` at half the cost (:data:`merlin.core.types.new_record`)."""
+    return new_record(VoterState, (lanes, t_s, level, output))
+
+
+def new_voted_output(t_s: float, values: tuple[float, ...] | None, valid: bool, level: RedundancyLevel,
+                     lanes_used: tuple[int, ...], duplex_miscompare: bool = False) -> VotedOutput:
+    """``VotedOutput(...)`` at half the cost (:data:`merlin.core.types.new_record`)."""
+    return new_record(VotedOutput, (t_s, values, valid, level, lanes_used, duplex_miscompare))
+
+
 # --------------------------------------------------------------------------------------------- adapters
 
 
 def imu_lane(s: ImuSample) -> LaneSample:
-    return LaneSample(s.t_s, (*s.gyro_frd_radps, *s.accel_frd_mps2))
+    return new_lane_sample(s.t_s, (*s.gyro_frd_radps, *s.accel_frd_mps2))
 
 
 def mag_lane(s: MagSample) -> LaneSample:
-    return LaneSample(s.t_s, s.field_frd_gauss)
+    return new_lane_sample(s.t_s, s.field_frd_gauss)
 
 
 def baro_lane(s: BaroSample) -> LaneSample:
-    return LaneSample(s.t_s, (s.alt_m,))
+    return new_lane_sample(s.t_s, (s.alt_m,))
 
 
 def gps_lane(s: GpsSample) -> LaneSample:
-    return LaneSample(s.t_s, (*s.pos_ned_m, *s.vel_ned_mps), fix_type=s.fix_type)
+    return new_lane_sample(s.t_s, (*s.pos_ned_m, *s.vel_ned_mps), fix_type=s.fix_type)
 
 
 # ------------------------------------------------------------------------------------------- the tick
@@ -165,8 +195,8 @@ def _validate(spec: ChannelSpec, lane: LaneState, t_s: float, sample: LaneSample
         fault = FaultKind.STUCK
     if last_t is None or t_s - last_t > spec.timeout_s:
         fault = FaultKind.TIMEOUT
-    return LaneState(last_t, last_vals, identical, fault, lane.miscompare, lane.counter_s, lane.isolated,
-                     lane.isolated_t_s, lane.clean_s)
+    return new_lane_state(last_t, last_vals, identical, fault, lane.miscompare, lane.counter_s, lane.isolated,
+                          lane.isolated_t_s, lane.clean_s)
 
 
 def _median3(x: float, y: float, z: float) -> float:
@@ -270,7 +300,7 @@ def _clean_triplex_tick(
             x = vals[i]
             if not (lo[i] <= x and x <= hi[i]):  # a NaN fails both
                 return None
-        lanes.append(LaneState(smp.t_s, vals))
+        lanes.append(new_lane_state(smp.t_s, vals))
         vecs.append(vals)
     a, b, c = vecs
     m = min(len(a), len(b), len(c))
@@ -281,8 +311,8 @@ def _clean_triplex_tick(
         for i in range(min(k, len(v))):
             if not abs(v[i] - mid[i]) <= thr[i]:
                 return None
-    out = VotedOutput(t_s, mid, True, RedundancyLevel.TRIPLEX, _ALL_LANES, False)
-    return VoterState((lanes[0], lanes[1], lanes[2]), t_s, RedundancyLevel.TRIPLEX, mid), out, _NO_EVENTS
+    out = new_voted_output(t_s, mid, True, RedundancyLevel.TRIPLEX, _ALL_LANES, False)
+    return new_voter_state((lanes[0], lanes[1], lanes[2]), t_s, RedundancyLevel.TRIPLEX, mid), out, _NO_EVENTS
 
 
 def _vote_step_general(
@@ -315,8 +345,8 @@ def _vote_step_general(
     if len(used) == 3 and spec.pair_mean_in_persistence:
         used = _agreeing_pair(spec, lanes_t, used)
     values = _mid_value([lanes_t[i].last_values for i in used]) if used else state.output  # type: ignore[misc]
-    out = VotedOutput(t_s, values, bool(used), level, used, duplex_mis)
-    return VoterState(lanes_t, t_s, level, values), out, tuple(events)
+    out = new_voted_output(t_s, values, bool(used), level, used, duplex_mis)
+    return new_voter_state(lanes_t, t_s, level, values), out, tuple(events)
 
 
 def _validated(spec: ChannelSpec, state: VoterState, t_s: float, samples: tuple[LaneSample | None, ...],
@@ -374,8 +404,8 @@ def _count_persistence(spec: ChannelSpec, lanes: list[LaneState], t_s: float, dt
             # spans no more than persistence_s at the channel's rate (see CHANNEL_SPECS)
             counter = max(counter, spec.persistence_s)
         if mis != ln.miscompare or counter != ln.counter_s:
-            lanes[i] = LaneState(ln.last_t_s, ln.last_values, ln.identical, ln.fault, mis, counter, ln.isolated,
-                                 ln.isolated_t_s, ln.clean_s)
+            lanes[i] = new_lane_state(ln.last_t_s, ln.last_values, ln.identical, ln.fault, mis, counter,
+                                      ln.isolated, ln.isolated_t_s, ln.clean_s)
 
 
 def _isolate(spec: ChannelSpec, lanes: list[LaneState], t_s: float, duplex_fault_lane: int | None,
