@@ -219,17 +219,22 @@ class BuildExtOrPure(build_ext):
     def run(self) -> None:
         if not self.extensions:
             return
+        # setuptools' run() clears ``inplace`` while it builds and restores it only when the build succeeds:
+        # read after a failure, it said "not in place", so the previous build's extension modules stayed
+        # beside the sources and went on running old code while the install reported pure Python.
+        inplace = self.inplace
         try:
             super().run()
         except _FAILURES as exc:
+            self.inplace = inplace
             _fail_or_warn(f"the C build of the mypyc modules failed ({exc!r})")
             for output in self.get_outputs():
                 Path(output).unlink(missing_ok=True)
-            if self.inplace:
+            if inplace:
                 _remove_inplace_outputs()
             self.extensions = []
             self.distribution.ext_modules = []
-            _write_pure_reason(ROOT if self.inplace else Path(self.build_lib))
+            _write_pure_reason(ROOT if inplace else Path(self.build_lib))
             return
         _PURE.clear()
         _write_pure_reason(ROOT if self.inplace else Path(self.build_lib))

@@ -94,7 +94,11 @@ def describe() -> str:
     kind = "compiled (mypyc)" if is_compiled else "pure Python"
     why = None if is_compiled else pure_build_reason()
     because = f" (the build fell back: {why['reason']})" if why is not None and why["kind"] != "requested" else ""
-    return f"{kind}: {n}/{len(flags)} hot modules are extension modules{because}"
+    # A rebuild whose C compile failed can leave the previous build's extension modules in an editable tree:
+    # they would run old code while this line said "compiled". Say so (tests/test_compiled.py fails on it).
+    stale = stale_modules() if is_compiled else []
+    old = f"; STALE, older than their sources (rebuild: pip install -e .): {', '.join(stale)}" if stale else ""
+    return f"{kind}: {n}/{len(flags)} hot modules are extension modules{because}{old}"
 
 
 def pure_build_reason() -> dict[str, str] | None:

@@ -15,7 +15,7 @@ import math
 from bisect import bisect_left
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Final, NamedTuple
 
 from merlin.core.types import new_record
 
@@ -68,8 +68,8 @@ class BatteryStatus(NamedTuple):
 # The curve's segments, for a binary search instead of a walk along them (the pack spends a flight in
 # the upper segments, the last ones a walk reaches): the upper state of charge of each segment, and its
 # (s0, v0, v1 - v0, s1 - s0). The differences are the ones the interpolation computed each call.
-_OCV_UPPER_SOC: tuple[float, ...] = tuple(s1 for s1, _v1 in LIPO_OCV_CURVE[1:])
-_OCV_SEGMENTS: tuple[tuple[float, float, float, float], ...] = tuple(
+_OCV_UPPER_SOC: Final[tuple[float, ...]] = tuple(s1 for s1, _v1 in LIPO_OCV_CURVE[1:])
+_OCV_SEGMENTS: Final[tuple[tuple[float, float, float, float], ...]] = tuple(
     (s0, v0, v1 - v0, s1 - s0) for (s0, v0), (s1, v1) in itertools.pairwise(LIPO_OCV_CURVE)
 )
 

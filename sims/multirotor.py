@@ -27,15 +27,23 @@ import math
 from collections.abc import Sequence
 from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, Final, NamedTuple
 
 import numpy as np
 
 from merlin.config.loader import ConfigError, parse_yaml
 from merlin.core.types import ZERO3, Vec3, VehicleState, new_record
 
-DEFAULT_PARAMS_PATH = Path(__file__).resolve().parent / "vehicles" / "quadrotor_default.yaml"
-DEFAULT_DT_S = 1.0 / 400.0
+# math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
+# more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
+_isfinite: Final = math.isfinite
+_atan2: Final = math.atan2
+_asin: Final = math.asin
+_acos: Final = math.acos
+_degrees: Final = math.degrees
+
+DEFAULT_PARAMS_PATH: Final = Path(__file__).resolve().parent / "vehicles" / "quadrotor_default.yaml"
+DEFAULT_DT_S: Final = 1.0 / 400.0
 
 # Rotor positions in FRD as multiples of arm_length / sqrt(2), and spin direction: +1 = CCW seen from
 # above, whose reaction torque on the body is +yaw (nose right) in FRD.
@@ -89,7 +97,7 @@ class MultirotorParams:
 
 
 # (lower, upper, lower inclusive) bounds of each parameter; a value outside is a ConfigError.
-_BOUNDS: dict[str, tuple[float, float, bool]] = {
+_BOUNDS: Final[dict[str, tuple[float, float, bool]]] = {
     "mass_kg": (0.0, 1000.0, False),
     "inertia_xx_kgm2": (0.0, 1000.0, False),
     "inertia_yy_kgm2": (0.0, 1000.0, False),
@@ -132,7 +140,7 @@ def multirotor_params_from_mapping(data: Any, source: str = "<multirotor params>
         v = data[key]
         lo, hi, lo_incl = _BOUNDS[key]
         allowed = f"a number in {'[' if lo_incl else '('}{lo:g}, {hi:g}]"
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        if isinstance(v, bool) or not isinstance(v, int | float) or not _isfinite(v):
             problems.append(f"{key}: value {v!r} is not {allowed}")
             continue
         if not ((v >= lo if lo_incl else v > lo) and v <= hi):
@@ -162,7 +170,7 @@ def multirotor_params_from_mapping(data: Any, source: str = "<multirotor params>
 #: "Counting instructions"). Keyed by the file's text, so an edited file is parsed again; the parameters are
 #: frozen floats, so runs can share them. Bounded: the oldest entry goes first.
 _PARSED: dict[tuple[str, str], MultirotorParams] = {}
-_PARSED_MAX = 16
+_PARSED_MAX: Final = 16
 
 
 def load_multirotor_params(path: str | Path = DEFAULT_PARAMS_PATH) -> MultirotorParams:
@@ -204,9 +212,9 @@ def rpy_from_quat(qw: float, qx: float, qy: float, qz: float) -> Vec3:
     sinp = 2.0 * (qw * qy - qz * qx)
     sinp = 1.0 if sinp > 1.0 else (-1.0 if sinp < -1.0 else sinp)
     return (
-        math.atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy)),
-        math.asin(sinp),
-        math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz)),
+        _atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy)),
+        _asin(sinp),
+        _atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz)),
     )
 
 
@@ -513,7 +521,7 @@ class Multirotor:
         25 deg bank that the filter must see."""
         p = self.p
         roll, pitch, yaw = rpy_from_quat(self.qw, self.qx, self.qy, self.qz)
-        tilt = math.degrees(math.acos(max(-1.0, min(1.0, math.cos(roll) * math.cos(pitch)))))
+        tilt = _degrees(_acos(max(-1.0, min(1.0, math.cos(roll) * math.cos(pitch)))))
         self.touchdown_speed_mps = vz
         if vz > p.crash_touchdown_speed_mps or tilt > p.crash_touchdown_tilt_deg:
             self.crashed = True
@@ -530,7 +538,7 @@ class Multirotor:
         if ew < 0.0:  # the shorter way round
             ew, ex, ey, ez = -ew, -ex, -ey, -ez
         sn = math.sqrt(ex * ex + ey * ey + ez * ez)
-        angle = 2.0 * math.atan2(sn, ew)
+        angle = 2.0 * _atan2(sn, ew)
         self._settle_q = (tw, tx, ty, tz)
         if angle > 1e-9:
             m = max(1, math.ceil(angle / (p.settle_rate_radps * dt) - 1e-9))

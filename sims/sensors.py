@@ -24,7 +24,7 @@ import math
 from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple, Protocol
+from typing import Any, Final, NamedTuple, Protocol
 
 import numpy as np
 
@@ -32,8 +32,15 @@ from merlin.config.loader import ConfigError
 from merlin.core.types import Vec3, new_record
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
 
-_BLOCK = 1024
-_EPS_S = 1e-9
+# math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
+# more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
+_hypot: Final = math.hypot
+_isfinite: Final = math.isfinite
+_atan2: Final = math.atan2
+_radians: Final = math.radians
+
+_BLOCK: Final = 1024
+_EPS_S: Final = 1e-9
 
 
 class TruthLike(Protocol):
@@ -73,7 +80,7 @@ def _check_params(obj: object, positive: tuple[str, ...]) -> None:
         v = getattr(obj, name)
         if isinstance(v, bool) or not isinstance(v, int | float):
             continue
-        if not math.isfinite(v) or v < 0.0 or (name in positive and v <= 0.0):
+        if not _isfinite(v) or v < 0.0 or (name in positive and v <= 0.0):
             need = "> 0" if name in positive else ">= 0"
             raise ValueError(f"{type(obj).__name__}.{name} = {v!r}: must be finite and {need}")
 
@@ -100,7 +107,7 @@ class ImuParams:
     accel_bias_rw_mps3_per_rthz: float = 1.0e-3
     # Residual offset after calibration, one sigma per axis (datasheets: +-25-60 mg uncalibrated).
     accel_turn_on_bias_sigma_mps2: float = 0.05
-    gyro_range_radps: float = math.radians(2000.0)  # full-scale range +-2000 deg/s
+    gyro_range_radps: float = _radians(2000.0)  # full-scale range +-2000 deg/s
     accel_range_mps2: float = 16.0 * 9.80665  # +-16 g
 
     def __post_init__(self) -> None:
@@ -194,9 +201,10 @@ class SensorParams:
 # IGRF-13 Gauss coefficients of degree 1 for epoch 2020.0, nT (Alken et al., Earth Planets Space 73:49,
 # 2021, Table 2). The centred dipole reproduces the real field to ~10-20 % in magnitude and a few
 # degrees in declination: enough for heading in a simulator, not for navigation charts.
+# Not Final: mypyc writes the negation of a negative Final float as C's '--x', a decrement, and the build fails
 IGRF13_2020_G10_NT = -29404.8
 IGRF13_2020_G11_NT = -1450.9
-IGRF13_2020_H11_NT = 4652.5
+IGRF13_2020_H11_NT: Final = 4652.5
 
 
 def dipole_field_ned_gauss(lat_deg: float, lon_deg: float) -> Vec3:
@@ -205,14 +213,14 @@ def dipole_field_ned_gauss(lat_deg: float, lon_deg: float) -> Vec3:
     b0 = math.sqrt(g10 * g10 + g11 * g11 + h11 * h11)
     # unit vector to the (boreal) geomagnetic pole, ECEF
     px, py, pz = -g11 / b0, -h11 / b0, -g10 / b0
-    lat, lon = math.radians(lat_deg), math.radians(lon_deg)
+    lat, lon = _radians(lat_deg), _radians(lon_deg)
     rx, ry, rz = math.cos(lat) * math.cos(lon), math.cos(lat) * math.sin(lon), math.sin(lat)
     cos_t = px * rx + py * ry + pz * rz  # cosine of the geomagnetic colatitude
     sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
     # horizontal direction of the pole in the local frame
     nx, ny, nz = -math.sin(lat) * math.cos(lon), -math.sin(lat) * math.sin(lon), math.cos(lat)
     ex, ey = -math.sin(lon), math.cos(lon)
-    decl = math.atan2(px * ex + py * ey, px * nx + py * ny + pz * nz)
+    decl = _atan2(px * ex + py * ey, px * nx + py * ny + pz * nz)
     bh = b0 * sin_t * 1e-5  # nT -> gauss
     return (bh * math.cos(decl), bh * math.sin(decl), 2.0 * b0 * cos_t * 1e-5)
 
@@ -478,8 +486,8 @@ class Gps:
                 vel_ned_mps=(vel[0] + vh * n[6], vel[1] + vh * n[7], vel[2] + vv * n[8]),
                 fix_type=p.fix_type,
                 satellites=p.satellites,
-                eph_m=math.hypot(p.pos_h_markov_sigma_m, wh),
-                epv_m=math.hypot(p.pos_v_markov_sigma_m, wv),
+                eph_m=_hypot(p.pos_h_markov_sigma_m, wh),
+                epv_m=_hypot(p.pos_v_markov_sigma_m, wv),
                 lane=self._lane,
             )
             self._buf.append((t_s + p.latency_s, sample))
@@ -654,7 +662,7 @@ class SensorSuite:
 
 # ------------------------------------------------------------------------------------- configuration
 
-_SECTIONS: dict[str, type] = {"imu": ImuParams, "gps": GpsParams, "baro": BaroParams, "mag": MagParams}
+_SECTIONS: Final[dict[str, type]] = {"imu": ImuParams, "gps": GpsParams, "baro": BaroParams, "mag": MagParams}
 
 
 def sensor_params_from_mapping(data: Any, source: str = "<sensor params>") -> SensorParams:

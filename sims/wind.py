@@ -17,14 +17,15 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Final
 
 import numpy as np
 
 from merlin.core.types import ZERO3, Vec3
 from sims.sensors import _BLOCK, normal_rows
 
-_FT = 0.3048
-_PREFETCH_AT = 7 * _BLOCK // 8  # the IMU lanes draw at 1/8, 3/8, 5/8 of theirs, the fault noise at 1/2
+_FT: Final = 0.3048
+_PREFETCH_AT: Final = 7 * _BLOCK // 8  # the IMU lanes draw at 1/8, 3/8, 5/8 of theirs, the fault noise at 1/2
 
 
 @dataclass(frozen=True, slots=True)

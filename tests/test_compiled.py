@@ -190,6 +190,9 @@ def test_stale_detection_sees_a_changed_source(tmp_path: Path, monkeypatch: pyte
     monkeypatch.setattr(_build, "SOURCES_MANIFEST", wrong)
     compiled = [name for name, is_ext in _build.compiled_modules().items() if is_ext]
     assert _build.stale_modules() == compiled
+    # and the build's one-line description (what run.py prints after installing) names them
+    if compiled:
+        assert "STALE" in _build.describe() and all(name in _build.describe() for name in compiled)
 
 
 def test_use_pure_python_refuses_once_the_hot_modules_are_loaded() -> None:
@@ -224,3 +227,43 @@ def test_merlin_use_sources_runs_the_sources_in_any_build() -> None:
     assert proc.returncode == 0, proc.stderr
     flag, *files = proc.stdout.split()
     assert flag == "False" and all(f.endswith(".py") for f in files), proc.stdout
+
+
+def test_a_failed_in_place_build_removes_the_previous_build_and_says_why(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Regression: a rebuild of an editable tree whose C compile failed (mypyc generated C that gcc refused)
+    reported "installing pure Python" but left the previous build's extension modules beside the sources,
+    running old code while ``run.py`` printed "compiled". setuptools' ``build_ext.run`` clears ``inplace``
+    while it builds and restores it only on success, so the fallback read "not in place"."""
+    import runpy
+
+    from setuptools.command import build_ext as setuptools_build_ext
+    from setuptools.errors import CompileError
+
+    monkeypatch.delenv("MERLIN_REQUIRE_COMPILED", raising=False)
+    monkeypatch.setattr(sys, "argv", ["setup.py", "--name"])  # setup() only prints the name
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.chdir(root)
+    ns = runpy.run_path(str(root / "setup.py"), run_name="setup_under_test")
+    command_class = ns["BuildExtOrPure"]
+    build_globals = command_class.run.__globals__
+    calls: list[tuple[str, object]] = []
+    monkeypatch.setitem(build_globals, "_remove_inplace_outputs", lambda keep=(): calls.append(("removed", keep)))
+    monkeypatch.setitem(build_globals, "_write_pure_reason", lambda where: calls.append(("reason at", where)))
+
+    def failing_run(self: object) -> None:  # what setuptools does: in-place off while building, then the error
+        self.inplace = False  # type: ignore[attr-defined]
+        raise CompileError("gcc: lvalue required as decrement operand")
+
+    monkeypatch.setattr(setuptools_build_ext.build_ext, "run", failing_run)
+    from setuptools import Distribution, Extension
+
+    dist = Distribution({"name": "merlin-under-test", "ext_modules": [Extension("m", ["m.c"])]})
+    cmd = command_class(dist)
+    cmd.initialize_options()
+    cmd.inplace = True
+    cmd.finalize_options()
+    cmd.get_outputs = lambda: []  # nothing of this fake build exists to delete
+    cmd.run()
+    assert ("removed", ()) in calls, calls
+    assert ("reason at", build_globals["ROOT"]) in calls, calls
+    assert cmd.extensions == []

@@ -42,29 +42,36 @@ from merlin.core.types import (
     new_setpoint,
 )
 
+# math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
+# more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
+_hypot: Final = math.hypot
+_isfinite: Final = math.isfinite
+_atan2: Final = math.atan2
+_dist: Final = math.dist
+
 RTL_CLIMB, RTL_RETURN, RTL_DESCEND = 0, 1, 2
 #: Vertical distance within which a climb or takeoff counts as complete, m.
-ALTITUDE_ACCEPTANCE_M = 0.5
+ALTITUDE_ACCEPTANCE_M: Final = 0.5
 #: LAND's speed below ``land_final_height_m``, as a fraction of ``land_speed_mps``.
-LAND_FINAL_SPEED_FRACTION = 0.5
+LAND_FINAL_SPEED_FRACTION: Final = 0.5
 #: A route's clearance beyond the fence's widening (``margin_m + sigma_k * sigma_h``): the corner cut
 #: (:data:`CORNER_CUT_M`) and the waypoint switch (:data:`ROUTE_ACCEPTANCE_M`) fit inside it, so the vehicle
 #: flying the route never comes within the widening and the fence's monitor does not trip on the way.
-ROUTE_MARGIN_M = 3.0
+ROUTE_MARGIN_M: Final = 3.0
 #: A HOLD or LAND point keeps the fence's widening plus this (a point at the widening itself trips the
 #: projection for any drift outward).
-SAFE_POINT_PAD_M = 1.0
+SAFE_POINT_PAD_M: Final = 1.0
 #: Distance from a route's intermediate point at which the next leg is taken.
-ROUTE_ACCEPTANCE_M = 1.5
+ROUTE_ACCEPTANCE_M: Final = 1.5
 #: Largest distance by which the turn at a route's corner may cut inside it (sets the corner speed).
-CORNER_CUT_M = 1.0
+CORNER_CUT_M: Final = 1.0
 #: Fraction of ``max_horizontal_decel_mps2`` used for braking into corners and turning through them.
-ROUTE_ACCEL_FRACTION = 0.5
+ROUTE_ACCEL_FRACTION: Final = 0.5
 #: :attr:`GuidanceState.fallback`: RTL found no route home and flies HOLD or LAND instead.
 FALLBACK_NONE, FALLBACK_HOLD, FALLBACK_LAND = 0, 1, 2
 
 #: A command slower than this horizontally has nothing to brake: the behaviour flies as asked at once.
-BRAKE_MIN_SPEED_MPS = 0.1
+BRAKE_MIN_SPEED_MPS: Final = 0.1
 _NO_ACCEL: Final[Vec3] = (0.0, 0.0, 0.0)
 
 # Enum members read on every tick, bound once (``merlin.core.types``, "Enum members on the hot path").
@@ -83,8 +90,8 @@ _BRAKING_BEHAVIORS: Final = (Behavior.HOLD, Behavior.RTL, Behavior.LAND)
 def brake_direction(vel_cmd: Vec3) -> tuple[float, float] | None:
     """The unit horizontal direction of ``vel_cmd`` that a takeover's escape brakes along first, or None when
     the command is (nearly) still horizontally or not finite."""
-    h = math.hypot(vel_cmd[0], vel_cmd[1])
-    if not math.isfinite(h) or h < BRAKE_MIN_SPEED_MPS:
+    h = _hypot(vel_cmd[0], vel_cmd[1])
+    if not _isfinite(h) or h < BRAKE_MIN_SPEED_MPS:
         return None
     return (vel_cmd[0] / h, vel_cmd[1] / h)
 
@@ -116,24 +123,24 @@ def enter(behavior: Behavior, s: VehicleState, cfg: TrustedParams, fence: Fence 
     route home, HOLD's and LAND's safe point (and the route there) are planned here, once (see the module
     docstring); :attr:`GuidanceState.note` then says what could not be flown as asked."""
     yaw = s.att_rpy_rad[2]
-    if not math.isfinite(yaw):
+    if not _isfinite(yaw):
         yaw = 0.0
     if behavior in (Behavior.HOLD, Behavior.RTL, Behavior.MISSION):
         anchor = stopping_point(s, cfg.max_horizontal_decel_mps2)
     else:
         anchor = s.pos_ned_m
     phase = RTL_CLIMB
-    if behavior is Behavior.RTL and math.hypot(anchor[0], anchor[1]) <= cfg.rtl_direct_radius_m:
+    if behavior is Behavior.RTL and _hypot(anchor[0], anchor[1]) <= cfg.rtl_direct_radius_m:
         phase = RTL_RETURN  # already near home: no climb (PX4's RTL_MIN_DIST behaviour)
     v = s.vel_ned_mps
-    v0 = v if all(math.isfinite(x) for x in v) else (0.0, 0.0, 0.0)
+    v0 = v if all(_isfinite(x) for x in v) else (0.0, 0.0, 0.0)
     g = GuidanceState(behavior=behavior, anchor_ned_m=anchor, yaw_rad=yaw, phase=phase, vel_cmd=v0)
     if behavior in _BRAKING_BEHAVIORS:
         g = g._replace(brake_ne=brake_direction(v0))
     if (
         fence is None
         or behavior not in (Behavior.HOLD, Behavior.RTL, Behavior.LAND)
-        or not (math.isfinite(anchor[0]) and math.isfinite(anchor[1]))
+        or not (_isfinite(anchor[0]) and _isfinite(anchor[1]))
         or s.nav_mode is _NAV_INERTIAL
         or s.nav_mode is _NAV_LOST  # no position to fly a route on: the behaviour flies as it always did
         or fence.params.vehicle != "multirotor"  # the fixed wing flies its own routes (fixedwing_route)
@@ -150,7 +157,7 @@ def _widening_m(fence: Fence, s: VehicleState) -> float:
     """The fence's widening at this state: ``margin_m + sigma_k * sigma_h`` (the distance from a hazard
     within which the projection trips)."""
     p = fence.params
-    sigma = s.pos_sigma_h_m if math.isfinite(s.pos_sigma_h_m) and s.pos_sigma_h_m > 0.0 else 0.0
+    sigma = s.pos_sigma_h_m if _isfinite(s.pos_sigma_h_m) and s.pos_sigma_h_m > 0.0 else 0.0
     return p.margin_m + p.sigma_k * sigma
 
 
@@ -202,7 +209,7 @@ def _advance_leg(g: GuidanceState, s: VehicleState) -> GuidanceState:
     path, i = g.path_ne_m, g.leg
     last = len(path) - 1
     p = s.pos_ned_m
-    while i < last and math.hypot(path[i][0] - p[0], path[i][1] - p[1]) <= ROUTE_ACCEPTANCE_M:
+    while i < last and _hypot(path[i][0] - p[0], path[i][1] - p[1]) <= ROUTE_ACCEPTANCE_M:
         i += 1
     return g if i == g.leg else g._replace(leg=i)
 
@@ -219,7 +226,7 @@ def corner_speed_mps(prev: tuple[float, float], at: tuple[float, float], nxt: tu
     ``R (1 / cos(theta / 2) - 1)`` for a heading change ``theta``."""
     a_n, a_e = at[0] - prev[0], at[1] - prev[1]
     b_n, b_e = nxt[0] - at[0], nxt[1] - at[1]
-    la, lb = math.hypot(a_n, a_e), math.hypot(b_n, b_e)
+    la, lb = _hypot(a_n, a_e), _hypot(b_n, b_e)
     if la < 1e-9 or lb < 1e-9:
         return max_mps
     cos_t = max(-1.0, min(1.0, (a_n * b_n + a_e * b_e) / (la * lb)))
@@ -241,7 +248,7 @@ def _route_velocity(g: GuidanceState, s: VehicleState, cfg: TrustedParams, down_
     v_corner = corner_speed_mps(prev, wp, path[i + 1], accel, cfg.cruise_speed_mps)
     p = s.pos_ned_m
     dn, de = wp[0] - p[0], wp[1] - p[1]
-    d = math.hypot(dn, de)
+    d = _hypot(dn, de)
     speed = min(cfg.cruise_speed_mps, math.sqrt(v_corner * v_corner + 2.0 * accel * max(d - ROUTE_ACCEPTANCE_M, 0.0)))
     speed = max(speed, min(v_corner, cfg.cruise_speed_mps))
     k = speed / d if d > 1e-9 else 0.0
@@ -294,7 +301,7 @@ def land_duration_s(height_m: float, vel_down_mps: float, cfg: TrustedParams) ->
     off home's height: the caller adds a margin. A height at or below home costs nothing; a non-finite input
     gives infinity (a landing whose length is unknown is due now).
     """
-    if not (math.isfinite(height_m) and math.isfinite(vel_down_mps)):
+    if not (_isfinite(height_m) and _isfinite(vel_down_mps)):
         return math.inf
     h, v, t = height_m, vel_down_mps, 0.0
     final_m, accel = cfg.land_final_height_m, cfg.max_vertical_decel_mps2
@@ -382,7 +389,7 @@ def step(g: GuidanceState, s: VehicleState, cfg: TrustedParams, dt: float) -> tu
         # then moves along the braking direction at exactly the deceleration the projection assumes, whereas a
         # change below the limit is the position loop's answer to the estimate's noise.
         dn, de = v[0] - c[0], v[1] - c[1]
-        if math.hypot(dn, de) >= max_dh * (1.0 - 1e-9):
+        if _hypot(dn, de) >= max_dh * (1.0 - 1e-9):
             ff = (dn / dt, de / dt, 0.0)
     # g2 with vel_cmd=v and sp with vel_ned_mps=v (built directly: this runs every tick)
     return (
@@ -429,14 +436,14 @@ def _target(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[Guid
             a = g.anchor_ned_m
             if on_route(g):
                 return g, _route_velocity(g, s, cfg, a[2])
-            if math.hypot(a[0] - s.pos_ned_m[0], a[1] - s.pos_ned_m[1]) > cfg.rtl_acceptance_m:
+            if _hypot(a[0] - s.pos_ned_m[0], a[1] - s.pos_ned_m[1]) > cfg.rtl_acceptance_m:
                 return g, _hold(g, s, cfg)
             g = g._replace(done=True)
         return g, _land_at(g.anchor_ned_m, g, s, cfg)
 
     if b is _RTL:
         safe_alt = max(cfg.rtl_altitude_m, -g.anchor_ned_m[2])
-        if g.phase != RTL_CLIMB and math.hypot(g.anchor_ned_m[0], g.anchor_ned_m[1]) <= cfg.rtl_direct_radius_m:
+        if g.phase != RTL_CLIMB and _hypot(g.anchor_ned_m[0], g.anchor_ned_m[1]) <= cfg.rtl_direct_radius_m:
             safe_alt = -g.anchor_ned_m[2]  # returning from close by: stay at the present height
         phase = g.phase
         if phase == RTL_CLIMB and s.alt_m >= safe_alt - ALTITUDE_ACCEPTANCE_M:
@@ -444,7 +451,7 @@ def _target(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[Guid
         if (
             phase == RTL_RETURN
             and not on_route(g)
-            and math.hypot(s.pos_ned_m[0], s.pos_ned_m[1]) <= cfg.rtl_acceptance_m
+            and _hypot(s.pos_ned_m[0], s.pos_ned_m[1]) <= cfg.rtl_acceptance_m
         ):
             phase = RTL_DESCEND
         g2 = g if phase == g.phase else g._replace(phase=phase)
@@ -467,7 +474,7 @@ def _target(g: GuidanceState, s: VehicleState, cfg: TrustedParams) -> tuple[Guid
         i = g.mission_index
         if i < len(wps):
             wp = wps[i]
-            dist = math.dist(wp, s.pos_ned_m)
+            dist = _dist(wp, s.pos_ned_m)
             if dist <= cfg.mission_acceptance_m:
                 i += 1
         if i >= len(wps):
@@ -527,7 +534,7 @@ def with_speed(cfg: TrustedParams, speed_mps: float) -> TrustedParams:
 
 
 #: Radial error to radial velocity while orbiting, 1/s (the position loop's gain would fight the turn).
-ORBIT_RADIAL_GAIN_PER_S = 0.5
+ORBIT_RADIAL_GAIN_PER_S: Final = 0.5
 
 
 def orbit_step(g: GuidanceState, s: VehicleState, cfg: TrustedParams, dt: float, radius_m: float,
@@ -541,7 +548,7 @@ def orbit_step(g: GuidanceState, s: VehicleState, cfg: TrustedParams, dt: float,
     c = g.anchor_ned_m
     r = abs(radius_m)
     dn, de = s.pos_ned_m[0] - c[0], s.pos_ned_m[1] - c[1]
-    dist = math.hypot(dn, de)
+    dist = _hypot(dn, de)
     un, ue = (dn / dist, de / dist) if dist > 1e-3 else (1.0, 0.0)
     v = speed_mps if speed_mps > 0.0 else cfg.cruise_speed_mps
     v = min(v, cfg.cruise_speed_mps, math.sqrt(cfg.max_horizontal_decel_mps2 * r))
@@ -549,14 +556,14 @@ def orbit_step(g: GuidanceState, s: VehicleState, cfg: TrustedParams, dt: float,
     radial = -ORBIT_RADIAL_GAIN_PER_S * (dist - r)
     vn = turn * v * -ue + radial * un
     ve = turn * v * un + radial * ue
-    h = math.hypot(vn, ve)
+    h = _hypot(vn, ve)
     if h > cfg.cruise_speed_mps:
         vn, ve = vn * cfg.cruise_speed_mps / h, ve * cfg.cruise_speed_mps / h
     vd = min(max(cfg.position_gain_per_s * (c[2] - s.pos_ned_m[2]), -cfg.climb_speed_mps), cfg.land_speed_mps * 2.0)
     on_circle = (c[0] + un * r, c[1] + ue * r, c[2])
     vel = limit_velocity_change(g.vel_cmd, (vn, ve, vd), cfg.max_horizontal_decel_mps2 * dt,
                                 cfg.max_vertical_decel_mps2 * dt)
-    yaw = math.atan2(-ue, -un)
+    yaw = _atan2(-ue, -un)
     return g._replace(vel_cmd=vel), new_setpoint(_SP_VELOCITY, pos_ned_m=on_circle, vel_ned_mps=vel, yaw_rad=yaw)
 
 

@@ -30,18 +30,26 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Final, NamedTuple
 
 from merlin.core.types import ZERO3, Command, CommandKind, Vec3, VehicleState, new_record
 
-GRAVITY_MPS2 = 9.80665
+# math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
+# more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
+_hypot: Final = math.hypot
+_isfinite: Final = math.isfinite
+_asin: Final = math.asin
+_acos: Final = math.acos
+_radians: Final = math.radians
+
+GRAVITY_MPS2: Final = 9.80665
 MotorCommands = tuple[float, float, float, float]
 MOTORS_OFF: MotorCommands = (0.0, 0.0, 0.0, 0.0)
-_VELOCITY = CommandKind.VELOCITY  # bound once (merlin.core.types, "Enum members on the hot path")
-_ATTITUDE = CommandKind.ATTITUDE
-_ERR_MAX_MPS = 100.0  # velocity errors beyond this are treated as this (keeps every product finite)
-_ACC_MAX_MPS2 = 200.0  # a measured specific force beyond this is ignored by the velocity D term
-_RATE_MAX_RADPS = 50.0  # measured body rates are clipped here (a +-2000 deg/s gyro reads at most 35)
+_VELOCITY: Final = CommandKind.VELOCITY  # bound once (merlin.core.types, "Enum members on the hot path")
+_ATTITUDE: Final = CommandKind.ATTITUDE
+_ERR_MAX_MPS: Final = 100.0  # velocity errors beyond this are treated as this (keeps every product finite)
+_ACC_MAX_MPS2: Final = 200.0  # a measured specific force beyond this is ignored by the velocity D term
+_RATE_MAX_RADPS: Final = 50.0  # measured body rates are clipped here (a +-2000 deg/s gyro reads at most 35)
 
 # Mixer rows (PX4 quad-X order FR, RL, FL, RR): roll, pitch, yaw coefficient of each motor. A unit roll
 # command raises the left motors and lowers the right ones by the full output range.
@@ -70,7 +78,7 @@ class MultirotorGains:
     acc_max_xy_mps2: float = 8.0  # above g tan(tilt_max): the tilt limit governs at full speed
     acc_max_up_mps2: float = 4.0
     acc_max_down_mps2: float = 3.0
-    tilt_max_rad: float = math.radians(35.0)
+    tilt_max_rad: float = _radians(35.0)
     thrust_min: float = 0.10  # collective floor in flight: keeps roll/pitch authority (PX4 MPC_THR_MIN 0.12)
     thrust_max: float = 0.90  # keeps 10 % headroom for attitude control
     hover_thrust_min: float = 0.15  # bounds of the vertical integrator (the learned hover thrust)
@@ -81,8 +89,8 @@ class MultirotorGains:
     # attitude loop (mc_att_control style)
     att_p_rp_per_s: float = 7.0
     att_p_yaw_per_s: float = 2.8
-    rate_max_rp_radps: float = math.radians(220.0)
-    rate_max_yaw_radps: float = math.radians(150.0)
+    rate_max_rp_radps: float = _radians(220.0)
+    rate_max_yaw_radps: float = _radians(150.0)
     # rate loop (mc_rate_control style), normalised torque per rad/s
     rate_p_rp: float = 0.065
     rate_i_rp: float = 0.12
@@ -103,7 +111,7 @@ class MultirotorGains:
         object.__setattr__(self, "tan_tilt_max", math.tan(self.tilt_max_rad))
 
 
-DEFAULT_GAINS = MultirotorGains()
+DEFAULT_GAINS: Final = MultirotorGains()
 
 
 class ControllerState(NamedTuple):
@@ -130,7 +138,7 @@ class ControllerState(NamedTuple):
 
 
 def _fin(x: float, default: float) -> float:
-    return x if math.isfinite(x) else default
+    return x if _isfinite(x) else default
 
 
 def _clamp(x: float, lo: float, hi: float) -> float:
@@ -293,7 +301,7 @@ def _velocity_to_thrust(
         fn = fe = 0.0
     axn = g.vel_p_xy_per_s * en + ix + fn - g.vel_d_xy * acc_n
     axe = g.vel_p_xy_per_s * ee + iy + fe - g.vel_d_xy * acc_e
-    amag = math.hypot(axn, axe)
+    amag = _hypot(axn, axe)
     sat_xy = False
     if amag > g.acc_max_xy_mps2:
         s = g.acc_max_xy_mps2 / amag
@@ -316,7 +324,7 @@ def _velocity_to_thrust(
         c_up, sat_t, thr_lim = g.thrust_min, -1, True
     tn, te = axn * k_thr, axe * k_thr
     # tilt limit, then the collective limit with vertical priority
-    txy = math.hypot(tn, te)
+    txy = _hypot(tn, te)
     txy_max = c_up * g.tan_tilt_max
     room = math.sqrt(max(g.thrust_max * g.thrust_max - c_up * c_up, 0.0))
     if room < txy_max:
@@ -330,7 +338,7 @@ def _velocity_to_thrust(
         if not (sat_xy or st.sat_xy) or (en * axn + ee * axe) < 0.0:
             ix += g.vel_i_xy_per_s2 * en * dt
             iy += g.vel_i_xy_per_s2 * ee * dt
-            im = math.hypot(ix, iy)
+            im = _hypot(ix, iy)
             if im > g.vel_i_xy_max_mps2:
                 ix, iy = ix * g.vel_i_xy_max_mps2 / im, iy * g.vel_i_xy_max_mps2 / im
         up_err = -ed
@@ -373,19 +381,19 @@ def control_step(
             st = ControllerState(active=False, hover_thrust_est=st.hover_thrust_est)
         return MOTORS_OFF, st
     g = gains
-    dt = dt_s if (math.isfinite(dt_s) and 1e-5 <= dt_s <= 0.1) else 0.0025
+    dt = dt_s if (_isfinite(dt_s) and 1e-5 <= dt_s <= 0.1) else 0.0025
     ri, vi, rd = st.rate_int, st.vel_int_xy_mps2, st.rate_d_filt
     # the memories' sum is non-finite when any of them is (NaN, infinite) or when they overflow together
-    if not st.active or not math.isfinite(
+    if not st.active or not _isfinite(
         st.hover_thrust_est + (ri[0] + ri[1] + ri[2]) + (vi[0] + vi[1]) + (rd[0] + rd[1] + rd[2])
     ):
         learned = st.hover_thrust_est
-        known = math.isfinite(learned) and learned > 0.0
+        known = _isfinite(learned) and learned > 0.0
         st = reset_from_state(est, learned if known else g.hover_thrust, g)
 
     # --- estimate, sanitised: unknown attitude counts as "at the setpoint" (no torque from it)
     ra, pa, ya = est.att_rpy_rad
-    att_ok = math.isfinite(ra) and math.isfinite(pa) and math.isfinite(ya)
+    att_ok = _isfinite(ra) and _isfinite(pa) and _isfinite(ya)
     wx, wy, wz = est.rates_frd_radps
     wl = _RATE_MAX_RADPS
     if not (-wl <= wx <= wl and -wl <= wy <= wl and -wl <= wz <= wl):  # also catches NaN
@@ -411,7 +419,7 @@ def control_step(
     else:
         rs, ps, ys = cmd.att_rpy_rad
         yaw_sp = _fin(ys, ya if att_ok else 0.0)
-        lim = g.tilt_max_rad + math.radians(20.0)  # ATTITUDE sources may tilt beyond the velocity limit
+        lim = g.tilt_max_rad + _radians(20.0)  # ATTITUDE sources may tilt beyond the velocity limit
         qd = _quat_from_rpy(_clamp(_fin(rs, 0.0), -lim, lim), _clamp(_fin(ps, 0.0), -lim, lim), yaw_sp)
         collective = _clamp(_fin(cmd.thrust, st.hover_thrust_est), 0.0, 1.0)
 
@@ -484,8 +492,8 @@ def _attitude_to_rates(q: tuple[float, float, float, float], qd: tuple[float, fl
     if mw < 0.0:
         mw, mz = -mw, -mz
     yw = g.yaw_weight
-    cw = math.cos(yw * math.acos(-1.0 if mw < -1.0 else (1.0 if mw > 1.0 else mw)))  # clamped to [-1, 1]
-    sz = math.sin(yw * math.asin(-1.0 if mz < -1.0 else (1.0 if mz > 1.0 else mz)))
+    cw = math.cos(yw * _acos(-1.0 if mw < -1.0 else (1.0 if mw > 1.0 else mw)))  # clamped to [-1, 1]
+    sz = math.sin(yw * _asin(-1.0 if mz < -1.0 else (1.0 if mz > 1.0 else mz)))
     # f = a * (cw, 0, 0, sz): the setpoint with the yaw correction weighted
     fw, fx, fy, fz = aw * cw - az * sz, ax * cw + ay * sz, ay * cw - ax * sz, az * cw + aw * sz
     # e = conj(q) * f: the attitude error in body axes

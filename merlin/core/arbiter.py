@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import NamedTuple
+from typing import Final, NamedTuple
 
 from merlin.core import geofence
 from merlin.core.config import Clear, CoreConfig, HandoverParams, RuleRow, Takeover
@@ -50,7 +50,7 @@ from merlin.core.types import (
 )
 
 #: Behaviour precedence when several are asked for at once (latched actions versus the commanded mode).
-BEHAVIOR_RANK: dict[Behavior, int] = {
+BEHAVIOR_RANK: Final[dict[Behavior, int]] = {
     Behavior.IDLE: 0,
     Behavior.TAKEOFF: 1,
     Behavior.HOLD: 2,
@@ -62,9 +62,9 @@ BEHAVIOR_RANK: dict[Behavior, int] = {
 }
 
 #: Seconds on the ground in LAND/RTL before Merlin disarms (as PX4's COM_DISARM_LAND default of 2 s).
-AUTO_DISARM_LANDED_S = 2.0
+AUTO_DISARM_LANDED_S: Final = 2.0
 
-_MODE_BEHAVIOR = {
+_MODE_BEHAVIOR: Final = {
     GcsCommandKind.HOLD: Behavior.HOLD,
     GcsCommandKind.RTL: Behavior.RTL,
     GcsCommandKind.LAND: Behavior.LAND,
@@ -388,7 +388,7 @@ def _mission_current(st: ArbiterState, cfg: CoreConfig, cmd: GcsCommand, now: fl
 
 
 #: Points checked on an orbit's circle against the fence (a chord of a 50 m circle is ~10 m).
-ORBIT_FENCE_POINTS = 32
+ORBIT_FENCE_POINTS: Final = 32
 
 
 def _target_block(cfg: CoreConfig, target: tuple[float, float, float], radius_m: float) -> Reason | None:

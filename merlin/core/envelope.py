@@ -29,19 +29,25 @@ charged to an experimental controller granted afterwards.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Final, NamedTuple
 
 from merlin.core.config import EnvelopeLimit
 from merlin.core.types import MonitorId, Reason, ReasonCode, Setpoint, SetpointKind, VehicleState, new_record
 
+# math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
+# more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
+_isfinite: Final = math.isfinite
+_atan2: Final = math.atan2
+_fsum: Final = math.fsum
+
 #: One nanosecond: far below any tick period, far above the rounding error of a sum of tick periods.
-TIME_EPS_S = 1e-9
+TIME_EPS_S: Final = 1e-9
 
 #: Completed buckets the exceedance budget's ring keeps: the window's resolution is window / this.
 BUDGET_BUCKETS = 20
 
 #: Order of the values returned by :func:`envelope_values` (the paper's Table 2 order).
-PARAMETER_INDEX: dict[str, int] = {
+PARAMETER_INDEX: Final[dict[str, int]] = {
     "airspeed_mps": 0,
     "altitude_m": 1,
     "vel_n_mps": 2,
@@ -58,9 +64,9 @@ PARAMETER_INDEX: dict[str, int] = {
     "accel_z_mps2": 13,
     "alpha_deg": 14,
 }
-N_PARAMETERS = len(PARAMETER_INDEX)
-NAN = float("nan")
-_INF = math.inf
+N_PARAMETERS: Final = len(PARAMETER_INDEX)
+NAN: Final = float("nan")
+_INF: Final = math.inf
 
 
 def envelope_values(s: VehicleState) -> tuple[float, ...]:
@@ -102,7 +108,7 @@ def commanded_values(sp: Setpoint, s: VehicleState) -> tuple[float, ...]:
 
 
 def _wrap_pi(x: float) -> float:
-    return math.atan2(math.sin(x), math.cos(x))
+    return _atan2(math.sin(x), math.cos(x))
 
 
 def outside(lim: EnvelopeLimit, value: float) -> bool:
@@ -130,7 +136,7 @@ class BudgetRing(NamedTuple):
         return self.ring_s + self.current_s
 
 
-EMPTY_RING = BudgetRing()
+EMPTY_RING: Final = BudgetRing()
 
 
 def _budget_accrue(ring: BudgetRing, lim: EnvelopeLimit, now: float, dt: float) -> BudgetRing:
@@ -146,7 +152,7 @@ def _budget_accrue(ring: BudgetRing, lim: EnvelopeLimit, now: float, dt: float) 
             slots = list(ring.ring)
             for j in range(ring.bucket, k):
                 slots[j % BUDGET_BUCKETS] = ring.current_s if j == ring.bucket else 0.0
-        ring = new_record(BudgetRing, (k, 0.0, tuple(slots), math.fsum(slots)))
+        ring = new_record(BudgetRing, (k, 0.0, tuple(slots), _fsum(slots)))
     elif k < ring.bucket:  # time went back (a new run with a reused state): start again
         ring = BudgetRing(k)
     if dt > 0.0:  # every field, not _replace: this runs on every tick a parameter is outside
@@ -156,7 +162,7 @@ def _budget_accrue(ring: BudgetRing, lim: EnvelopeLimit, now: float, dt: float) 
 
 def budget_reason(lim: EnvelopeLimit, value: float, outside_s: float) -> Reason:
     """The reason of a budget trip: it names the budget, the window and the time outside in it."""
-    shown = _wrap_pi(value) if lim.wraps and math.isfinite(value) else value
+    shown = _wrap_pi(value) if lim.wraps and _isfinite(value) else value
     scale = lim.display_scale
     return Reason(
         code=ReasonCode.ENVELOPE,
@@ -205,9 +211,12 @@ def update(
     violating: list[tuple[str, float]] = []
     rings: list[BudgetRing] | None = None  # copied on the first change: most ticks change no ring
     budget_hit: Reason | None = None
-    i = -1
-    for lim, t0 in zip(limits, since, strict=True):
-        i += 1
+    n = len(limits)
+    if len(since) != n:
+        raise ValueError(f"envelope timers: {len(since)} given for {n} limits")
+    # indexed, not zip(..., strict=True): compiled, the keyword makes zip a generic call (this runs every tick)
+    for i in range(n):
+        lim, t0 = limits[i], since[i]
         value = values[lim.index]
         if lim.min <= value <= lim.max and not lim.wraps:  # the common case; NaN fails the comparison
             if t0 is None:  # inside now and at the previous tick: nothing to accrue either
@@ -235,7 +244,7 @@ def update(
         violating.append((lim.name, elapsed))
         if elapsed + TIME_EPS_S >= lim.duration_s and elapsed > best_elapsed:
             best_elapsed = elapsed
-            shown = _wrap_pi(value) if lim.wraps and math.isfinite(value) else value
+            shown = _wrap_pi(value) if lim.wraps and _isfinite(value) else value
             best = Reason(
                 code=ReasonCode.ENVELOPE,
                 monitor=MonitorId.ENVELOPE,

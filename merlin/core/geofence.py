@@ -60,6 +60,13 @@ import shapely
 
 from merlin.core.types import defined_native, set_frozen_fields
 
+# math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
+# more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
+_hypot: Final = math.hypot
+_isfinite: Final = math.isfinite
+_acos: Final = math.acos
+_radians: Final = math.radians
+
 #: whether this module is mypyc's extension module (``merlin.core.types``: the records' own ``__init__``)
 NATIVE: Final = defined_native(lambda: None)
 
@@ -67,39 +74,39 @@ FenceModeName = Literal["velocity_projection", "position_only"]
 VehicleKind = Literal["multirotor", "fixed_wing"]
 FenceKind = Literal["", "outside", "inclusion", "exclusion", "ceiling", "floor", "invalid"]
 
-STANDARD_GRAVITY_MPS2 = 9.80665
+STANDARD_GRAVITY_MPS2: Final = 9.80665
 
 #: Largest distance between a fence circle and the polygon standing for it (the task asks < 0.1 m).
-CIRCLE_CHORD_ERROR_M = 0.05
+CIRCLE_CHORD_ERROR_M: Final = 0.05
 #: Largest distance between the fixed-wing turn arc and its polyline; it is added to the widening so the
 #: polyline test is never less cautious than the arc would be.
-ARC_CHORD_ERROR_M = 0.05
+ARC_CHORD_ERROR_M: Final = 0.05
 _ARC_SEGMENT_CHOICES = (8, 16, 32, 64, 128, 256)
 
 #: Inputs beyond these are not a vehicle state but a broken estimate: the check trips with kind "invalid".
 #: 1e7 m is a quarter of the Earth's circumference (the local projection means nothing farther out).
-MAX_ABS_POS_M = 1.0e7
-MAX_SPEED_MPS = 1.0e3
-MAX_SIGMA_M = 1.0e6
+MAX_ABS_POS_M: Final = 1.0e7
+MAX_SPEED_MPS: Final = 1.0e3
+MAX_SIGMA_M: Final = 1.0e6
 
 #: Cells of the distance field built with each fence (0 disables layers 1 and 2 of the pre-check).
-DEFAULT_GRID_CELLS = 16_384
+DEFAULT_GRID_CELLS: Final = 16_384
 #: Reach levels (m) of the local hazard tiles: square blocks of this side, each holding the forbidden area
 #: clipped to the block grown by the level on every side. A path whose reach plus widening fits in a
 #: level is tested against that small clipped geometry instead of the whole fence (same answer, less
 #: GEOS work). A level needing more than ``_MAX_BLOCKS_PER_LEVEL`` blocks is skipped.
 _LOCAL_LEVELS_M = (64.0, 128.0, 256.0)
-_MAX_BLOCKS_PER_LEVEL = 4096
+_MAX_BLOCKS_PER_LEVEL: Final = 4096
 #: Bisection resolution of the clearance reported on a trip (absolute, and relative to the path length).
-_CLEARANCE_RESOLUTION_M = 0.01
+_CLEARANCE_RESOLUTION_M: Final = 0.01
 #: A projected path shorter than this is tested as a point (see ``_path_hits``).
-_MIN_PATH_M = 1.0e-6
+_MIN_PATH_M: Final = 1.0e-6
 #: Sphere-tracing steps towards the first contact before bisection takes over.
-_TRACE_STEPS = 8
-_TINY = 1.0e-100
+_TRACE_STEPS: Final = 8
+_TINY: Final = 1.0e-100
 
-_NAN = math.nan
-_INF = math.inf
+_NAN: Final = math.nan
+_INF: Final = math.inf
 
 FloatArray = npt.NDArray[np.float64]
 PointNE = tuple[float, float]
@@ -135,12 +142,12 @@ class FenceParams:
     reaction_time_s: float = 0.3
     max_h_decel_mps2: float = 4.0
     max_v_decel_mps2: float = 3.0
-    bank_limit_rad: float = math.radians(35.0)
+    bank_limit_rad: float = _radians(35.0)
     gravity_mps2: float = STANDARD_GRAVITY_MPS2
     enabled: bool = True
     # Multirotor: the largest acceleration a command can demand during the reaction time (horizontally
     # g tan(max tilt), vertically the climb/sink acceleration limit); see ``demand_vel_ned_mps`` of check().
-    max_h_accel_mps2: float = STANDARD_GRAVITY_MPS2 * math.tan(math.radians(45.0))  # VehicleLimits.max_tilt_deg
+    max_h_accel_mps2: float = STANDARD_GRAVITY_MPS2 * math.tan(_radians(45.0))  # VehicleLimits.max_tilt_deg
     max_v_accel_mps2: float = 4.0
     # Fixed wing: how the trusted loops fly the escape turn (:func:`fixed_wing_turn`). Below
     # ``full_bank_airspeed_mps`` they hold the wings (nearly) level and regain speed towards
@@ -168,11 +175,11 @@ class FenceParams:
             problems.append(f"vehicle {self.vehicle!r} is not 'multirotor' or 'fixed_wing'")
         for name in ("margin_m", "sigma_k", "reaction_time_s", "recovery_height_m", "roll_rate_radps"):
             v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0.0):
+            if not (_isfinite(v) and v >= 0.0):
                 problems.append(f"{name}={v!r} must be finite and >= 0")
         for name in ("full_bank_airspeed_mps", "turn_airspeed_mps"):
             v = getattr(self, name)
-            if not (math.isfinite(v) and 0.0 <= v <= MAX_SPEED_MPS):
+            if not (_isfinite(v) and 0.0 <= v <= MAX_SPEED_MPS):
                 problems.append(f"{name}={v!r} must be finite and in [0, {MAX_SPEED_MPS:g}]")
         if self.full_bank_airspeed_mps > 0.0 and not (self.turn_airspeed_mps > self.full_bank_airspeed_mps):
             problems.append(f"turn_airspeed_mps ({self.turn_airspeed_mps!r}) must be above full_bank_airspeed_mps "
@@ -181,13 +188,13 @@ class FenceParams:
         for name in ("max_h_decel_mps2", "max_v_decel_mps2", "gravity_mps2", "max_h_accel_mps2", "max_v_accel_mps2",
                      "turn_speed_gain_per_s"):
             v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0.0):
+            if not (_isfinite(v) and v > 0.0):
                 problems.append(f"{name}={v!r} must be finite and > 0")
         if not (0.0 < self.bank_limit_rad < 0.5 * math.pi):
             problems.append(f"bank_limit_rad={self.bank_limit_rad!r} must be in (0, pi/2)")
         for name in ("altitude_floor_m", "altitude_ceiling_m"):
             v = getattr(self, name)
-            if v is not None and not math.isfinite(v):
+            if v is not None and not _isfinite(v):
                 problems.append(f"{name}={v!r} must be finite or None")
         f, c = self.altitude_floor_m, self.altitude_ceiling_m
         if f is not None and c is not None and f >= c:
@@ -230,7 +237,7 @@ class PolygonProblem:
     at_ne_m: PointNE | None = None
 
 
-_GEOS_LOCATION = re.compile(r"\[\s*([-+0-9.eEinfa]+)\s+([-+0-9.eEinfa]+)")
+_GEOS_LOCATION: Final = re.compile(r"\[\s*([-+0-9.eEinfa]+)\s+([-+0-9.eEinfa]+)")
 
 
 def polygon_problem(
@@ -243,7 +250,7 @@ def polygon_problem(
         if len(ring) < 3:
             return PolygonProblem(f"{what} needs at least 3 vertices, got {len(ring)}")
         for v in ring:
-            if len(v) != 2 or not all(math.isfinite(x) for x in v):
+            if len(v) != 2 or not all(_isfinite(x) for x in v):
                 return PolygonProblem(f"{what} vertex {list(v)} is not a finite (north, east) pair")
     shell = shapely.Polygon([tuple(v) for v in shell_ne_m])
     if float(shapely.area(shapely.convex_hull(shell))) <= 1e-9:
@@ -280,7 +287,7 @@ def circle_vertex_count(radius_m: float, chord_error_m: float = CIRCLE_CHORD_ERR
     """Vertices for a polygon within ``chord_error_m`` of a circle, inscribed or circumscribed."""
     # Circumscribed: vertices at R / cos(pi/n), outward error R (1/cos(pi/n) - 1); the inscribed error
     # R (1 - cos(pi/n)) is smaller, so one count serves both.
-    half_angle = math.acos(radius_m / (radius_m + chord_error_m))
+    half_angle = _acos(radius_m / (radius_m + chord_error_m))
     return max(16, math.ceil(math.pi / half_angle))
 
 
@@ -307,7 +314,7 @@ def _polygon_geom(p: PolygonNE, where: str) -> Any:
 
 
 def _circle_geom(c: CircleNE, where: str, *, circumscribed: bool) -> Any:
-    if not (math.isfinite(c.radius_m) and c.radius_m > 0.0 and all(math.isfinite(x) for x in c.center_ne_m)):
+    if not (_isfinite(c.radius_m) and c.radius_m > 0.0 and all(_isfinite(x) for x in c.center_ne_m)):
         raise ValueError(
             f"{where}: circle centre {c.center_ne_m} / radius {c.radius_m} must be finite, r > 0"
         )
@@ -452,9 +459,9 @@ class Fence:
 
 
 #: Every field of :class:`Fence`, derived ones included, in declaration order (``params`` first).
-_FENCE_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Fence))
+_FENCE_FIELDS: Final[tuple[str, ...]] = tuple(f.name for f in fields(Fence))
 #: The fields ``__post_init__`` derives from the zones and ``grid_cells`` (the parameters play no part).
-_DERIVED_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Fence) if not f.init)
+_DERIVED_FIELDS: Final[tuple[str, ...]] = tuple(f.name for f in fields(Fence) if not f.init)
 
 #: What the zones derived, by zones and ``grid_cells``, for the fences built after in this process. A process
 #: flying many runs over one range (a campaign worker, a test worker) builds the same fence for each, and the
@@ -463,7 +470,7 @@ _DERIVED_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Fence) if not f.
 #: is immutable and already shared between fences (:meth:`Fence.with_params`). A range given again after a
 #: failed build is validated again: only successful builds are kept. Bounded: the oldest entry goes first.
 _DERIVED: dict[tuple[Any, ...], tuple[Any, ...]] = {}
-_DERIVED_MAX = 16
+_DERIVED_MAX: Final = 16
 
 
 def _fence_with_fields(values: Sequence[Any]) -> Fence:
@@ -561,7 +568,7 @@ def _build_local_levels(forbidden: Any, box: tuple[float, float, float, float]) 
     return tuple(levels)
 
 
-_NOTHING_NEAR = object()
+_NOTHING_NEAR: Final = object()
 
 
 def _local_hazard(fence: Fence, n: float, e: float, need_m: float) -> Any:
@@ -640,9 +647,9 @@ def _figure_key(a: float) -> float | None:
     return None if a != a else a
 
 
-_INVALID = FenceResult(True, "invalid", _NAN, _NAN)
-_DISABLED = FenceResult(False, "", 0.0, _NAN)
-_CLEAR_POSITION_ONLY = FenceResult(False, "", 0.0, _NAN)
+_INVALID: Final = FenceResult(True, "invalid", _NAN, _NAN)
+_DISABLED: Final = FenceResult(False, "", 0.0, _NAN)
+_CLEAR_POSITION_ONLY: Final = FenceResult(False, "", 0.0, _NAN)
 
 
 # ----------------------------------------------------------------------------------------------- check
@@ -679,10 +686,10 @@ def check(fence: Fence, pos_ned_m: Sequence[float], vel_ned_mps: Sequence[float]
     n, e, dn = pos_ned_m
     vn, ve, vd = vel_ned_mps
     wn, we = wind_ne_mps
-    if _broken(n, e, dn, vn, ve, vd, sigma_h_m, sigma_v_m, wn, we) or not math.isfinite(bank_rad):
+    if _broken(n, e, dn, vn, ve, vd, sigma_h_m, sigma_v_m, wn, we) or not _isfinite(bank_rad):
         return _INVALID
     n, e, vn, ve = _flush_tiny(n, e, vn, ve)
-    v = math.hypot(vn, ve)
+    v = _hypot(vn, ve)
     if v > MAX_SPEED_MPS:
         return _INVALID
     h = -dn
@@ -707,7 +714,8 @@ def check(fence: Fence, pos_ned_m: Sequence[float], vel_ned_mps: Sequence[float]
         reach = d
         if demand_vel_ned_mps is not None:
             dvn, dve, dvd = demand_vel_ned_mps
-            if not math.isfinite(dvn + dve + dvd) or max(abs(dvn), abs(dve), abs(dvd)) > MAX_SPEED_MPS:
+            if not _isfinite(dvn + dve + dvd) or abs(dvn) > MAX_SPEED_MPS or abs(dve) > MAX_SPEED_MPS or (
+                    abs(dvd) > MAX_SPEED_MPS):  # three compares, not a generic max() call (compiled, per tick)
                 return _INVALID
             demand = _demanded_path(n, e, vn, ve, v, dvn, dve, prm)
             if demand is not None:
@@ -734,7 +742,7 @@ def _fixed_wing_projection(fence: Fence, vn: float, ve: float, vd: float, v: flo
             vn = 0.0
         if -_TINY < ve < _TINY:
             ve = 0.0
-        v = math.hypot(vn, ve)
+        v = _hypot(vn, ve)
         wind = (wn, we)
     turn = fixed_wing_turn(prm, _escape_speed_mps(v, vd), bank_rad)
     leg, radius = turn.leg_m, turn.radius_m
@@ -743,7 +751,7 @@ def _fixed_wing_projection(fence: Fence, vn: float, ve: float, vd: float, v: flo
     drift = _drift_m(wind, turn)
     # farthest point of either turn from the position, plus the drift over the whole manoeuvre (the
     # roll-out's path length bounds how far it moves the turn's start)
-    reach = rollout + math.hypot(leg, radius) + radius + drift
+    reach = rollout + _hypot(leg, radius) + radius + drift
     # the polyline's chord error (beyond the finest table only for turns wider than ~2.6 km)
     sag = _WIND_SAG_FACTOR * max(ARC_CHORD_ERROR_M, radius * fence._arc_tables[-1][1]) + _leg_sag_m(turn)
     return vn, ve, v, wind, turn, d, drift, reach, sag
@@ -760,7 +768,7 @@ def _broken(n: float, e: float, dn: float, vn: float, ve: float, vd: float, sigm
             wn: float, we: float) -> bool:
     """Inputs that are not a vehicle state but a broken estimate (the check trips "invalid")."""
     # One sum catches any NaN or infinity (and sums overflowing to inf, which the bounds would reject).
-    if not math.isfinite(n + e + dn + vn + ve + vd + sigma_h_m + sigma_v_m + wn + we):
+    if not _isfinite(n + e + dn + vn + ve + vd + sigma_h_m + sigma_v_m + wn + we):
         return True
     return (
         abs(n) > MAX_ABS_POS_M
@@ -862,19 +870,19 @@ def _demanded_path(
     """The path of :func:`check` under a speed-raising demand, or None when the demand does not raise it."""
     tr = prm.reaction_time_s
     an, ae = dvn - vn, dve - ve
-    a = math.hypot(an, ae)
+    a = _hypot(an, ae)
     cap = prm.max_h_accel_mps2 * tr
     if a > cap:
         an, ae = an * cap / a, ae * cap / a
         a = cap
     rn, re_ = vn + an, ve + ae
-    vr = math.hypot(rn, re_)
+    vr = _hypot(rn, re_)
     if not (vr > v + 1e-9):
         return None
     n1, e1 = n + 0.5 * (vn + rn) * tr, e + 0.5 * (ve + re_) * tr
     k = vr / (2.0 * prm.max_h_decel_mps2)
     verts = np.array(((n, e), (n1, e1), (n1 + rn * k, e1 + re_ * k)))
-    length = math.hypot(n1 - n, e1 - e) + vr * k
+    length = _hypot(n1 - n, e1 - e) + vr * k
     return _DemandPath(verts, length, a * tr / 8.0)
 
 
@@ -962,16 +970,16 @@ def _lower_bound(fence: Fence, n: float, e: float) -> float:
         if g == -_INF:
             return g
         cell = fence._grid_cell
-        return g - math.hypot(n - (n0 + (i + 0.5) * cell), e - (e0 + (j + 0.5) * cell))
+        return g - _hypot(n - (n0 + (i + 0.5) * cell), e - (e0 + (j + 0.5) * cell))
     if fence._has_inclusion:
         return -_INF  # beyond the box around the inclusion zones: outside
     # Exclusions only: they all lie inside the box, so the distance to the box bounds the distance to them.
     dn = n0 - n if n < n0 else (n - n1 if n > n1 else 0.0)
     de = e0 - e if e < e0 else (e - e1 if e > e1 else 0.0)
-    return math.hypot(dn, de)
+    return _hypot(dn, de)
 
 
-_GRID_DEPTH = 4  # a path piece is split in halves at most this many times in the grid pre-check
+_GRID_DEPTH: Final = 4  # a path piece is split in halves at most this many times in the grid pre-check
 
 
 def _grid_clears_path(
@@ -1033,7 +1041,7 @@ def _grid_clears_path(
 
 def _segment_clear(fence: Fence, an: float, ae: float, bn: float, be: float, need: float, depth: int) -> bool:
     mn, me = 0.5 * (an + bn), 0.5 * (ae + be)
-    half = 0.5 * math.hypot(bn - an, be - ae)
+    half = 0.5 * _hypot(bn - an, be - ae)
     if _lower_bound(fence, mn, me) > need + half:
         return True
     if depth <= 0:
@@ -1113,13 +1121,13 @@ def _arc_table(fence: Fence, radius: float) -> tuple[float, FloatArray, FloatArr
 #: time-linear interpolation, and what remains is the circular motion's deviation from its chord taken at
 #: equal times, at most R (1 - cos a) in the chord's normal plus R (sin t - t sin(a)/a) along it for a
 #: half-angle a; the second is below 2.6 % of the first for the coarsest table (a = pi/16), so 1.05 holds.
-_WIND_SAG_FACTOR = 1.05
+_WIND_SAG_FACTOR: Final = 1.05
 _NO_WIND: tuple[float, float] = (0.0, 0.0)
 
 
 #: The largest bank the roll-out counts: a coordinated level turn beyond it needs more than 5.7 g, which no
 #: wing lifts in a fixed wing's speed range; an aircraft banked further turns no faster than this.
-_ROLLOUT_BANK_MAX_RAD = math.radians(80.0)
+_ROLLOUT_BANK_MAX_RAD: Final = _radians(80.0)
 
 
 class FixedWingTurn(NamedTuple):
@@ -1196,7 +1204,7 @@ def fixed_wing_turn(prm: FenceParams, v_air_mps: float, bank_rad: float = 0.0) -
         accel_s = math.log((vt - v) / (vt - prm.full_bank_airspeed_mps)) / k
     leg = v * tr + vt * accel_s - (vt - v) * (1.0 - math.exp(-k * accel_s)) / k
     radius = vt * vt / g_tan
-    phi = min(abs(bank_rad), _ROLLOUT_BANK_MAX_RAD) if math.isfinite(bank_rad) else _ROLLOUT_BANK_MAX_RAD
+    phi = min(abs(bank_rad), _ROLLOUT_BANK_MAX_RAD) if _isfinite(bank_rad) else _ROLLOUT_BANK_MAX_RAD
     rollout_s = rollout_turn = rollout_radius = 0.0
     if prm.roll_rate_radps > 0.0 and phi > 0.0 and v > 0.0:
         rollout_s = phi / prm.roll_rate_radps
@@ -1209,14 +1217,14 @@ def fixed_wing_turn(prm: FenceParams, v_air_mps: float, bank_rad: float = 0.0) -
 
 #: Time samples of a leg that regains speed in a wind (its ground path is curved: the air path's distance
 #: is not linear in time while the drift is); the chord error between samples is added to the widening.
-_LEG_SAMPLES = 8
+_LEG_SAMPLES: Final = 8
 
 
 def _escape_speed_mps(v_h_mps: float, vd_mps: float) -> float:
     """The airspeed the escape is projected at from horizontal air speed ``v_h_mps`` and vertical speed
     ``vd_mps``: the whole airspeed (no vertical wind), which the loops keep when they level a dive or a climb.
     A vehicle with no horizontal speed has no direction to project: its horizontal speed (0) as before."""
-    return math.hypot(v_h_mps, vd_mps) if v_h_mps > 0.0 else v_h_mps
+    return _hypot(v_h_mps, vd_mps) if v_h_mps > 0.0 else v_h_mps
 
 
 def _leg_sag_m(turn: FixedWingTurn) -> float:
@@ -1231,7 +1239,7 @@ def _drift_m(wind: tuple[float, float], turn: FixedWingTurn) -> float:
     """How far the wind carries a fixed wing over the reaction leg and the half turn (0 without wind)."""
     if wind is _NO_WIND or not (turn.v_turn_mps > 0.0):
         return 0.0
-    return math.hypot(wind[0], wind[1]) * turn.duration_s
+    return _hypot(wind[0], wind[1]) * turn.duration_s
 
 
 def _turn_path(
@@ -1273,7 +1281,7 @@ def _turn_path(
 
 
 #: The roll-out arc's polyline is within this of the arc (as the half turn's, :data:`ARC_CHORD_ERROR_M`).
-_ROLLOUT_MAX_SEGMENTS = 64
+_ROLLOUT_MAX_SEGMENTS: Final = 64
 
 
 def _rollout_arc(n: float, e: float, un: float, ue: float, turn: FixedWingTurn,
@@ -1284,7 +1292,7 @@ def _rollout_arc(n: float, e: float, un: float, ue: float, turn: FixedWingTurn,
     # segments so that the chord error r (1 - cos(da / 2)) stays within ARC_CHORD_ERROR_M
     m = 1
     if r * (1.0 - math.cos(0.5 * ang)) > ARC_CHORD_ERROR_M:
-        da_max = 2.0 * math.acos(max(1.0 - ARC_CHORD_ERROR_M / r, -1.0))
+        da_max = 2.0 * _acos(max(1.0 - ARC_CHORD_ERROR_M / r, -1.0))
         m = min(max(math.ceil(ang / da_max), 1), _ROLLOUT_MAX_SEGMENTS)
     phi = np.linspace(0.0, ang, m + 1)
     rn, re_ = ue * side, -un * side  # unit normal towards the roll-out's centre (the bank's side, -side)
@@ -1482,7 +1490,7 @@ def _projected_clearance(
         s_side = _first_hit_s(hazard, verts, w + arc_sag)
         if s_side > best:
             best, best_verts, best_w = s_side, verts, w + arc_sag
-    if not math.isfinite(best):
+    if not _isfinite(best):
         best = d  # touched by a rounding margin only: value equals limit
     # Which kind of hazard is met first: the path point at the first contact (or its start, when already
     # within the widening) is within the widening, plus the resolution, of the one it meets.
@@ -1510,7 +1518,7 @@ def contains(fence: Fence, pos_ned_m: Sequence[float]) -> bool:
     if not fence.params.enabled:
         return True
     n, e, dn = pos_ned_m
-    if not math.isfinite(n + e + dn) or max(abs(n), abs(e), abs(dn)) > MAX_ABS_POS_M:
+    if not _isfinite(n + e + dn) or max(abs(n), abs(e), abs(dn)) > MAX_ABS_POS_M:
         return False
     ceiling = fence.params.altitude_ceiling_m
     if ceiling is not None and -dn >= ceiling:
@@ -1561,7 +1569,7 @@ def turn_clearances(
     vn, ve = float(vel_ned_mps[0]), float(vel_ned_mps[1])
     vd = float(vel_ned_mps[2]) if len(vel_ned_mps) > 2 else 0.0
     wn, we = float(wind_ne_mps[0]), float(wind_ne_mps[1])
-    if (not math.isfinite(n + e + vn + ve + vd + sigma_h_m + wn + we + bank_rad)
+    if (not _isfinite(n + e + vn + ve + vd + sigma_h_m + wn + we + bank_rad)
             or max(abs(n), abs(e)) > MAX_ABS_POS_M):
         bad = (TurnClearance(1, _NAN, _NAN), TurnClearance(-1, _NAN, _NAN))
         return bad
@@ -1571,7 +1579,7 @@ def turn_clearances(
     wind = _NO_WIND
     if wn != 0.0 or we != 0.0:
         vn, ve, wind = vn - wn, ve - we, (wn, we)  # as check(): the turn follows the air velocity
-    v = math.hypot(vn, ve)
+    v = _hypot(vn, ve)
     with np.errstate(all="ignore"):
         if v < _MIN_PATH_M:
             pt = shapely.points((n, e))
@@ -1581,7 +1589,7 @@ def turn_clearances(
         un, ue = vn / v, ve / v
         turn = fixed_wing_turn(prm, _escape_speed_mps(v, vd), bank_rad)
         radius = turn.radius_m
-        reach = turn.rollout_m() + math.hypot(turn.leg_m, radius) + radius + _drift_m(wind, turn)
+        reach = turn.rollout_m() + _hypot(turn.leg_m, radius) + radius + _drift_m(wind, turn)
         sag_max = _WIND_SAG_FACTOR * max(ARC_CHORD_ERROR_M, radius * fence._arc_tables[-1][1]) + _leg_sag_m(turn)
         hazard = _local_hazard(fence, n, e, reach + w + sag_max)
         out = []
@@ -1625,14 +1633,14 @@ def straight_clearance(
     vn, ve = float(vel_ned_mps[0]), float(vel_ned_mps[1])
     vd = float(vel_ned_mps[2]) if len(vel_ned_mps) > 2 else 0.0
     wn, we = float(wind_ne_mps[0]), float(wind_ne_mps[1])
-    if (not math.isfinite(n + e + vn + ve + vd + sigma_h_m + wn + we + bank_rad)
+    if (not _isfinite(n + e + vn + ve + vd + sigma_h_m + wn + we + bank_rad)
             or max(abs(n), abs(e)) > MAX_ABS_POS_M or max(abs(wn), abs(we)) > MAX_SPEED_MPS):
         return _NAN
     if fence._forbidden is None:
         return _INF
     w = prm.margin_m + prm.sigma_k * max(sigma_h_m, 0.0)
     vn, ve = vn - wn, ve - we  # the air velocity: the straight line is flown in the air mass
-    v = math.hypot(vn, ve)
+    v = _hypot(vn, ve)
     with np.errstate(all="ignore"):
         if v < _MIN_PATH_M:
             return float(shapely.distance(fence._forbidden, shapely.points((n, e)))) - w
@@ -1664,7 +1672,7 @@ def wind_triangle_ne(vel_ned_mps: Sequence[float], airspeed_mps: float, yaw_rad:
     without a wind filter estimates it. (0, 0) when the airspeed is not a usable number (not finite, or
     below 1 m/s: on the catapult or a broken sensor), so the projection falls back to the still-air turn;
     a non-finite ground velocity or yaw gives NaN, which :func:`check` treats as broken input."""
-    if not (math.isfinite(airspeed_mps) and airspeed_mps >= 1.0):
+    if not (_isfinite(airspeed_mps) and airspeed_mps >= 1.0):
         return _NO_WIND
     vn, ve, vd = vel_ned_mps
     va_h = math.sqrt(max(airspeed_mps * airspeed_mps - vd * vd, 0.0))
@@ -1674,7 +1682,7 @@ def wind_triangle_ne(vel_ned_mps: Sequence[float], airspeed_mps: float, yaw_rad:
 #: How far above the floor's trip height a climbing vehicle must be before the floor applies: more than the
 #: tick-to-tick noise of an estimated height (a few decimetres), so that the tick after the floor starts to
 #: apply does not trip it (``adv_floor_takeoff`` tripped on noise of 1 mm without it).
-FLOOR_CLEAR_HYSTERESIS_M = 1.0
+FLOOR_CLEAR_HYSTERESIS_M: Final = 1.0
 
 
 def clear_of_floor(fence: Fence, pos_ned_m: Sequence[float], sigma_v_m: float) -> bool:
@@ -1703,14 +1711,14 @@ def nearest_boundary_ne(fence: Fence, n: float, e: float) -> tuple[float, float,
     then pointing further out (away from the allowed area). None without horizontal zones, for non-finite
     input, or exactly on a boundary. For the operator's fence (:func:`merlin.core.shaping.operator_command`,
     as ArduPilot's AC_Avoid): one shapely call, made only while a fenced pilot flies."""
-    if fence._forbidden is None or not math.isfinite(n + e) or max(abs(n), abs(e)) > MAX_ABS_POS_M:
+    if fence._forbidden is None or not _isfinite(n + e) or max(abs(n), abs(e)) > MAX_ABS_POS_M:
         return None
     pt = shapely.points((n, e))
     inside = _inside(fence, n, e)
     other = fence._forbidden if inside else (fence._allowed if fence._has_inclusion else fence._excl_boundary)
     q = shapely.get_coordinates(shapely.shortest_line(pt, other))[1]
     dn, de = float(q[0]) - n, float(q[1]) - e
-    d = math.hypot(dn, de)
+    d = _hypot(dn, de)
     if not d > 0.0:
         return None
     if inside:
@@ -1729,7 +1737,7 @@ def boundary_constraints_ne(fence: Fence, n: float, e: float, radius_m: float) -
 
     The distance to an edge falls no faster than the velocity's component towards its nearest point, so a
     speed limit on each of these components bounds the approach to every edge at once."""
-    if fence._forbidden is None or not math.isfinite(n + e + radius_m) or max(abs(n), abs(e)) > MAX_ABS_POS_M:
+    if fence._forbidden is None or not _isfinite(n + e + radius_m) or max(abs(n), abs(e)) > MAX_ABS_POS_M:
         return []
     if not _inside(fence, n, e):
         near = nearest_boundary_ne(fence, n, e)
@@ -1760,7 +1768,7 @@ def signed_margin_m(fence: Fence, pos_ned_m: Sequence[float], *, airborne: bool 
     limits at all, NaN for non-finite input or beyond ``MAX_ABS_POS_M``. Not for the per-tick path (it always calls shapely).
     """
     n, e, dn = pos_ned_m
-    if not math.isfinite(n + e + dn) or max(abs(n), abs(e), abs(dn)) > MAX_ABS_POS_M:
+    if not _isfinite(n + e + dn) or max(abs(n), abs(e), abs(dn)) > MAX_ABS_POS_M:
         return _NAN
     h = -dn
     out = _signed_h(fence, n, e)

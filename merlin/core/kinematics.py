@@ -5,8 +5,13 @@ vectors are cheaper as tuples than as numpy arrays at this size)."""
 from __future__ import annotations
 
 import math
+from typing import Final
 
 from merlin.core.types import Vec3, VehicleState
+
+# math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
+# more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
+_hypot: Final = math.hypot
 
 
 def position_to_velocity(
@@ -22,7 +27,7 @@ def position_to_velocity(
     vn = ff[0] + gain_per_s * (target[0] - pos[0])
     ve = ff[1] + gain_per_s * (target[1] - pos[1])
     vd = ff[2] + gain_per_s * (target[2] - pos[2])
-    h = math.hypot(vn, ve)
+    h = _hypot(vn, ve)
     if h > max_h_mps:
         k = max_h_mps / h
         vn, ve = vn * k, ve * k
@@ -39,7 +44,7 @@ def stopping_point(s: VehicleState, decel_mps2: float) -> Vec3:
     """
     p, v = s.pos_ned_m, s.vel_ned_mps
     k = 1.0 / (2.0 * decel_mps2)
-    kh = math.hypot(v[0], v[1]) * k
+    kh = _hypot(v[0], v[1]) * k
     return (p[0] + v[0] * kh, p[1] + v[1] * kh, p[2] + v[2] * abs(v[2]) * k)
 
 
@@ -47,7 +52,7 @@ def limit_velocity_change(prev: Vec3, target: Vec3, max_dh_mps: float, max_dv_mp
     """Move from ``prev`` towards ``target`` by at most ``max_dh_mps`` horizontally and ``max_dv_mps``
     vertically: one tick of an acceleration limit."""
     dn, de, dd = target[0] - prev[0], target[1] - prev[1], target[2] - prev[2]
-    h = math.hypot(dn, de)
+    h = _hypot(dn, de)
     if h > max_dh_mps:
         dn, de = dn * max_dh_mps / h, de * max_dh_mps / h
     dd = min(max(dd, -max_dv_mps), max_dv_mps)

@@ -31,6 +31,13 @@ from merlin.core.types import (
     new_command,
 )
 
+# math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
+# more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
+_hypot: Final = math.hypot
+_isfinite: Final = math.isfinite
+_atan2: Final = math.atan2
+_acos: Final = math.acos
+
 # Enum members read on every tick, bound once (``merlin.core.types``, "Enum members on the hot path").
 _TRUSTED: Final = Authority.TRUSTED
 _SP_POSITION: Final = SetpointKind.POSITION
@@ -40,7 +47,7 @@ _CMD_ATTITUDE: Final = CommandKind.ATTITUDE
 
 
 def _wrap_pi(x: float) -> float:
-    return math.atan2(math.sin(x), math.cos(x))
+    return _atan2(math.sin(x), math.cos(x))
 
 
 def setpoint_to_command(sp: Setpoint, s: VehicleState, source: Authority, tp: TrustedParams) -> Command:
@@ -102,7 +109,7 @@ def clamp_command(cmd: Command, lim: SetpointClamp) -> Command:
     (roll and pitch scaled together, heading and thrust kept). Anything within the limits passes unchanged."""
     if cmd.kind is _CMD_ATTITUDE:
         r, p, y = cmd.att_rpy_rad
-        tilt = math.acos(min(1.0, max(-1.0, math.cos(r) * math.cos(p))))
+        tilt = _acos(min(1.0, max(-1.0, math.cos(r) * math.cos(p))))
         if not tilt > lim.max_tilt_rad:
             return cmd
         # the tilt of (k r, k p) rises with k: bisect for the largest k within the limit (never above it)
@@ -117,7 +124,7 @@ def clamp_command(cmd: Command, lim: SetpointClamp) -> Command:
     if cmd.kind is not _CMD_VELOCITY:
         return cmd
     vn, ve, vd = cmd.vel_ned_mps
-    h = math.hypot(vn, ve)
+    h = _hypot(vn, ve)
     down = min(max(vd, -lim.max_speed_up_mps), lim.max_speed_down_mps)
     if h <= lim.max_speed_h_mps and down == vd:
         return cmd
@@ -140,20 +147,20 @@ def track_command(cmd: Command, prev: Command | None, s: VehicleState, dt: float
         start, prev_yaw = prev.vel_ned_mps, prev.yaw_rad
     else:
         start, prev_yaw = s.vel_ned_mps, s.att_rpy_rad[2]
-    if not math.isfinite(start[0] + start[1] + start[2]):
+    if not _isfinite(start[0] + start[1] + start[2]):
         start = s.vel_ned_mps
     tn, te, td = cmd.vel_ned_mps
     dn, de = tn - start[0], te - start[1]
-    h, step_h = math.hypot(dn, de), lim.max_accel_h_mps2 * dt
+    h, step_h = _hypot(dn, de), lim.max_accel_h_mps2 * dt
     # within one tick's step the setpoint itself, exactly (a ramp that has arrived passes the setpoint on)
     vn, ve = (tn, te) if h <= step_h else (start[0] + dn * step_h / h, start[1] + de * step_h / h)
     # climbing faster is an upward (negative down) acceleration: MPC_ACC_UP_MAX; sinking faster, MPC_ACC_DOWN_MAX
     vd = min(max(td, start[2] - lim.max_accel_up_mps2 * dt), start[2] + lim.max_accel_down_mps2 * dt)
     w_max = lim.max_yaw_rate_radps
-    rate = min(max(cmd.yaw_rate_radps, -w_max), w_max) if math.isfinite(cmd.yaw_rate_radps) else 0.0
+    rate = min(max(cmd.yaw_rate_radps, -w_max), w_max) if _isfinite(cmd.yaw_rate_radps) else 0.0
     yaw = cmd.yaw_rad
-    if math.isfinite(yaw):
-        if not math.isfinite(prev_yaw):
+    if _isfinite(yaw):
+        if not _isfinite(prev_yaw):
             prev_yaw = s.att_rpy_rad[2]
         step = w_max * dt
         err = _wrap_pi(yaw - prev_yaw)
@@ -172,12 +179,12 @@ def demanded_velocity(cmd: Command | None, s: VehicleState, reaction_time_s: flo
         return None
     if cmd.kind is _CMD_VELOCITY:
         v = cmd.vel_ned_mps
-        return v if math.isfinite(v[0] + v[1] + v[2]) else None
+        return v if _isfinite(v[0] + v[1] + v[2]) else None
     if cmd.kind is not _CMD_ATTITUDE:
         return None
     r, p, y = cmd.att_rpy_rad
     vz = math.cos(p) * math.cos(r)
-    if not (math.isfinite(r + p + y) and vz > 0.1):
+    if not (_isfinite(r + p + y) and vz > 0.1):
         return None
     # body z axis in NED (ZYX Euler angles); the thrust along -z holding the height gives -g z_h / z_d
     zn = math.cos(y) * math.sin(p) * math.cos(r) + math.sin(y) * math.sin(r)
@@ -209,10 +216,10 @@ def loop_bounded_demand(demand: Vec3, last: Command | None, s: VehicleState, rea
     kp = lim.loop_vel_p_per_s
     v = s.vel_ned_mps
     en, ee = demand[0] - v[0], demand[1] - v[1]
-    e = math.hypot(en, ee)
+    e = _hypot(en, ee)
     r, p, y = s.att_rpy_rad
     fx, fy, fz = s.accel_frd_mps2
-    if not (kp > 0.0 and e > 1e-9 and math.isfinite(e + r + p + y + fx + fy + fz)):
+    if not (kp > 0.0 and e > 1e-9 and _isfinite(e + r + p + y + fx + fy + fz)):
         return demand
     un, ue = en / e, ee / e
     cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
@@ -224,12 +231,12 @@ def loop_bounded_demand(demand: Vec3, last: Command | None, s: VehicleState, rea
     e_loop = e
     if last is not None and last.kind is _CMD_VELOCITY:
         lv = last.vel_ned_mps
-        e_last = math.hypot(lv[0] - v[0], lv[1] - v[1])
-        if math.isfinite(e_last) and e_last > e_loop:
+        e_last = _hypot(lv[0] - v[0], lv[1] - v[1])
+        if _isfinite(e_last) and e_last > e_loop:
             e_loop = e_last
     asked = kp * e_loop + lim.loop_vel_i_max_mps2 + lim.loop_vel_d_s * max(-acc_along, 0.0)
     thrust = min(asked, gravity_mps2 * math.tan(lim.loop_max_tilt_rad))
-    thrust = max(thrust, math.hypot(thr_n, thr_e))
+    thrust = max(thrust, _hypot(thr_n, thr_e))
     gain = max(thrust + air_n * un + air_e * ue, 0.0) * reaction_time_s
     if gain >= e:
         return demand
@@ -270,7 +277,7 @@ def operator_command(
     free (scenarios ``adv_pilot_regrab_outward``, ``adv_pilot_regrab_ceiling``, ``adv_pilot_regrab_keepout``)."""
 
     def dz(x: float) -> float:
-        if not math.isfinite(x):
+        if not _isfinite(x):
             return 0.0
         x = min(max(x, -1.0), 1.0)
         if abs(x) <= cfg.stick_deadband:
@@ -299,7 +306,7 @@ def operator_command(
         vn, ve, vd = _fence_pilot(fence, s, (vn, ve, vd), tp, floor_applies, prev, dt)
     # Stick steps become acceleration-limited velocity ramps (as PX4's position mode, MPC_ACC_HOR): the
     # human asks for a speed, the trusted inner loops get there without a tilt spike.
-    if all(math.isfinite(x) for x in prev):
+    if all(_isfinite(x) for x in prev):
         vn, ve, vd = limit_velocity_change(
             prev, (vn, ve, vd), tp.max_horizontal_decel_mps2 * dt, tp.max_vertical_decel_mps2 * dt
         )
@@ -352,7 +359,7 @@ def _fence_pilot(fence: Fence, s: VehicleState, vel: Vec3, tp: TrustedParams, fl
     is the command of the tick before (the ramp's start) and ``dt`` the tick."""
     vn, ve, vd = vel
     v = s.vel_ned_mps
-    lag_known = prev is not None and math.isfinite(prev[0] + prev[1] + prev[2] + v[0] + v[1] + v[2] + dt)
+    lag_known = prev is not None and _isfinite(prev[0] + prev[1] + prev[2] + v[0] + v[1] + v[2] + dt)
     pn, pe, pd = prev if prev is not None and lag_known else (0.0, 0.0, 0.0)
     prm = fence.params
     if not prm.enabled:
@@ -360,13 +367,13 @@ def _fence_pilot(fence: Fence, s: VehicleState, vel: Vec3, tp: TrustedParams, fl
     tr = prm.reaction_time_s
     a_h, a_v = tp.max_horizontal_decel_mps2, tp.max_vertical_decel_mps2
     n, e, d = s.pos_ned_m
-    if not math.isfinite(n + e + d + s.pos_sigma_h_m + s.pos_sigma_v_m):
+    if not _isfinite(n + e + d + s.pos_sigma_h_m + s.pos_sigma_v_m):
         return 0.0, 0.0, 0.0  # nowhere known: nothing outward is safe; the fence's own check trips "invalid"
     w_h = prm.margin_m + prm.sigma_k * s.pos_sigma_h_m
-    speed = math.hypot(vn, ve)
+    speed = _hypot(vn, ve)
     # edges farther than the stop from this speed (and the vehicle's own) leave the command unlimited
-    v_max = max(speed, math.hypot(s.vel_ned_mps[0], s.vel_ned_mps[1])) if all(
-        math.isfinite(x) for x in s.vel_ned_mps) else speed
+    v_max = max(speed, _hypot(s.vel_ned_mps[0], s.vel_ned_mps[1])) if all(
+        _isfinite(x) for x in s.vel_ned_mps) else speed
     radius = w_h + v_max * tr + v_max * v_max / (2.0 * a_h) + 1.0
     limits = []
     for dist, un, ue in geofence.boundary_constraints_ne(fence, n, e, radius):
@@ -417,13 +424,13 @@ def blend_start(last: Command | None, incoming: Command, s: VehicleState, hover_
     """The command a transition starts from: the last actuated one at the same level, else the state's."""
     if last is not None and last.kind is incoming.kind:
         return last
-    if incoming.kind is CommandKind.ATTITUDE:
-        thrust = last.thrust if last is not None and last.kind is CommandKind.ATTITUDE else hover_thrust
-        att = s.att_rpy_rad if all(math.isfinite(a) for a in s.att_rpy_rad) else (0.0, 0.0, 0.0)
-        return new_command(CommandKind.ATTITUDE, incoming.source, att_rpy_rad=att, yaw_rad=att[2], thrust=thrust)
-    v = s.vel_ned_mps if all(math.isfinite(x) for x in s.vel_ned_mps) else (0.0, 0.0, 0.0)
-    yaw = s.att_rpy_rad[2] if math.isfinite(s.att_rpy_rad[2]) else incoming.yaw_rad
-    return new_command(CommandKind.VELOCITY, incoming.source, vel_ned_mps=v, yaw_rad=yaw)
+    if incoming.kind is _CMD_ATTITUDE:
+        thrust = last.thrust if last is not None and last.kind is _CMD_ATTITUDE else hover_thrust
+        att = s.att_rpy_rad if all(_isfinite(a) for a in s.att_rpy_rad) else (0.0, 0.0, 0.0)
+        return new_command(_CMD_ATTITUDE, incoming.source, att_rpy_rad=att, yaw_rad=att[2], thrust=thrust)
+    v = s.vel_ned_mps if all(_isfinite(x) for x in s.vel_ned_mps) else (0.0, 0.0, 0.0)
+    yaw = s.att_rpy_rad[2] if _isfinite(s.att_rpy_rad[2]) else incoming.yaw_rad
+    return new_command(_CMD_VELOCITY, incoming.source, vel_ned_mps=v, yaw_rad=yaw)
 
 
 def _toward(prev: float, target: float, max_step: float) -> float:

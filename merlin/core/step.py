@@ -64,14 +64,20 @@ from merlin.core.types import (
     new_record,
 )
 
+# math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
+# more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
+_isfinite: Final = math.isfinite
+_dist: Final = math.dist
+_degrees: Final = math.degrees
+
 #: Magnitudes beyond these are not a vehicle state or a setpoint but a fault (``invalid_input``).
-MAX_ABS_POSITION_M = 1.0e6
-MAX_ABS_VELOCITY_MPS = 500.0
-MAX_ABS_RATE_RADPS = 100.0
-MAX_ABS_ACCEL_MPS2 = 1000.0
-MAX_SETPOINT_POSITION_M = 1.0e5
-MAX_SETPOINT_VELOCITY_MPS = 100.0
-MAX_SETPOINT_YAW_RATE_RADPS = 20.0
+MAX_ABS_POSITION_M: Final = 1.0e6
+MAX_ABS_VELOCITY_MPS: Final = 500.0
+MAX_ABS_RATE_RADPS: Final = 100.0
+MAX_ABS_ACCEL_MPS2: Final = 1000.0
+MAX_SETPOINT_POSITION_M: Final = 1.0e5
+MAX_SETPOINT_VELOCITY_MPS: Final = 100.0
+MAX_SETPOINT_YAW_RATE_RADPS: Final = 20.0
 
 # Enum members the tick reads, bound once (``merlin.core.types``, "Enum members on the hot path").
 _TRUSTED: Final = Authority.TRUSTED
@@ -91,7 +97,7 @@ _CMD_IDLE: Final = CommandKind.IDLE
 _CMD_VELOCITY: Final = CommandKind.VELOCITY
 _CMD_TERMINATE: Final = CommandKind.TERMINATE
 _NO_ACTION: Final = Action.NONE
-_NO_MONITORS: frozenset[MonitorId] = frozenset()
+_NO_MONITORS: Final[frozenset[MonitorId]] = frozenset()
 _M_STATE_INVALID: Final = MonitorId.STATE_INVALID
 _M_ENVELOPE: Final = MonitorId.ENVELOPE
 _M_GEOFENCE: Final = MonitorId.GEOFENCE
@@ -178,7 +184,7 @@ def _finite3(v: object) -> bool:
     return (
         isinstance(v, tuple)
         and len(v) == 3
-        and all(isinstance(x, (int, float)) and math.isfinite(x) for x in v)
+        and all(isinstance(x, (int, float)) and _isfinite(x) for x in v)
     )
 
 
@@ -237,7 +243,7 @@ def validate_state(s: VehicleState) -> Reason | None:
         ("alpha_rad", s.alpha_rad, -math.pi, math.pi),
     )
     for name, x, lo, hi in scalars:
-        if not isinstance(x, (int, float)) or not math.isfinite(x) or x < lo or x > hi:
+        if not isinstance(x, (int, float)) or not _isfinite(x) or x < lo or x > hi:
             return _bad(MonitorId.STATE_INVALID, name, x, f"= {x!r} is outside [{lo:g}, {hi:g}]")
     if not isinstance(s.nav_mode, NavMode):
         return _bad(MonitorId.STATE_INVALID, "nav_mode", math.nan, f"= {s.nav_mode!r} is not a navigation mode")
@@ -273,7 +279,7 @@ def validate_setpoint(sp: Setpoint) -> Reason | None:
     if sp.kind is SetpointKind.ATTITUDE:
         fields = (("att_rpy_rad", sp.att_rpy_rad, math.pi),)
         t = sp.thrust
-        if not isinstance(t, (int, float)) or not math.isfinite(t) or not 0.0 <= t <= 1.0:
+        if not isinstance(t, (int, float)) or not _isfinite(t) or not 0.0 <= t <= 1.0:
             return _bad(MonitorId.SETPOINT_INVALID, "thrust", t, f"= {t!r} is outside [0, 1]")
     else:
         fields = (
@@ -284,7 +290,7 @@ def validate_setpoint(sp: Setpoint) -> Reason | None:
             ("yaw_rad", sp.yaw_rad, 4.0 * math.pi),
             ("yaw_rate_radps", sp.yaw_rate_radps, MAX_SETPOINT_YAW_RATE_RADPS),
         ):
-            if not isinstance(x, (int, float)) or not math.isfinite(x) or abs(x) > lim:
+            if not isinstance(x, (int, float)) or not _isfinite(x) or abs(x) > lim:
                 return _bad(MonitorId.SETPOINT_INVALID, name, x, f"= {x!r} is not finite within +-{lim:g}")
     for name, v, lim in fields:
         if not _finite3(v):
@@ -323,13 +329,13 @@ def _fence_reason(res: geofence.FenceResult, monitor: str = MonitorId.GEOFENCE) 
 def _setpoint_consistency(sp: Setpoint, s: VehicleState, cfg: CoreConfig) -> Reason | None:
     h = cfg.handover
     if sp.kind is SetpointKind.POSITION:
-        err = math.dist(sp.pos_ned_m, s.pos_ned_m)
+        err = _dist(sp.pos_ned_m, s.pos_ned_m)
         if err > h.max_setpoint_position_error_m:
             return Reason(ReasonCode.SETPOINT_INCONSISTENT, "handover", "position_error_m", err,
                           h.max_setpoint_position_error_m, 0.0,
                           f"refused: first position setpoint is {err:.1f} m from the vehicle")
     if sp.kind is SetpointKind.VELOCITY:
-        err = math.dist(sp.vel_ned_mps, s.vel_ned_mps)
+        err = _dist(sp.vel_ned_mps, s.vel_ned_mps)
         if err > h.max_setpoint_velocity_error_mps:
             return Reason(ReasonCode.SETPOINT_INCONSISTENT, "handover", "velocity_error_mps", err,
                           h.max_setpoint_velocity_error_mps, 0.0,
@@ -337,9 +343,9 @@ def _setpoint_consistency(sp: Setpoint, s: VehicleState, cfg: CoreConfig) -> Rea
     if sp.kind is SetpointKind.ATTITUDE:
         err = max(abs(sp.att_rpy_rad[0] - s.att_rpy_rad[0]), abs(sp.att_rpy_rad[1] - s.att_rpy_rad[1]))
         if err > h.max_setpoint_attitude_error_rad:
-            return Reason(ReasonCode.SETPOINT_INCONSISTENT, "handover", "attitude_error_deg", math.degrees(err),
-                          math.degrees(h.max_setpoint_attitude_error_rad), 0.0,
-                          f"refused: first attitude setpoint is {math.degrees(err):.1f} deg from the vehicle's")
+            return Reason(ReasonCode.SETPOINT_INCONSISTENT, "handover", "attitude_error_deg", _degrees(err),
+                          _degrees(h.max_setpoint_attitude_error_rad), 0.0,
+                          f"refused: first attitude setpoint is {_degrees(err):.1f} deg from the vehicle's")
     return None
 
 
@@ -492,7 +498,7 @@ def _arm_block(cfg: CoreConfig, s: VehicleState, tripped: Mapping[MonitorId, Rea
         # carries the receiver's slow wander and may lie outside with the truth inside. Say by how much, and
         # how sure the estimate is, so that the refusal can be read without the log.
         out_m = -geofence.signed_margin_m(cfg.fence, s.pos_ned_m)
-        if not math.isfinite(out_m):
+        if not _isfinite(out_m):
             return Reason(ReasonCode.OUTSIDE_FENCE, MonitorId.GEOFENCE,
                           text="refused: arming outside the geofence: no finite position estimate")
         return Reason(ReasonCode.OUTSIDE_FENCE, MonitorId.GEOFENCE, "position", out_m, 0.0, 0.0,
@@ -842,7 +848,7 @@ def _operator_memory(st: CoreState, s: VehicleState, fenced: bool) -> OperatorMe
     fence counted on (scenario adv_pilot_regrab_keepout)."""
     last = st.last_command
     ramp_from = (last.vel_ned_mps if fenced and last is not None and last.kind is _CMD_VELOCITY
-                 and math.isfinite(last.vel_ned_mps[0] + last.vel_ned_mps[1] + last.vel_ned_mps[2]) else None)
+                 and _isfinite(last.vel_ned_mps[0] + last.vel_ned_mps[1] + last.vel_ned_mps[2]) else None)
     return OperatorMemory(s.att_rpy_rad[2], None, ramp_from, fenced)
 
 
@@ -920,7 +926,7 @@ def _statuses(cfg: CoreConfig, st: CoreState, now: float, authority: Authority, 
 def _start(cfg: CoreConfig, st: CoreState, now: float) -> tuple[float, float, CoreState]:
     """The tick's time (a non-finite one is the previous tick's), its interval, and the state fitted to the
     configuration (a new configuration with other tables starts its timers afresh)."""
-    if not isinstance(now, (int, float)) or not math.isfinite(now):
+    if not isinstance(now, (int, float)) or not _isfinite(now):
         now = st.t_s if st.t_s is not None else 0.0
     dt = 0.0 if st.t_s is None else max(0.0, now - st.t_s)
     if (len(st.env_since) != len(cfg.envelope) or len(st.clear_statuses) != len(cfg.rules)

@@ -102,7 +102,7 @@ class Action(IntEnum):
     TERMINATE = 5
 
 
-ACTION_BEHAVIOR: dict[Action, Behavior] = {
+ACTION_BEHAVIOR: Final[dict[Action, Behavior]] = {
     Action.HOLD: Behavior.HOLD,
     Action.RTL: Behavior.RTL,
     Action.LAND: Behavior.LAND,
@@ -248,7 +248,7 @@ class Reason:
         return self.monitor or self.code.name.lower()
 
 
-NO_REASON = Reason(ReasonCode.NONE)
+NO_REASON: Final = Reason(ReasonCode.NONE)
 
 
 # ----------------------------------------------------------------------------------------------- inputs

@@ -9,13 +9,18 @@ the timeout is still alive.
 from __future__ import annotations
 
 import math
+from typing import Final
 
 from merlin.core.types import Reason, ReasonCode
+
+# math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
+# more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
+_isfinite: Final = math.isfinite
 
 
 def gap_s(now: float, last_t_s: float | None) -> float:
     """Seconds since the last message; infinite if none was ever received or the time is not finite."""
-    if last_t_s is None or not math.isfinite(last_t_s):
+    if last_t_s is None or not _isfinite(last_t_s):
         return math.inf
     return now - last_t_s
 
@@ -40,7 +45,7 @@ def reason(code: ReasonCode, monitor: str, now: float, last_t_s: float | None, t
         duration_s=g,
         text=(
             f"{monitor}: nothing received for {g:.3f} s (timeout {timeout_s:.3f} s)"
-            if math.isfinite(g)
+            if _isfinite(g)
             else f"{monitor}: never received"
         ),
     )
@@ -55,7 +60,7 @@ def alive_since(
     current unbroken run.
     """
     # expired(now, last_t_s, timeout_s), written out: this runs on every tick
-    gap = math.inf if last_t_s is None or not math.isfinite(last_t_s) else now - last_t_s
+    gap = math.inf if last_t_s is None or not _isfinite(last_t_s) else now - last_t_s
     if gap > timeout_s:
         return None
     if prev_alive_since is None:

@@ -28,7 +28,7 @@ from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import Enum
-from typing import Any, NamedTuple
+from typing import Any, Final, NamedTuple
 
 import numpy as np
 
@@ -47,17 +47,28 @@ from merlin.nav.quaternion import (
     wrap_pi,
 )
 
+# math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
+# more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
+_hypot: Final = math.hypot
+_atan2: Final = math.atan2
+
 # error-state indices
 P_, V_, TH_, BG_, BA_ = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15)
-BGPS_ = slice(15, 18)  # the GPS receiver's slowly wandering position error (first-order Gauss-Markov)
+BGPS_: Final = slice(15, 18)  # the GPS receiver's slowly wandering position error (first-order Gauss-Markov)
 BBARO = 18  # the barometer's drifting offset (random walk): the height's reference is not white either
-N_ERR = 19
+N_ERR: Final = 19
 
 
 class GpsStatus(Enum):
     OK = "ok"  # admitted: fused whenever an epoch passes its gate
     UNUSABLE = "unusable"  # the receiver's own quality (fix type, satellites) is too poor
     EXCLUDED = "excluded"  # inconsistent with VO+INS: not fused until it agrees for gps_readmit_s
+
+
+# enum members read after every IMU sample: Final statics in the compiled build, not the enum class's attribute
+_GPS_OK: Final = GpsStatus.OK
+_NAV_GPS: Final = NavMode.GPS
+_NAV_VO: Final = NavMode.VO
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,8 +128,8 @@ def initial_attitude(accel_frd_mps2: Vec3, field_frd_gauss: Vec3, declination_ra
     alignment, Groves 2013, "Principles of GNSS, Inertial, and Multisensor Integrated Navigation Systems",
     2nd ed., sec. 5.6.2 and 6.1.1)."""
     fx, fy, fz = accel_frd_mps2
-    roll = math.atan2(-fy, -fz)
-    pitch = math.atan2(fx, math.hypot(fy, fz))
+    roll = _atan2(-fy, -fz)
+    pitch = _atan2(fx, _hypot(fy, fz))
     return (roll, pitch, _mag_heading(field_frd_gauss, roll, pitch, declination_rad)[0])
 
 
@@ -131,7 +142,7 @@ def _mag_heading(field: Vec3, roll: float, pitch: float, declination_rad: float)
     ly = cr * my - sr * mz
     lz = sr * my + cr * mz
     lx = cp * mx + sp * lz
-    return wrap_pi(declination_rad - math.atan2(ly, lx)), math.hypot(lx, ly)
+    return wrap_pi(declination_rad - _atan2(ly, lx)), _hypot(lx, ly)
 
 
 class Cusum:
@@ -443,12 +454,12 @@ class NavEstimator:
             self._gps_readmission(t, nis_p, nis_v, s_vo)
         s_win = sig_win = math.nan
         fused_p = fused_v = False
-        if self.gps_status is GpsStatus.OK:
+        if self.gps_status is _GPS_OK:
             s_win, sig_win = self._gps_sequential_tests(gps, nis_p, nis_v, s_vo, dr_ne)
             pos_ok = nis_p <= cfg.gps_gate_pos
             vel_ok = nis_v <= cfg.gps_gate_vel
             self._gps_consistency(t, pos_ok, vel_ok, nis_p, nis_v)
-            if self.gps_status is GpsStatus.OK:
+            if self.gps_status is _GPS_OK:
                 fused_p, fused_v = self._fuse_gps(y, r, pos_ok, vel_ok)
         check = GpsCheck(
             t,
@@ -699,7 +710,7 @@ class NavEstimator:
             best, dt = rec, d
         if best is None or dt > cfg.gps_vo_match_s:
             return math.nan
-        skew_var = (math.hypot(a_ned[0], a_ned[1]) * dt) ** 2
+        skew_var = (_hypot(a_ned[0], a_ned[1]) * dt) ** 2
         base = cfg.gps_vel_sigma_mps**2 + skew_var
         d_n = gps.vel_ned_mps[0] - best[1]
         d_e = gps.vel_ned_mps[1] - best[2]
@@ -887,7 +898,7 @@ class NavEstimator:
 
     def _gps_ok(self) -> bool:
         return (
-            self.gps_status is GpsStatus.OK
+            self.gps_status is _GPS_OK
             and self._gps_pos_fused_t is not None
             and self._t - self._gps_pos_fused_t <= self.cfg.gps_timeout_s
         )
@@ -901,10 +912,10 @@ class NavEstimator:
         cfg = self.cfg
         t = self._t
         fused_t = self._gps_pos_fused_t
-        gps_ok = self.gps_status is GpsStatus.OK and fused_t is not None and t - fused_t <= cfg.gps_timeout_s
+        gps_ok = self.gps_status is _GPS_OK and fused_t is not None and t - fused_t <= cfg.gps_timeout_s
         vo_t = self._vo_fused_t
         vo_ok = vo_t is not None and t - vo_t <= cfg.vo_timeout_s
-        if not gps_ok and self.gps_status is GpsStatus.OK and not self._gps_lost_reported:
+        if not gps_ok and self.gps_status is _GPS_OK and not self._gps_lost_reported:
             if self._gps_pos_fused_t is not None:
                 self._gps_lost_reported = True
                 self._emit(
@@ -929,9 +940,9 @@ class NavEstimator:
                 "no accepted VO",
             )
         if gps_ok:
-            mode = NavMode.GPS
+            mode = _NAV_GPS
         elif vo_ok:
-            mode = NavMode.VO
+            mode = _NAV_VO
         else:
             mode = select_mode(
                 gps_ok,
@@ -1152,7 +1163,7 @@ def _angle_residual(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return wrapped
 
 
-_DIAG = np.arange(N_ERR)
+_DIAG: Final = np.arange(N_ERR)
 _H_GPS = np.zeros((6, N_ERR))
 _H_GPS[0:3, 0:3] = np.eye(3)
 _H_GPS[0:3, 15:18] = np.eye(3)

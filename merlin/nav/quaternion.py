@@ -11,8 +11,14 @@ numpy call overhead dominates the arithmetic.
 from __future__ import annotations
 
 import math
+from typing import Final
 
 import numpy as np
+
+# math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
+# more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
+_atan2: Final = math.atan2
+_asin: Final = math.asin
 
 Quat = tuple[float, float, float, float]
 
@@ -51,7 +57,7 @@ def quat_log(q: Quat) -> tuple[float, float, float]:
     vn = math.sqrt(x * x + y * y + z * z)
     if vn < 1e-12:
         return (2.0 * x, 2.0 * y, 2.0 * z)
-    angle = 2.0 * math.atan2(vn, w)
+    angle = 2.0 * _atan2(vn, w)
     return (x * angle / vn, y * angle / vn, z * angle / vn)
 
 
@@ -103,9 +109,9 @@ def quat_from_euler(roll_rad: float, pitch_rad: float, yaw_rad: float) -> Quat:
 def quat_to_euler(q: Quat) -> tuple[float, float, float]:
     """(roll, pitch, yaw) of the 3-2-1 sequence; pitch clamped at ±90°."""
     w, x, y, z = q
-    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
-    pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
-    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    roll = _atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    pitch = _asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
+    yaw = _atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
     return (roll, pitch, yaw)
 
 

@@ -16,7 +16,7 @@ samples of the two surviving lanes.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Final, NamedTuple
 
 import numpy as np
 
@@ -40,15 +40,20 @@ from merlin.redundancy.events import FaultKind, FaultReport, RedundancyLevel
 from merlin.redundancy.sensor_voter import IMU_SPEC, ChannelSpec, LaneSample, TriplexVoter, VotedOutput
 from merlin.redundancy.sequential_fdi import SequentialImuFdi, build_fdi
 
-_EVIDENCE = {"field": "field trackers", "bias": "particle filters' bias estimates"}
+_EVIDENCE: Final = {"field": "field trackers", "bias": "particle filters' bias estimates"}
 
 # nav health reported to the core per IMU redundancy level: 1 = full, 0 = no IMU (Merlin's choice)
-NAV_HEALTH: dict[RedundancyLevel, float] = {
+NAV_HEALTH: Final[dict[RedundancyLevel, float]] = {
     RedundancyLevel.TRIPLEX: 1.0,
     RedundancyLevel.DUPLEX: 0.8,
     RedundancyLevel.SIMPLEX: 0.5,
     RedundancyLevel.NONE: 0.0,
 }
+
+# read on every tick: Final, so that the compiled build reads a static instead of the enum class's attribute
+_TRIPLEX: Final = RedundancyLevel.TRIPLEX
+_DUPLEX: Final = RedundancyLevel.DUPLEX
+_SIMPLEX: Final = RedundancyLevel.SIMPLEX
 
 
 class ChainOutput(NamedTuple):  # built every tick: a NamedTuple (merlin.redundancy.sensor_voter's records)
@@ -126,13 +131,13 @@ class ImuDegradationChain:
         ev = list(events)
         fdi_out: FdiOutput | None = None
         lanes = tuple(i for i, ln in enumerate(self.voter.state.lanes) if not ln.isolated)
-        if out.level is RedundancyLevel.DUPLEX:
+        if out.level is _DUPLEX:
             pair = (lanes[0], lanes[1])
             if self.fdi is None or self.fdi.lanes != pair:
                 ev.append(self._enter_duplex(t_s, pair))
             fdi_out = self._step_fdi(t_s, pair, imu, mag, out, ev)
             out = self._feed(pair, imu, out)
-        elif out.level is RedundancyLevel.SIMPLEX and self.fdi is not None:
+        elif out.level is _SIMPLEX and self.fdi is not None:
             ev.append(self._enter_simplex(t_s))
         step = self._source_step(imu, out)
         return new_chain_output(out, out.level, self._health(out), fdi_out, tuple(ev), step)
@@ -239,10 +244,10 @@ class ImuDegradationChain:
         """Nav health by level; at duplex while the two lanes disagree and neither is known faulty yet, no
         better than one unchecked IMU."""
         health = NAV_HEALTH[out.level]
-        if out.level is RedundancyLevel.DUPLEX and (
+        if out.level is _DUPLEX and (
                 (self.attribution is not None and self.attribution.active)
                 or (self.accel_attribution is not None and self.accel_attribution.active)):
-            health = min(health, NAV_HEALTH[RedundancyLevel.SIMPLEX])
+            health = min(health, NAV_HEALTH[_SIMPLEX])
         return health
 
     def _source_step(self, imu: tuple[LaneSample | None, ...], out: VotedOutput) -> tuple[float, ...] | None:
@@ -252,7 +257,7 @@ class ImuDegradationChain:
         the estimator can widen its bias uncertainty by it (merlin.nav.fusion_stage)."""
         used = tuple(out.lanes_used) if out.valid else None
         prev, self._fed = self._fed, used
-        if used is None or prev is None or set(prev) == set(used) or out.level is RedundancyLevel.TRIPLEX:
+        if used is None or prev is None or set(prev) == set(used) or out.level is _TRIPLEX:
             return None
         if len(prev) > 2 or any(imu[i] is None for i in prev) or any(imu[i] is None for i in used):
             return None

@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Any, NamedTuple, Protocol
+from typing import Any, Final, NamedTuple, Protocol
 
 import numpy as np
 
@@ -83,6 +83,18 @@ from merlin.redundancy.lane_voter import (
 from merlin.redundancy.sensor_suite import SensorSuiteVoter
 from merlin.redundancy.sensor_voter import CHANNEL_SPECS, ChannelSpec, LaneState
 
+# math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
+# more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
+_isfinite: Final = math.isfinite
+
+# enum members read on every tick and lane: Final statics in the compiled build, not the enum class's attribute
+_NAV_GPS: Final = NavMode.GPS
+_NAV_VO: Final = NavMode.VO
+_NAV_INERTIAL: Final = NavMode.INERTIAL
+_NAV_LOST: Final = NavMode.LOST
+_CMD_VELOCITY: Final = CommandKind.VELOCITY
+_CMD_ATTITUDE: Final = CommandKind.ATTITUDE
+
 # The bumpless limit: the most a hand-over may move any one motor command (0..1) per 400 Hz tick.
 # Merlin's number, from the airframe: the motors' speed time constant is 0.04 s
 # (sims/vehicles/quadrotor_default.yaml, motor_time_constant_s), and a command slewed over the full
@@ -90,15 +102,15 @@ from merlin.redundancy.sensor_voter import CHANNEL_SPECS, ChannelSpec, LaneState
 # the rotor without the thrust overshoot a step gives; 0.03 keeps a margin. In steady flight the inner
 # loops move a motor by well under this per tick (measured in docs/redundancy.md), so the limiter only
 # acts at a switch. Scaled with the tick for other dt values (BUMPLESS_STEP_PER_S * dt).
-BUMPLESS_STEP_PER_S = 0.03 / 0.0025
+BUMPLESS_STEP_PER_S: Final = 0.03 / 0.0025
 # Standby tracking: the share of the gap to the actuated command a standby lane's integrators absorb
 # per tick; 0.2 at 400 Hz is a back-calculation time constant of 12.5 ms (Åström & Hägglund, "Advanced
 # PID control", 2006, §3.5: the tracking time constant should be below the integral time; the rate
 # loop's is 0.54 s).
-TRACKING_GAIN = 0.2
+TRACKING_GAIN: Final = 0.2
 # Window after a lane switch over which the actuated motor step is measured (the hand-over slews at
 # most 1/BUMPLESS_STEP_PER_S of the range per second: 0.083 s for the full range).
-SWITCH_WINDOW_S = 0.25
+SWITCH_WINDOW_S: Final = 0.25
 # The duplex PF's magnetometer likelihood in the loop. merlin.redundancy's presets use 0.05 G, tuned on
 # the synthetic seed-003 flight; the simulator's magnetometer has 0.003 G of noise and no model error, and
 # with 0.05 G the two filters' yaw estimates wander apart by up to ||Omega dq||_inf ~ 1 in normal
@@ -106,7 +118,7 @@ SWITCH_WINDOW_S = 0.25
 # at random: the healthy one in 3 of 3 seeds with a yaw-gyro bias). 0.01 G (about three times the
 # sensor noise) keeps the normal wander at about 0.5 at most and isolated the faulty IMU in 16 of 16 replays of
 # recorded duplex data (roll- and yaw-gyro bias steps, docs/redundancy.md).
-PF_SIGMA_MAG_GAUSS = 0.01
+PF_SIGMA_MAG_GAUSS: Final = 0.01
 # The accelerometer scale of the MERLIN preset's whitened isolation residual in the loop (the table2 preset
 # does not whiten). The preset's 0.02 g is the synthetic seed-003 flight's accelerometer noise; in the
 # closed loop the specific force also carries the vehicle's own linear acceleration, which the filters'
@@ -114,7 +126,7 @@ PF_SIGMA_MAG_GAUSS = 0.01
 # that mismatch dominated the residual and the healthy lane was blamed in 1 of 4 seeds of
 # imu_second_fault_duplex.yaml; at 0.1 g the bias and magnetometer parts decide and the faulty lane was
 # the one isolated in 8 of 8 runs (roll and yaw bias, 4 seeds; docs/redundancy.md).
-PF_RESIDUAL_ACCEL_G = 0.1
+PF_RESIDUAL_ACCEL_G: Final = 0.1
 
 
 def _event(r: FaultReport) -> dict[str, Any]:
@@ -308,7 +320,7 @@ class LaneContext:
     data_link_ok: bool = True
 
 
-NO_CONTEXT = LaneContext()
+NO_CONTEXT: Final = LaneContext()
 
 
 def lane_context(decision: Decision, core_cfg: CoreConfig, battery_frac: float) -> LaneContext:
@@ -326,13 +338,13 @@ def lane_context(decision: Decision, core_cfg: CoreConfig, battery_frac: float) 
 # A lane's own position stops being valid after this long without a position aid (GPS or VO): PX4's
 # COM_POS_FS_DELAY default, 1 s, the delay after which the commander declares local position invalid when
 # its estimator stops fusing a position source (the thesis's local_position_valid comes from there).
-LANE_DEAD_RECKONING_S = 1.0
+LANE_DEAD_RECKONING_S: Final = 1.0
 # The lane's altitude is valid while its barometer was fused within this long (4 samples at 50 Hz
 # missed, or rejected by the filter's gate for as long)
-LANE_BARO_STALE_S = 0.1
+LANE_BARO_STALE_S: Final = 0.1
 # A lane's own sensors count as initialised while each unit delivered a sample within its voter timeout
 # (merlin.redundancy.sensor_voter's channel presets: IMU 0.02 s, mag 0.1 s, baro 0.2 s, GPS 0.5 s)
-_SENSOR_TIMEOUT_S = {name: spec.timeout_s for name, spec in CHANNEL_SPECS.items()}
+_SENSOR_TIMEOUT_S: Final = {name: spec.timeout_s for name, spec in CHANNEL_SPECS.items()}
 
 
 class LaneNavigation:
@@ -401,14 +413,14 @@ class LaneNavigation:
         seen = self.last_seen[lane]
         sensors_ok = not self.units_isolated[lane] and all(k in seen and t - seen[k] <= _SENSOR_TIMEOUT_S[k] + 1e-9
                                                            for k in ("imu", "mag", "baro", "gps"))
-        gyro_ok = imu is not None and not imu_isolated and all(math.isfinite(v) for v in imu.gyro_frd_radps) \
+        gyro_ok = imu is not None and not imu_isolated and all(_isfinite(v) for v in imu.gyro_frd_radps) \
             and "imu" in seen and t - seen["imu"] <= _SENSOR_TIMEOUT_S["imu"] + 1e-9
-        aided = st.nav_mode is NavMode.GPS or st.nav_mode is NavMode.VO or (
-            st.nav_mode is NavMode.INERTIAL and st.nav_inertial_s <= LANE_DEAD_RECKONING_S)
-        pos_ok = aided and all(math.isfinite(v) for v in st.pos_ned_m) and st.pos_sigma_h_m <= max_sigma_h_m
-        vel_ok = aided and all(math.isfinite(v) for v in st.vel_ned_mps)
-        att_ok = gyro_ok and all(math.isfinite(v) for v in st.att_rpy_rad)
-        alt_ok = math.isfinite(st.pos_ned_m[2])
+        aided = st.nav_mode is _NAV_GPS or st.nav_mode is _NAV_VO or (
+            st.nav_mode is _NAV_INERTIAL and st.nav_inertial_s <= LANE_DEAD_RECKONING_S)
+        pos_ok = aided and all(_isfinite(v) for v in st.pos_ned_m) and st.pos_sigma_h_m <= max_sigma_h_m
+        vel_ok = aided and all(_isfinite(v) for v in st.vel_ned_mps)
+        att_ok = gyro_ok and all(_isfinite(v) for v in st.att_rpy_rad)
+        alt_ok = _isfinite(st.pos_ned_m[2])
         if self.ekfs is not None:
             b = self.ekfs[lane].last_baro
             alt_ok = alt_ok and b is not None and b.fused and t - b.t_s <= LANE_BARO_STALE_S
@@ -466,15 +478,15 @@ class AutopilotLanes:
         share one navigation solution (``lane_navigation: shared``): the navigation flags then come from the
         shared estimate and can differ between lanes only through the lane's own IMU; battery, failsafe
         and data link from ``ctx``. With ``lane_navigation: own`` see :meth:`LaneNavigation.flags`."""
-        gyro_ok = imu is not None and not imu_isolated and all(math.isfinite(v) for v in imu.gyro_frd_radps)
-        nav_ok = state.nav_mode is not NavMode.LOST
-        pos_ok = nav_ok and all(math.isfinite(v) for v in state.pos_ned_m)
-        vel_ok = nav_ok and all(math.isfinite(v) for v in state.vel_ned_mps)
-        att_ok = gyro_ok and all(math.isfinite(v) for v in state.att_rpy_rad)
+        gyro_ok = imu is not None and not imu_isolated and all(_isfinite(v) for v in imu.gyro_frd_radps)
+        nav_ok = state.nav_mode is not _NAV_LOST
+        pos_ok = nav_ok and all(_isfinite(v) for v in state.pos_ned_m)
+        vel_ok = nav_ok and all(_isfinite(v) for v in state.vel_ned_mps)
+        att_ok = gyro_ok and all(_isfinite(v) for v in state.att_rpy_rad)
         flags = {
             "local_position_valid": pos_ok, "local_velocity_valid": vel_ok, "global_position_valid": pos_ok,
             "angular_velocity_valid": gyro_ok, "attitude_valid": att_ok,
-            "local_altitude_valid": math.isfinite(state.pos_ned_m[2]), "battery_healthy": ctx.battery_ok,
+            "local_altitude_valid": _isfinite(state.pos_ned_m[2]), "battery_healthy": ctx.battery_ok,
             "sensors_initialized": imu is not None, "no_failsafe": ctx.no_failsafe, "data_link_ok": ctx.data_link_ok,
         }
         return tuple(flags[name] for name in THESIS_FLAGS)
@@ -491,7 +503,7 @@ class AutopilotLanes:
         :attr:`nav` set (``lane_navigation: own``) lane i flies on its own estimate ``nav.states[i]``."""
         self._ctx = ctx
         failed = NO_FAILURE if self.faults is None else self.faults.failed(t)
-        flying = cmd.kind is CommandKind.VELOCITY or cmd.kind is CommandKind.ATTITUDE
+        flying = cmd.kind is _CMD_VELOCITY or cmd.kind is _CMD_ATTITUDE
         if flying and self.takeoff_t is None:
             self.takeoff_t = t
         own: list[MotorCommands | None] = [None] * N_LANES
@@ -622,7 +634,7 @@ class AutopilotLanes:
         return n
 
     def metrics(self) -> dict[str, float]:
-        gaps = [s.handover_gap for s in self.switches if math.isfinite(s.handover_gap)]
+        gaps = [s.handover_gap for s in self.switches if _isfinite(s.handover_gap)]
         return {
             "lane_switches": float(len(self.switches)),
             "max_lane_switch_motor_step": self.max_switch_step,
@@ -674,7 +686,7 @@ def lane_config(rc: RedundancyConfig, preset: str | None = None) -> LaneVoterCon
     )
 
 
-_LEVEL_WORD = {3: "TRIPLEX", 2: "DUPLEX", 1: "SIMPLEX", 0: "NONE"}
+_LEVEL_WORD: Final = {3: "TRIPLEX", 2: "DUPLEX", 1: "SIMPLEX", 0: "NONE"}
 
 
 @dataclass(frozen=True, slots=True)

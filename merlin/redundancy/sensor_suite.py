@@ -18,7 +18,7 @@ barometer and GPS samples are what the estimator fuses.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import NamedTuple
+from typing import Final, NamedTuple
 
 import numpy as np
 
@@ -38,7 +38,8 @@ from merlin.redundancy.sensor_voter import (
     mag_lane,
 )
 
-VOTED_LANE = -1
+VOTED_LANE: Final = -1
+_SIMPLEX: Final = RedundancyLevel.SIMPLEX  # read on every tick (a static, compiled)
 
 
 class VotedSensors(NamedTuple):  # built every tick: a NamedTuple (merlin.redundancy.sensor_voter's records)
@@ -132,7 +133,7 @@ class SensorSuiteVoter:
         imu_v = None
         if chain.imu.values is not None and chain.imu.valid:
             imu_v = ImuSample(t_s, _v3(chain.imu.values, 0), _v3(chain.imu.values, 3), VOTED_LANE)
-        single = RedundancyLevel.SIMPLEX
+        single = _SIMPLEX
         levels = (("imu", chain.level), ("mag", single), ("baro", single), ("gps", single))
         return new_voted_sensors(t_s, imu_v, mag[0], baro[0], gps[0], levels, chain.nav_health, chain.events,
                                  chain.source_step)

@@ -33,14 +33,21 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Final, NamedTuple
 
 from merlin.core.types import new_record
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
 from merlin.redundancy.events import FaultKind, FaultReport, RedundancyLevel
 
-N_LANES = 3
-_EPS_S = 1e-9  # float slack when comparing accumulated dt sums with a persistence window
+# math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
+# more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
+_isfinite: Final = math.isfinite
+
+# Module constants read on every tick are Final: compiled, a Final number is a native constant and a Final
+# object a C static, where a plain module global is a dictionary lookup per read (docs/benchmarks/sim.md,
+# "Module constants, enum members and math functions in the tick").
+N_LANES: Final = 3
+_EPS_S: Final = 1e-9  # float slack when comparing accumulated dt sums with a persistence window
 
 
 @dataclass(frozen=True, slots=True)
@@ -186,7 +193,7 @@ def _validate(spec: ChannelSpec, lane: LaneState, t_s: float, sample: LaneSample
                 in_range = False
                 break
         if not in_range:
-            fault = FaultKind.NON_FINITE if not all(math.isfinite(v) for v in vals) else FaultKind.RANGE
+            fault = FaultKind.NON_FINITE if not all(_isfinite(v) for v in vals) else FaultKind.RANGE
         elif sample.fix_type < spec.min_fix_type:
             fault = FaultKind.INVALID_FIX
     elif lane.fault in (FaultKind.NON_FINITE, FaultKind.RANGE, FaultKind.INVALID_FIX):
@@ -254,6 +261,7 @@ def vote_step(
 
 _NO_EVENTS: tuple[FaultReport, ...] = ()
 _ALL_LANES = (0, 1, 2)
+_TRIPLEX: Final = RedundancyLevel.TRIPLEX
 
 
 def _clean_triplex_tick(
@@ -267,7 +275,8 @@ def _clean_triplex_tick(
     (tests/redundancy/test_sensor_voter.py checks the equivalence, at the IMU's rate and at a slow
     channel's) -- or None when any condition fails. A lane with nothing new keeps its state object: the
     general path would rebuild it with the same values."""
-    if state.level is not RedundancyLevel.TRIPLEX or state.t_s is None or len(samples) != N_LANES:
+    state_lanes = state.lanes
+    if state.level is not _TRIPLEX or state.t_s is None or len(samples) != N_LANES or len(state_lanes) != N_LANES:
         return None
     lanes: list[LaneState] = []
     vecs: list[tuple[float, ...]] = []
@@ -276,7 +285,8 @@ def _clean_triplex_tick(
     # twice as fast as map() with operator functions, which calls through Python per component
     # (docs/benchmarks/sim.md, "The voter's clean tick"). The interpreted build pays for it; it is the
     # reference build, not the fast one.
-    for ln, smp in zip(state.lanes, samples, strict=True):
+    for j in range(N_LANES):
+        ln, smp = state_lanes[j], samples[j]
         if ln.isolated or ln.fault is not None or ln.miscompare or ln.counter_s != 0.0:
             return None
         last_t, last_vals = ln.last_t_s, ln.last_values
@@ -303,7 +313,7 @@ def _clean_triplex_tick(
         lanes.append(new_lane_state(smp.t_s, vals))
         vecs.append(vals)
     a, b, c = vecs
-    m = min(len(a), len(b), len(c))
+    m = min(min(len(a), len(b)), len(c))
     mid = tuple([_median3(a[i], b[i], c[i]) for i in range(m)])
     thr = spec.miscompare
     k = min(m, len(thr))
@@ -311,8 +321,8 @@ def _clean_triplex_tick(
         for i in range(min(k, len(v))):
             if not abs(v[i] - mid[i]) <= thr[i]:
                 return None
-    out = new_voted_output(t_s, mid, True, RedundancyLevel.TRIPLEX, _ALL_LANES, False)
-    return new_voter_state((lanes[0], lanes[1], lanes[2]), t_s, RedundancyLevel.TRIPLEX, mid), out, _NO_EVENTS
+    out = new_voted_output(t_s, mid, True, _TRIPLEX, _ALL_LANES, False)
+    return new_voter_state((lanes[0], lanes[1], lanes[2]), t_s, _TRIPLEX, mid), out, _NO_EVENTS
 
 
 def _vote_step_general(
@@ -503,9 +513,9 @@ class TriplexVoter:
 # probability < 1e-8 and persistence makes a false isolation practically impossible; the benchmark
 # bench_redundancy.py counts them over 1e6 samples per channel.
 
-_G = 9.80665
+_G: Final = 9.80665
 
-IMU_SPEC = ChannelSpec(
+IMU_SPEC: Final = ChannelSpec(
     name="imu",
     components=("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z"),
     # gyro: sigma 0.01 rad/s, biases within +-0.005 rad/s; accel: sigma 0.15 m/s2, biases +-0.1 m/s2
@@ -517,7 +527,7 @@ IMU_SPEC = ChannelSpec(
     persistence_s=0.05,  # 20 ticks at 400 Hz
 )
 
-MAG_SPEC = ChannelSpec(
+MAG_SPEC: Final = ChannelSpec(
     name="mag",
     components=("x", "y", "z"),
     miscompare=(0.12, 0.12, 0.12),  # sigma 0.005 G, calibration residuals +-0.03 G
@@ -529,7 +539,7 @@ MAG_SPEC = ChannelSpec(
     pair_mean_in_persistence=True,
 )
 
-BARO_SPEC = ChannelSpec(
+BARO_SPEC: Final = ChannelSpec(
     name="baro",
     components=("alt",),
     miscompare=(3.5,),  # sigma 0.3 m, offsets +-0.5 m
@@ -541,7 +551,7 @@ BARO_SPEC = ChannelSpec(
     pair_mean_in_persistence=True,
 )
 
-GPS_SPEC = ChannelSpec(
+GPS_SPEC: Final = ChannelSpec(
     name="gps",
     components=("pos_n", "pos_e", "pos_d", "vel_n", "vel_e", "vel_d"),
     miscompare=(6.0, 6.0, 9.0, 1.2, 1.2, 1.5),  # sigma 0.5/0.5/0.8 m, 0.1/0.1/0.15 m/s, offsets 1 m
@@ -554,4 +564,4 @@ GPS_SPEC = ChannelSpec(
     pair_mean_in_persistence=True,
 )
 
-CHANNEL_SPECS: dict[str, ChannelSpec] = {s.name: s for s in (IMU_SPEC, MAG_SPEC, BARO_SPEC, GPS_SPEC)}
+CHANNEL_SPECS: Final[dict[str, ChannelSpec]] = {s.name: s for s in (IMU_SPEC, MAG_SPEC, BARO_SPEC, GPS_SPEC)}
