@@ -23,6 +23,7 @@ so a run is bit-for-bit reproducible from its seed.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import MISSING, dataclass, fields
@@ -164,13 +165,18 @@ def multirotor_params_from_mapping(data: Any, source: str = "<multirotor params>
     raise ConfigError(source, problems)
 
 
-#: Vehicle files already parsed in this process, by path and text. A process flying many runs (a campaign
-#: worker, a test worker) loads the same vehicle for each, and parsing its YAML cost about 50 million
-#: instructions, a third of what a simulated second of the nominal loop costs (docs/benchmarks/sim.md,
-#: "Counting instructions"). Keyed by the file's text, so an edited file is parsed again; the parameters are
-#: frozen floats, so runs can share them. Bounded: the oldest entry goes first.
-_PARSED: dict[tuple[str, str], MultirotorParams] = {}
 _PARSED_MAX: Final = 16
+
+
+@functools.lru_cache(maxsize=_PARSED_MAX)
+def _parsed(path: str, text: str) -> MultirotorParams:
+    """A vehicle file's parameters, kept per process by path and text. A process flying many runs (a campaign
+    worker, a test worker) loads the same vehicle for each, and parsing its YAML cost about 50 million
+    instructions, a third of what a simulated second of the nominal loop costs (docs/benchmarks/sim.md,
+    "Counting instructions"). Keyed by the file's text, so an edited file is parsed again; the parameters are
+    frozen floats, so runs can share them. A file that fails raises and is not kept."""
+    data, _ = parse_yaml(text, path)
+    return multirotor_params_from_mapping(data, path)
 
 
 def load_multirotor_params(path: str | Path = DEFAULT_PARAMS_PATH) -> MultirotorParams:
@@ -180,15 +186,7 @@ def load_multirotor_params(path: str | Path = DEFAULT_PARAMS_PATH) -> Multirotor
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(str(p), [f"cannot read the file: {exc.strerror or exc}"]) from None
-    key = (str(p), text)
-    params = _PARSED.get(key)
-    if params is None:
-        data, _ = parse_yaml(text, str(p))
-        params = multirotor_params_from_mapping(data, str(p))
-        if len(_PARSED) >= _PARSED_MAX:
-            del _PARSED[next(iter(_PARSED))]
-        _PARSED[key] = params
-    return params
+    return _parsed(str(p), text)
 
 
 # ------------------------------------------------------------------------------------------ attitude math

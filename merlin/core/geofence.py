@@ -48,6 +48,7 @@ Everything here is pure: a :class:`Fence` is built once, outside the tick, and n
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from collections.abc import Sequence
@@ -356,80 +357,10 @@ class Fence:
     _local: tuple[_LocalLevel, ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        key = (self.inclusion_polygons, self.inclusion_circles, self.exclusion_polygons, self.exclusion_circles,
-               self.grid_cells)
-        derived = _DERIVED.get(key)
-        if derived is None:
-            self._derive()
-            if len(_DERIVED) >= _DERIVED_MAX:
-                del _DERIVED[next(iter(_DERIVED))]
-            _DERIVED[key] = tuple(getattr(self, name) for name in _DERIVED_FIELDS)
-        else:
-            for name, value in zip(_DERIVED_FIELDS, derived, strict=True):
-                object.__setattr__(self, name, value)
-
-    def _derive(self) -> None:
-        """The geometries, the grid and the local levels from the zones (``__post_init__``, once per zones)."""
-        set_ = object.__setattr__
-        incl = [_polygon_geom(p, f"inclusion_polygons[{i}]") for i, p in enumerate(self.inclusion_polygons)]
-        incl += [
-            _circle_geom(c, f"inclusion_circles[{i}]", circumscribed=False)
-            for i, c in enumerate(self.inclusion_circles)
-        ]
-        excl = [_polygon_geom(p, f"exclusion_polygons[{i}]") for i, p in enumerate(self.exclusion_polygons)]
-        excl += [
-            _circle_geom(c, f"exclusion_circles[{i}]", circumscribed=True)
-            for i, c in enumerate(self.exclusion_circles)
-        ]
-        excl_union = shapely.union_all(excl) if excl else None
-        incl_hazard = None
-        if incl:
-            incl_union = shapely.union_all(incl)
-            allowed = incl_union if excl_union is None else shapely.difference(incl_union, excl_union)
-            if shapely.is_empty(allowed) or float(shapely.area(allowed)) <= 0.0:
-                raise ValueError(
-                    "the exclusion zones cover every inclusion zone: nowhere is inside the fence"
-                )
-            n0, e0, n1, e1 = (float(x) for x in shapely.bounds(incl_union))
-            # The forbidden area is a box around the inclusion zones minus the allowed area: a path leaving
-            # the fence crosses the ring between them; a position beyond the box is outside by a compare.
-            pad = max(100.0, 0.1 * max(n1 - n0, e1 - e0))
-            box = (n0 - pad, e0 - pad, n1 + pad, e1 + pad)
-            box_geom = shapely.box(*box)
-            forbidden = shapely.difference(box_geom, allowed)
-            incl_hazard = shapely.difference(box_geom, incl_union)
-        else:
-            allowed = None
-            forbidden = excl_union
-            if excl_union is not None:
-                n0, e0, n1, e1 = (float(x) for x in shapely.bounds(excl_union))
-                pad = max(100.0, 0.1 * max(n1 - n0, e1 - e0))
-                box = (n0 - pad, e0 - pad, n1 + pad, e1 + pad)
-            else:
-                box = (0.0, 0.0, 0.0, 0.0)
-        excl_boundary = shapely.boundary(excl_union) if excl_union is not None else None
-        for g in (allowed, forbidden, incl_hazard, excl_union, excl_boundary):
-            if g is not None:
-                shapely.prepare(g)
-        set_(self, "_has_inclusion", bool(incl))
-        set_(self, "_allowed", allowed)
-        set_(self, "_forbidden", forbidden)
-        set_(self, "_incl_hazard", incl_hazard)
-        set_(self, "_excl_hazard", excl_union)
-        set_(self, "_excl_boundary", excl_boundary)
-        set_(self, "_box", box)
-        grid, ni, nj, inv_cell = _build_grid(allowed, forbidden, box, self.grid_cells)
-        set_(self, "_grid", grid)
-        set_(self, "_grid_ni", ni)
-        set_(self, "_grid_nj", nj)
-        set_(self, "_grid_inv_cell", inv_cell)
-        set_(self, "_grid_cell", 1.0 / inv_cell if inv_cell > 0.0 else 0.0)
-        tables = []
-        for m in _ARC_SEGMENT_CHOICES:
-            phi = np.linspace(0.0, math.pi, m + 1)
-            tables.append((m, 1.0 - math.cos(0.5 * math.pi / m), np.cos(phi), np.sin(phi)))
-        set_(self, "_arc_tables", tuple(tables))
-        set_(self, "_local", _build_local_levels(forbidden, box))
+        derived = _derived(self.inclusion_polygons, self.inclusion_circles, self.exclusion_polygons,
+                           self.exclusion_circles, self.grid_cells)
+        for name, value in zip(_DERIVED_FIELDS, derived, strict=True):
+            object.__setattr__(self, name, value)
 
     def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
         # Pickled (e.g. to a worker process) as the values of every field, derived ones included, so unpickling does not rebuild the geometry and the grid. Written
@@ -463,14 +394,83 @@ _FENCE_FIELDS: Final[tuple[str, ...]] = tuple(f.name for f in fields(Fence))
 #: The fields ``__post_init__`` derives from the zones and ``grid_cells`` (the parameters play no part).
 _DERIVED_FIELDS: Final[tuple[str, ...]] = tuple(f.name for f in fields(Fence) if not f.init)
 
-#: What the zones derived, by zones and ``grid_cells``, for the fences built after in this process. A process
-#: flying many runs over one range (a campaign worker, a test worker) builds the same fence for each, and the
-#: geometry, the distance grid and the local levels cost about 190 million instructions, more than a
-#: simulated second of the nominal loop (docs/benchmarks/sim.md, "Counting instructions"). Everything derived
-#: is immutable and already shared between fences (:meth:`Fence.with_params`). A range given again after a
-#: failed build is validated again: only successful builds are kept. Bounded: the oldest entry goes first.
-_DERIVED: dict[tuple[Any, ...], tuple[Any, ...]] = {}
 _DERIVED_MAX: Final = 16
+
+
+@functools.lru_cache(maxsize=_DERIVED_MAX)
+def _derived(inclusion_polygons: tuple[PolygonNE, ...], inclusion_circles: tuple[CircleNE, ...],
+             exclusion_polygons: tuple[PolygonNE, ...], exclusion_circles: tuple[CircleNE, ...],
+             grid_cells: int) -> tuple[Any, ...]:
+    """What a :class:`Fence` derives from its zones and ``grid_cells`` (the parameters play no part): the
+    geometries, the distance grid and the local levels, one value per :data:`_DERIVED_FIELDS`.
+
+    Kept per process by zones and grid: a process flying many runs over one range (a campaign worker, a test
+    worker) builds the same fence for each, and this costs about 190 million instructions, more than a
+    simulated second of the nominal loop (docs/benchmarks/sim.md, "Counting instructions"). Everything derived
+    is immutable and already shared between fences (:meth:`Fence.with_params`). A range that fails raises and
+    is not kept: given again, it is validated again.
+    """
+    out: dict[str, Any] = {}
+    incl = [_polygon_geom(p, f"inclusion_polygons[{i}]") for i, p in enumerate(inclusion_polygons)]
+    incl += [
+        _circle_geom(c, f"inclusion_circles[{i}]", circumscribed=False)
+        for i, c in enumerate(inclusion_circles)
+    ]
+    excl = [_polygon_geom(p, f"exclusion_polygons[{i}]") for i, p in enumerate(exclusion_polygons)]
+    excl += [
+        _circle_geom(c, f"exclusion_circles[{i}]", circumscribed=True)
+        for i, c in enumerate(exclusion_circles)
+    ]
+    excl_union = shapely.union_all(excl) if excl else None
+    incl_hazard = None
+    if incl:
+        incl_union = shapely.union_all(incl)
+        allowed = incl_union if excl_union is None else shapely.difference(incl_union, excl_union)
+        if shapely.is_empty(allowed) or float(shapely.area(allowed)) <= 0.0:
+            raise ValueError(
+                "the exclusion zones cover every inclusion zone: nowhere is inside the fence"
+            )
+        n0, e0, n1, e1 = (float(x) for x in shapely.bounds(incl_union))
+        # The forbidden area is a box around the inclusion zones minus the allowed area: a path leaving
+        # the fence crosses the ring between them; a position beyond the box is outside by a compare.
+        pad = max(100.0, 0.1 * max(n1 - n0, e1 - e0))
+        box = (n0 - pad, e0 - pad, n1 + pad, e1 + pad)
+        box_geom = shapely.box(*box)
+        forbidden = shapely.difference(box_geom, allowed)
+        incl_hazard = shapely.difference(box_geom, incl_union)
+    else:
+        allowed = None
+        forbidden = excl_union
+        if excl_union is not None:
+            n0, e0, n1, e1 = (float(x) for x in shapely.bounds(excl_union))
+            pad = max(100.0, 0.1 * max(n1 - n0, e1 - e0))
+            box = (n0 - pad, e0 - pad, n1 + pad, e1 + pad)
+        else:
+            box = (0.0, 0.0, 0.0, 0.0)
+    excl_boundary = shapely.boundary(excl_union) if excl_union is not None else None
+    for g in (allowed, forbidden, incl_hazard, excl_union, excl_boundary):
+        if g is not None:
+            shapely.prepare(g)
+    out["_has_inclusion"] = bool(incl)
+    out["_allowed"] = allowed
+    out["_forbidden"] = forbidden
+    out["_incl_hazard"] = incl_hazard
+    out["_excl_hazard"] = excl_union
+    out["_excl_boundary"] = excl_boundary
+    out["_box"] = box
+    grid, ni, nj, inv_cell = _build_grid(allowed, forbidden, box, grid_cells)
+    out["_grid"] = grid
+    out["_grid_ni"] = ni
+    out["_grid_nj"] = nj
+    out["_grid_inv_cell"] = inv_cell
+    out["_grid_cell"] = 1.0 / inv_cell if inv_cell > 0.0 else 0.0
+    tables = []
+    for m in _ARC_SEGMENT_CHOICES:
+        phi = np.linspace(0.0, math.pi, m + 1)
+        tables.append((m, 1.0 - math.cos(0.5 * math.pi / m), np.cos(phi), np.sin(phi)))
+    out["_arc_tables"] = tuple(tables)
+    out["_local"] = _build_local_levels(forbidden, box)
+    return tuple(out[name] for name in _DERIVED_FIELDS)
 
 
 def _fence_with_fields(values: Sequence[Any]) -> Fence:

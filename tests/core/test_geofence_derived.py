@@ -1,4 +1,4 @@
-"""A fence built again over the same zones takes what the first derived (merlin.core.geofence's _DERIVED):
+"""A fence built again over the same zones takes what the first derived (merlin.core.geofence's _derived, kept per process):
 the same objects, the same verdicts as a fence derived afresh; other zones or another grid derive their own;
 a range that failed to build fails again; the store stays bounded."""
 
@@ -32,7 +32,7 @@ def _verdicts(fence: Fence) -> list[gf.FenceResult]:
 
 
 def test_the_same_zones_share_what_was_derived_and_decide_the_same() -> None:
-    gf._DERIVED.clear()
+    gf._derived.cache_clear()
     first = Fence(MR, **_zones())  # type: ignore[arg-type]
     again = Fence(FenceParams(margin_m=8.0), **_zones())  # type: ignore[arg-type]  # other parameters
     # the objects are shared; plain values are equal (the compiled build stores them unboxed: a new tuple or
@@ -45,37 +45,43 @@ def test_the_same_zones_share_what_was_derived_and_decide_the_same() -> None:
         assert getattr(again, name) is getattr(first, name), name
     for name in plain:
         assert getattr(again, name) == getattr(first, name), name
-    gf._DERIVED.clear()
+    gf._derived.cache_clear()
     fresh = Fence(FenceParams(margin_m=8.0), **_zones())  # type: ignore[arg-type]
     assert fresh._grid is not again._grid
     assert _verdicts(again) == _verdicts(fresh)
 
 
 def test_other_zones_or_another_grid_derive_their_own() -> None:
-    gf._DERIVED.clear()
+    gf._derived.cache_clear()
     a = Fence(MR, **_zones())  # type: ignore[arg-type]
     b = Fence(MR, **_zones(shift=50.0))  # type: ignore[arg-type]
     c = Fence(MR, grid_cells=1024, **_zones())  # type: ignore[arg-type]
     assert b._grid is not a._grid and c._grid is not a._grid
     assert b._box != a._box and c._grid_ni != a._grid_ni
-    assert len(gf._DERIVED) == 3
+    assert gf._derived.cache_info().currsize == 3
 
 
 def test_a_range_that_failed_fails_again() -> None:
-    gf._DERIVED.clear()
+    gf._derived.cache_clear()
     everywhere_excluded = {"inclusion_polygons": (PolygonNE(((0.0, 0.0), (10.0, 0.0), (10.0, 10.0))),),
                            "exclusion_circles": (CircleNE((3.0, 3.0), 100.0),)}
     for _ in range(2):
         with pytest.raises(ValueError, match="nowhere is inside the fence"):
             Fence(MR, **everywhere_excluded)  # type: ignore[arg-type]
-    assert gf._DERIVED == {}
+    assert gf._derived.cache_info().currsize == 0
 
 
 def test_the_store_keeps_only_the_newest_ranges() -> None:
-    gf._DERIVED.clear()
-    for k in range(gf._DERIVED_MAX + 5):
-        Fence(MR, inclusion_circles=(CircleNE((0.0, 0.0), 100.0 + k),), grid_cells=64)
-    assert len(gf._DERIVED) == gf._DERIVED_MAX
-    radii = [key[1][0].radius_m for key in gf._DERIVED]
-    assert radii == [100.0 + k for k in range(5, gf._DERIVED_MAX + 5)]
-    assert all(math.isfinite(r) for r in radii)
+    gf._derived.cache_clear()
+    def build(k: int) -> Fence:
+        return Fence(MR, inclusion_circles=(CircleNE((0.0, 0.0), 100.0 + k),), grid_cells=64)
+
+    fences = [build(k) for k in range(gf._DERIVED_MAX + 5)]
+    assert gf._derived.cache_info().currsize == gf._DERIVED_MAX
+    # the newest ranges are kept (built again, they share the first build's grid), the oldest are not
+    kept = range(5, gf._DERIVED_MAX + 5)
+    assert all(build(k)._grid is fences[k]._grid for k in kept)
+    misses = gf._derived.cache_info().misses
+    assert build(0)._grid is not fences[0]._grid
+    assert gf._derived.cache_info().misses == misses + 1
+    assert all(math.isfinite(fences[k]._grid_cell) for k in kept)

@@ -1,4 +1,4 @@
-"""A vehicle file parsed once per process and text (sims.multirotor's _PARSED): loaded again it is the same
+"""A vehicle file parsed once per process and text (sims.multirotor's _parsed, kept per process): loaded again it is the same
 parameters; edited, it is parsed again; a broken one is refused every time; the store stays bounded."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from sims import multirotor as mr
 
 
 def test_the_same_file_is_parsed_once_and_an_edited_one_again(tmp_path: Path) -> None:
-    mr._PARSED.clear()
+    mr._parsed.cache_clear()
     text = mr.DEFAULT_PARAMS_PATH.read_text(encoding="utf-8")
     f = tmp_path / "quad.yaml"
     f.write_text(text)
@@ -27,24 +27,30 @@ def test_the_same_file_is_parsed_once_and_an_edited_one_again(tmp_path: Path) ->
 
 
 def test_a_broken_file_is_refused_every_time(tmp_path: Path) -> None:
-    mr._PARSED.clear()
+    mr._parsed.cache_clear()
     f = tmp_path / "bad.yaml"
     f.write_text(mr.DEFAULT_PARAMS_PATH.read_text(encoding="utf-8").replace("mass_kg:", "mass_kg: -1.0 #"))
     for _ in range(2):
         with pytest.raises(ConfigError, match="mass_kg"):
             mr.load_multirotor_params(f)
-    assert mr._PARSED == {}
+    assert mr._parsed.cache_info().currsize == 0
 
 
 def test_the_store_keeps_only_the_newest_files(tmp_path: Path) -> None:
-    mr._PARSED.clear()
+    mr._parsed.cache_clear()
     text = mr.DEFAULT_PARAMS_PATH.read_text(encoding="utf-8")
+    files, loaded = [], []
     for k in range(mr._PARSED_MAX + 3):
         f = tmp_path / f"quad{k}.yaml"
         f.write_text(text)
-        mr.load_multirotor_params(f)
-    assert len(mr._PARSED) == mr._PARSED_MAX
-    assert [Path(p).name for p, _ in mr._PARSED] == [f"quad{k}.yaml" for k in range(3, mr._PARSED_MAX + 3)]
+        files.append(f)
+        loaded.append(mr.load_multirotor_params(f))
+    assert mr._parsed.cache_info().currsize == mr._PARSED_MAX
+    # the newest files are kept (loaded again, the same object), the oldest are parsed again
+    assert all(mr.load_multirotor_params(files[k]) is loaded[k] for k in range(3, mr._PARSED_MAX + 3))
+    misses = mr._parsed.cache_info().misses
+    assert mr.load_multirotor_params(files[0]) is not loaded[0]
+    assert mr._parsed.cache_info().misses == misses + 1
 
 
 def _value(text: str, key: str) -> str:
