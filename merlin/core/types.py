@@ -56,9 +56,10 @@ NATIVE: Final = defined_native(lambda: None)
 #: Builds a ``NamedTuple`` from the tuple of its field values: ``new_record(Setpoint, (kind, pos, ...))``.
 #: The ``__new__`` that ``NamedTuple`` generates is a Python function, interpreted even when called from a
 #: compiled module (about 2,700 instructions per record); ``tuple.__new__`` called directly builds the same
-#: record in about half. The per-tick records have a ``new_*`` function beside their class that calls this
-#: with every field in declared order (tests/core/test_record_factories.py holds each to its class's fields
-#: and defaults); everything else builds records by their class.
+#: record in about half. The per-tick records are built with it, every field in declared order: through a
+#: ``new_*`` function beside the class, with the class's own parameters and defaults, where other modules or
+#: several places build them (tests/core/test_record_factories.py holds each to its class), else directly
+#: at the one place that builds them. Records built rarely are built by their class.
 new_record: Final = tuple.__new__
 
 
