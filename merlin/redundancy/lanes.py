@@ -107,7 +107,7 @@ BUMPLESS_STEP_PER_S: Final = 0.03 / 0.0025
 # per tick; 0.2 at 400 Hz is a back-calculation time constant of 12.5 ms (Åström & Hägglund, "Advanced
 # PID control", 2006, §3.5: the tracking time constant should be below the integral time; the rate
 # loop's is 0.54 s).
-TRACKING_GAIN: Final = 0.2
+TRACKING_GAIN = 0.2  # not Final: read once per lane stack, and tests/redundancy/test_closed_loop.py sets it
 # Window after a lane switch over which the actuated motor step is measured (the hand-over slews at
 # most 1/BUMPLESS_STEP_PER_S of the range per second: 0.083 s for the full range).
 SWITCH_WINDOW_S: Final = 0.25
