@@ -26,16 +26,24 @@ def _state(n: float, e: float, course_deg: float, v: float) -> VehicleState:
 # both turns reach the widening on the shared reaction leg (margins equal, paths 0.13 m apart) with home just
 # right of astern: the tie goes to the turn away from the boundary, not the short way home
 @example(offset=60.0, course=80.0, north=166.0, v=22.0)
+# both reach the widening 2.7 cm into the arc, where the two sides are micrometres apart: the free paths,
+# resolved to 1 cm, are equal, and the tie still goes to the turn away from the boundary
+@example(offset=60.0, course=34.84375, north=0.0, v=18.5)
 def test_the_turn_away_from_the_east_boundary_keeps_more_margin(offset: float, course: float, north: float,
                                                                 v: float) -> None:
     """Flying north-east towards the east boundary, the left turn (away from it) is the clearer one: a larger
     margin, or, when both cross the widening, a longer path before it. Unless the straight leg both share
     reaches the widening first: below the loops' full-bank airspeed it is the reaction leg and the speed
-    regained (merlin.core.geofence.fixed_wing_turn), and the two sides then measure the same."""
+    regained (merlin.core.geofence.fixed_wing_turn), and the two sides then measure the same. So they do
+    just after the leg: arcs of radius R bending opposite ways are s²/R apart s metres into them, less than
+    the free path's resolution for s < sqrt(resolution R). A tie is then broken away from the boundary."""
     s = _state(north, 1000.0 - offset, course, v)
     right, left = geofence.turn_clearances(FENCE, s.pos_ned_m, s.vel_ned_mps, 0.0)
     if (left.free_path_m, left.margin_m) == (right.free_path_m, right.margin_m):
-        assert left.free_path_m <= geofence.fixed_wing_turn(FENCE.params, v).leg_m
+        turn = geofence.fixed_wing_turn(FENCE.params, v)
+        indistinct_m = math.sqrt(geofence._CLEARANCE_RESOLUTION_M * turn.radius_m)
+        assert left.free_path_m <= turn.leg_m + indistinct_m
+        assert escape_side(FENCE, s) == -1.0
         return
     assert (left.free_path_m, left.margin_m) > (right.free_path_m, right.margin_m)
     assert left.margin_m >= right.margin_m
