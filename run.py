@@ -99,8 +99,10 @@ def compile_bytecode(py: Path) -> None:
         print("run.py: some sources could not be compiled to bytecode (the checks below name them)", flush=True)
 
 
-# A short flight of the nominal scenario (the fusion EKF, the camera and VO): every navigation kernel it calls
-# is compiled by numba and cached beside the sources.
+# A short flight of the nominal scenario (the fusion EKF, the camera and VO) with the kernels compiled by numba
+# (MERLIN_KERNELS=jit): every navigation kernel it calls is compiled and cached beside the sources. The install
+# compiles them ahead of time too (setup.py); numba's cache serves where that module is absent or stale, and the
+# tests that compare the two.
 WARM_UP = ("from pathlib import Path\n"
            "from sims.runner import run_scenario\n"
            "from sims.scenario import load_scenario\n"
@@ -114,7 +116,7 @@ def warm_up_kernels(py: Path) -> None:
     serve` per integration test among them) all compiled them at once, for 10 s and more each under that load,
     and a serve compiling them in its first tick sent its first HEARTBEAT that late. Best effort: a failure
     here only leaves the compiling to the tests."""
-    if _run([py, "-c", WARM_UP]) != 0:
+    if _run([py, "-c", WARM_UP], env={**os.environ, "MERLIN_KERNELS": "jit"}) != 0:
         print("run.py: the warm-up flight failed (the tests below will say why)", flush=True)
 
 

@@ -142,6 +142,7 @@ def _inplace_outputs(keep: tuple[str, ...] = ()) -> list[Path]:
                 found.append(p)
     if not keep:
         found.extend(p for p in ROOT.glob(GROUP_NAME + "__mypyc.*") if p.suffix in {".so", ".pyd"})
+        found.extend(_aot_kernel_files(ROOT))
     return found
 
 
@@ -208,6 +209,52 @@ def _mypyc_extensions() -> list[Extension]:
         os.chdir(cwd)
 
 
+# The navigation filter's numba kernels, compiled ahead of time (numba.pycc) into an extension module beside
+# their source: processes that fly the filter then never import numba nor compile or load a cache at their
+# first tick (merlin/nav/kernels.py says what that saves). Without numba, or if it fails, the kernels are
+# compiled by numba at first use instead, as before (a warning says why).
+AOT_KERNELS_SOURCE = "merlin/nav/kernels.py"
+AOT_KERNELS = "merlin.nav._kernels_aot"
+
+
+def _aot_kernel_files(root: Path) -> list[Path]:
+    folder = root / Path(AOT_KERNELS_SOURCE).parent
+    leaf = AOT_KERNELS.rpartition(".")[2]
+    return [p for p in folder.glob(leaf + ".*") if p.suffix in {".so", ".pyd"}]
+
+
+def _build_aot_kernels(root: Path) -> None:
+    """Compile the kernels into ``root``'s package folder; record their source's hash on success."""
+    for old in _aot_kernel_files(root):
+        old.unlink()
+    if _flag("MERLIN_NO_AOT_KERNELS"):
+        _warn("MERLIN_NO_AOT_KERNELS is set; the filter's kernels will be compiled by numba at first use")
+        return
+    import importlib.util
+
+    saved = os.environ.get("MERLIN_KERNELS")
+    os.environ["MERLIN_KERNELS"] = "jit"
+    try:
+        spec = importlib.util.spec_from_file_location("_merlin_kernels_for_aot", ROOT / AOT_KERNELS_SOURCE)
+        assert spec is not None and spec.loader is not None
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = module
+        spec.loader.exec_module(module)
+        module.build_aot(str(root / Path(AOT_KERNELS_SOURCE).parent))
+    except _FAILURES as exc:
+        for partial in _aot_kernel_files(root):
+            partial.unlink()
+        _warn(f"the filter's kernels were not compiled ahead of time ({exc!r}); numba compiles them at first use")
+        return
+    finally:
+        sys.modules.pop("_merlin_kernels_for_aot", None)
+        if saved is None:
+            os.environ.pop("MERLIN_KERNELS", None)
+        else:
+            os.environ["MERLIN_KERNELS"] = saved
+    _SOURCE_HASHES[AOT_KERNELS] = hashlib.sha256((ROOT / AOT_KERNELS_SOURCE).read_bytes()).hexdigest()
+
+
 class BuildExtOrPure(build_ext):
     """``build_ext`` that compiles in parallel and falls back to pure Python if the C build fails."""
 
@@ -238,6 +285,7 @@ class BuildExtOrPure(build_ext):
             return
         _PURE.clear()
         _write_pure_reason(ROOT if self.inplace else Path(self.build_lib))
+        _build_aot_kernels(ROOT if self.inplace else Path(self.build_lib))
         manifest = (ROOT if self.inplace else Path(self.build_lib)) / MANIFEST
         manifest.parent.mkdir(parents=True, exist_ok=True)
         manifest.write_text(json.dumps(_SOURCE_HASHES, indent=1, sort_keys=True) + "\n", encoding="utf-8")

@@ -12,6 +12,10 @@ build of this tree, so the figures come from the same minutes:
 - ``filterpy``: imported at the start of the process (``-c "import filterpy.kalman; ..."``: the import the
   navigation filter's module made when it was loaded) or only if something reads ``NavEstimator.kf``.
 
+With ``--kernels``, the variants are how the navigation filter's kernels are compiled: at install
+(``merlin.nav._kernels_aot``) or by numba at the process's first call (``MERLIN_KERNELS=jit``), for
+``serve`` and for ``fly`` (a 1-s flight of the nominal scenario in a fresh process).
+
 With ``--exit``, the variants are instead how the process leaves (bytecode written, filterpy lazy): through
 the ``merlin`` program's own entry point, which freezes the collector's generations first
 (:mod:`merlin._exit`), or through ``merlin.cli.main`` and ``sys.exit``, as before, where CPython's exit
@@ -46,14 +50,19 @@ def _program(command: str, eager_filterpy: bool, out_dir: Path, frozen_exit: boo
             return pre + f"import sys\nfrom merlin.cli import main\nrc = main({argv[1:]!r})\nassert not rc, rc\n"
         return pre + f"import runpy, sys\nsys.argv = {argv!r}\ntry:\n    runpy.run_module('merlin.cli', run_name='__main__')\n" \
                      "except SystemExit as e:\n    assert not e.code, e.code\n"
+    if command == "fly":
+        return pre + ("from pathlib import Path\nfrom sims.runner import run_scenario\n"
+                      "from sims.scenario import load_scenario\n"
+                      "sc, cfg = load_scenario(Path('examples/scenarios/nominal.yaml'))\n"
+                      "run_scenario(sc.model_copy(update={'duration_s': 1.0, 'expectations': []}), cfg)\n")
     if command == "import":
         return pre + "import sims.runner\nfrom merlin.link.dialect import mavlink_module\nmavlink_module()\n"
     raise SystemExit(f"unknown command {command!r}; allowed: serve, import")
 
 
-def _cpu_of(program: str) -> float:
+def _cpu_of(program: str, extra_env: dict[str, str] | None = None) -> float:
     """Run ``program`` in a fresh interpreter; its CPU seconds (user + system)."""
-    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", MPLBACKEND="Agg")
+    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", MPLBACKEND="Agg", **(extra_env or {}))
     proc = subprocess.Popen([sys.executable, "-c", program], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE)
     _, status, usage = os.wait4(proc.pid, 0)
@@ -99,9 +108,13 @@ def main() -> int:
     ap.add_argument("--commands", nargs="*", default=["serve", "import"])
     ap.add_argument("--exit", action="store_true",
                     help="vary how serve leaves (frozen generations or walked) instead of bytecode and filterpy")
+    ap.add_argument("--kernels", action="store_true",
+                    help="vary how the filter's kernels are compiled (at install, or by numba at first use)")
     args = ap.parse_args()
     if args.exit:
         return _exit_variants(args.runs)
+    if args.kernels:
+        return _kernel_variants(args.runs)
     subprocess.run([sys.executable, "-m", "compileall", "-q", *PROJECT_DIRS], cwd=ROOT, check=True)
     from merlin.link.dialect import mavlink_module
 
@@ -153,6 +166,34 @@ def _exit_variants(runs: int) -> int:
     for frozen, xs in results.items():
         how = "the program's entry point (generations frozen)" if frozen else "main + sys.exit (walked)"
         print(f"| {how} | {statistics.median(xs):.2f} ({min(xs):.2f}-{max(xs):.2f}) |")
+    return 0
+
+
+def _kernel_variants(runs: int) -> int:
+    """``serve`` (start, a few ticks, stop) and ``fly`` (``merlin sim``'s nominal scenario for 1 s, as a
+    campaign worker or a test starts a flight) with the filter's kernels compiled at install
+    (``merlin.nav._kernels_aot``) against compiled by numba at first use (``MERLIN_KERNELS=jit``, numba's
+    cache warm), alternating run by run."""
+    from merlin import _build
+
+    if _build.kernels_aot_state() != "current":
+        raise SystemExit(f"no current ahead-of-time kernels to measure: {_build.describe()}")
+    subprocess.run([sys.executable, "-m", "compileall", "-q", *PROJECT_DIRS], cwd=ROOT, check=True)
+    results: dict[tuple[str, str], list[float]] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for run in range(runs):
+            for command in ("serve", "fly"):
+                for kernels in ("jit", "aot"):
+                    env = {"MERLIN_KERNELS": "jit"} if kernels == "jit" else {}
+                    cpu = _cpu_of(_program(command, False, Path(tmp) / f"out{run}{kernels}"), env)
+                    results.setdefault((command, kernels), []).append(cpu)
+            print(f"run {run + 1}/{runs} done", file=sys.stderr, flush=True)
+    print(f"CPU seconds per process, median (min-max) of {runs}, {os.cpu_count()} cores")
+    print("| command | filter kernels | CPU s |")
+    print("|---|---|---|")
+    for (command, kernels), xs in results.items():
+        how = "compiled at install" if kernels == "aot" else "numba at first use (cache warm)"
+        print(f"| {command} | {how} | {statistics.median(xs):.2f} ({min(xs):.2f}-{max(xs):.2f}) |")
     return 0
 
 

@@ -98,7 +98,36 @@ def describe() -> str:
     # they would run old code while this line said "compiled". Say so (tests/test_compiled.py fails on it).
     stale = stale_modules() if is_compiled else []
     old = f"; STALE, older than their sources (rebuild: pip install -e .): {', '.join(stale)}" if stale else ""
-    return f"{kind}: {n}/{len(flags)} hot modules are extension modules{because}{old}"
+    kernels = {"current": "compiled at install", "absent": "compiled by numba at first use",
+               "stale": "compiled by numba at first use; the install's are STALE, older than kernels.py "
+                        "(rebuild: pip install -e .)"}[kernels_aot_state()]
+    return f"{kind}: {n}/{len(flags)} hot modules are extension modules{because}{old}; filter kernels {kernels}"
+
+
+#: The navigation kernels' ahead-of-time module and the source it is built from (``merlin.nav.kernels``).
+AOT_KERNELS = "merlin.nav._kernels_aot"
+AOT_KERNELS_SOURCE = "kernels.py"
+
+
+def kernels_aot_state() -> str:
+    """``"current"`` when ``setup.py`` built :data:`AOT_KERNELS` from the ``kernels.py`` beside it as it is
+    now (it recorded that file's hash), ``"stale"`` when the file changed since or the record is missing,
+    ``"absent"`` when no such module is installed. Nothing is imported."""
+    spec = importlib.util.find_spec(AOT_KERNELS.rpartition(".")[0])
+    locations = (spec.submodule_search_locations or []) if spec is not None else []
+    leaf = AOT_KERNELS.rpartition(".")[2]
+    for location in locations:
+        for path in Path(location).glob(leaf + ".*"):
+            if not path.name.endswith(tuple(importlib.machinery.EXTENSION_SUFFIXES)):
+                continue
+            try:
+                recorded = json.loads(SOURCES_MANIFEST.read_text(encoding="utf-8")).get(AOT_KERNELS)
+            except (OSError, ValueError, AttributeError):
+                recorded = None
+            source = path.with_name(AOT_KERNELS_SOURCE)
+            ok = recorded is not None and source.exists() and recorded == source_sha256(source)
+            return "current" if ok else "stale"
+    return "absent"
 
 
 def pure_build_reason() -> dict[str, str] | None:

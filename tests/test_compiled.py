@@ -195,6 +195,60 @@ def test_stale_detection_sees_a_changed_source(tmp_path: Path, monkeypatch: pyte
         assert "STALE" in _build.describe() and all(name in _build.describe() for name in compiled)
 
 
+def test_a_compiled_build_compiles_the_filter_kernels_ahead_of_time() -> None:
+    """setup.py compiles the navigation kernels with numba.pycc beside the mypyc modules: a compiled build
+    without them would make every process that flies the filter import numba and load its cache again."""
+    if not _build.compiled():
+        pytest.skip("a pure build compiles nothing ahead of time")
+    assert _build.kernels_aot_state() == "current", _build.describe()
+    assert "filter kernels compiled at install" in _build.describe()
+
+
+def test_kernels_stale_detection_sees_a_changed_source(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    if _build.kernels_aot_state() == "absent":
+        pytest.skip("no ahead-of-time kernels installed")
+    recorded = json.loads(_build.SOURCES_MANIFEST.read_text(encoding="utf-8"))
+    wrong = tmp_path / "manifest.json"
+    wrong.write_text(json.dumps({**recorded, _build.AOT_KERNELS: "0" * 64}), encoding="utf-8")
+    monkeypatch.setattr(_build, "SOURCES_MANIFEST", wrong)
+    assert _build.kernels_aot_state() == "stale"
+    assert "STALE" in _build.describe() and "kernels.py" in _build.describe()
+    wrong.write_text(json.dumps({k: v for k, v in recorded.items() if k != _build.AOT_KERNELS}), encoding="utf-8")
+    assert _build.kernels_aot_state() == "stale"  # built, but its source never recorded
+
+
+def _kernel_backend(*setup: str) -> list[object]:
+    code = "\n".join((
+        "import json, sys",
+        *setup,
+        "from merlin.nav import kernels",
+        "from merlin.nav.estimator import NavEstimator",
+        "from merlin.measurements import ImuSample, GpsSample",
+        "e = NavEstimator()",
+        "for k in range(200):",
+        "    e.predict(ImuSample(k * 0.0025, (0.01, -0.02, 0.03), (0.3, 0.1, -9.7)))",
+        "    if k % 40 == 39:",
+        "        e.update_gps(GpsSample(k * 0.0025, (0.1, 0.2, -0.3), (0.05, 0.0, 0.0), 3, 12, 1.0, 1.5))",
+        "print(json.dumps([kernels.BACKEND, 'numba' in sys.modules, e.covariance.tolist()]))",
+    ))
+    env = {k: v for k, v in os.environ.items() if k not in ("MERLIN_KERNELS", "NUMBA_DISABLE_JIT")}
+    res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True,
+                         cwd=ROOT)
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def test_the_filter_kernels_fall_back_to_numba_when_the_ahead_of_time_module_is_stale() -> None:
+    """A stale module (kernels.py edited in an editable install) must not run: its kernels are the old ones."""
+    if _build.kernels_aot_state() != "current":
+        pytest.skip("no current ahead-of-time kernels installed")
+    backend, numba_loaded, cov = _kernel_backend("import merlin._build as b", "b.kernels_aot_state = lambda: 'stale'")
+    assert (backend, numba_loaded) == ("numba", True)
+    # and the ahead-of-time kernels, in a process that never imports numba, give the same bits
+    backend2, numba_loaded2, cov2 = _kernel_backend()
+    assert (backend2, numba_loaded2) == ("aot", False)
+    assert cov2 == cov
+
+
 def test_use_pure_python_refuses_once_the_hot_modules_are_loaded() -> None:
     import merlin.core.step  # noqa: F401
 

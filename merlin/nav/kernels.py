@@ -20,9 +20,24 @@ non-zero blocks only:
   ``G = diag(I, I, I + [δθ/2]×, I, …)`` (Solà sec. 6.2-6.3, 7.3), which touches three rows and three
   columns.
 
-The kernels are compiled with numba when it is installed (``njit(cache=True)``: compiled once per machine,
-cached beside the sources). Without numba, or with ``NUMBA_DISABLE_JIT=1``, the same functions run as
-Python, and the three matrix kernels are replaced by numpy versions of the same equations (dense, as
+The kernels are compiled by numba, in one of two ways (:data:`BACKEND`):
+
+- ``"aot"``: ahead of time, by ``setup.py`` at install (``numba.pycc``, the functions of
+  :data:`AOT_EXPORTS` with their signatures) into the extension module ``merlin.nav._kernels_aot``. A
+  process then never imports numba: no numba import (~0.3 s of CPU), no compiler context and cache load
+  at the first call of each kernel (~0.4 s and more), and no type dispatch at each call (a prediction
+  1.4 µs instead of 1.9 µs). Every ``merlin serve``, campaign worker and test process that flies the filter
+  pays those start-up costs otherwise (docs/benchmarks/sim.md, "The filter's kernels compiled at install").
+  Used only when the build recorded this file's hash for it (an edited ``kernels.py`` in an editable
+  install falls back to ``"numba"`` until reinstalled; ``merlin._build.describe()`` says so).
+  ``numba.pycc`` is pending deprecation in numba, with no replacement yet; without it the install simply
+  builds no such module.
+- ``"numba"``: just in time (``njit(cache=True)``: compiled once per machine, cached beside the sources),
+  when the ahead-of-time module is absent or stale, or ``MERLIN_KERNELS=jit`` is set.
+
+Both compile the same Python functions with the same compiler, and give the same bits (``tests/nav/
+test_nav_kernels.py``). Without numba, or with ``NUMBA_DISABLE_JIT=1`` (``"python"``), the same functions run
+as Python, and the three matrix kernels are replaced by numpy versions of the same equations (dense, as
 filterpy does them): slower, same results to rounding.
 
 The nominal state lives in one float array ``s`` so that a kernel call unboxes one argument, not ten;
@@ -33,28 +48,59 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
-try:  # numba is optional: the filter runs (slower) without it
-    import numba
-except ImportError:  # pragma: no cover - a machine without numba
-    numba = None  # type: ignore[assignment]
+#: ``MERLIN_KERNELS=jit``: compile just in time even where the ahead-of-time module is installed (``setup.py``
+#: sets it to build that module; tests set it to compare the two).
+KERNELS_ENV = "MERLIN_KERNELS"
+#: The extension module ``setup.py`` builds from this file (``numba.pycc``).
+AOT_MODULE = "merlin.nav._kernels_aot"
 
-#: True when the kernels are compiled: numba importable and not disabled (NUMBA_DISABLE_JIT=1).
-JIT: bool = (
-    numba is not None
-    and not getattr(numba.config, "DISABLE_JIT", False)
-    and os.environ.get("NUMBA_DISABLE_JIT", "0") in ("", "0")
-)
+_NO_JIT = os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0")
+
+
+def _load_aot() -> Any:
+    """The ahead-of-time module, when it is installed, wanted, and built from this very file."""
+    if _NO_JIT or os.environ.get(KERNELS_ENV, "").strip() == "jit" or __name__ != "merlin.nav.kernels":
+        return None
+    from merlin import _build
+
+    if _build.kernels_aot_state() != "current":
+        return None
+    try:
+        from merlin.nav import _kernels_aot  # type: ignore[attr-defined]
+    except ImportError:  # pragma: no cover - a module built for another interpreter
+        return None
+    return _kernels_aot
+
+
+_AOT = _load_aot()
+
+numba: Any = None
+if _AOT is None and not _NO_JIT:
+    try:  # numba is optional: the filter runs (slower) without it
+        import numba
+    except ImportError:  # pragma: no cover - a machine without numba
+        numba = None
+
+#: True when the kernels are compiled: ahead of time, or by numba (importable and not disabled by
+#: NUMBA_DISABLE_JIT=1).
+JIT: bool = _AOT is not None or (numba is not None and not getattr(numba.config, "DISABLE_JIT", False))
+#: How the kernels run: "aot" (compiled at install), "numba" (compiled at first use) or "python".
+BACKEND: str = "aot" if _AOT is not None else ("numba" if JIT else "python")
 
 
 def _njit(fn: Callable[..., Any]) -> Callable[..., Any]:
-    if numba is None:
+    if numba is None:  # ahead-of-time kernels replace the exported ones below; the others stay Python
         return fn
-    compiled: Callable[..., Any] = numba.njit(cache=True, fastmath=False, nogil=True)(fn)
+    # cached only as this package's module: setup.py loads this file under another name to compile it ahead
+    # of time, and a cache entry written then names that module, which later processes cannot import
+    cached = __name__ == "merlin.nav.kernels"
+    compiled: Callable[..., Any] = numba.njit(cache=cached, fastmath=False, nogil=True)(fn)
     return compiled
 
 
@@ -640,3 +686,63 @@ def gps_innovation(
     dr_n = s[24] - s[3] * lag + 0.5 * an * lag * lag
     dr_e = s[25] - s[4] * lag + 0.5 * ae * lag * lag
     return nis(H, P, r, y, 0, 3), nis(H, P, r, y, 3, 6), an, ae, ad, dr_n, dr_e
+
+
+# ------------------------------------------------------------------------------ ahead-of-time build
+
+_C1 = "f8[::1]"
+_C2 = "f8[:,::1]"
+#: What ``setup.py`` compiles into :data:`AOT_MODULE`: exported name -> (function here, numba signature).
+#: The arrays are C-contiguous float64 (the filter's own: state, covariance, H, y, r); a caller passing
+#: anything else gets a TypeError from the compiled module, never a silent copy.
+AOT_EXPORTS: dict[str, tuple[str, str]] = {
+    "mechanise": ("mechanise", f"void({_C1},{_C2},{_C1},{_C1},f8,f8,f8,f8,f8,f8,f8)"),
+    "cov_predict_blocks": ("_cov_predict_blocks", f"void({_C1},{_C2},{_C1},f8)"),
+    "nis_blocks": ("_nis_blocks", f"f8({_C2},{_C2},{_C1},{_C1},i8,i8)"),
+    "fuse_blocks": ("_fuse_blocks", f"b1({_C1},{_C2},{_C2},{_C1},{_C1},b1)"),
+    "gps_innovation": ("gps_innovation", f"UniTuple(f8,7)({_C1},{_C2},{_C2},{','.join(['f8'] * 14)},{_C1},{_C1})"),
+    "vo_jacobian_into": ("vo_jacobian_into", f"void({_C1},{_C2},b1)"),
+    "vo_filter_variance": ("vo_filter_variance", f"UniTuple(f8,2)({_C2},{_C2})"),
+}
+
+_BODIES: dict[str, Callable[..., Any]] = {
+    attr: getattr(globals()[attr], "py_func", globals()[attr]) for attr, _ in AOT_EXPORTS.values()
+}
+
+
+def python_body(name: str) -> Callable[..., Any]:
+    """The Python function behind the compiled kernel ``name`` (one of :data:`AOT_EXPORTS`' functions),
+    whichever backend runs it."""
+    return _BODIES[name]
+
+
+if _AOT is not None:
+    mechanise = _AOT.mechanise
+    _cov_predict_blocks = _AOT.cov_predict_blocks
+    _nis_blocks = _AOT.nis_blocks
+    _fuse_blocks = _AOT.fuse_blocks
+    gps_innovation = _AOT.gps_innovation
+    vo_jacobian_into = _AOT.vo_jacobian_into
+    vo_filter_variance = _AOT.vo_filter_variance
+    cov_predict = _cov_predict_blocks
+    nis = _nis_blocks
+    fuse = _fuse_blocks
+
+
+def build_aot(out_dir: str) -> str:
+    """Compile :data:`AOT_EXPORTS` into :data:`AOT_MODULE`'s file in ``out_dir`` (``setup.py``; this module
+    must have been loaded with numba compiling, i.e. :data:`BACKEND` ``"numba"``). Returns the file's path."""
+    if BACKEND != "numba":
+        raise RuntimeError(f"the kernels must be numba's to be compiled ahead of time, not {BACKEND!r}")
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # numba.pycc's pending deprecation
+        from numba.pycc import CC
+
+        cc = CC(AOT_MODULE.rpartition(".")[2], source_module=sys.modules[__name__])
+        cc.output_dir = out_dir
+        for export, (attr, signature) in AOT_EXPORTS.items():
+            cc.export(export, signature)(python_body(attr))
+        cc.compile()
+    return os.path.join(out_dir, cc.output_file)

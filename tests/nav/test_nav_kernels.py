@@ -31,24 +31,19 @@ from merlin.nav.quaternion import quat_exp, quat_from_euler, quat_mul, quat_norm
 N = kernels.N_ERR
 
 
-def _py(fn):
-    """The Python body of a compiled kernel (the function itself without numba)."""
-    return getattr(fn, "py_func", fn)
-
-
 COV_PREDICTS = {
     "blocks": kernels._cov_predict_blocks,
-    "blocks-python": _py(kernels._cov_predict_blocks),
+    "blocks-python": kernels.python_body("_cov_predict_blocks"),
     "dense": kernels._cov_predict_dense,
 }
 FUSES = {
     "blocks": kernels._fuse_blocks,
-    "blocks-python": _py(kernels._fuse_blocks),
+    "blocks-python": kernels.python_body("_fuse_blocks"),
     "dense": kernels._fuse_dense,
 }
 NISES = {
     "blocks": kernels._nis_blocks,
-    "blocks-python": _py(kernels._nis_blocks),
+    "blocks-python": kernels.python_body("_nis_blocks"),
     "dense": kernels._nis_dense,
 }
 
@@ -234,7 +229,7 @@ def test_mechanisation_matches_the_quaternion_helpers():
     c = np.array([9.80665, 60.0, 4.0])  # covariance every 4 samples: this call only accumulates
     gyro, accel, dt = rng.normal(0.0, 0.3, 3), rng.normal(0.0, 2.0, 3) + np.array([0.0, 0.0, -9.8]), 0.0025
     s0 = s.copy()
-    for mech in (kernels.mechanise, _py(kernels.mechanise)):
+    for mech in (kernels.mechanise, kernels.python_body("mechanise")):
         s = s0.copy()
         mech(s, P, np.zeros(N), c, *gyro, *accel, dt)
         w = tuple(gyro - s0[kernels.S_BG])
