@@ -35,19 +35,25 @@ def _python() -> Path:
     return VENV / ("Scripts" if os.name == "nt" else "bin") / "python"
 
 
+def _setup_constant(name: str) -> object:
+    tree = ast.parse((ROOT / "setup.py").read_text(encoding="utf-8"))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == name for t in node.targets):
+            return ast.literal_eval(node.value)
+    return None
+
+
 def _compiled_sources() -> list[str]:
     """The files setup.py compiles (its COMPILED_MODULES): an editable install builds them in place, so
     editing one means installing again, or the old extension module keeps running."""
-    tree = ast.parse((ROOT / "setup.py").read_text(encoding="utf-8"))
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "COMPILED_MODULES" for t in node.targets):
-            return list(ast.literal_eval(node.value))
-    return []
+    return list(_setup_constant("COMPILED_MODULES") or [])
 
 
 def _fingerprint() -> str:
     h = hashlib.sha256()
-    for name in ("pyproject.toml", "run.py", "setup.py", *_compiled_sources()):
+    # the filter's kernels too (setup.py's AOT_KERNELS_SOURCE): edited, their install-time build is stale
+    kernels = _setup_constant("AOT_KERNELS_SOURCE")
+    for name in ("pyproject.toml", "run.py", "setup.py", *_compiled_sources(), *([kernels] if kernels else [])):
         h.update(name.encode())
         h.update((ROOT / name).read_bytes())
     h.update(os.environ.get("MERLIN_PURE_PYTHON", "").encode())  # a pure install is a different install
