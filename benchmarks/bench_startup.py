@@ -57,7 +57,7 @@ def _program(command: str, eager_filterpy: bool, out_dir: Path, frozen_exit: boo
                       "run_scenario(sc.model_copy(update={'duration_s': 1.0, 'expectations': []}), cfg)\n")
     if command == "import":
         return pre + "import sims.runner\nfrom merlin.link.dialect import mavlink_module\nmavlink_module()\n"
-    raise SystemExit(f"unknown command {command!r}; allowed: serve, import")
+    raise SystemExit(f"unknown command {command!r}; allowed: serve, fly, import")
 
 
 def _cpu_of(program: str, extra_env: dict[str, str] | None = None) -> float:

@@ -149,6 +149,18 @@ def test_module_lists_agree_with_setup_py() -> None:
     assert tuple(p.removesuffix(".py").replace("/", ".") for p in listed) == _build.COMPILED_MODULES
 
 
+def test_the_ahead_of_time_kernels_are_named_alike_in_setup_py_the_build_record_and_the_kernels() -> None:
+    """setup.py builds and records the module under one name, merlin._build and merlin.nav.kernels look for it
+    under theirs (none can import another at build time): a rename in one would leave the module unused."""
+    from merlin.nav import kernels
+    from run import _setup_constant
+
+    assert _setup_constant("AOT_KERNELS") == _build.AOT_KERNELS == kernels.AOT_MODULE
+    source = str(_setup_constant("AOT_KERNELS_SOURCE"))
+    assert source == kernels.__name__.replace(".", "/") + ".py"
+    assert source.rpartition("/")[2] == _build.AOT_KERNELS_SOURCE
+
+
 def test_build_reports_consistently() -> None:
     import merlin.core.step
 
