@@ -73,6 +73,18 @@ COMPILED_MODULES = (
     "merlin/autopilot/fixedwing_guidance.py",
     "merlin/autopilot/fixedwing_behaviours.py",
     "sims/fixedwing.py",
+    # the glue every tick runs through: the driver's loop, the vehicle sides' sense/act, the scenario's
+    # script, the sensor-fault injector, the camera's schedule and the run's log rows (interpreted, about
+    # a tenth of the nominal case's instructions: docs/benchmarks/sim.md, "The per-tick glue compiled")
+    "merlin/pipeline.py",
+    "sims/runner.py",
+    "sims/vehicle_loop.py",
+    "sims/multirotor_loop.py",
+    "sims/fixedwing_loop.py",
+    "sims/scenario_script.py",
+    "sims/sensor_faults.py",
+    "sims/vision_loop.py",
+    "sims/run_log.py",
 )
 
 # Name of mypyc's shared runtime library (a top-level module ``merlin_native__mypyc``).

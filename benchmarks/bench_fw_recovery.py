@@ -38,7 +38,6 @@ import argparse
 import math
 import sys
 import time
-from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -54,10 +53,8 @@ from merlin.autopilot import fixedwing_recovery as rec  # noqa: E402
 from merlin.autopilot.fixedwing_behaviours import FixedWingBehaviours  # noqa: E402
 from merlin.config.runtime import build_core_config  # noqa: E402
 from merlin.core.types import Authority, Behavior, Command, CommandKind, Decision, VehicleState  # noqa: E402
-from sims import runner  # noqa: E402
 from sims.fixedwing import FixedWingSim, SurfaceCommand  # noqa: E402
-from sims.runner import make_loop as runner_make_loop  # noqa: E402
-from sims.runner import run_scenario  # noqa: E402
+from sims.runner import make_loop, run_scenario  # noqa: E402
 from sims.scenario import load_scenario  # noqa: E402
 
 SCENARIO = ROOT / "examples" / "scenarios" / "fw_stall_protection.yaml"
@@ -111,14 +108,13 @@ class _WatchedStage:
         return stage.step(t, decision, s, takeoff_height_m)  # type: ignore[no-any-return]
 
 
-def _watch_handover(loops: list[dict[str, float]]) -> Callable[..., Any]:
-    """A ``make_loop`` that notes, at the first tick Merlin flies after the experimental controller, the
+def _watched_loop(sc: Any, cfg: Any, loops: list[dict[str, float]]) -> Any:
+    """The scenario's vehicle side (a FixedWingLoop: the scenario is the fixed wing's) with its actuator
+    stage wrapped: at the first tick Merlin flies after the experimental controller, the wrapper notes the
     surfaces handed over and the inner loops' state that produced them (their integrators and setpoints)."""
-    def make(*args: Any, **kwargs: Any) -> Any:
-        loop: Any = runner_make_loop(*args, **kwargs)  # a FixedWingLoop (the scenario is the fixed wing's)
-        loop.stage = _WatchedStage(loop.stage, loops)
-        return loop
-    return make
+    loop: Any = make_loop(sc, cfg)
+    loop.stage = _WatchedStage(loop.stage, loops)
+    return loop
 
 
 def fly(params: dict[str, float], wind: tuple[float, float, float]) -> dict[str, float] | None:
@@ -130,11 +126,7 @@ def fly(params: dict[str, float], wind: tuple[float, float, float]) -> dict[str,
         "expectations": [],
     })
     handover: list[dict[str, float]] = []
-    runner.make_loop = _watch_handover(handover)
-    try:
-        r = run_scenario(sc, cfg)
-    finally:
-        runner.make_loop = runner_make_loop
+    r = run_scenario(sc, cfg, loop=_watched_loop(sc, cfg, handover))
     revs = [e for e in r.events if e["type"] == "revoked"]
     if not revs:
         return None

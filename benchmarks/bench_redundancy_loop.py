@@ -75,21 +75,14 @@ def _fly(name: str, seed: int | None, alert_feed: str | None = None, attribution
     sc, cfg = load_scenario(path, seed=seed)
     if fdi_preset is not None:
         sc = sc.model_copy(update={"redundancy": sc.redundancy.model_copy(update={"fdi_preset": fdi_preset})})
-    make = runner_mod.make_loop
+    loop: Any = runner_mod.make_loop(sc, cfg, str(path))
     if alert_feed is not None or not attribution:
-        def patched(*a: Any, **kw: Any) -> Any:
-            loop = make(*a, **kw)
-            chain = loop.redundancy.voter.suite.imu
-            if alert_feed is not None:
-                chain.alert_feed = alert_feed
-            if not attribution:
-                chain.attribution_config = None  # read when the duplex pair forms
-            return loop
-        runner_mod.make_loop = patched  # type: ignore[assignment]
-    try:
-        r = run_scenario(sc, cfg, source=str(path))
-    finally:
-        runner_mod.make_loop = make  # type: ignore[assignment]
+        chain = loop.redundancy.voter.suite.imu
+        if alert_feed is not None:
+            chain.alert_feed = alert_feed
+        if not attribution:
+            chain.attribution_config = None  # read when the duplex pair forms
+    r = run_scenario(sc, cfg, source=str(path), loop=loop)
     verdicts = evaluate_all(sc.expectations, r.events, r.log, r.metrics)
     fault_t = min((f.start_s for f in sc.faults), default=0.0)
     first: dict[str, str] = {}

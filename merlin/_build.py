@@ -51,6 +51,15 @@ COMPILED_MODULES: tuple[str, ...] = (
     "merlin.autopilot.fixedwing_guidance",
     "merlin.autopilot.fixedwing_behaviours",
     "sims.fixedwing",
+    "merlin.pipeline",
+    "sims.runner",
+    "sims.vehicle_loop",
+    "sims.multirotor_loop",
+    "sims.fixedwing_loop",
+    "sims.scenario_script",
+    "sims.sensor_faults",
+    "sims.vision_loop",
+    "sims.run_log",
 )
 
 #: Written by ``setup.py`` beside this file after a successful compiled build: module -> sha256 of the

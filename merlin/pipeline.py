@@ -41,7 +41,7 @@ from merlin.core.types import (
     VehicleState,
     new_record,
 )
-from merlin.redundancy.lanes import VehicleRedundancy, VotedSensors
+from merlin.redundancy.lanes import VotedSensors
 
 _NO_OPERATOR = OperatorInput()
 _NO_COMMANDS: tuple[GcsCommand, ...] = ()
@@ -131,6 +131,31 @@ class ActuatorStage(Protocol):
              frame: Any) -> Any: ...
 
 
+class CoreTick(Protocol):
+    """The trusted core as the tick calls it (:class:`~merlin.core.step.TrustedCore`). A protocol rather than
+    the class, so that the ordering can be tested with stand-in stages in a compiled build, where an argument
+    annotated with a compiled class must be an instance of it."""
+
+    def step(self, t: float, inputs: Inputs) -> Decision: ...
+
+
+class Voter(Protocol):
+    """The IMU voter stage (:class:`~merlin.redundancy.lanes.ImuVoterStage`): the tick's sensor frame in,
+    the voted sensors out."""
+
+    def vote(self, t: float, frame: Any) -> VotedSensors: ...
+
+
+class Redundancy(Protocol):
+    """The redundancy stage (:class:`~merlin.redundancy.lanes.VehicleRedundancy`): its voter (or None) and
+    the report the core's inputs carry."""
+
+    @property
+    def voter(self) -> Voter | None: ...
+
+    def report(self, t: float) -> RedundancyReport | None: ...
+
+
 class Sensed(NamedTuple):
     """What :meth:`VehicleTick.sense` hands to :meth:`VehicleTick.act`: the tick's time, sensor samples
     (None when nothing reads them), the voter's output (None: no voter, or it votes after the core) and the
@@ -152,8 +177,8 @@ class VehicleTick:
     was made with (``benchmarks/check_digests.py``), so it is kept.
     """
 
-    def __init__(self, core: TrustedCore, estimator: Estimator, actuators: ActuatorStage | None,
-                 redundancy: VehicleRedundancy | None = None, vote_before_estimate: bool = True,
+    def __init__(self, core: CoreTick, estimator: Estimator, actuators: ActuatorStage | None,
+                 redundancy: Redundancy | None = None, vote_before_estimate: bool = True,
                  reports_redundancy: bool = False) -> None:
         self.core = core
         self.estimator = estimator

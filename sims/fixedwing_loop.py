@@ -17,11 +17,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import yaml
 
+from merlin.autopilot import fixedwing_control as fc
+from merlin.autopilot import fixedwing_guidance as fg
 from merlin.autopilot.fixedwing_behaviours import behaviours_from_config
 from merlin.config.loader import ConfigError
 from merlin.config.models import MerlinConfig
@@ -181,6 +183,23 @@ def _refuse_what_cannot_act(sc: Scenario, source: str, on_launcher: bool) -> Non
         raise ConfigError(source, errors)
 
 
+class FixedWingStage(Protocol):
+    """What the loop uses of its actuator stage (Merlin's
+    :class:`~merlin.autopilot.fixedwing_behaviours.FixedWingBehaviours`). The loop holds the stage through
+    this protocol so that a driver or a benchmark can wrap it (``benchmarks/bench_fw_recovery.py`` watches
+    the hand-over through a wrapper): a compiled loop would refuse any object but the compiled class in an
+    attribute annotated with it."""
+
+    cp: fc.FixedWingControlParams
+    cp_experimental: fc.FixedWingControlParams
+    gp: fg.GuidanceParams
+    surfaces: SurfaceCommand
+
+    def restart(self, surfaces: SurfaceCommand) -> None: ...
+
+    def step(self, t: float, decision: Decision, s: VehicleState, takeoff_height_m: float) -> SurfaceCommand: ...
+
+
 class FixedWingLoop(SimulatedVehicle):
     """The fixed wing's vehicle side, one tick per ``sense()`` + ``act(inputs)`` (see the module docstring).
 
@@ -190,12 +209,15 @@ class FixedWingLoop(SimulatedVehicle):
     ``stage`` is Merlin's fixed-wing actuator stage (:class:`merlin.autopilot.fixedwing_behaviours.FixedWingBehaviours`).
     """
 
+    # The three switches below are constructor arguments, read while the loop is built (off only in tests
+    # and counterfactuals); a compiled loop reads its attributes from native slots, so setting them on the
+    # class afterwards would not reach an instance.
     #: Fly the escape turn before a trusted behaviour when the fence is tripped (off only to show, in the
     #: tests, what guidance alone does next to the notch).
-    escape_turns: bool = True
+    escape_turns: bool
     #: Route RTL (and LAND's loiter) around the fence's keep-out zones and inclusion boundary
     #: (:mod:`merlin.autopilot.fixedwing_route`); off only to show, in the tests, what direct guidance does.
-    rtl_routes: bool = True
+    rtl_routes: bool
     flies_velocity_command = False  # the stage flies course/speed/climb targets (metric not applicable)
     #: Fly an experimental ATTITUDE command through the inner loops' pitch limit and angle-of-attack
     #: protection (:func:`merlin.autopilot.fixedwing_control.control_step`). Off only for the stall
@@ -203,9 +225,13 @@ class FixedWingLoop(SimulatedVehicle):
     #: pitch then reaches the pitch loop unlimited up to :data:`UNPROTECTED_PITCH_MAX_DEG`, as a controller
     #: driving the elevator itself would, so that only the trusted core's envelope stands between it and the
     #: stall. Merlin's own behaviours always fly with the protections.
-    experimental_stall_protection: bool = True
+    experimental_stall_protection: bool
 
-    def __init__(self, sc: Scenario, cfg: MerlinConfig, source: str = "<scenario>") -> None:
+    def __init__(self, sc: Scenario, cfg: MerlinConfig, source: str = "<scenario>", *, escape_turns: bool = True,
+                 rtl_routes: bool = True, experimental_stall_protection: bool = True) -> None:
+        self.escape_turns = escape_turns
+        self.rtl_routes = rtl_routes
+        self.experimental_stall_protection = experimental_stall_protection
         self.sc = sc
         self.cfg = cfg
         self.dt = dt = sc.dt_s
@@ -290,7 +316,7 @@ class FixedWingLoop(SimulatedVehicle):
         self.notes: list[dict[str, Any]] = []
         self._launched_now = False
         assert self.fw.trim_result is not None
-        self.stage = behaviours_from_config(cfg.trusted, self.core_cfg, self.fw.trim_result.surfaces,
+        self.stage: FixedWingStage = behaviours_from_config(cfg.trusted, self.core_cfg, self.fw.trim_result.surfaces,
                                             self.fw.truth().to_vehicle_state(), dt, escape_turns=self.escape_turns,
                                             rtl_routes=self.rtl_routes, notes=self.notes)
         self.cp, self.gp = self.stage.cp, self.stage.gp

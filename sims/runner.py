@@ -61,12 +61,19 @@ def make_loop(sc: Scenario, cfg: MerlinConfig, source: str = "<scenario>") -> Si
 
 
 def run_scenario(
-    sc: Scenario, cfg: MerlinConfig, progress: Callable[[float], None] | None = None, source: str = "<scenario>"
+    sc: Scenario, cfg: MerlinConfig, progress: Callable[[float], None] | None = None, source: str = "<scenario>",
+    loop: SimulatedVehicle | None = None,
 ) -> RunResult:
+    """Fly ``sc`` with ``cfg`` on the vehicle side :func:`make_loop` builds for it, or on ``loop``, one
+    built for this scenario and configuration and not yet ticked (a driver that sets the vehicle side up
+    itself, such as one that wants the sensor frame sampled on every tick)."""
     # the run's wall time (metrics wall_time_s, realtime_factor) includes building the vehicle, the core
     # and its fence: they are part of flying the scenario, not of whatever runs it (a campaign's overhead)
     wall0 = time.perf_counter()
-    loop = make_loop(sc, cfg, source)
+    if loop is None:
+        loop = make_loop(sc, cfg, source)
+    elif loop.k != 0:
+        raise ValueError(f"run_scenario: the vehicle side given has already been ticked {loop.k} times")
     events: list[dict[str, Any]] = []
     script = ScenarioScript(sc, loop.dt, events, source)
     record = RunRecorder(sc, loop, events)

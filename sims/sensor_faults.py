@@ -214,8 +214,8 @@ class SensorFaultInjector:
         self._held_imu: dict[int, ImuSample] = {}
         self._held_mag: MagSample | None = None
         # the last healthy and the held (frozen) GPS / baro sample per (sensor, lane)
-        self._last: dict[tuple[str, int], GpsSample | BaroSample] = {}
-        self._held: dict[tuple[str, int], GpsSample | BaroSample] = {}
+        self._last: dict[tuple[str, int], GpsSample | BaroSample | MagSample] = {}
+        self._held: dict[tuple[str, int], GpsSample | BaroSample | MagSample] = {}
 
     def _remember(self, frame: SensorFrame, frozen: set[tuple[str, int]]) -> None:
         if frame.gps_lanes:

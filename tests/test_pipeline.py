@@ -11,7 +11,12 @@ from hypothesis import strategies as st
 
 from merlin.config.models import MerlinConfig
 from merlin.core.types import (
+    Authority,
     AuthorityRequest,
+    Behavior,
+    Command,
+    CommandKind,
+    Decision,
     ExperimentalInput,
     Inputs,
     OperatorInput,
@@ -22,6 +27,7 @@ from merlin.core.types import (
     VehicleState,
 )
 from merlin.pipeline import InputBuilder, Sensed, VehicleTick
+from merlin.redundancy.lanes import new_voted_sensors
 from sims.runner import ClosedLoop
 from sims.scenario import Scenario
 
@@ -101,6 +107,16 @@ def test_the_inputs_always_equal_what_arrived_last(arrivals: list[tuple[str, flo
             pending = ()
 
 
+# What the stand-in stages hand on: records of the types the stages' protocols name (a compiled build checks
+# them at the tick's calls), told apart by identity in the call log.
+VOTED = new_voted_sensors(None, None, (), ())
+DECISION = Decision(0.0, Authority.TRUSTED, Behavior.HOLD, Command(CommandKind.VELOCITY, Authority.TRUSTED), (), (), False)
+
+
+def _label(value: Any) -> str:
+    return "V" if value is VOTED else str(value)
+
+
 class _Recorder:
     """A stage that records when it is called."""
 
@@ -112,11 +128,11 @@ class _Recorder:
         return self.value
 
     def estimate(self, t: float, frame: Any, voted: Any) -> VehicleState:
-        self.calls.append(f"{self.name}({voted})")
+        self.calls.append(f"{self.name}({_label(voted)})")
         return STATE
 
     def step(self, t: float, decision: Any, state: VehicleState, voted: Any, frame: Any) -> str:
-        self.calls.append(f"{self.name}({voted})")
+        self.calls.append(f"{self.name}({_label(voted)})")
         return "actuation"
 
 
@@ -124,9 +140,9 @@ class _Core:
     def __init__(self, calls: list[str]) -> None:
         self.calls = calls
 
-    def step(self, t: float, inputs: Inputs) -> str:
+    def step(self, t: float, inputs: Inputs) -> Decision:
         self.calls.append("core")
-        return "decision"
+        return DECISION
 
 
 @pytest.mark.parametrize("before", [True, False])
@@ -136,13 +152,13 @@ def test_each_stage_runs_once_per_tick_in_order(before: bool) -> None:
     calls: list[str] = []
 
     class _Redundancy:
-        voter = _Recorder(calls, "voter", "V")
+        voter = _Recorder(calls, "voter", VOTED)
 
     tick = VehicleTick(_Core(calls), _Recorder(calls, "estimator"), _Recorder(calls, "actuators"),  # type: ignore[arg-type]
                        _Redundancy(), vote_before_estimate=before)  # type: ignore[arg-type]
     sensed = tick.sense(0.0, frame="F")
     decision, actuation = tick.act(sensed, Inputs(sensed.state))
-    assert (decision, actuation) == ("decision", "actuation")
+    assert decision is DECISION and actuation == "actuation"
     if before:
         assert calls == ["voter", "estimator(V)", "core", "actuators(V)"]
     else:

@@ -438,7 +438,7 @@ class VisualOdometry:
         u2 = self._unit_ground(b, R_nb)
         vd = 0.0 if vel_prior_ned_mps is None else float(vel_prior_ned_mps[2])
         h2 = max(h1 - vd * dt, cfg.min_height_m)
-        d0 = np.median(rhs - h2 * u2, axis=0)
+        d0 = _column_median(rhs - h2 * u2)
         sol = np.array([d0[0], d0[1], h2])
         pix = b.reshape(-1, 2)
         inl = np.ones(len(pix), bool)
@@ -493,6 +493,18 @@ class VisualOdometry:
             (float(var[0]), float(var[1]), float(var[2])),
             valid_quality,
         )
+
+
+def _column_median(x: np.ndarray) -> np.ndarray:
+    """``np.median(x, axis=0)`` of a finite (n, k) array, bit for bit: the middle row of the sorted columns,
+    or the two middle rows' sum halved (the mean ``np.median`` takes of them). ``np.median``'s own generic
+    path cost about seven times as much on the few dozen tracks of a frame."""
+    s = np.sort(x, axis=0)
+    k = x.shape[0] // 2
+    if x.shape[0] % 2:
+        return s[k]
+    mid: np.ndarray = (s[k - 1] + s[k]) / 2.0
+    return mid
 
 
 def _ground_least_squares(rhs: np.ndarray, u2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

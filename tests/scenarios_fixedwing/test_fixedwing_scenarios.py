@@ -200,22 +200,23 @@ def test_fence_altitude_approach_levels_off_inside(limit: str, speed_mps: float,
         assert h[-1] > h[k]  # climbing back to the RTL height
 
 
-def test_guidance_alone_turns_into_the_notch(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_guidance_alone_turns_into_the_notch() -> None:
     """Why the escape turn exists: without it the RTL guidance turns the short way home, into the notch.
     (Guidance alone: the keep-out-aware route, which would also avoid the notch, is off too; see below.)"""
-    monkeypatch.setattr(FixedWingLoop, "escape_turns", False)
-    monkeypatch.setattr(FixedWingLoop, "rtl_routes", False)
     sc = notch_case(FENCE_PARAMS, 22.0)
-    r = run_scenario(sc, resolve_config(sc, SCENARIOS, "<generated>"), source=sc.name)
+    cfg = resolve_config(sc, SCENARIOS, "<generated>")
+    loop = FixedWingLoop(sc, cfg, sc.name, escape_turns=False, rtl_routes=False)
+    r = run_scenario(sc, cfg, source=sc.name, loop=loop)
     assert r.metrics["max_fence_breach_m"] > 20.0
 
 
-def test_the_rtl_route_alone_keeps_out_of_the_notch(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_the_rtl_route_alone_keeps_out_of_the_notch() -> None:
     """The same case without the escape turn but with RTL's route (merlin.autopilot.fixedwing_route): the
     route starts with the turn the aircraft must fly (a Dubins start) and keeps out of the notch."""
-    monkeypatch.setattr(FixedWingLoop, "escape_turns", False)
     sc = notch_case(FENCE_PARAMS, 22.0)
-    r = run_scenario(sc, resolve_config(sc, SCENARIOS, "<generated>"), source=sc.name)
+    cfg = resolve_config(sc, SCENARIOS, "<generated>")
+    loop = FixedWingLoop(sc, cfg, sc.name, escape_turns=False)
+    r = run_scenario(sc, cfg, source=sc.name, loop=loop)
     assert any(e["type"] == "fixed_wing_rtl_route" for e in r.events)
     assert r.metrics["max_fence_breach_m"] == 0.0
 

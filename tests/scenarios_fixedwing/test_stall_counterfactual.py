@@ -4,7 +4,7 @@ The shipped scenario's PullUp sends an ATTITUDE setpoint, which Merlin's fixed-w
 own pitch limit (20 deg) and angle-of-attack protection (17 deg): without the envelope's revocation the
 aircraft would not stall either, so "revoked before the stall" alone proves little. Here the same pull-up is
 flown with those protections bypassed for the experimental controller
-(``FixedWingLoop.experimental_stall_protection = False``: its pitch reaches the pitch loop unlimited up to
+(``FixedWingLoop(..., experimental_stall_protection=False)``: its pitch reaches the pitch loop unlimited up to
 45 deg, as a controller driving the elevator itself would). Then:
 
 * without Merlin's envelope acting (the arbiter's envelope rule for experimental authority set to ``none``:
@@ -40,12 +40,8 @@ def _run(envelope_acts: bool) -> RunResult:
         d = cfg.model_dump()
         d["arbiter"]["rules"]["envelope"]["experimental"] = "none"
         cfg = MerlinConfig.model_validate(d)
-    mp = pytest.MonkeyPatch()
-    mp.setattr(FixedWingLoop, "experimental_stall_protection", False)
-    try:
-        return run_scenario(sc, cfg, source=SCENARIO.name)
-    finally:
-        mp.undo()
+    loop = FixedWingLoop(sc, cfg, SCENARIO.name, experimental_stall_protection=False)
+    return run_scenario(sc, cfg, source=SCENARIO.name, loop=loop)
 
 
 def test_without_the_envelope_the_unprotected_pull_up_stalls() -> None:

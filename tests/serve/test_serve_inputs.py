@@ -3,21 +3,37 @@ merlin sim does: what the links delivered, and the vehicle's redundancy report, 
 
 from __future__ import annotations
 
+from typing import Any
+
 from merlin.core.types import Inputs, OperatorInput
 from merlin.serve.server import Server
 from sims.runner import make_loop
 from sims.scenario import Scenario
 
 
+class _Recording:
+    """The server's vehicle side, seen through: :meth:`act` notes the inputs the core is handed, everything
+    else goes to the loop. A wrapper: the loop is a compiled class in the compiled build, whose methods
+    cannot be replaced on an instance."""
+
+    def __init__(self, loop: Any, seen: list[Inputs]) -> None:
+        object.__setattr__(self, "_loop", loop)
+        object.__setattr__(self, "_seen", seen)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._loop, name)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        setattr(self._loop, name, value)
+
+    def act(self, inputs: Inputs) -> Any:
+        self._seen.append(inputs)
+        return self._loop.act(inputs)
+
+
 def _capture(server: Server) -> list[Inputs]:
     seen: list[Inputs] = []
-    act = server.loop.act
-
-    def recording(inputs: Inputs):  # type: ignore[no-untyped-def]
-        seen.append(inputs)
-        return act(inputs)
-
-    server.loop.act = recording  # type: ignore[method-assign]
+    server.loop = _Recording(server.loop, seen)  # type: ignore[assignment]
     return seen
 
 

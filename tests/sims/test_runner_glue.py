@@ -46,23 +46,21 @@ def test_the_sensor_frame_is_sampled_only_for_its_readers() -> None:
     assert loop.frame is not None and len(loop.frame.imu) == 3
 
 
-def test_skipping_the_unread_sensor_frame_changes_no_decision(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_skipping_the_unread_sensor_frame_changes_no_decision() -> None:
     """The same run with the sensors sampled every tick (and their samples thrown away) is bit-identical:
     the sensors and the fault injector draw from their own random streams. Sensor faults included."""
     sc = _scenario(faults=[{"type": "gps_loss", "start_s": 3.0, "end_s": 4.0},
                            {"type": "imu_noise", "start_s": 2.0, "lane": 1},
                            {"type": "gcs_link_loss", "start_s": 4.5, "end_s": 5.0}])
-    skipped = run_scenario(sc, MerlinConfig())
-    make_loop = runner.make_loop
-
-    def sampling(*a: Any) -> ClosedLoop:
-        loop = make_loop(*a)
-        loop.sensor_frame_wanted = True
-        return loop
-
-    monkeypatch.setattr(runner, "make_loop", sampling)
-    sampled = run_scenario(sc, MerlinConfig())
+    plain = runner.make_loop(sc, MerlinConfig())
+    skipped = run_scenario(sc, MerlinConfig(), loop=plain)
+    assert plain.frame is None  # nothing read the sensors: they were not sampled
+    wanting = runner.make_loop(sc, MerlinConfig())
+    wanting.sensor_frame_wanted = True  # a driver that wants the samples anyway
+    sampled = run_scenario(sc, MerlinConfig(), loop=wanting)
+    assert wanting.frame is not None
     assert _digest(sampled) == _digest(skipped)
+    assert _digest(run_scenario(sc, MerlinConfig())) == _digest(skipped)  # the runner's own vehicle side
     assert [e["type"] for e in skipped.events if e["type"].startswith("fault_")] == [
         "fault_start", "fault_start", "fault_end", "fault_start", "fault_end"]
 
@@ -99,3 +97,13 @@ def test_the_column_log_is_a_dict_of_lists() -> None:
     for key in want:
         assert got[key].dtype == want[key].dtype
         np.testing.assert_array_equal(got[key], want[key])
+
+
+def test_a_vehicle_side_already_flown_is_refused() -> None:
+    """run_scenario flies a vehicle side from its first tick: one that has been ticked would start the run's
+    clock, log and script at the wrong time."""
+    sc = _scenario()
+    loop = runner.make_loop(sc, MerlinConfig())
+    run_scenario(sc, MerlinConfig(), loop=loop)
+    with pytest.raises(ValueError, match="already been ticked"):
+        run_scenario(sc, MerlinConfig(), loop=loop)
