@@ -33,7 +33,7 @@ import jsbsim
 import numpy as np
 
 from merlin.autopilot.fixedwing_control import SurfaceCommand
-from merlin.core.types import Vec3, VehicleState
+from merlin.core.types import Vec3, VehicleState, new_record
 from merlin.geodesy import LocalFrame
 from sims.multirotor import quat_from_rpy
 
@@ -455,32 +455,33 @@ class FixedWingSim:
         # through the terrain (JSBSim's contact springs can be overrun by a steep impact).
         if (landed and speed > 3.0) or agl < -0.2:
             self._crashed = True
-        return FixedWingTruth(
-            t_s=self._frame * self.dt_s,
-            pos_ned_m=pos,
-            vel_ned_mps=(vn_fps * FT_M, ve_fps * FT_M, vd_fps * FT_M),
-            quat_wxyz=quat,
-            rpy_rad=rpy,
-            omega_frd_radps=(p, q, r),
-            specific_force_frd_mps2=(fx, fy, fz),
-            accel_ned_mps2=_rotate_frd_to_ned(quat, (fx, fy, fz), add_gravity=True),
-            wind_ned_mps=self._wind_ned_mps,
-            airspeed_mps=speed,
-            landed=landed,
-            crashed=self._crashed,
-            alpha_rad=alpha,
-            beta_rad=beta,
-            # Normal load factor: specific force along the stability-axis z (normal to the airflow).
-            load_factor=(fx * math.sin(alpha) - fz * math.cos(alpha)) / G_MPS2,
-            height_agl_m=agl,
-            lat_deg=lat,
-            lon_deg=lon,
-            alt_amsl_m=alt,
-            surfaces=SurfaceCommand(aileron=ail, elevator=-elev, rudder=-rud, throttle=thr),
-            motor_speed_radps=omega,
-            thrust_n=thrust,
-            shaft_power_w=torque * omega,
-        )
+        # built natively: a NamedTuple's keyword constructor runs interpreted, once per frame
+        return new_record(FixedWingTruth, (
+            self._frame * self.dt_s,  # t_s
+            pos,  # pos_ned_m
+            (vn_fps * FT_M, ve_fps * FT_M, vd_fps * FT_M),  # vel_ned_mps
+            quat,  # quat_wxyz
+            rpy,  # rpy_rad
+            (p, q, r),  # omega_frd_radps
+            (fx, fy, fz),  # specific_force_frd_mps2
+            _rotate_frd_to_ned(quat, (fx, fy, fz), add_gravity=True),  # accel_ned_mps2
+            self._wind_ned_mps,  # wind_ned_mps
+            speed,  # airspeed_mps
+            landed,  # landed
+            self._crashed,  # crashed
+            alpha,  # alpha_rad
+            beta,  # beta_rad
+            # load_factor: specific force along the stability-axis z (normal to the airflow), in g
+            (fx * math.sin(alpha) - fz * math.cos(alpha)) / G_MPS2,
+            agl,  # height_agl_m
+            lat,  # lat_deg
+            lon,  # lon_deg
+            alt,  # alt_amsl_m
+            SurfaceCommand(aileron=ail, elevator=-elev, rudder=-rud, throttle=thr),  # surfaces
+            omega,  # motor_speed_radps
+            thrust,  # thrust_n
+            torque * omega,  # shaft_power_w
+        ))
 
 
 #: The JSBSim properties the truth is built from, in the order :meth:`FixedWingSim._read` unpacks them.

@@ -68,7 +68,8 @@ def run_scenario(
     built for this scenario and configuration and not yet ticked (a driver that sets the vehicle side up
     itself, such as one that wants the sensor frame sampled on every tick)."""
     # the run's wall time (metrics wall_time_s, realtime_factor) includes building the vehicle, the core
-    # and its fence: they are part of flying the scenario, not of whatever runs it (a campaign's overhead)
+    # and its fence: they are part of flying the scenario, not of whatever runs it (a campaign's overhead).
+    # A vehicle side handed in as ``loop`` was built before this call, so its building is not counted.
     wall0 = time.perf_counter()
     if loop is None:
         loop = make_loop(sc, cfg, source)

@@ -42,15 +42,25 @@ damps yaw about the turn rate and drives lateral specific force (sideslip) to ze
 
 Conventions of :class:`SurfaceCommand` are the pilot's: aileron > 0 rolls right, elevator > 0 pitches the
 nose up, rudder > 0 yaws the nose right, throttle 0..1.
+
+The records the loops build every tick write their ``__init__`` out (:class:`SurfaceCommand`,
+:class:`FixedWingControlState`, :class:`ControlOutput`, the energies) and the tick's own are built with
+:data:`merlin.core.types.new_record`, for the reason :mod:`merlin.core.types` gives: the constructors that
+``dataclasses`` and ``NamedTuple`` generate run interpreted even in the compiled build, about a dozen per
+control step.
+:class:`FixedWingTargets` keeps the generated one, whose ``__post_init__`` checks its arguments.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Final, NamedTuple
 
-from merlin.core.types import VehicleState
+from merlin.core.types import VehicleState, defined_native, new_record, set_frozen_fields
+
+#: this module's build: its frozen records' own ``__init__`` may store their fields (merlin.core.types)
+NATIVE: Final = defined_native(lambda: None)
 
 G_MPS2 = 9.80665
 
@@ -63,6 +73,16 @@ class SurfaceCommand:
     elevator: float = 0.0  # [-1, 1], > 0 pulls the nose up
     rudder: float = 0.0  # [-1, 1], > 0 yaws the nose right
     throttle: float = 0.0  # [0, 1]
+
+    def __init__(self, aileron: float = 0.0, elevator: float = 0.0, rudder: float = 0.0,
+                 throttle: float = 0.0) -> None:
+        if NATIVE:
+            self.aileron = aileron  # type: ignore[misc]
+            self.elevator = elevator  # type: ignore[misc]
+            self.rudder = rudder  # type: ignore[misc]
+            self.throttle = throttle  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (aileron, elevator, rudder, throttle))
 
     def clipped(self) -> SurfaceCommand:
         return SurfaceCommand(
@@ -222,6 +242,30 @@ class FixedWingControlState:
     # all three met it
     handover: tuple[float, float, float] | None = None
 
+    def __init__(self, throttle_integ: float = 0.0, pitch_tecs_integ_rad: float = 0.0, roll_sp_rad: float = 0.0,
+                 pitch_sp_rad: float = 0.0, aileron_integ: float = 0.0, elevator_integ: float = 0.0,
+                 rudder_integ: float = 0.0, speed_rate_mps2: float = 0.0, throttle: float = 0.0,
+                 initialized: bool = False, recovering: bool = False, pulling_out: bool = False,
+                 handover: tuple[float, float, float] | None = None) -> None:
+        if NATIVE:
+            self.throttle_integ = throttle_integ  # type: ignore[misc]
+            self.pitch_tecs_integ_rad = pitch_tecs_integ_rad  # type: ignore[misc]
+            self.roll_sp_rad = roll_sp_rad  # type: ignore[misc]
+            self.pitch_sp_rad = pitch_sp_rad  # type: ignore[misc]
+            self.aileron_integ = aileron_integ  # type: ignore[misc]
+            self.elevator_integ = elevator_integ  # type: ignore[misc]
+            self.rudder_integ = rudder_integ  # type: ignore[misc]
+            self.speed_rate_mps2 = speed_rate_mps2  # type: ignore[misc]
+            self.throttle = throttle  # type: ignore[misc]
+            self.initialized = initialized  # type: ignore[misc]
+            self.recovering = recovering  # type: ignore[misc]
+            self.pulling_out = pulling_out  # type: ignore[misc]
+            self.handover = handover  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (throttle_integ, pitch_tecs_integ_rad, roll_sp_rad, pitch_sp_rad, aileron_integ,
+                                     elevator_integ, rudder_integ, speed_rate_mps2, throttle, initialized,
+                                     recovering, pulling_out, handover))
+
 
 @dataclass(frozen=True, slots=True)
 class ControlOutput:
@@ -236,6 +280,23 @@ class ControlOutput:
     height_weight: float  # 1 normal, 0 when underspeed protection gives pitch to speed alone
     underspeed: bool
     recovering: bool = False
+
+    def __init__(self, surfaces: SurfaceCommand, roll_sp_rad: float, pitch_sp_rad: float, pitch_target_rad: float,
+                 ste_rate_error: float, seb_rate_error: float, height_weight: float, underspeed: bool,
+                 recovering: bool = False) -> None:
+        if NATIVE:
+            self.surfaces = surfaces  # type: ignore[misc]
+            self.roll_sp_rad = roll_sp_rad  # type: ignore[misc]
+            self.pitch_sp_rad = pitch_sp_rad  # type: ignore[misc]
+            self.pitch_target_rad = pitch_target_rad  # type: ignore[misc]
+            self.ste_rate_error = ste_rate_error  # type: ignore[misc]
+            self.seb_rate_error = seb_rate_error  # type: ignore[misc]
+            self.height_weight = height_weight  # type: ignore[misc]
+            self.underspeed = underspeed  # type: ignore[misc]
+            self.recovering = recovering  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (surfaces, roll_sp_rad, pitch_sp_rad, pitch_target_rad, ste_rate_error,
+                                     seb_rate_error, height_weight, underspeed, recovering))
 
 
 def _clip(x: float, lo: float, hi: float) -> float:
@@ -286,6 +347,17 @@ class _Energy:
     seb: float
     w_h: float
     underspeed: bool
+
+    def __init__(self, ste_d: float, ste: float, seb_d: float, seb: float, w_h: float, underspeed: bool) -> None:
+        if NATIVE:
+            self.ste_d = ste_d  # type: ignore[misc]
+            self.ste = ste  # type: ignore[misc]
+            self.seb_d = seb_d  # type: ignore[misc]
+            self.seb = seb  # type: ignore[misc]
+            self.w_h = w_h  # type: ignore[misc]
+            self.underspeed = underspeed  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (ste_d, ste, seb_d, seb, w_h, underspeed))
 
 
 def _speed_rate(s: VehicleState) -> float:
@@ -530,13 +602,14 @@ def _tecs(p: FixedWingControlParams, state: FixedWingControlState, s: VehicleSta
     ste_err = e.ste_d - e.ste
     seb_err = e.seb_d - e.seb
     if targets.pitch_rad is not None and targets.throttle is not None:
-        out = _Tecs(targets.throttle, state.throttle_integ, targets.pitch_rad, state.pitch_tecs_integ_rad)
+        out = new_record(_Tecs, (targets.throttle, state.throttle_integ, targets.pitch_rad,
+                                 state.pitch_tecs_integ_rad))
     elif recovering and s.airspeed_mps < p.airspeed_min_mps + p.recovery_exit_margin_mps:
         # Full power at once (not slewed: a recovery's first second is worth metres), wings level (below),
         # pitch on the sink alone up to the angle-of-attack cap; the integrators hold what they learnt.
         pitch_integ = state.pitch_tecs_integ_rad
-        out = _Tecs(p.throttle_max, state.throttle_integ,
-                    p.tecs_pitch_ff * e.seb_d + p.recovery_pitch_p * seb_err + pitch_integ, pitch_integ)
+        out = new_record(_Tecs, (p.throttle_max, state.throttle_integ,
+                                 p.tecs_pitch_ff * e.seb_d + p.recovery_pitch_p * seb_err + pitch_integ, pitch_integ))
     elif recovering:
         # Fast enough (a sink or a bank upset, not a stall): TECS's throttle (slewed: more speed would widen
         # an escape turn the fence projection planned at the speed of the trip), pitch on the sink alone up to
@@ -545,13 +618,15 @@ def _tecs(p: FixedWingControlParams, state: FixedWingControlState, s: VehicleSta
                          + state.throttle_integ, p.throttle_min, p.throttle_max)
         throttle = _slew(state.throttle, throttle, p.throttle_slew_per_s * dt_s)
         pitch_integ = state.pitch_tecs_integ_rad
-        out = _Tecs(throttle, state.throttle_integ,
-                    p.tecs_pitch_ff * e.seb_d + p.recovery_pitch_p * seb_err + pitch_integ, pitch_integ)
+        out = new_record(_Tecs, (throttle, state.throttle_integ,
+                                 p.tecs_pitch_ff * e.seb_d + p.recovery_pitch_p * seb_err + pitch_integ, pitch_integ))
     else:
         out = _tecs_nominal(p, state, e, dt_s)
+    throttle_out = out.throttle
     if not recovering:  # (a recovery's throttle is full power at once, or TECS's slewed above)
-        out = out._replace(throttle=_slew(state.throttle, out.throttle, p.throttle_slew_per_s * dt_s))
-    return out._replace(pitch_target_rad=_clip(out.pitch_target_rad, p.pitch_min_rad, p.pitch_max_rad))
+        throttle_out = _slew(state.throttle, throttle_out, p.throttle_slew_per_s * dt_s)
+    return new_record(_Tecs, (throttle_out, out.throttle_integ,
+                              _clip(out.pitch_target_rad, p.pitch_min_rad, p.pitch_max_rad), out.pitch_integ_rad))
 
 
 def _tecs_nominal(p: FixedWingControlParams, state: FixedWingControlState, e: _Energy, dt_s: float) -> _Tecs:
@@ -585,7 +660,7 @@ def _tecs_nominal(p: FixedWingControlParams, state: FixedWingControlState, e: _E
         pitch_integ = pitch_integ + p.tecs_pitch_i_per_s * seb_err * dt_s
     # The integrator holds the trim angle of attack: keep it within the reachable pitch range.
     pitch_integ = _clip(pitch_integ, p.pitch_min_rad, p.pitch_max_rad)
-    return _Tecs(throttle, throttle_integ, pitch_target, pitch_integ)
+    return new_record(_Tecs, (throttle, throttle_integ, pitch_target, pitch_integ))
 
 
 def _cap_to_air_path(p: FixedWingControlParams, s: VehicleState, pitch_target: float) -> float:
@@ -661,7 +736,7 @@ def _attitude_loops(p: FixedWingControlParams, state: FixedWingControlState, s: 
     aileron = k * (p.roll_p * roll_err - p.roll_d * pr) + aileron_integ
     elevator = k * (pitch_p * pitch_err - p.pitch_d * (qr - q_turn)) + elevator_integ
     rudder = k * (-p.yaw_d * (rr - r_turn) - p.sideslip_p * ay) + rudder_integ
-    return _Surfaces(aileron, elevator, rudder, aileron_integ, elevator_integ, rudder_integ)
+    return new_record(_Surfaces, (aileron, elevator, rudder, aileron_integ, elevator_integ, rudder_integ))
 
 
 def _alpha_upset(p: FixedWingControlParams, s: VehicleState) -> bool:

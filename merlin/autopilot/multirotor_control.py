@@ -205,13 +205,9 @@ def reset_from_state(
         ay = _clamp(-GRAVITY_MPS2 * zby / zbz, -lim, lim)
     else:
         ax = ay = 0.0
-    return ControllerState(
-        active=True,
-        vel_int_xy_mps2=(ax, ay),
-        hover_thrust_est=h,
-        rate_prev_frd_radps=(rates[0], rates[1], rates[2]),
-        collective=h,
-    )
+    # positional and native: a redundant autopilot's lanes reset from their states every tick on the ground
+    return new_record(ControllerState, (True, (ax, ay), h, ZERO3, (rates[0], rates[1], rates[2]), ZERO3, (0, 0, 0),
+                                        False, 0, ZERO3, h))
 
 
 def mix_quad_x(
@@ -378,7 +374,8 @@ def control_step(
     if kind is not _VELOCITY and kind is not _ATTITUDE:  # IDLE, TERMINATE
         if st.active:
             # keep the learned hover thrust for the next take-off; forget everything else
-            st = ControllerState(active=False, hover_thrust_est=st.hover_thrust_est)
+            st = new_record(ControllerState, (False, (0.0, 0.0), st.hover_thrust_est, ZERO3, ZERO3, ZERO3,
+                                              (0, 0, 0), False, 0, ZERO3, 0.0))
         return MOTORS_OFF, st
     g = gains
     dt = dt_s if (_isfinite(dt_s) and 1e-5 <= dt_s <= 0.1) else 0.0025

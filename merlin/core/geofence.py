@@ -59,7 +59,7 @@ import numpy as np
 import numpy.typing as npt
 import shapely
 
-from merlin.core.types import defined_native, set_frozen_fields
+from merlin.core.types import defined_native, new_record, set_frozen_fields
 
 # math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
 # more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
@@ -857,11 +857,25 @@ def _verdict(
 
 
 class _DemandPath(NamedTuple):
-    """The multirotor's projected path when its command demands more speed: reaction leg, then braking."""
+    """The multirotor's projected path when its command demands more speed: reaction leg, then braking.
 
-    verts: FloatArray  # (3, 2): the position, the end of the reaction leg, the stop
+    Its three vertices (the position, the end of the reaction leg, the stop) are kept as floats: far from
+    the fence, as on most ticks, the grid's lower bound clears the path without reading them, and an array
+    of them is built only for the exact geometry (:func:`_demand_verts`)."""
+
+    n0: float
+    e0: float
+    n1: float
+    e1: float
+    n2: float
+    e2: float
     length_m: float
     sag_m: float  # the reaction leg's chord against the parabola flown
+
+
+def _demand_verts(path: _DemandPath) -> FloatArray:
+    """The path's vertices as a (3, 2) array, for shapely."""
+    return np.array(((path.n0, path.e0), (path.n1, path.e1), (path.n2, path.e2)))
 
 
 def _demanded_path(
@@ -881,9 +895,8 @@ def _demanded_path(
         return None
     n1, e1 = n + 0.5 * (vn + rn) * tr, e + 0.5 * (ve + re_) * tr
     k = vr / (2.0 * prm.max_h_decel_mps2)
-    verts = np.array(((n, e), (n1, e1), (n1 + rn * k, e1 + re_ * k)))
     length = _hypot(n1 - n, e1 - e) + vr * k
-    return _DemandPath(verts, length, a * tr / 8.0)
+    return new_record(_DemandPath, (n, e, n1, e1, n1 + rn * k, e1 + re_ * k, length, a * tr / 8.0))
 
 
 def _check_demand(
@@ -902,7 +915,7 @@ def _check_demand(
     the reaction-time climb (or sink) towards the demanded vertical speed vertically."""
     prm = fence.params
     tr = prm.reaction_time_s
-    verts, d, sag = path.verts, path.length_m, path.sag_m
+    d, sag = path.length_m, path.sag_m
     reach = d
     trip_h = False
     if fence._forbidden is not None:
@@ -910,15 +923,15 @@ def _check_demand(
         if not (lb > reach + w + sag):
             if _outside_box(fence, n, e):
                 trip_h = True
-            elif fence._grid_nj and all(
-                _segment_clear(fence, verts[i, 0], verts[i, 1], verts[i + 1, 0], verts[i + 1, 1], w + sag, _GRID_DEPTH)
-                for i in (1, 0)
+            elif fence._grid_nj and (
+                _segment_clear(fence, path.n1, path.e1, path.n2, path.e2, w + sag, _GRID_DEPTH)
+                and _segment_clear(fence, path.n0, path.e0, path.n1, path.e1, w + sag, _GRID_DEPTH)
             ):
                 trip_h = False
             else:
                 hazard = _local_hazard(fence, n, e, reach + w + sag)
                 trip_h = hazard is not _NOTHING_NEAR and bool(
-                    shapely.dwithin(hazard, shapely.linestrings(verts), w + sag)
+                    shapely.dwithin(hazard, shapely.linestrings(_demand_verts(path)), w + sag)
                 )
     ceiling, floor = prm.altitude_ceiling_m, prm.altitude_floor_m
     wv = prm.margin_m + prm.sigma_k * sigma_v_m
@@ -947,7 +960,7 @@ def _check_demand(
         return FenceResult(True, "floor", dv_down, h - floor - wv)
     with np.errstate(all="ignore"):
         kind, clearance = _projected_clearance(
-            fence, n, e, 0.0, 0.0, d, d, None, w + sag, 0.0, reach, _NO_WIND, verts
+            fence, n, e, 0.0, 0.0, d, d, None, w + sag, 0.0, reach, _NO_WIND, _demand_verts(path)
         )
     return FenceResult(True, kind, d, clearance)
 
@@ -1210,9 +1223,10 @@ def fixed_wing_turn(prm: FenceParams, v_air_mps: float, bank_rad: float = 0.0) -
         rollout_s = phi / prm.roll_rate_radps
         rate = prm.gravity_mps2 * math.tan(phi) / v
         rollout_turn, rollout_radius = 0.5 * rollout_s * rate, v / rate
-    return FixedWingTurn(v, tr, accel_s, vt, k, leg, radius, rollout_s + tr + accel_s + math.pi * vt / g_tan,
-                         math.copysign(phi, bank_rad) if phi > 0.0 else 0.0, rollout_s, rollout_turn,
-                         rollout_radius)
+    return new_record(FixedWingTurn, (v, tr, accel_s, vt, k, leg, radius,
+                                      rollout_s + tr + accel_s + math.pi * vt / g_tan,
+                                      math.copysign(phi, bank_rad) if phi > 0.0 else 0.0, rollout_s, rollout_turn,
+                                      rollout_radius))
 
 
 #: Time samples of a leg that regains speed in a wind (its ground path is curved: the air path's distance

@@ -120,7 +120,8 @@ def clamp_command(cmd: Command, lim: SetpointClamp) -> Command:
                 lo = k
             else:
                 hi = k
-        return cmd._replace(att_rpy_rad=(r * lo, p * lo, y))
+        return new_command(cmd.kind, cmd.source, cmd.vel_ned_mps, cmd.yaw_rad, cmd.yaw_rate_radps, (r * lo, p * lo, y),
+                           cmd.thrust, cmd.pos_target_ned_m, cmd.blend, cmd.accel_ned_mps2)
     if cmd.kind is not _CMD_VELOCITY:
         return cmd
     vn, ve, vd = cmd.vel_ned_mps
@@ -129,7 +130,15 @@ def clamp_command(cmd: Command, lim: SetpointClamp) -> Command:
     if h <= lim.max_speed_h_mps and down == vd:
         return cmd
     k = lim.max_speed_h_mps / h if h > lim.max_speed_h_mps else 1.0
-    return cmd._replace(vel_ned_mps=(vn * k, ve * k, down))
+    return _with_velocity(cmd, (vn * k, ve * k, down), cmd.yaw_rad, cmd.yaw_rate_radps)
+
+
+def _with_velocity(cmd: Command, vel: Vec3, yaw: float, yaw_rate: float) -> Command:
+    """``cmd`` with another velocity and heading, every other field kept: what ``cmd._replace`` gives, built
+    natively (``_replace`` runs interpreted, and the shaping stage calls this every tick an experimental
+    velocity command is flown)."""
+    return new_command(cmd.kind, cmd.source, vel, yaw, yaw_rate, cmd.att_rpy_rad, cmd.thrust, cmd.pos_target_ned_m,
+                       cmd.blend, cmd.accel_ned_mps2)
 
 
 def track_command(cmd: Command, prev: Command | None, s: VehicleState, dt: float, lim: SetpointClamp) -> Command:
@@ -168,7 +177,7 @@ def track_command(cmd: Command, prev: Command | None, s: VehicleState, dt: float
             # turning on the ramp: its rate is the feed-forward, as PX4 feeds the yaw setpoint's rate forward
             yaw = _wrap_pi(prev_yaw + math.copysign(step, err))
             rate = math.copysign(w_max, err)
-    return cmd._replace(vel_ned_mps=(vn, ve, vd), yaw_rad=yaw, yaw_rate_radps=rate)
+    return _with_velocity(cmd, (vn, ve, vd), yaw, rate)
 
 
 def demanded_velocity(cmd: Command | None, s: VehicleState, reaction_time_s: float, gravity_mps2: float) -> Vec3 | None:

@@ -461,7 +461,7 @@ class NavEstimator:
             self._gps_consistency(t, pos_ok, vel_ok, nis_p, nis_v)
             if self.gps_status is _GPS_OK:
                 fused_p, fused_v = self._fuse_gps(y, r, pos_ok, vel_ok)
-        check = GpsCheck(
+        check = new_record(GpsCheck, (
             t,
             nis_p,
             nis_v,
@@ -474,7 +474,7 @@ class NavEstimator:
             s_vo,
             self._cusum_vo.value,
             sig_win,
-        )
+        ))
         self.last_gps = check
         self._update_mode()
         return check

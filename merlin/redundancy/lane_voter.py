@@ -339,6 +339,16 @@ class Selection:
     votes: tuple[int | None, int | None, int | None]
     events: tuple[FaultReport, ...] = ()
 
+    def __init__(self, t_s: float, lane: int, votes: tuple[int | None, int | None, int | None],
+                 events: tuple[FaultReport, ...] = ()) -> None:
+        if NATIVE:
+            self.t_s = t_s  # type: ignore[misc]
+            self.lane = lane  # type: ignore[misc]
+            self.votes = votes  # type: ignore[misc]
+            self.events = events  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (t_s, lane, votes, events))
+
 
 @dataclass
 class Selector:

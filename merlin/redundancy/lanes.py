@@ -64,7 +64,9 @@ from merlin.core.types import (
     NavMode,
     RedundancyReport,
     VehicleState,
+    defined_native,
     new_record,
+    set_frozen_fields,
 )
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
 from merlin.redundancy.duplex_fdi import FDI_PRESETS, FdiState
@@ -127,6 +129,9 @@ PF_SIGMA_MAG_GAUSS: Final = 0.01
 # imu_second_fault_duplex.yaml; at 0.1 g the bias and magnetometer parts decide and the faulty lane was
 # the one isolated in 8 of 8 runs (roll and yaw bias, 4 seeds; docs/redundancy.md).
 PF_RESIDUAL_ACCEL_G: Final = 0.1
+
+#: whether this module is mypyc's extension module (``merlin.core.types``: the records' own ``__init__``)
+NATIVE: Final = defined_native(lambda: None)
 
 
 def _event(r: FaultReport) -> dict[str, Any]:
@@ -318,6 +323,14 @@ class LaneContext:
     battery_ok: bool = True
     no_failsafe: bool = True
     data_link_ok: bool = True
+
+    def __init__(self, battery_ok: bool = True, no_failsafe: bool = True, data_link_ok: bool = True) -> None:
+        if NATIVE:
+            self.battery_ok = battery_ok  # type: ignore[misc]
+            self.no_failsafe = no_failsafe  # type: ignore[misc]
+            self.data_link_ok = data_link_ok  # type: ignore[misc]
+        else:
+            set_frozen_fields(self, (battery_ok, no_failsafe, data_link_ok))
 
 
 NO_CONTEXT: Final = LaneContext()

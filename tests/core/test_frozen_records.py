@@ -23,7 +23,8 @@ import pytest
 from merlin import _build
 
 ROOT = Path(__file__).resolve().parents[2]
-MODULES = ("merlin.core.types", "merlin.measurements", "merlin.core.geofence", "merlin.redundancy.lane_voter")
+MODULES = ("merlin.core.types", "merlin.measurements", "merlin.core.geofence", "merlin.redundancy.lane_voter",
+           "merlin.autopilot.fixedwing_control", "merlin.redundancy.lanes")
 #: the records built on every closed-loop tick, whose constructors are written out: none may be dropped
 #: from the list below without its constructor going back to the generated (interpreted) one
 HOT_RECORDS = {
@@ -31,7 +32,11 @@ HOT_RECORDS = {
     "merlin.measurements": {"ImuSample", "GpsSample", "BaroSample", "MagSample"},
     "merlin.core.geofence": {"FenceResult"},
     # the autopilot lanes' exchange, every lane every exchange tick
-    "merlin.redundancy.lane_voter": {"LaneMessage", "Received", "LaneVoterState", "LaneVote"},
+    "merlin.redundancy.lane_voter": {"LaneMessage", "Received", "LaneVoterState", "LaneVote", "Selection"},
+    # what every autopilot lane reads beside its sensors, every tick
+    "merlin.redundancy.lanes": {"LaneContext"},
+    # the fixed wing's loops, every control step
+    "merlin.autopilot.fixedwing_control": {"SurfaceCommand", "FixedWingControlState", "ControlOutput", "_Energy"},
 }
 
 
@@ -91,6 +96,7 @@ def _samples() -> dict[str, dict[str, Any]]:
     """Per record, a value for every field: of the field's type (the compiled build checks them), unlike
     its default and unlike the record's other fields of the same type, so a field set from the wrong
     parameter shows."""
+    from merlin.autopilot.fixedwing_control import SurfaceCommand
     from merlin.core import types as t
     from merlin.redundancy.events import FaultKind, FaultReport
     from merlin.redundancy.lane_voter import LaneMessage
@@ -125,6 +131,17 @@ def _samples() -> dict[str, dict[str, Any]]:
         "LaneVote": dict(t_s=1.5, lane=1, vote=2, counters=(1, 2, 3), priorities=(3, 2, 1),
                          silent=(False, True, False), self_isolated=True, gated=False, message=msg,
                          events=(fault,)),
+        "Selection": dict(t_s=1.5, lane=2, votes=(1, None, 2), events=(fault,)),
+        "LaneContext": dict(battery_ok=False, no_failsafe=False, data_link_ok=False),
+        "SurfaceCommand": dict(aileron=0.125, elevator=0.25, rudder=0.375, throttle=0.5),
+        "FixedWingControlState": dict(throttle_integ=1.5, pitch_tecs_integ_rad=2.5, roll_sp_rad=3.5,
+                                      pitch_sp_rad=4.5, aileron_integ=5.5, elevator_integ=6.5, rudder_integ=7.5,
+                                      speed_rate_mps2=8.5, throttle=0.75, initialized=True, recovering=True,
+                                      pulling_out=True, handover=v1),
+        "ControlOutput": dict(surfaces=SurfaceCommand(0.5), roll_sp_rad=1.5, pitch_sp_rad=2.5,
+                              pitch_target_rad=3.5, ste_rate_error=4.5, seb_rate_error=5.5, height_weight=0.25,
+                              underspeed=True, recovering=True),
+        "_Energy": dict(ste_d=1.5, ste=2.5, seb_d=3.5, seb=4.5, w_h=0.25, underspeed=True),
     }
 
 
