@@ -61,7 +61,12 @@ _IREFS = re.compile(r"I\s+refs:\s+([\d,]+)")
 def count(tree: Path, case: str, seconds: float, program: str = PROGRAM, warm_up_s: float = 5.0) -> int:
     """Instructions a fresh process in ``tree`` executes flying ``case`` (a warm-up flight of ``warm_up_s``,
     then ``seconds``; with :data:`SETUP_PROGRAM`, building its vehicle ``seconds`` times)."""
-    env = dict(os.environ, PYTHONHASHSEED="0", PYTHONPATH=str(tree), MPLBACKEND="Agg")
+    # One thread for the numerical libraries: OpenBLAS's helper threads spin for a while after each call
+    # and valgrind counts their instructions too, by however long the scheduler let them spin. With them,
+    # three counts of one build spread 97.6-115.9 M per simulated second; with one thread, three counts
+    # were 105.4 M each (docs/benchmarks/sim.md, "Counts that repeat").
+    env = dict(os.environ, PYTHONHASHSEED="0", PYTHONPATH=str(tree), MPLBACKEND="Agg", OPENBLAS_NUM_THREADS="1",
+               OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
     cmd = ["valgrind", "--tool=cachegrind", "--cache-sim=no", "--cachegrind-out-file=/dev/null",
            sys.executable, "-c", program, case, repr(seconds), repr(warm_up_s)]
     proc = subprocess.run(cmd, cwd=tree, env=env, capture_output=True, text=True)
