@@ -367,7 +367,12 @@ class Selector:
         live: list[int | None] = []
         for v in self._votes:
             live.append(v[1] if v is not None and t_s - v[0] <= self.vote_timeout_s + _EPS_S else None)
-        counts = [sum(1 for v in live if v == k) for k in range(N_LANES)]
+        # one pass, not a sum() over a generator per lane (generic calls when compiled, every tick); a vote
+        # that names no lane counts for none, as before
+        counts = [0] * N_LANES
+        for lane in live:
+            if lane is not None and 0 <= lane < N_LANES:
+                counts[lane] += 1
         best = max(counts)
         if best >= 2:
             new = counts.index(best)

@@ -141,8 +141,19 @@ class SensorSuiteVoter:
 
 def _newest(samples: tuple[MagSample | BaroSample | GpsSample | None, ...], used: tuple[int, ...],
             default: float) -> float:
-    ts = [s.t_s for i in used if (s := samples[i]) is not None]
-    return max(ts) if ts else default
+    # a loop, not max() of a comprehension: the same comparisons in the same order (max keeps the first of
+    # equals and a leading NaN, as this does), without building a list per channel per tick
+    found = False
+    newest = default
+    for i in used:
+        s = samples[i]
+        if s is not None:
+            t = s.t_s
+            if not found:
+                newest, found = t, True
+            elif t > newest:
+                newest = t
+    return newest
 
 
 def m_or(out: VotedOutput) -> float:

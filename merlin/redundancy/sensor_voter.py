@@ -157,7 +157,11 @@ def new_voted_output(t_s: float, values: tuple[float, ...] | None, valid: bool, 
 
 
 def imu_lane(s: ImuSample) -> LaneSample:
-    return new_lane_sample(s.t_s, (*s.gyro_frd_radps, *s.accel_frd_mps2))
+    # unpacked and built as one tuple, not (*a, *b): compiled, star-unpacking goes through a list (per lane,
+    # per tick); a vector that is not of three raises here
+    gx, gy, gz = s.gyro_frd_radps
+    ax, ay, az = s.accel_frd_mps2
+    return new_lane_sample(s.t_s, (gx, gy, gz, ax, ay, az))
 
 
 def mag_lane(s: MagSample) -> LaneSample:
@@ -169,7 +173,9 @@ def baro_lane(s: BaroSample) -> LaneSample:
 
 
 def gps_lane(s: GpsSample) -> LaneSample:
-    return new_lane_sample(s.t_s, (*s.pos_ned_m, *s.vel_ned_mps), fix_type=s.fix_type)
+    n, e, d = s.pos_ned_m  # (as imu_lane)
+    vn, ve, vd = s.vel_ned_mps
+    return new_lane_sample(s.t_s, (n, e, d, vn, ve, vd), fix_type=s.fix_type)
 
 
 # ------------------------------------------------------------------------------------------- the tick
