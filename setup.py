@@ -73,6 +73,9 @@ COMPILED_MODULES = (
     "merlin/autopilot/fixedwing_guidance.py",
     "merlin/autopilot/fixedwing_behaviours.py",
     "sims/fixedwing.py",
+    # the fixed wing's recovery bound, flown once per state of its grid in every process that builds a fixed
+    # wing's configuration (docs/benchmarks/sim.md, "The recovery bound compiled")
+    "merlin/autopilot/recovery_kernel.py",
     # the glue every tick runs through: the driver's loop, the vehicle sides' sense/act, the scenario's
     # script, the sensor-fault injector, the camera's schedule and the run's log rows (interpreted, about
     # a tenth of the nominal case's instructions: docs/benchmarks/sim.md, "The per-tick glue compiled")

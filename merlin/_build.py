@@ -51,6 +51,7 @@ COMPILED_MODULES: tuple[str, ...] = (
     "merlin.autopilot.fixedwing_guidance",
     "merlin.autopilot.fixedwing_behaviours",
     "sims.fixedwing",
+    "merlin.autopilot.recovery_kernel",
     "merlin.pipeline",
     "sims.runner",
     "sims.vehicle_loop",

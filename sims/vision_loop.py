@@ -26,9 +26,6 @@ from merlin.config.models import MerlinConfig
 from merlin.measurements import VoSample
 from merlin.nav.config import NavConfig, nav_config_from_model
 from merlin.nav.estimator import GpsStatus, NavEstimator
-from merlin.vision.camera_model import CameraModel
-from merlin.vision.vo import VisualOdometry
-from sims.camera import DownwardCamera, load_texture
 from sims.scenario import Camera, Scenario
 from sims.sensors import dipole_field_ned_gauss
 
@@ -121,10 +118,17 @@ class VisionLoop:
         self.spec = spec
         self.trace = NavTrace()
         self._last_gps: Any = None
-        self.camera: DownwardCamera | None = None
-        self.vo: VisualOdometry | None = None
+        # sims.camera.DownwardCamera and merlin.vision.vo.VisualOdometry, imported only when there is a camera:
+        # OpenCV's import costs about 30 ms of CPU in every process, and most runs fly without a camera. Typed
+        # Any because this module is compiled, and a compiled attribute's type check needs its class at import.
+        self.camera: Any = None
+        self.vo: Any = None
         self._next_s = 0.0
         if spec is not None:
+            from merlin.vision.camera_model import CameraModel
+            from merlin.vision.vo import VisualOdometry
+            from sims.camera import DownwardCamera, load_texture
+
             rng = np.random.default_rng([seed, _CAMERA_STREAM])
             model = CameraModel(spec.width_px, spec.height_px, math.radians(spec.hfov_deg))
             texture = load_texture(spec.texture, spec.m_per_px, seed=int(rng.integers(0, 2**31)))
@@ -158,7 +162,7 @@ class VisionLoop:
         image = self.camera.render(truth.pos_ned_m, truth.rpy_rad, truth.vel_ned_mps, t)
         c1 = time.thread_time()
         st = ekf.state()
-        sample = self.vo.process(
+        sample: VoSample = self.vo.process(
             image, t, st.att_rpy_rad, -st.pos_ned_m[2], st.vel_ned_mps, ekf.gyro_attitude
         )
         c2 = time.thread_time()

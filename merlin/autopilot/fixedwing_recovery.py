@@ -52,6 +52,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from merlin.autopilot import recovery_kernel
 from merlin.autopilot.fixedwing_control import FixedWingControlParams, takeover_slew_per_s
 from merlin.config.models import MerlinConfig
 
@@ -216,6 +217,51 @@ def height_lost_m(wing: WingModel, body: RigidBodyModel, prop: PropulsionModel, 
     lift (``wing``, ``body``) under the recovery's loops (``cp``) from the surfaces handed over. ``inf``
     where it has not recovered within 40 s. ``trace``, if given, receives the first state's (t, V, gamma,
     alpha, q, bank, h, elevator, throttle) at every step.
+
+    Without a trace each state is flown on its own in compiled scalar code
+    (:mod:`merlin.autopilot.recovery_kernel`), with a trace by the array form
+    (:func:`height_lost_arrays`); both give the same bits."""
+    if trace is not None:
+        return height_lost_arrays(wing, body, prop, cp, entry, trace)
+    states = np.stack([np.asarray(x, dtype=float) for x in (
+        entry.airspeed_mps, entry.sink_mps, entry.alpha_rad, entry.q_radps, entry.bank_rad, entry.p_radps,
+        entry.elevator, entry.aileron, entry.throttle)], axis=1).tolist()
+    return np.array(recovery_kernel.heights_lost(recovery_constants(wing, body, prop, cp), states), dtype=float)
+
+
+def recovery_constants(wing: WingModel, body: RigidBodyModel, prop: PropulsionModel,
+                       cp: FixedWingControlParams) -> recovery_kernel.RecoveryConstants:
+    """The constants :mod:`merlin.autopilot.recovery_kernel` reads, from the models and the loops."""
+    trim_cl = float(_lift_coefficient(wing, body, np.array([cp.alpha_protect_rad]))[0])
+    return recovery_kernel.RecoveryConstants(
+        g=G_MPS2, mass_kg=wing.mass_kg, wing_area_m2=wing.wing_area_m2, cl0=wing.cl0,
+        cl_alpha_per_rad=wing.cl_alpha_per_rad, cl_max=wing.cl_max, rho_kgpm3=wing.rho_kgpm3, chord_m=body.chord_m,
+        span_m=body.span_m, iyy_kgm2=body.iyy_kgm2, ixx_kgm2=body.ixx_kgm2, cm0=body.cm0, cm_alpha=body.cm_alpha,
+        cm_q=body.cm_q, cm_de_per_rad=body.cm_de_per_rad, cl_de_per_rad=body.cl_de_per_rad, cl_p=body.cl_p,
+        cl_da_per_rad=body.cl_da_per_rad, surface_travel_rad=body.surface_travel_rad,
+        servo_rate_per_s=body.servo_rate_per_s, stall_alpha_rad=body.stall_alpha_rad, stall_blend=body.stall_blend,
+        cd_p=prop.cd_p, cd_induced=prop.cd_induced, a_per_rho=prop.a_per_rho, b0=prop.b0,
+        b_per_rho_v=prop.b_per_rho_v, c0=prop.c0, c_per_rho_v2=prop.c_per_rho_v2, c_per_throttle=prop.c_per_throttle,
+        ct0=prop.ct0, ct1=prop.ct1, ct2=prop.ct2, sink_max_mps=cp.sink_max_mps,
+        recovery_sink_margin_mps=cp.recovery_sink_margin_mps, airspeed_min_mps=cp.airspeed_min_mps,
+        bank_max_rad=cp.bank_max_rad, recovery_bank_margin_rad=cp.recovery_bank_margin_rad,
+        upset_alpha_max_rad=cp.upset_alpha_max_rad, upset_alpha_min_rad=cp.upset_alpha_min_rad,
+        upset_pitch_rate_radps=cp.upset_pitch_rate_radps, upset_roll_rate_radps=cp.upset_roll_rate_radps,
+        alpha_protect_rad=cp.alpha_protect_rad, pitch_max_rad=cp.pitch_max_rad,
+        pitch_sp_rate_radps=cp.pitch_sp_rate_radps, roll_sp_rate_radps=cp.roll_sp_rate_radps,
+        airspeed_cruise_mps=cp.airspeed_cruise_mps, scaler_min=cp.scaler_min, scaler_max=cp.scaler_max,
+        pitch_p=cp.pitch_p, recovery_pitch_p_scale=cp.recovery_pitch_p_scale, pitch_d=cp.pitch_d,
+        elevator_trim=cp.elevator_trim, roll_p=cp.roll_p, roll_d=cp.roll_d,
+        recovery_takeover_slew_per_s=cp.recovery_takeover_slew_per_s, ordinary_slew=takeover_slew_per_s(cp),
+        recovery_exit_margin_mps=cp.recovery_exit_margin_mps, throttle_max=cp.throttle_max,
+        throttle_trim=cp.throttle_trim, throttle_slew_per_s=cp.throttle_slew_per_s,
+        load_factor_max=cp.load_factor_max, trim_cl=trim_cl, weight=wing.mass_kg * G_MPS2)
+
+
+def height_lost_arrays(wing: WingModel, body: RigidBodyModel, prop: PropulsionModel, cp: FixedWingControlParams,
+                       entry: EntryStates, trace: list[tuple[float, ...]] | None = None) -> np.ndarray:
+    """:func:`height_lost_m` with every state of the grid in numpy arrays at once: the model's reference form,
+    and the one a trace is drawn from.
 
     The states are independent of one another (every operation is elementwise), so a state is dropped from
     the arrays once it has recovered and its loss is kept: a few long recoveries no longer carry the whole

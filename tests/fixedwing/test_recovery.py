@@ -230,19 +230,22 @@ def test_the_bound_is_derived_from_the_envelope_s_rates() -> None:
 
 
 def test_dropping_the_recovered_states_leaves_every_loss_bit_identical() -> None:
-    """height_lost_m drops a state from its arrays once it has recovered; with a trace it drops none and
+    """The array form drops a state from its arrays once it has recovered; with a trace it drops none and
     flies every state to the end of the longest recovery. Both give the same loss, bit for bit, for every
     state of the shipped configuration's grid and of a grid with a sink limit no envelope ships (states
-    that recover at many different times)."""
+    that recover at many different times); and so does height_lost_m without a trace, which flies each
+    state alone in the scalar kernel (tests/fixedwing/test_recovery_kernel.py holds it to the array form on
+    every shipped configuration and on random states)."""
     cp = fc.FixedWingControlParams()
     limits = rec._limits(CONFIG, cp)
+    models = (rec.AEROSONDE, rec.AEROSONDE_MOMENTS, rec.AEROSONDE_PROPULSION, cp)
     for lim in (limits, (limits[0], 11.0, *limits[2:5], limits[5] * 0.5, limits[6] * 0.3, limits[7])):
         entry = rec.entry_states(rec.AEROSONDE, *lim)
-        dropped = rec.height_lost_m(rec.AEROSONDE, rec.AEROSONDE_MOMENTS, rec.AEROSONDE_PROPULSION, cp, entry)
-        kept = rec.height_lost_m(rec.AEROSONDE, rec.AEROSONDE_MOMENTS, rec.AEROSONDE_PROPULSION, cp, entry,
-                                 trace=[])
-        assert dropped.shape == kept.shape == entry.airspeed_mps.shape
-        assert dropped.tobytes() == kept.tobytes()
+        dropped = rec.height_lost_arrays(*models, entry)
+        kept = rec.height_lost_arrays(*models, entry, trace=[])
+        scalar = rec.height_lost_m(*models, entry)
+        assert dropped.shape == kept.shape == scalar.shape == entry.airspeed_mps.shape
+        assert dropped.tobytes() == kept.tobytes() == scalar.tobytes()
 
 
 def test_the_dive_pull_out_gain_only_after_a_steep_sink_and_until_the_recovery_ends() -> None:
