@@ -51,6 +51,7 @@ class GuardedServe:
         ap, self.ctl, gcs = reserve_port(), reserve_port(), reserve_port()
         self.env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         self.out = tmp / "guard"
+        self.serve_out = tmp / "serve"
         self.procs: list[subprocess.Popen[Any]] = [
             subprocess.Popen([sys.executable, "-m", "merlin.cli", "serve", "--autopilot-only", "--config",
                               str(serve_cfg), "--gcs-port", str(gcs), "--gcs-bind-port", "0", "--offboard-port",
@@ -79,6 +80,17 @@ class GuardedServe:
         lines = (self.out / "events.jsonl").read_text().splitlines()
         ev = [json.loads(x) for x in lines if x.strip()]
         return [e for e in ev if kind is None or e["type"] == kind]
+
+    def trail(self, n: int = 25) -> str:
+        """The last ``n`` event lines of the guard and of serve behind it, for a failure's message: which of the
+        two answered a command, and when (MAVSDK's goto first asks for HOLD when the vehicle is not in it, and
+        serve answers that, then the guard denies the reposition)."""
+        parts = []
+        for name, path in (("guard", self.out / "events.jsonl"), ("serve", self.serve_out / "events.jsonl")):
+            text = path.read_text(errors="replace") if path.exists() else ""
+            lines = [x for x in text.splitlines() if '"telemetry' not in x][-n:]
+            parts.append(f"{name}'s events ({path.name}, last {len(lines)}):\n" + "\n".join(x[:300] for x in lines))
+        return "\n".join(parts)
 
     def close(self) -> None:
         for p in reversed(self.procs):
@@ -157,8 +169,8 @@ def test_mavsdk_goto_without_authority_is_denied_as_px4_denies_a_command(guarded
         out = "\n".join(lines)
         assert "COMMAND_DENIED" in out and "goto_location" in out, (
             f"after {time.monotonic() - t0:.0f} s, exit status {p.poll()}, children {_children(p.pid)}, guard's "
-            f"exit status {guarded.procs[1].poll()}, guard's output:\n{output(guarded.out)[-1500:]}\nexample's "
-            f"output:\n" + out[-3000:])
+            f"exit status {guarded.procs[1].poll()}, guard's output:\n{output(guarded.out)[-1500:]}\n"
+            f"{guarded.trail()}\nexample's output:\n" + out[-3000:])
     finally:
         p.kill()
         p.wait(timeout=20)
