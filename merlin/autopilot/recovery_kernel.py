@@ -15,7 +15,10 @@ same IEEE double (``tests/fixedwing/test_recovery_kernel.py`` holds the two form
 the shipped configurations' grids and states drawn at random). Where the array form takes ``np.maximum`` or
 ``np.minimum`` of two values this one takes :func:`_np_max` and :func:`_np_min`, which return the same
 operand on a tie (of signed zeros) as numpy does; its ``np.clip`` with scalar bounds keeps the value on a tie,
-as :func:`_clip` does. The array form stays the reference, and what a trace of one state is drawn from.
+as :func:`_clip` does. The surfaces' slew is the one clip with array bounds there (numpy then returns the
+bound on a tie); its bounds are the slew's step, positive for loops that move their surfaces at all, so a tie
+gives the same bits either way. The array form stays the reference, and what a trace of one state is drawn
+from.
 """
 
 from __future__ import annotations
