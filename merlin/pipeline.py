@@ -220,15 +220,28 @@ class VehicleTick:
         assert self.actuators is not None
         return decision, self.actuators.step(sensed.t, decision, inputs.state, voted, sensed.frame)
 
+    def hold(self, sensed: Sensed, decision: Decision) -> Any:
+        """A tick on which the core does not run (its period spans several ticks): the actuator stage flies
+        the core's last ``decision`` on this tick's estimate; returns the actuation."""
+        voted = self.vote_after(sensed)
+        assert self.actuators is not None
+        return self.actuators.step(sensed.t, decision, sensed.state, voted, sensed.frame)
+
 
 class VehicleLoop(Protocol):
     """The vehicle side a driver ticks (``merlin sim``'s runner, ``merlin serve``, a hardware driver):
     ``sense()`` reads the sensors and forms the estimate, ``act(inputs)`` runs the core and the actuator
     stage and advances the dynamics one period. Between them the driver builds the inputs
-    (:class:`InputBuilder`) with :meth:`redundancy_report`."""
+    (:class:`InputBuilder`) with :meth:`redundancy_report`.
+
+    When the core's period spans ``core_every`` ticks, the core runs on the ticks where :attr:`core_due` is
+    true; on the others the driver builds no inputs and calls ``act(None)``, which flies the core's last
+    decision and returns it. What arrives meanwhile (requests, the ground station's commands) waits in the
+    driver for the core's next tick: nothing is lost and nothing is decided twice."""
 
     dt: float
     k: int
+    core_every: int
     core: TrustedCore
     core_cfg: CoreConfig
     state: VehicleState
@@ -242,4 +255,7 @@ class VehicleLoop(Protocol):
 
     def redundancy_report(self, t: float) -> RedundancyReport | None: ...
 
-    def act(self, inputs: Inputs) -> Decision: ...
+    @property
+    def core_due(self) -> bool: ...
+
+    def act(self, inputs: Inputs | None) -> Decision: ...

@@ -235,6 +235,7 @@ class FixedWingLoop(SimulatedVehicle):
         self.sc = sc
         self.cfg = cfg
         self.dt = dt = sc.dt_s
+        self.core_every = sc.core_every
         # The same five streams, in the same order, as the multirotor's loop (the vehicle's is unused:
         # JSBSim is deterministic), so a sensor or wind draw never depends on which vehicle flies.
         root = np.random.default_rng(sc.seed)
@@ -416,12 +417,17 @@ class FixedWingLoop(SimulatedVehicle):
         tr = self.truth
         return (tr.airspeed_mps, self.armed, tr.landed, self.batt_frac, tr.alpha_rad)
 
-    def act(self, inputs: Inputs) -> Decision:
-        """The core's tick on ``inputs`` (whose ``state`` must be :meth:`sense`'s), then the fixed-wing
-        actuator stage and one JSBSim frame."""
+    def act(self, inputs: Inputs | None) -> Decision:
+        """The core's tick on ``inputs`` (whose ``state`` must be :meth:`sense`'s; None: the core is not due,
+        its last decision is flown), then the fixed-wing actuator stage and one JSBSim frame."""
         t = self.t
         sensed = self.sensed
-        decision = self.tick.decide(sensed, inputs)
+        if inputs is not None:
+            decision = self.tick.decide(sensed, inputs)
+        else:
+            held = self.decision
+            assert held is not None, "act(None) before the core's first tick"
+            decision = held
         self.decision = decision
         self.armed = decision.armed
         self.tick.vote_after(sensed)  # the IMU voter's one call when the estimator did not read it
@@ -433,7 +439,7 @@ class FixedWingLoop(SimulatedVehicle):
                 self.k += 1
                 return decision
             self._launch(t)
-        s = inputs.state if not self._launched_now else self.fw.truth().to_vehicle_state(
+        s = sensed.state if not self._launched_now else self.fw.truth().to_vehicle_state(
             armed=True, battery_frac=self.batt_frac)
         self._launched_now = False
         surfaces = self.stage.step(t, decision, s, self.core.state.arbiter.takeoff_alt_m)

@@ -57,6 +57,7 @@ class ClosedLoop(SimulatedVehicle):
         self.sc = sc
         self.cfg = cfg
         self.dt = dt = sc.dt_s
+        self.core_every = sc.core_every
         root = np.random.default_rng(sc.seed)
         rng_vehicle, rng_sensors, rng_wind, rng_est, rng_faults = root.spawn(5)
         try:
@@ -179,11 +180,17 @@ class ClosedLoop(SimulatedVehicle):
         self.state = self.sensed.state
         return self.state
 
-    def act(self, inputs: Inputs) -> Decision:
-        """Second half: the core's tick on ``inputs`` (whose ``state`` must be :meth:`sense`'s) and the inner
-        loops, then the dynamics advance one period."""
+    def act(self, inputs: Inputs | None) -> Decision:
+        """Second half: the core's tick on ``inputs`` (whose ``state`` must be :meth:`sense`'s; None: the core
+        is not due, its last decision is flown) and the inner loops, then the dynamics advance one period."""
         t = self.k * self.dt  # self.t
-        decision, self.motors = self.tick.act(self.sensed, inputs)
+        if inputs is not None:
+            decision, self.motors = self.tick.act(self.sensed, inputs)
+        else:
+            held = self.decision
+            assert held is not None, "act(None) before the core's first tick"
+            decision = held
+            self.motors = self.tick.hold(self.sensed, decision)
         self.decision = decision
         self.armed = decision.armed
         self.wind_ned = self.wind.step(t)

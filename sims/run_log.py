@@ -196,6 +196,12 @@ class RunRecorder:
         if k % self.log_every == 0:
             self._row(t, state, decision, sp)
 
+    def held(self, k: int, t: float, state: VehicleState, decision: Decision, sp: Setpoint | None) -> None:
+        """After ``act(None)``, a tick the core did not run: the log row only (the held decision's events
+        were recorded on the core's tick, and its command is the one already checked for continuity)."""
+        if k % self.log_every == 0:
+            self._row(t, state, decision, sp)
+
     def _row(self, t: float, state: VehicleState, decision: Decision, sp: Setpoint | None) -> None:
         loop, log = self.loop, self.log
         truth, cmd = loop.truth, decision.command

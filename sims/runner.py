@@ -21,6 +21,7 @@ from typing import Any
 from merlin.config.crosschecks import VehicleCapability, multirotor_capability
 from merlin.config.loader import ConfigError
 from merlin.config.models import MerlinConfig
+from merlin.core.types import GcsCommand
 from sims.multirotor_loop import ClosedLoop, vehicle_params_path
 from sims.run_log import RunRecorder, RunResult
 from sims.scenario import FIXED_WING_VEHICLES, Scenario
@@ -80,6 +81,9 @@ def run_scenario(
     record = RunRecorder(sc, loop, events)
     build, report = script.inputs.build, loop.redundancy_report
     dt = loop.dt
+    # the ground station's commands that fell due between the core's ticks, for its next tick (the
+    # controller's requests wait in the input builder the same way)
+    waiting: tuple[GcsCommand, ...] = ()
     # Everything alive now (the imported libraries, the configuration, the vehicle, its filters) lives as
     # long as the run: frozen, the cyclic garbage collector's full collections no longer walk it (they
     # were 8-16 % of a run's CPU: ~190,000 objects walked a few times a run, numba's and pydantic's
@@ -96,9 +100,16 @@ def run_scenario(
             record.sensed(t)
             commands = script.links(t, active)
             script.controller(k, t, state, active, record.decision)
-            decision = loop.act(build(state, commands, report(t)))
-            script.notify(decision)
-            record.decided(k, t, state, decision, script.setpoint)
+            if loop.core_due:
+                if waiting:
+                    commands, waiting = waiting + commands, ()
+                decision = loop.act(build(state, commands, report(t)))
+                script.notify(decision)
+                record.decided(k, t, state, decision, script.setpoint)
+            else:
+                if commands:
+                    waiting = waiting + commands
+                record.held(k, t, state, loop.act(None), script.setpoint)
             if progress is not None and k % 4000 == 0:
                 progress(t / sc.duration_s)
     finally:

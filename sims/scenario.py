@@ -31,6 +31,9 @@ Terrain = Literal["grass", "gravel", "brick", "water", "tiles"]
 #: motion is ambiguous by a period, refused without an accurate velocity prior, which is what a GPS loss
 #: takes away (``tests/vision/test_vision_vo.py``).
 CAMERA_TERRAINS: tuple[str, ...] = ("grass", "gravel", "brick")
+#: The longest period the trusted core may tick at in a simulation: seed 004's redundant autopilot runs its
+#: whole cycle, sensors to actuators, on a 20 ms sync period (section 4.3.2).
+MAX_CORE_DT_S = 0.02
 
 
 class S(BaseModel):
@@ -287,7 +290,13 @@ class Scenario(S):
     description: str = ""
     duration_s: float = Field(gt=0.0, le=7200.0)
     seed: int = 1
-    dt_s: float = Field(0.0025, gt=0.0, le=0.01, description="simulation and core tick period")
+    dt_s: float = Field(0.0025, gt=0.0, le=0.01, description="simulation tick period (the physics, the sensors, "
+                                                              "the filter and the inner loops)")
+    core_dt_s: float | None = Field(
+        None, gt=0.0, le=MAX_CORE_DT_S,
+        description="the trusted core's tick period: a whole number of dt_s, at most 0.02 s (seed 004's 20 ms "
+                    "sync period, section 4.3.2); its decision is flown on the ticks between, and what arrives "
+                    "between its ticks waits for the next one. null: every tick")
     vehicle: str = Field("quadrotor_default", description="a file in sims/vehicles (without .yaml) or a path")
     config: str | dict[str, Any] = Field(
         "default", description="'default', a path relative to the scenario file, or an inline mapping"
@@ -350,6 +359,21 @@ class Scenario(S):
         if self.camera is not None:
             return self.camera.texture
         return self.terrain if self.terrain is not None else "grass"
+
+    @model_validator(mode="after")
+    def _core_tick_whole(self) -> Scenario:
+        if self.core_dt_s is not None:
+            n = self.core_dt_s / self.dt_s
+            if abs(n - round(n)) > 1e-6 or round(n) < 1:
+                raise ValueError(f"core_dt_s: {self.core_dt_s:g} s is not a whole number of dt_s ({self.dt_s:g} s);"
+                                 f" allowed: k * dt_s for k = 1..{int(MAX_CORE_DT_S / self.dt_s + 1e-9)}, e.g. "
+                                 f"{4 * self.dt_s:g} for the core at a quarter of the tick rate")
+        return self
+
+    @property
+    def core_every(self) -> int:
+        """How many ticks the trusted core's period spans (1: the core decides on every tick)."""
+        return 1 if self.core_dt_s is None else round(self.core_dt_s / self.dt_s)
 
     @model_validator(mode="after")
     def _camera_needs_ekf(self) -> Scenario:

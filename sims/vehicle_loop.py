@@ -256,6 +256,8 @@ class SimulatedVehicle:
     cfg: MerlinConfig
     dt: float
     k: int
+    #: how many ticks the trusted core's period spans (the scenario's ``core_dt_s``; 1: every tick)
+    core_every: int
     tick: VehicleTick
     truth: Any
     frame: Any
@@ -270,6 +272,12 @@ class SimulatedVehicle:
     @property
     def t(self) -> float:
         return self.k * self.dt
+
+    @property
+    def core_due(self) -> bool:
+        """Whether the core runs on this tick (:class:`merlin.pipeline.VehicleLoop`): its first, then every
+        ``core_every``-th."""
+        return self.k % self.core_every == 0
 
     @property
     def core(self) -> TrustedCore:
@@ -308,8 +316,9 @@ class SimulatedVehicle:
         """First half of a tick: the truth, the sensor frame, then the pipeline's voter and estimator."""
         raise NotImplementedError
 
-    def act(self, inputs: Inputs) -> Decision:
-        """Second half: the pipeline's core and actuator stage, then the dynamics one period."""
+    def act(self, inputs: Inputs | None) -> Decision:
+        """Second half: the pipeline's core (None: not due this tick, its last decision is flown) and actuator
+        stage, then the dynamics one period."""
         raise NotImplementedError
 
     def redundancy_report(self, t: float) -> RedundancyReport | None:

@@ -37,6 +37,9 @@ def register(sub: Any) -> None:
     p.add_argument("--workers", type=int, default=0, help="worker processes (default: every core)")
     p.add_argument("--seed", type=int, default=0, help="search seed: the same seed flies the same runs")
     p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--core-dt-s", type=float, default=None,
+                   help="fly every run with the trusted core at this period (s; a whole number of the vehicle's "
+                        "tick, at most 0.02; docs/scenarios.md, 'Core rate'); default: every tick")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
 
@@ -63,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(SOURCE, [f"CONFIG: file {args.config!r} not found"])
     cfg = load_config(cfg_path)
     vehicle = args.vehicle or ("aerosonde" if cfg.vehicle.type == "fixed_wing" else "multirotor")
-    site = load_site(cfg, vehicle, str(cfg_path))
+    site = load_site(cfg, vehicle, str(cfg_path), args.core_dt_s)
     classes = adversary_classes(vehicle)
     if args.classes:
         want = [c.strip() for c in args.classes.split(",") if c.strip()]
@@ -120,7 +123,7 @@ def falsify(cfg_path: Path, site: Any, classes: tuple[Any, ...], budget: int, se
     summary: dict[str, Any] = {
         "config": str(cfg_path), "config_name": site.cfg.name, "vehicle": site.vehicle,
         "estimator": _estimator(site, classes, sim_seed), "budget": budget,
-        "seed": seed, "sim_seed": sim_seed, "backend": backend, "workers": n_workers,
+        "seed": seed, "sim_seed": sim_seed, "backend": backend, "workers": n_workers, "core_dt_s": site.core_dt_s,
         "evaluated": len(result.evaluations), "errors": sum(e.status != "ok" for e in result.evaluations),
         "wall_s": wall, "runs_per_min": len(result.evaluations) / wall * 60.0 if wall > 0 else 0.0, "classes": {},
     }

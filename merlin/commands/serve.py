@@ -272,14 +272,16 @@ def options_from_args(args: argparse.Namespace) -> Any:
     )
 
 
-def preflight(cfg: Any, vehicle: str, source: str, accept_risk: list[str] | None, out_dir: Path) -> Any:
+def preflight(cfg: Any, vehicle: str, source: str, accept_risk: list[str] | None, out_dir: Path,
+              core_period_s: float = 0.0) -> Any:
     """The cross-checks (merlin.config.crosschecks) of the configuration to fly, against ``vehicle``: refuse
     (CrossCheckRefusal, exit 2) on an error not accepted by id; log every accepted error and warning, and
     write them to ``crosschecks.json`` beside the flight's logs, so the record says what was flown anyway."""
     from merlin.config.crosschecks import gate, parse_accept, run_checks
     from sims.runner import vehicle_capability
 
-    result = gate(run_checks(cfg, vehicle=vehicle_capability(vehicle)), parse_accept(accept_risk), source)
+    result = gate(run_checks(cfg, vehicle=vehicle_capability(vehicle), core_period_s=core_period_s),
+                  parse_accept(accept_risk), source)
     log = logging.getLogger("merlin.serve.crosschecks")
     for f in result.accepted:
         log.warning("risk accepted by --accept-risk: %s", f.line())
@@ -297,7 +299,8 @@ def run(args: argparse.Namespace) -> int:
     opts = options_from_args(args)
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    preflight(opts.config, args.vehicle, opts.config_source, getattr(args, "accept_risk", None), opts.out_dir)
+    preflight(opts.config, args.vehicle, opts.config_source, getattr(args, "accept_risk", None), opts.out_dir,
+              1.0 / opts.rate_hz)
     server = Server(opts)
     install_signal_handlers(server)
     if not args.quiet:

@@ -37,7 +37,7 @@ def preflight(sc: Any, cfg: Any, source: str, accept: frozenset[str] = frozenset
     from sims.runner import vehicle_capability
 
     accepted = accept | parse_accept(sc.accept_risk, f"{source}: accept_risk")
-    found = run_checks(cfg, vehicle=vehicle_capability(sc.vehicle))
+    found = run_checks(cfg, vehicle=vehicle_capability(sc.vehicle), core_period_s=sc.core_every * sc.dt_s)
     return gate(found, accepted, source)
 
 

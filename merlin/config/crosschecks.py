@@ -97,6 +97,9 @@ class CheckInput:
     cfg: MerlinConfig
     fence: Fence | None
     vehicle: VehicleCapability | None
+    #: the trusted core's tick period where the driver is known (``merlin sim``, ``merlin serve``), 0 where
+    #: not (``check-config``): a limit crossed just after a tick is seen up to one period late
+    core_period_s: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -246,13 +249,15 @@ def _reaction(inp: CheckInput, c: CrossCheck) -> Iterator[Finding]:
         return
     if v.max_horizontal_decel_mps2 > cap.max_h_decel_mps2 + 1e-9:
         return  # no reaction time delivers a braking the vehicle cannot hold: XC003 says so
-    need = cap.min_reaction_s(v.max_horizontal_decel_mps2)
+    need = cap.min_reaction_s(v.max_horizontal_decel_mps2) + inp.core_period_s
     if v.reaction_time_s + 1e-9 < need:
+        core = (f" and the trusted core's {inp.core_period_s * 1e3:g} ms tick, which may see the crossing one tick "
+                "late," if inp.core_period_s > 0.0 else "")
         yield c.make(("vehicle.reaction_time_s", "vehicle.max_horizontal_decel_mps2"),
-                     {"configured_s": v.reaction_time_s, "vehicle_s": need},
+                     {"configured_s": v.reaction_time_s, "vehicle_s": need, "core_period_s": inp.core_period_s},
                      f"the fence projection allows {v.reaction_time_s:g} s from detection to braking at "
-                     f"{v.max_horizontal_decel_mps2:g} m/s^2; the vehicle {cap.source} needs at least {need:.3f} s "
-                     f"({cap.derivation})")
+                     f"{v.max_horizontal_decel_mps2:g} m/s^2; the vehicle {cap.source}{core} needs at least "
+                     f"{need:.3f} s ({cap.derivation})")
 
 
 @cross_check("XC006", "sigma-k-zero", Severity.ERROR,
@@ -674,14 +679,15 @@ def check_ids() -> dict[str, CrossCheck]:
 
 
 def run_checks(cfg: MerlinConfig, fence: Fence | None = None, vehicle: VehicleCapability | None = None,
-               *, build: bool = True) -> list[Finding]:
+               *, build: bool = True, core_period_s: float = 0.0) -> list[Finding]:
     """Every check's findings, errors first, then in id order. ``fence``: the configuration's fence as built
-    (built here when None and ``build``; the fence is None when the configuration disables it)."""
+    (built here when None and ``build``; the fence is None when the configuration disables it);
+    ``core_period_s``: the trusted core's tick period, where the driver that will fly it is known."""
     if fence is None and build and cfg.geofence.enabled:
         from merlin.config.fence_build import build_fence
 
         fence = build_fence(cfg.geofence, cfg.home, cfg.vehicle)
-    inp = CheckInput(cfg, fence, vehicle)
+    inp = CheckInput(cfg, fence, vehicle, core_period_s)
     out = [f for chk in CHECKS for f in chk.run(inp, chk)]
     return sorted(out, key=lambda f: (f.severity is not Severity.ERROR, f.check_id))
 

@@ -40,8 +40,12 @@ from merlin.config.models import MerlinConfig
 from merlin.config.runtime import build_core_config
 from merlin.core.geofence import check
 from merlin.core.step import MAX_SETPOINT_VELOCITY_MPS
+from sims.scenario import MAX_CORE_DT_S, Scenario
 
 VEHICLES = {"multirotor": "quadrotor_default", "aerosonde": "aerosonde"}
+#: the runs' tick: the multirotor's, the scenarios' default; the fixed wing's, its scenarios' 200 Hz
+MR_DT_S: float = Scenario.model_fields["dt_s"].default
+FW_DT_S = 0.005
 ADVERSARIES = "experimental_controllers.adversaries_search"
 #: The steady wind the search may blow (m/s): a multirotor's range is flown up to a fresh breeze, a fixed
 #: wing's up to about half its cruise airspeed.
@@ -98,6 +102,7 @@ class Site:
     floor_m: float | None
     min_clear_m: float
     fence: Any = None  # the core's fence (merlin.core.geofence.Fence), for the start's projection
+    core_dt_s: float | None = None  # the trusted core's period in every run (the scenarios' core_dt_s)
 
     @property
     def perimeter_m(self) -> float:
@@ -151,9 +156,17 @@ class Site:
         return 0.0 if self.allowed.buffer(1e-6).covers(seg) else float(seg.length)
 
 
-def load_site(cfg: MerlinConfig, vehicle: str, source: str) -> Site:
+def load_site(cfg: MerlinConfig, vehicle: str, source: str, core_dt_s: float | None = None) -> Site:
+    """The range of ``cfg`` as the search flies it with ``vehicle``; ``core_dt_s``: every run's trusted core
+    at that period (a whole number of the vehicle's tick, at most 20 ms; None: every tick)."""
     if vehicle not in VEHICLES:
         raise ConfigError(source, [f"--vehicle: {vehicle!r}; allowed: {sorted(VEHICLES)}"])
+    if core_dt_s is not None:
+        tick = FW_DT_S if vehicle == "aerosonde" else MR_DT_S
+        n = core_dt_s / tick
+        if not (0.0 < core_dt_s <= MAX_CORE_DT_S) or abs(n - round(n)) > 1e-6:
+            raise ConfigError(source, [f"--core-dt-s: {core_dt_s!r} s; allowed: a whole number of the {vehicle}'s "
+                                       f"{tick * 1e3:g} ms tick, at most {MAX_CORE_DT_S * 1e3:g} ms"])
     want = "fixed_wing" if vehicle == "aerosonde" else "multirotor"
     if cfg.vehicle.type != want:
         raise ConfigError(source, [f"vehicle.type: {cfg.vehicle.type!r}, but --vehicle {vehicle} flies a {want}"
@@ -180,7 +193,7 @@ def load_site(cfg: MerlinConfig, vehicle: str, source: str) -> Site:
     if vehicle == "aerosonde":
         min_clear = max(min_clear, 2.5 * 22.0 ** 2 / (9.80665 * math.tan(math.radians(cfg.vehicle.bank_limit_deg))))
     return Site(cfg, cfg.model_dump(mode="json"), vehicle, allowed, tuple(rings), cum,
-                gf.altitude_ceiling_m, gf.altitude_floor_m, min_clear, fence)
+                gf.altitude_ceiling_m, gf.altitude_floor_m, min_clear, fence, core_dt_s)
 
 
 Builder = Callable[["AdversaryClass", Site, dict[str, float], int], dict[str, Any]]
@@ -246,8 +259,10 @@ def _common(site: Site, v: dict[str, float], seed: int, name: str) -> tuple[dict
         "expectations": [{"type": "no_fence_breach", "name": "the vehicle stays inside the range"}],
     }
     if site.vehicle == "aerosonde":
-        sc["dt_s"] = 0.005  # the JSBSim model and the core at 200 Hz, as the fixed-wing scenarios
+        sc["dt_s"] = FW_DT_S  # the JSBSim model and the core at 200 Hz, as the fixed-wing scenarios
         sc["initial"]["airspeed_mps"] = 22.0
+    if site.core_dt_s is not None:
+        sc["core_dt_s"] = site.core_dt_s
     return sc, start, outward
 
 

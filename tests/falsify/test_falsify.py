@@ -263,3 +263,20 @@ def test_a_bad_config_value_exits_2(tmp_path: Path, capsys) -> None:
     p.write_text("merlin_config_version: 1\nname: bad\ngeofence: {margin_m: -4}\n")
     assert main(["falsify", str(p), "--out", str(tmp_path / "o")]) == 2
     assert "margin_m" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("vehicle,path,core_dt_s,every", [("multirotor", DEFAULT, 0.01, 4),
+                                                          ("aerosonde", FIXED_WING, 0.01, 2)])
+def test_every_adversary_flies_with_the_core_period_asked_for(vehicle: str, path: Path, core_dt_s: float,
+                                                              every: int) -> None:
+    """``--core-dt-s``: each class's scenario carries the period (so its written worst case reproduces at
+    it); a period that is not a whole number of the vehicle's tick, or beyond 20 ms, is refused."""
+    site = load_site(load_config(path), vehicle, str(path), core_dt_s)
+    for adv in adversary_classes(vehicle):
+        sc = Scenario.model_validate(adv.scenario(site, np.full(adv.dim, 0.5), 1))
+        assert sc.core_dt_s == core_dt_s and sc.core_every == every, adv.name
+    first = adversary_classes(vehicle)[0]
+    assert Scenario.model_validate(first.scenario(_site(path, vehicle), np.full(first.dim, 0.5), 1)).core_every == 1
+    for bad in (0.0035, 0.025, -0.01):
+        with pytest.raises(Exception, match="--core-dt-s"):
+            load_site(load_config(path), vehicle, str(path), bad)
