@@ -126,7 +126,7 @@ NON_SENSOR_FAULTS = ("gps_loss", "controller_crash", "controller_hang", "control
 #: checked in detail.
 FIXED_WING_SCENARIO_FIELDS = ("name", "description", "duration_s", "seed", "dt_s", "vehicle", "config", "estimator",
                               "initial", "wind", "gcs", "operator", "rc_connected", "controller", "faults",
-                              "expectations", "log_rate_hz", "redundancy", "camera")
+                              "expectations", "log_rate_hz", "redundancy", "camera", "core_dt_s")
 #: ``redundancy`` fields the fixed wing implements: the IMU voter before the EKF (autopilot_lanes must be 1).
 FIXED_WING_REDUNDANCY_FIELDS = ("sensor_voter", "fdi_preset", "autopilot_lanes", "bumpless_step")
 

@@ -110,10 +110,12 @@ def test_the_controllers_requests_and_the_core_events_are_neither_lost_nor_recor
     assert "granted" in " ".join(kinds4) and kinds4 == kinds1  # the same decisions, in kind and order
 
 
-@pytest.mark.parametrize("name", ["figure5_delayed", "figure5_instant", "controller_crash"])
+@pytest.mark.parametrize("name", ["figure5_delayed", "figure5_instant", "controller_crash", "fw_controller_crash",
+                                  "fw_fence_0deg_22mps"])
 def test_a_shipped_scenario_meets_its_expectations_with_the_core_at_100_hz(name: str) -> None:
-    """Figure 5's exceedance timers (revoked after exactly the duration, to the core's tick) and the
-    heartbeat watchdog (revoked within its timeout plus one tick) with the core at a quarter of the rate."""
+    """Figure 5's exceedance timers (revoked after exactly the duration, to the core's tick), the heartbeat
+    watchdog (revoked within its timeout plus one tick) and the fixed wing's fence, with the core at 100 Hz:
+    a quarter of the multirotor's tick rate, half the fixed wing's."""
     sc, cfg = load_scenario(SCENARIOS / f"{name}.yaml")
     sc = sc.model_copy(update={"core_dt_s": 0.01})
     result, spy = _fly(sc, cfg)
