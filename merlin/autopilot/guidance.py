@@ -363,22 +363,27 @@ def step(g: GuidanceState, s: VehicleState, cfg: TrustedParams, dt: float) -> tu
     g2, sp = _target(g, s, cfg)
     want = sp.vel_ned_mps
     brake = g2.brake_ne
+    max_dh = cfg.max_horizontal_decel_mps2 * dt
     if brake is not None:
         # Braking after a takeover: the fence projection counted on the velocity along its direction falling
         # at the full braking deceleration until the stop. A turn (RTL towards home, a route to a safe point)
         # changing the whole command at that rate would spend part of it sideways and brake less along the
         # velocity (in a crosswind the vehicle then ran past the projected stop: scenario
-        # adv_rtl_turn_while_braking_wind). So until the command's component along that direction is down to
-        # the target's (never below zero), the target is only that component, and the turn follows.
+        # adv_rtl_turn_while_braking_wind). So while the command's component along that direction is more
+        # than one tick's braking above the target's (never below zero), the target is only that component,
+        # and the turn follows. The braking ends on the tick that brings the command down to the target's
+        # component, not on the tick after: the target's component moves as the vehicle does, and a command
+        # that only ever reached last tick's value stayed "above" it, braking towards the target's component
+        # along the old direction for good -- out of the range, the faster the longer the core's tick
+        # (scenario adv_tilt_brake_release_core_100hz).
         c = g2.vel_cmd
         along_cmd = c[0] * brake[0] + c[1] * brake[1]
         along_want = max(want[0] * brake[0] + want[1] * brake[1], 0.0)
-        if along_cmd > along_want + 1e-9:
+        if along_cmd > along_want + max_dh:
             want = (along_want * brake[0], along_want * brake[1], want[2])
         else:
             brake = None
     c = g2.vel_cmd
-    max_dh = cfg.max_horizontal_decel_mps2 * dt
     v = limit_velocity_change(c, want, max_dh, cfg.max_vertical_decel_mps2 * dt)
     ff = _NO_ACCEL
     if brake is not None and dt > 0.0:
