@@ -36,6 +36,16 @@ CAMERA_TERRAINS: tuple[str, ...] = ("grass", "gravel", "brick")
 MAX_CORE_DT_S = 0.02
 
 
+def whole_ticks(period_s: float, dt_s: float) -> int | None:
+    """How many ticks of ``dt_s`` the trusted core's ``period_s`` spans, or None when it is not a whole number
+    of them or is beyond :data:`MAX_CORE_DT_S` (the scenario's ``core_dt_s`` and ``merlin falsify
+    --core-dt-s`` hold a period to this)."""
+    n = period_s / dt_s
+    if not 0.0 < period_s <= MAX_CORE_DT_S or abs(n - round(n)) > 1e-6 or round(n) < 1:
+        return None
+    return round(n)
+
+
 class S(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -362,12 +372,10 @@ class Scenario(S):
 
     @model_validator(mode="after")
     def _core_tick_whole(self) -> Scenario:
-        if self.core_dt_s is not None:
-            n = self.core_dt_s / self.dt_s
-            if abs(n - round(n)) > 1e-6 or round(n) < 1:
-                raise ValueError(f"core_dt_s: {self.core_dt_s:g} s is not a whole number of dt_s ({self.dt_s:g} s);"
-                                 f" allowed: k * dt_s for k = 1..{int(MAX_CORE_DT_S / self.dt_s + 1e-9)}, e.g. "
-                                 f"{4 * self.dt_s:g} for the core at a quarter of the tick rate")
+        if self.core_dt_s is not None and whole_ticks(self.core_dt_s, self.dt_s) is None:
+            raise ValueError(f"core_dt_s: {self.core_dt_s:g} s is not a whole number of dt_s ({self.dt_s:g} s);"
+                             f" allowed: k * dt_s for k = 1..{int(MAX_CORE_DT_S / self.dt_s + 1e-9)}, e.g. "
+                             f"{4 * self.dt_s:g} for the core at a quarter of the tick rate")
         return self
 
     @property

@@ -40,7 +40,7 @@ from merlin.config.models import MerlinConfig
 from merlin.config.runtime import build_core_config
 from merlin.core.geofence import check
 from merlin.core.step import MAX_SETPOINT_VELOCITY_MPS
-from sims.scenario import MAX_CORE_DT_S, Scenario
+from sims.scenario import MAX_CORE_DT_S, Scenario, whole_ticks
 
 VEHICLES = {"multirotor": "quadrotor_default", "aerosonde": "aerosonde"}
 #: the runs' tick: the multirotor's, the scenarios' default; the fixed wing's, its scenarios' 200 Hz
@@ -163,8 +163,7 @@ def load_site(cfg: MerlinConfig, vehicle: str, source: str, core_dt_s: float | N
         raise ConfigError(source, [f"--vehicle: {vehicle!r}; allowed: {sorted(VEHICLES)}"])
     if core_dt_s is not None:
         tick = FW_DT_S if vehicle == "aerosonde" else MR_DT_S
-        n = core_dt_s / tick
-        if not (0.0 < core_dt_s <= MAX_CORE_DT_S) or abs(n - round(n)) > 1e-6:
+        if whole_ticks(core_dt_s, tick) is None:
             raise ConfigError(source, [f"--core-dt-s: {core_dt_s!r} s; allowed: a whole number of the {vehicle}'s "
                                        f"{tick * 1e3:g} ms tick, at most {MAX_CORE_DT_S * 1e3:g} ms"])
     want = "fixed_wing" if vehicle == "aerosonde" else "multirotor"
