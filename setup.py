@@ -61,6 +61,7 @@ COMPILED_MODULES = (
     "merlin/redundancy/degradation.py",
     "merlin/redundancy/sensor_suite.py",
     "merlin/nav/estimator.py",
+    "merlin/nav/downsample.py",
     "merlin/nav/fusion_stage.py",
     # the IMU voter's stage, the autopilot lanes and their voter, the multirotor's actuator stage (every tick;
     # three lanes spend a fifth of a tick in them: docs/benchmarks/sim.md, "Where a simulated second goes")

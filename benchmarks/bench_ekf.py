@@ -252,10 +252,11 @@ def _loop_scenario(case: str) -> tuple[Any, Any]:
     return sc, cfg
 
 
-def loop_once(case: str, dt_s: float | None = None, core_dt_s: float | None = None) -> dict[str, Any]:
-    """Fly one case once in this process (at the tick period ``dt_s`` instead of its scenario's, and with
-    the trusted core's period ``core_dt_s``, when given); its simulated duration, process CPU time and
-    build."""
+def loop_once(case: str, dt_s: float | None = None, core_dt_s: float | None = None,
+              nav_dt_s: float | None = None) -> dict[str, Any]:
+    """Fly one case once in this process (at the tick period ``dt_s`` instead of its scenario's, with the
+    trusted core's period ``core_dt_s`` and the voter's and filter's ``nav_dt_s``, when given); its
+    simulated duration, process CPU time and build."""
     from merlin import _build
     from sims.runner import run_scenario
     from sims.scenario import Scenario
@@ -265,6 +266,8 @@ def loop_once(case: str, dt_s: float | None = None, core_dt_s: float | None = No
         sc = sc.model_copy(update={"dt_s": dt_s})
     if core_dt_s is not None:  # validated: a whole number of ticks
         sc = Scenario.model_validate({**sc.model_dump(), "core_dt_s": core_dt_s})
+    if nav_dt_s is not None:
+        sc = Scenario.model_validate({**sc.model_dump(), "nav_dt_s": nav_dt_s})
     c0 = time.process_time()
     run_scenario(sc, cfg)
     cpu = time.process_time() - c0
@@ -272,7 +275,7 @@ def loop_once(case: str, dt_s: float | None = None, core_dt_s: float | None = No
 
 
 def _child(case: str, tree: Path, build: str = "sources", dt_s: float | None = None,
-           core_dt_s: float | None = None) -> dict[str, Any]:
+           core_dt_s: float | None = None, nav_dt_s: float | None = None) -> dict[str, Any]:
     """One run of ``case`` in a fresh process on ``tree``: its ``.py`` sources (``build="sources"``,
     MERLIN_USE_SOURCES=1), or whatever that tree has built (``"installed"``: its mypyc extension modules
     when ``setup.py build_ext --inplace`` or an editable install compiled them there)."""
@@ -286,34 +289,38 @@ def _child(case: str, tree: Path, build: str = "sources", dt_s: float | None = N
         cmd += ["--dt-s", repr(dt_s)]
     if core_dt_s is not None:
         cmd += ["--core-dt-s", repr(core_dt_s)]
+    if nav_dt_s is not None:
+        cmd += ["--nav-dt-s", repr(nav_dt_s)]
     res = subprocess.run(cmd, env=env, cwd=str(tree), capture_output=True, text=True, check=True)
     return dict(json.loads(res.stdout.strip().splitlines()[-1]))
 
 
 def bench_loop(runs: int, cases: list[str], baseline: Path | None, this_tree: Path = ROOT,
                build: str = "sources", periods: list[float] | None = None,
-               core_periods: list[float] | None = None) -> None:
+               core_periods: list[float] | None = None, nav_periods: list[float] | None = None) -> None:
     """``periods``: fly each case at each of these tick periods too (each a column of its own, interleaved
     with the others), beside its scenario's own period. ``core_periods``: fly it on this tree with the
-    trusted core at each of these periods (the scenario's ``core_dt_s``) too."""
+    trusted core at each of these periods (the scenario's ``core_dt_s``) too; ``nav_periods``: with the core,
+    the voter and the filter at each of these (``core_dt_s`` and ``nav_dt_s``)."""
     roots = [("this tree", this_tree)] + ([("baseline", baseline)] if baseline is not None else [])
     dts: list[float | None] = [None, *(periods or [])]
-    trees: list[tuple[str, Path, float | None, float | None]] = [
-        (name if dt is None else f"{name}, tick {dt * 1e3:g} ms", tree, dt, None)
+    trees: list[tuple[str, Path, float | None, float | None, float | None]] = [
+        (name if dt is None else f"{name}, tick {dt * 1e3:g} ms", tree, dt, None, None)
         for name, tree in roots for dt in dts]
-    trees += [(f"this tree, core {c * 1e3:g} ms", this_tree, None, c) for c in core_periods or ()]
+    trees += [(f"this tree, core {c * 1e3:g} ms", this_tree, None, c, None) for c in core_periods or ()]
+    trees += [(f"this tree, core and filter {c * 1e3:g} ms", this_tree, None, c, c) for c in nav_periods or ()]
     print("| case | tree | build | real-time factor (CPU), median | spread | target | runs |")
     print("|---|---|---|---|---|---|---|")
     for case in cases:
-        rtf: dict[str, list[float]] = {name: [] for name, _, _, _ in trees}
+        rtf: dict[str, list[float]] = {name: [] for name, _, _, _, _ in trees}
         kind: dict[str, str] = {}
-        for name, tree, dt, core_dt in trees:  # warm-up (numba's cache, imports), not counted
-            kind[name] = str(_child(case, tree, build, dt, core_dt).get("build", "?"))
+        for name, tree, dt, core_dt, nav_dt in trees:  # warm-up (numba's cache, imports), not counted
+            kind[name] = str(_child(case, tree, build, dt, core_dt, nav_dt).get("build", "?"))
         for _ in range(runs):
-            for name, tree, dt, core_dt in trees:
-                r = _child(case, tree, build, dt, core_dt)
+            for name, tree, dt, core_dt, nav_dt in trees:
+                r = _child(case, tree, build, dt, core_dt, nav_dt)
                 rtf[name].append(r["sim_s"] / r["cpu_s"])
-        for name, _, _, _ in trees:
+        for name, _, _, _, _ in trees:
             v = rtf[name]
             target = LOOP_TARGETS.get(case)
             print(
@@ -340,6 +347,9 @@ def main() -> None:
     ap.add_argument("--core-dt-s", type=float, nargs="*", default=[],
                     help="--part loop: also fly every case on this tree with the trusted core at these periods "
                          "(s, a whole number of the case's tick), e.g. 0.01 for 100 Hz")
+    ap.add_argument("--nav-dt-s", type=float, nargs="*", default=[],
+                    help="--part loop: also fly every case on this tree with the trusted core, the IMU voter and "
+                         "the fusion EKF at these periods (s), e.g. 0.01 for 100 Hz")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if hasattr(os, "sched_setaffinity"):
@@ -348,7 +358,8 @@ def main() -> None:
         print(json.dumps(bench_steps(a.runs)))
         return
     if a.child:
-        print(json.dumps(loop_once(a.child, a.dt_s[0] if a.dt_s else None, a.core_dt_s[0] if a.core_dt_s else None)))
+        print(json.dumps(loop_once(a.child, a.dt_s[0] if a.dt_s else None, a.core_dt_s[0] if a.core_dt_s else None,
+                                   a.nav_dt_s[0] if a.nav_dt_s else None)))
         return
     from merlin.nav import kernels
 
@@ -383,7 +394,8 @@ def main() -> None:
                 f" {f'≤ {t:g}' if t else '—'} |"
             )
     if a.part in ("loop", "all"):
-        bench_loop(a.runs, a.cases, a.baseline_tree, a.this_tree.resolve(), a.build, a.dt_s, a.core_dt_s)
+        bench_loop(a.runs, a.cases, a.baseline_tree, a.this_tree.resolve(), a.build, a.dt_s, a.core_dt_s,
+                   a.nav_dt_s)
 
 
 if __name__ == "__main__":

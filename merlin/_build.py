@@ -43,6 +43,7 @@ COMPILED_MODULES: tuple[str, ...] = (
     "merlin.redundancy.degradation",
     "merlin.redundancy.sensor_suite",
     "merlin.nav.estimator",
+    "merlin.nav.downsample",
     "merlin.nav.fusion_stage",
     "merlin.redundancy.lane_voter",
     "merlin.redundancy.lanes",

@@ -25,7 +25,7 @@ the contract (``docs/architecture.md``); RotorPy's ``simulate`` loop has the sam
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol, cast
 
 from merlin.core.config import CoreConfig
 from merlin.core.step import TrustedCore
@@ -41,7 +41,8 @@ from merlin.core.types import (
     VehicleState,
     new_record,
 )
-from merlin.redundancy.lanes import VotedSensors
+from merlin.nav.downsample import SensorHold
+from merlin.redundancy.lanes import VotedSensors, new_voted_sensors
 
 _NO_OPERATOR = OperatorInput()
 _NO_COMMANDS: tuple[GcsCommand, ...] = ()
@@ -124,6 +125,15 @@ class Estimator(Protocol):
     def estimate(self, t: float, frame: Any, voted: VotedSensors | None) -> VehicleState: ...
 
 
+class NavRateEstimator(Estimator, Protocol):
+    """An estimator that can run at a period of several ticks (:class:`~merlin.nav.fusion_stage.FusionStage`):
+    its filter's tick on a held frame, and an output predictor's state on every tick."""
+
+    def filter_tick(self, t: float, frame: Any, voted: VotedSensors | None) -> None: ...
+
+    def propagate(self, t: float, frame: Any, isolated: tuple[bool, ...]) -> VehicleState: ...
+
+
 class ActuatorStage(Protocol):
     """The actuator stage: the core's decision in, what the actuators are driven with out."""
 
@@ -179,9 +189,17 @@ class VehicleTick:
 
     def __init__(self, core: CoreTick, estimator: Estimator, actuators: ActuatorStage | None,
                  redundancy: Redundancy | None = None, vote_before_estimate: bool = True,
-                 reports_redundancy: bool = False) -> None:
+                 reports_redundancy: bool = False, nav_every: int = 1) -> None:
         self.core = core
         self.estimator = estimator
+        #: how many ticks the voter's and the filter's period spans (a scenario's ``nav_dt_s``; 1: every
+        #: tick). Above 1 the estimator must be a :class:`NavRateEstimator`: between its filter's ticks the
+        #: tick's state is its output predictor's (merlin.nav.downsample)
+        self.nav_every = nav_every
+        self._nav_k = 0
+        self._held = SensorHold() if nav_every > 1 else None
+        self._vote: VotedSensors | None = None
+        self._isolated: tuple[bool, ...] = ()
         self.actuators = actuators
         self.redundancy = redundancy
         self.voter = redundancy.voter if redundancy is not None else None
@@ -191,10 +209,46 @@ class VehicleTick:
 
     def sense(self, t: float, frame: Any) -> Sensed:
         """Voter (when the estimator reads it) and estimator on the tick's sensor ``frame``."""
+        if self._held is not None:
+            return self._sense_held(t, frame)
         voted = None
         if self.voter is not None and self.vote_before_estimate:
             voted = self.voter.vote(t, frame)
         return new_record(Sensed, (t, frame, voted, self.estimator.estimate(t, frame, voted)))
+
+    @property
+    def nav_due(self) -> bool:
+        """Whether the voter and the filter run on the next :meth:`sense` (the first tick, then every
+        ``nav_every``-th)."""
+        return self._nav_k == 0
+
+    def _sense_held(self, t: float, frame: Any) -> Sensed:
+        """:meth:`sense` with the voter and the filter every ``nav_every`` ticks: each tick's samples are
+        held (:class:`~merlin.nav.downsample.SensorHold`: the IMU lanes down-sampled) for their next tick,
+        and the state is the output predictor's, moved on with the tick's raw IMU sample. The voter's output
+        the autopilot lanes read carries this tick's raw lanes: their inner loops run every tick."""
+        held = self._held
+        assert held is not None
+        est = cast(NavRateEstimator, self.estimator)
+        held.add(frame)
+        vote = self._vote
+        fresh = self._nav_k == 0
+        if fresh:
+            nav_frame = held.take(t)
+            if self.voter is not None and self.vote_before_estimate:
+                vote = self._vote = self.voter.vote(t, nav_frame)
+                self._isolated = vote.imu_isolated
+            est.filter_tick(t, nav_frame, vote)
+        self._nav_k = 0 if self._nav_k + 1 >= self.nav_every else self._nav_k + 1
+        state = est.propagate(t, frame, self._isolated)
+        voted = vote
+        if vote is not None and frame.imu:
+            if fresh:
+                voted = new_voted_sensors(vote.imu, vote.imu_source_step, tuple(frame.imu), vote.imu_isolated,
+                                          vote.mag, vote.baro, vote.gps)
+            else:  # nothing new from the voter on this tick
+                voted = new_voted_sensors(vote.imu, None, tuple(frame.imu), vote.imu_isolated)
+        return new_record(Sensed, (t, frame, voted, state))
 
     def report(self, t: float) -> RedundancyReport | None:
         """The redundancy report for the core's inputs at ``t`` (None when the vehicle reports none)."""

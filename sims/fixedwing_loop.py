@@ -126,7 +126,8 @@ NON_SENSOR_FAULTS = ("gps_loss", "controller_crash", "controller_hang", "control
 #: checked in detail.
 FIXED_WING_SCENARIO_FIELDS = ("name", "description", "duration_s", "seed", "dt_s", "vehicle", "config", "estimator",
                               "initial", "wind", "gcs", "operator", "rc_connected", "controller", "faults",
-                              "expectations", "log_rate_hz", "redundancy", "camera", "core_dt_s")
+                              "expectations", "log_rate_hz", "redundancy", "camera", "core_dt_s",
+                              "nav_dt_s")
 #: ``redundancy`` fields the fixed wing implements: the IMU voter before the EKF (autopilot_lanes must be 1).
 FIXED_WING_REDUNDANCY_FIELDS = ("sensor_voter", "fdi_preset", "autopilot_lanes", "bumpless_step")
 
@@ -345,7 +346,7 @@ class FixedWingLoop(SimulatedVehicle):
         # catapult (a simulated launch) has had its say
         self.tick = VehicleTick(self.core, self._estimator(), None, self.redundancy,
                                 vote_before_estimate=self.ekf is not None,
-                                reports_redundancy=self.reports_redundancy)
+                                reports_redundancy=self.reports_redundancy, nav_every=sc.nav_every)
 
     @property
     def surfaces(self) -> SurfaceCommand:
@@ -467,7 +468,7 @@ class FixedWingLoop(SimulatedVehicle):
             self.ekf = self._airborne_filter(t)
             stage = self.tick.estimator
             assert isinstance(stage, FusionStage)
-            stage.ekf = self.ekf
+            stage.replace_filter(self.ekf)
             self._launcher_fixes_until_s = t
         tr = self.fw.truth()
         self.notes.append({"t": t, "type": "fixed_wing_launch", "height_m": -tr.pos_ned_m[2],

@@ -66,7 +66,7 @@ def redundancy_setup(sc: Scenario) -> RedundancySetup:
     """The redundant hardware of the scenario's airframe."""
     r = sc.redundancy
     return RedundancySetup(sc.dt_s, sensor_voter_on(sc), r.autopilot_lanes, r.sensor_lanes, r.fdi_preset,
-                           r.lane_preset, r.bumpless_step, r.lane_navigation)
+                           r.lane_preset, r.bumpless_step, r.lane_navigation, sc.nav_every)
 
 
 def build_redundancy(sc: Scenario, rng: np.random.Generator, field_ned_gauss: tuple[float, float, float],

@@ -128,7 +128,10 @@ class ClosedLoop(SimulatedVehicle):
         red = self.redundancy
         self.tick = VehicleTick(self.core, self._estimator(red is not None and red.lane_nav is not None),
                                 self.actuator_stage, red, vote_before_estimate=self.ekf is not None,
-                                reports_redundancy=self.reports_redundancy)
+                                reports_redundancy=self.reports_redundancy,
+                                # with a filter per autopilot lane, those filters keep the period themselves
+                                # (merlin.redundancy.lanes.LaneNavigation) and the voter votes every tick
+                                nav_every=sc.nav_every if self.ekf is not None else 1)
 
     def _build_redundancy(self, sc: Scenario, cfg: MerlinConfig, root: np.random.Generator) -> Any:
         """Hardware redundancy: nothing is built, and nothing runs per tick, when it is off."""

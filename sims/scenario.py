@@ -34,11 +34,13 @@ CAMERA_TERRAINS: tuple[str, ...] = ("grass", "gravel", "brick")
 #: The longest period the trusted core may tick at in a simulation: seed 004's redundant autopilot runs its
 #: whole cycle, sensors to actuators, on a 20 ms sync period (section 4.3.2).
 MAX_CORE_DT_S = 0.02
+#: the longest period of the IMU voter and the fusion EKF (``nav_dt_s``): PX4's EKF2_PREDICT_US goes to 20 ms
+MAX_NAV_DT_S = 0.02
 
 
 def whole_ticks(period_s: float, dt_s: float) -> int | None:
-    """How many ticks of ``dt_s`` the trusted core's ``period_s`` spans, or None when it is not a whole number
-    of them or is beyond :data:`MAX_CORE_DT_S` (the scenario's ``core_dt_s`` and ``merlin falsify
+    """How many ticks of ``dt_s`` the period ``period_s`` spans, or None when it is not a whole number of them
+    or is beyond :data:`MAX_CORE_DT_S` (the scenario's ``core_dt_s`` and ``nav_dt_s`` and ``merlin falsify
     --core-dt-s`` hold a period to this)."""
     n = period_s / dt_s
     if not 0.0 < period_s <= MAX_CORE_DT_S or abs(n - round(n)) > 1e-6 or round(n) < 1:
@@ -307,6 +309,11 @@ class Scenario(S):
         description="the trusted core's tick period: a whole number of dt_s, at most 0.02 s (seed 004's 20 ms "
                     "sync period, section 4.3.2); its decision is flown on the ticks between, and what arrives "
                     "between its ticks waits for the next one. null: every tick")
+    nav_dt_s: float | None = Field(
+        None, gt=0.0, le=MAX_NAV_DT_S,
+        description="the period of the IMU voter and the fusion EKF: a whole number of dt_s, at most 0.02 s; "
+                    "each IMU lane is down-sampled to it and an output predictor gives the state on the ticks "
+                    "between, as PX4's EKF2 runs at EKF2_PREDICT_US (needs estimator: ekf). null: every tick")
     vehicle: str = Field("quadrotor_default", description="a file in sims/vehicles (without .yaml) or a path")
     config: str | dict[str, Any] = Field(
         "default", description="'default', a path relative to the scenario file, or an inline mapping"
@@ -377,6 +384,24 @@ class Scenario(S):
                              f" allowed: k * dt_s for k = 1..{int(MAX_CORE_DT_S / self.dt_s + 1e-9)}, e.g. "
                              f"{4 * self.dt_s:g} for the core at a quarter of the tick rate")
         return self
+
+    @model_validator(mode="after")
+    def _nav_tick_whole(self) -> Scenario:
+        if self.nav_dt_s is None:
+            return self
+        if whole_ticks(self.nav_dt_s, self.dt_s) is None:
+            raise ValueError(f"nav_dt_s: {self.nav_dt_s:g} s is not a whole number of dt_s ({self.dt_s:g} s);"
+                             f" allowed: k * dt_s for k = 1..{int(MAX_NAV_DT_S / self.dt_s + 1e-9)}, e.g. "
+                             f"{4 * self.dt_s:g} for the filter at a quarter of the tick rate")
+        if self.estimator != "ekf":
+            raise ValueError(f"nav_dt_s: {self.nav_dt_s:g} s sets the fusion EKF's period; estimator is "
+                             f"{self.estimator!r}, allowed: 'ekf' (or leave nav_dt_s null)")
+        return self
+
+    @property
+    def nav_every(self) -> int:
+        """How many ticks the IMU voter's and the fusion EKF's period spans (1: every tick)."""
+        return 1 if self.nav_dt_s is None else round(self.nav_dt_s / self.dt_s)
 
     @property
     def core_every(self) -> int:

@@ -68,6 +68,15 @@ def figures(result: SearchResult) -> dict[str, bytes]:
     return {"margins.png": hist, "best_so_far.png": _png(fig)}
 
 
+def reproduction(worst: dict[str, Any]) -> str:
+    """What ``merlin sim`` gave on the written worst case: its margin, or that it did not fly (the summary
+    is written either way: a reproduction that fails is reported, not hidden)."""
+    m = worst.get("reproduced_margin_m")
+    if m is None:
+        return "**`merlin sim` did not reproduce it** (the run failed: see the error above the summary)"
+    return f"reproduced by `merlin sim` at {m:.3f} m"
+
+
 def markdown(summary: dict[str, Any]) -> str:
     s = summary
     lines = [f"# merlin falsify: {s['config']}", "",
@@ -78,8 +87,7 @@ def markdown(summary: dict[str, Any]) -> str:
     if w:
         verdict = "BREACH" if w["margin_m"] < 0 else "no breach"
         lines += [f"**Smallest stop margin found: {w['margin_m']:.3f} m ({verdict})**, adversary "
-                  f"`{w['adversary']}` (evaluation {w['index']}); reproduced by `merlin sim` at "
-                  f"{w.get('reproduced_margin_m', float('nan')):.3f} m.", "",
+                  f"`{w['adversary']}` (evaluation {w['index']}); {reproduction(w)}.", "",
                   "```", w["command"], "```", ""]
     lines += ["| adversary | runs | breaches | least margin [m] | 5 % | median | restarts | worst case |",
               "|---|---:|---:|---:|---:|---:|---:|---|"]

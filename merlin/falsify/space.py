@@ -103,6 +103,7 @@ class Site:
     min_clear_m: float
     fence: Any = None  # the core's fence (merlin.core.geofence.Fence), for the start's projection
     core_dt_s: float | None = None  # the trusted core's period in every run (the scenarios' core_dt_s)
+    nav_dt_s: float | None = None  # the IMU voter's and the fusion EKF's period in every run (nav_dt_s)
 
     @property
     def perimeter_m(self) -> float:
@@ -156,15 +157,17 @@ class Site:
         return 0.0 if self.allowed.buffer(1e-6).covers(seg) else float(seg.length)
 
 
-def load_site(cfg: MerlinConfig, vehicle: str, source: str, core_dt_s: float | None = None) -> Site:
+def load_site(cfg: MerlinConfig, vehicle: str, source: str, core_dt_s: float | None = None,
+              nav_dt_s: float | None = None) -> Site:
     """The range of ``cfg`` as the search flies it with ``vehicle``; ``core_dt_s``: every run's trusted core
-    at that period (a whole number of the vehicle's tick, at most 20 ms; None: every tick)."""
+    at that period, ``nav_dt_s``: every run's IMU voter and fusion EKF (each a whole number of the vehicle's
+    tick, at most 20 ms; None: every tick)."""
     if vehicle not in VEHICLES:
         raise ConfigError(source, [f"--vehicle: {vehicle!r}; allowed: {sorted(VEHICLES)}"])
-    if core_dt_s is not None:
-        tick = FW_DT_S if vehicle == "aerosonde" else MR_DT_S
-        if whole_ticks(core_dt_s, tick) is None:
-            raise ConfigError(source, [f"--core-dt-s: {core_dt_s!r} s; allowed: a whole number of the {vehicle}'s "
+    tick = FW_DT_S if vehicle == "aerosonde" else MR_DT_S
+    for option, period in (("--core-dt-s", core_dt_s), ("--nav-dt-s", nav_dt_s)):
+        if period is not None and whole_ticks(period, tick) is None:
+            raise ConfigError(source, [f"{option}: {period!r} s; allowed: a whole number of the {vehicle}'s "
                                        f"{tick * 1e3:g} ms tick, at most {MAX_CORE_DT_S * 1e3:g} ms"])
     want = "fixed_wing" if vehicle == "aerosonde" else "multirotor"
     if cfg.vehicle.type != want:
@@ -192,7 +195,7 @@ def load_site(cfg: MerlinConfig, vehicle: str, source: str, core_dt_s: float | N
     if vehicle == "aerosonde":
         min_clear = max(min_clear, 2.5 * 22.0 ** 2 / (9.80665 * math.tan(math.radians(cfg.vehicle.bank_limit_deg))))
     return Site(cfg, cfg.model_dump(mode="json"), vehicle, allowed, tuple(rings), cum,
-                gf.altitude_ceiling_m, gf.altitude_floor_m, min_clear, fence, core_dt_s)
+                gf.altitude_ceiling_m, gf.altitude_floor_m, min_clear, fence, core_dt_s, nav_dt_s)
 
 
 Builder = Callable[["AdversaryClass", Site, dict[str, float], int], dict[str, Any]]
@@ -262,6 +265,8 @@ def _common(site: Site, v: dict[str, float], seed: int, name: str) -> tuple[dict
         sc["initial"]["airspeed_mps"] = 22.0
     if site.core_dt_s is not None:
         sc["core_dt_s"] = site.core_dt_s
+    if site.nav_dt_s is not None:
+        sc["nav_dt_s"] = site.nav_dt_s
     return sc, start, outward
 
 

@@ -1074,6 +1074,13 @@ class NavEstimator:
             alpha_rad,
         )
 
+    def nominal(self) -> tuple[float, ...]:
+        """The nominal state an output predictor starts from (:class:`merlin.nav.downsample.OutputPredictor`):
+        position, velocity, attitude quaternion, gyro bias, accelerometer bias (16 floats), at :attr:`t_s`."""
+        s = self._s.tolist()  # one conversion: sixteen numpy scalar reads cost ten times as much
+        return (s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[14], s[15], s[16], s[17], s[18],
+                s[19])
+
     @property
     def events(self) -> tuple[NavEvent, ...]:
         """Events not yet collected with :meth:`pop_events`."""

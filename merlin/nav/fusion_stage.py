@@ -6,6 +6,10 @@ uncertainty when the voter changed IMU source; fuse GPS, barometer and magnetome
 the vehicle carries three units of each); then any further aiding a driver adds (the camera's visual
 odometry); collect the filter's events. What the filter does not estimate (armed, on the ground, battery,
 airspeed) the driver completes from its own sensors.
+
+With the filter at a period of several ticks (a scenario's ``nav_dt_s``; :mod:`merlin.nav.downsample`), the
+tick calls :meth:`FusionStage.filter_tick` on the filter's ticks, with the held frame, and
+:meth:`FusionStage.propagate` on every tick: the output predictor's state.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ from typing import Any
 
 from merlin.core.types import VehicleState
 from merlin.measurements import ImuSample
+from merlin.nav.downsample import OutputPredictor, select_imu
 from merlin.nav.estimator import NavEstimator
 from merlin.redundancy.lanes import VotedSensors
 
@@ -35,10 +40,43 @@ class FusionStage:
         #: alpha_rad) now, what the filter does not estimate (:meth:`NavEstimator.state`'s arguments)
         self.complete = complete
         self.events: list[dict[str, Any]] = []
+        #: with the filter at a period of several ticks: its state between them (:meth:`filter_tick`)
+        self.predictor: OutputPredictor | None = None
 
     def estimate(self, t: float, frame: Any, voted: VotedSensors | None) -> VehicleState:
         """The filter's state after this tick's samples (``frame``: ``imu`` lanes, ``gps``, ``baro``,
         ``mag`` and, with three units of each, ``*_lanes``)."""
+        self._filter(t, frame, voted)
+        ekf = self.ekf
+        return ekf.state() if self.complete is None else ekf.state(*self.complete())
+
+    def replace_filter(self, ekf: NavEstimator) -> None:
+        """A new filter from this tick on (the fixed wing's, started again in the air at its launch); with
+        the filter at a period of several ticks, the output predictor restarts from it at once."""
+        self.ekf = ekf
+        if self.predictor is not None:
+            self.predictor.anchor(ekf.nominal(), ekf.t_s, ekf.state())
+
+    # ---- the filter at a period of several ticks (merlin.nav.downsample)
+    def filter_tick(self, t: float, frame: Any, voted: VotedSensors | None) -> None:
+        """The filter's tick on a held frame (:class:`merlin.nav.downsample.HeldFrame`: each IMU lane
+        down-sampled since the filter's last tick, the other units' newest samples); the output predictor
+        restarts from its state. :meth:`propagate` then gives the tick's state."""
+        self._filter(t, frame, voted)
+        ekf = self.ekf
+        if self.predictor is None:
+            self.predictor = OutputPredictor(ekf.cfg.gravity_mps2, ekf.cfg.max_imu_dt_s)
+        self.predictor.anchor(ekf.nominal(), ekf.t_s, ekf.state())
+
+    def propagate(self, t: float, frame: Any, isolated: tuple[bool, ...]) -> VehicleState:
+        """The state at this tick: the output predictor moved on with the tick's raw IMU sample (the voter's
+        mid-value of the lanes it has not ``isolated``; :func:`merlin.nav.downsample.select_imu`)."""
+        pred = self.predictor
+        assert pred is not None, "propagate() before the filter's first tick"
+        pred.step(select_imu(frame.imu, isolated))
+        return pred.state() if self.complete is None else pred.state(*self.complete())
+
+    def _filter(self, t: float, frame: Any, voted: VotedSensors | None) -> None:
         fr = frame
         ekf = self.ekf
         if voted is not None:
@@ -68,4 +106,3 @@ class FusionStage:
             self.events.append({"t": e.t_s, "type": f"nav_{e.kind.value}", "source": e.source,
                                 "parameter": e.parameter, "statistic": e.statistic, "limit": e.limit,
                                 "text": e.describe()})
-        return ekf.state() if self.complete is None else ekf.state(*self.complete())

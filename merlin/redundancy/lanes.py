@@ -69,6 +69,7 @@ from merlin.core.types import (
     set_frozen_fields,
 )
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
+from merlin.nav.downsample import OutputPredictor, SensorHold
 from merlin.redundancy.duplex_fdi import FDI_PRESETS, FdiState
 from merlin.redundancy.events import FaultReport, RedundancyLevel
 from merlin.redundancy.lane_voter import (
@@ -381,10 +382,18 @@ class LaneNavigation:
     Cost: three filters per tick instead of one (``docs/benchmarks/redundancy.md``).
     """
 
-    def __init__(self, ekfs: list[Any] | None, standins: list[Any] | None, aux_lanes: int) -> None:
+    def __init__(self, ekfs: list[Any] | None, standins: list[Any] | None, aux_lanes: int,
+                 nav_every: int = 1) -> None:
         self.ekfs = ekfs
         self.standins = standins
         self.aux_lanes = aux_lanes
+        #: the filters' period in ticks (a scenario's ``nav_dt_s``): above 1 each lane's filter runs on every
+        #: ``nav_every``-th tick on its own lane's held samples (merlin.nav.downsample.SensorHold) and the
+        #: lane's state on every tick is its own output predictor's, moved on with its own raw IMU lane
+        self.nav_every = nav_every if ekfs is not None else 1
+        self._nav_k = 0
+        self._held = SensorHold() if self.nav_every > 1 else None
+        self._predictors: list[OutputPredictor] = []
         self.states: list[VehicleState] = [VehicleState()] * N_LANES
         self.last_seen: list[dict[str, float]] = [{} for _ in range(N_LANES)]
         self.events: list[dict[str, Any]] = []
@@ -402,6 +411,8 @@ class LaneNavigation:
 
     def sense(self, t: float, frame: Any, truth: Any, armed: bool, batt_frac: float) -> list[VehicleState]:
         """Every lane's estimate at ``t`` from its own sensor lane (after the fault injector)."""
+        if self._held is not None:
+            return self._sense_held(t, frame, truth, armed, batt_frac)
         for i in range(N_LANES):
             seen = self.last_seen[i]
             imu = frame.imu[i] if frame.imu and len(frame.imu) > i else None
@@ -424,6 +435,41 @@ class LaneNavigation:
             else:
                 assert self.standins is not None
                 self.states[i] = self.standins[i].estimate(t, truth, armed, batt_frac)
+        return self.states
+
+    def _sense_held(self, t: float, frame: Any, truth: Any, armed: bool, batt_frac: float) -> list[VehicleState]:
+        """:meth:`sense` with the filters every ``nav_every`` ticks (see ``nav_every``). A sensor's last-seen
+        time is its arrival on the raw frame, as at every tick: the lanes' health flags keep their timing."""
+        held = self._held
+        ekfs = self.ekfs
+        assert held is not None and ekfs is not None
+        held.add(frame)
+        for i in range(N_LANES):
+            seen = self.last_seen[i]
+            if frame.imu and len(frame.imu) > i:
+                seen["imu"] = t
+            for name in ("gps", "baro", "mag"):
+                if self._unit(frame, name, i) is not None:
+                    seen[name] = t
+        if self._nav_k == 0:
+            nav = held.take(t)
+            if not self._predictors:
+                self._predictors = [OutputPredictor(ekf.cfg.gravity_mps2, ekf.cfg.max_imu_dt_s) for ekf in ekfs]
+            for i in range(N_LANES):
+                ekf = ekfs[i]
+                if nav.imu and len(nav.imu) > i:
+                    ekf.predict(nav.imu[i])
+                ekf.update_samples(self._unit(nav, "gps", i), self._unit(nav, "baro", i), self._unit(nav, "mag", i))
+                for e in ekf.pop_events():
+                    self.events.append({"t": e.t_s, "type": f"nav_{e.kind.value}", "lane": i, "source": e.source,
+                                        "parameter": e.parameter, "statistic": e.statistic, "limit": e.limit,
+                                        "text": f"lane {i}: {e.describe()}"})
+                self._predictors[i].anchor(ekf.nominal(), ekf.t_s, ekf.state())
+        self._nav_k = 0 if self._nav_k + 1 >= self.nav_every else self._nav_k + 1
+        for i in range(N_LANES):
+            pred = self._predictors[i]
+            pred.step(frame.imu[i] if frame.imu and len(frame.imu) > i else None)
+            self.states[i] = pred.state(truth.airspeed_mps, armed, truth.landed, batt_frac)
         return self.states
 
     def flags(self, lane: int, t: float, imu: ImuSample | None, imu_isolated: bool, ctx: LaneContext,
@@ -674,6 +720,19 @@ class AutopilotLanes:
 # ------------------------------------------------------------------------------- the driver's handle
 
 
+def voter_specs(rc: RedundancyConfig, nav_every: int = 1) -> dict[str, ChannelSpec]:
+    """:func:`channel_specs` for a voter that runs every ``nav_every`` IMU ticks on down-sampled lanes: the
+    IMU's stuck-sample count is divided by it, so that a stuck lane is caught in the same time (the count is
+    sized to span the persistence window at the IMU's 400 Hz; its persistence and timeout are times already).
+    A healthy lane's down-sampled samples repeat no more than its raw ones do: each averages several noisy
+    samples."""
+    specs = channel_specs(rc)
+    if nav_every > 1:
+        imu = specs["imu"]
+        specs["imu"] = replace(imu, stuck_samples=max(3, -(-imu.stuck_samples // nav_every)))
+    return specs
+
+
 def channel_specs(rc: RedundancyConfig) -> dict[str, ChannelSpec]:
     """The sensor voter's channel limits: the presets of :mod:`merlin.redundancy.sensor_voter` with the
     configuration's overrides (``redundancy.*_miscompare_*``, ``imu_persistence_s``, ``reintegration_s``)."""
@@ -727,6 +786,7 @@ class RedundancySetup:
     lane_preset: str | None = None  # None: the configuration's redundancy.lane_preset
     bumpless_step: float | None = None  # None: BUMPLESS_STEP_PER_S * dt_s
     lane_navigation: str = "shared"  # "own": each lane its own estimator (LaneNavigation)
+    nav_every: int = 1  # the voter's period in ticks (a scenario's nav_dt_s): it votes down-sampled IMU lanes
 
     @property
     def wanted(self) -> bool:
@@ -747,8 +807,10 @@ class VehicleRedundancy:
         lane's own estimator with ``lane_navigation: own``."""
         rc = RedundancyConfig.model_validate({}) if rc is None else rc  # its defaults (mypyc's mypy reads no pydantic plugin)
         fdi = setup.fdi_preset or rc.fdi_preset
-        self.voter = ImuVoterStage(voter_rng, field_ned_gauss, fdi, channel_specs(rc)) if setup.sensor_voter \
-            else None
+        # with a filter per lane the voter still votes every tick (after the core, on the raw lanes: VehicleTick)
+        vote_every = 1 if setup.lane_navigation == "own" else setup.nav_every
+        self.voter = ImuVoterStage(voter_rng, field_ned_gauss, fdi, voter_specs(rc, vote_every)) \
+            if setup.sensor_voter else None
         self.aux_voted = setup.sensor_lanes == 3
         self.lanes: AutopilotLanes | None = None
         if setup.autopilot_lanes == 3:
@@ -758,7 +820,7 @@ class VehicleRedundancy:
         if setup.lane_navigation == "own" and self.lanes is not None:
             if lane_ekfs is None and lane_standins is None:
                 raise ValueError("lane_navigation 'own' needs each lane's estimator (lane_ekfs or lane_standins)")
-            self.lane_nav = LaneNavigation(lane_ekfs, lane_standins, setup.sensor_lanes)
+            self.lane_nav = LaneNavigation(lane_ekfs, lane_standins, setup.sensor_lanes, setup.nav_every)
             self.lanes.nav = self.lane_nav
             self.lanes.max_sigma_h_m = max_sigma_h_m
         self._report = RedundancyReport()

@@ -280,3 +280,30 @@ def test_every_adversary_flies_with_the_core_period_asked_for(vehicle: str, path
     for bad in (0.0035, 0.025, -0.01):
         with pytest.raises(Exception, match="--core-dt-s"):
             load_site(load_config(path), vehicle, str(path), bad)
+
+
+@pytest.mark.parametrize("vehicle,path,every", [("multirotor", DEFAULT, 4), ("aerosonde", FIXED_WING, 2)])
+def test_every_adversary_flies_with_the_filter_period_asked_for(vehicle: str, path: Path, every: int) -> None:
+    """``--nav-dt-s``: each class's scenario carries the voter's and the filter's period beside the core's;
+    a period that is not a whole number of the vehicle's tick is refused naming the option."""
+    site = load_site(load_config(path), vehicle, str(path), 0.01, 0.01)
+    for adv in adversary_classes(vehicle):
+        sc = Scenario.model_validate(adv.scenario(site, np.full(adv.dim, 0.5), 1))
+        assert sc.nav_every == every and sc.core_every == every, adv.name
+    with pytest.raises(Exception, match="--nav-dt-s"):
+        load_site(load_config(path), vehicle, str(path), None, 0.0035)
+
+
+def test_a_worst_case_that_did_not_reproduce_is_reported_not_crashed_on() -> None:
+    """The summary is still written when ``merlin sim`` fails on the written worst case (its margin is then
+    None): a campaign whose code changed under it once lost its whole summary to a format error here."""
+    from merlin.falsify.report import markdown
+
+    summary = {"config": "c.yaml", "vehicle": "multirotor", "estimator": "ekf", "budget": 10, "evaluated": 10,
+               "errors": 3, "seed": 4, "workers": 2, "backend": "local", "wall_s": 5.0, "runs_per_min": 120.0,
+               "classes": {}, "worst": {"adversary": "velocity", "index": 5, "margin_m": 5.349, "command": "merlin sim w",
+                                        "reproduced_margin_m": None, "reproduction_differs": True}}
+    text = markdown(summary)
+    assert "did not reproduce" in text and "5.349 m" in text
+    summary["worst"]["reproduced_margin_m"] = 5.349
+    assert "reproduced by `merlin sim` at 5.349 m" in markdown(summary)
