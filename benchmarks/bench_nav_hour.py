@@ -69,11 +69,16 @@ def open_flight(seed: int, minutes: float, with_vo: bool) -> dict[str, float]:
     }
 
 
-def closed_flight(seed: int, minutes: float, texture: str, gps_noise_scale: float = 1.0) -> dict[str, float]:
+def closed_flight(seed: int, minutes: float, texture: str, gps_noise_scale: float = 1.0,
+                  rates: dict[str, float] | None = None) -> dict[str, float]:
+    """One closed-loop mission; ``rates``: scenario periods to fly it with (``nav_dt_s``, ``core_dt_s``)."""
     from sims.runner import run_scenario
+    from sims.scenario import Scenario
     from sims.vision_loop import nominal_mission
 
     sc = nominal_mission(seed, minutes, texture, gps_noise_scale)
+    if rates:
+        sc = Scenario.model_validate({**sc.model_dump(), **rates})
     from sims.scenario import resolve_config
 
     cfg = resolve_config(sc, Path("."), "<bench_nav_hour>")
@@ -107,6 +112,9 @@ def closed_flight(seed: int, minutes: float, texture: str, gps_noise_scale: floa
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--part", choices=["open", "closed"], default="open")
+    ap.add_argument("--nav-dt-s", type=float, default=None,
+                    help="closed: the voter's and the filter's period (docs/scenarios.md, 'Navigation rate')")
+    ap.add_argument("--core-dt-s", type=float, default=None, help="closed: the trusted core's period")
     ap.add_argument("--hours", type=float, default=1.0, help="open: hours per variant (with / without VO)")
     ap.add_argument("--flights", type=int, default=6, help="closed: number of flights")
     ap.add_argument("--first", type=int, default=1, help="closed: seed of the first flight")
@@ -142,10 +150,11 @@ def main() -> None:
                   f"{tot['cusum']:.2f}, window {tot['window_cusum']:.2f}, GPS-VO {tot['vo_cusum']:.2f}", flush=True)
     else:
         textures = ("grass", "gravel", "brick")
+        rates = {k: v for k, v in (("nav_dt_s", args.nav_dt_s), ("core_dt_s", args.core_dt_s)) if v is not None}
         tot = {}
         for k in range(args.flights):
             i = args.first - 1 + k
-            res = closed_flight(i + 1, args.minutes, textures[i % 3], args.gps_noise_scale)
+            res = closed_flight(i + 1, args.minutes, textures[i % 3], args.gps_noise_scale, rates)
             print(f"| closed | {textures[i % 3]} | GPS noise x{args.gps_noise_scale:g} | seed {i + 1} | {res['flown_s'] / 60:.1f} min airborne | "
                   f"{res['exclusions']} excl | {res['rejections']} GPS rej | {res['vo_rejections']} VO rej | "
                   f"CUSUM {res['cusum']:.2f} | window {res['window_cusum']:.2f} | GPS-VO {res['vo_cusum']:.2f} | "

@@ -24,7 +24,7 @@ import numpy as np
 from sims.expectations import evaluate_all
 from sims.nav_report import plot_nav
 from sims.runner import run_scenario
-from sims.scenario import load_scenario
+from sims.scenario import Scenario, load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = [
@@ -83,6 +83,10 @@ def inertial_honesty(seeds: list[int], fusions: list[str], limit_s: float) -> No
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--only", nargs="*", default=None)
+    ap.add_argument("--nav-dt-s", type=float, default=None,
+                    help="fly with the voter and the filter at this period (docs/scenarios.md, 'Navigation rate'); "
+                         "the documentation's figures are then not written")
+    ap.add_argument("--core-dt-s", type=float, default=None, help="fly with the trusted core at this period")
     ap.add_argument("--inertial", action="store_true",
                     help="instead: the inertial-only error against its sigma over water, per magnetometer fusion")
     ap.add_argument("--seeds", type=int, nargs="*", default=[25, 1, 2], help="--inertial: scenario seeds")
@@ -98,6 +102,9 @@ def main() -> None:
     for name in args.only or SCENARIOS:
         path = ROOT / "examples" / "scenarios" / f"{name}.yaml"
         sc, cfg = load_scenario(path)
+        rates = {k: v for k, v in (("nav_dt_s", args.nav_dt_s), ("core_dt_s", args.core_dt_s)) if v is not None}
+        if rates:
+            sc = Scenario.model_validate({**sc.model_dump(), **rates})
         c0 = time.process_time()
         r = run_scenario(sc, cfg, source=str(path))
         cpu = time.process_time() - c0
@@ -124,7 +131,7 @@ def main() -> None:
         td = f"{touchdown:.1f} s (+{touchdown - onset:.1f})" if not math.isnan(touchdown) else "airborne"
         print(f"| {name} | {ok}/{len(verdicts)}{' FAILED: ' + '; '.join(failed) if failed else ''} | {onset:g} | "
               f"{since(rej, onset)} | {excl} | {worst:.2f} m | {since(rev, onset)} | {td} | {cpu:.1f} ({vo}) |", flush=True)
-        if name in FIGURES:
+        if name in FIGURES and not rates:
             out = ROOT / "docs" / "img"
             png = plot_nav(r, out)
             if png is not None:

@@ -279,6 +279,9 @@ class NavEstimator:
         # source feeding this filter last changed (widen_imu_bias): a pair spanning a change is not fused
         self._vo_prev_t = -math.inf
         self._imu_switch_t = -math.inf
+        # whether the source changed since the last VO sample was handed in: the pair test is on the order in
+        # which they arrive, not on their times, whose clocks differ (the IMU's sample stamps, the camera's)
+        self._imu_switched = False
         self._clip_t = -math.inf  # the latest accelerometer sample clipped at full scale (_clipped)
         self._bias_widening = [0.0] * 6  # per bias axis, what widen_imu_bias added and is still open
         self._aid_t = init.t_s  # last position/velocity aid (GPS or VO)
@@ -734,6 +737,8 @@ class NavEstimator:
         ``RECOVERED`` with the number of frames refused (``refused_frames``)."""
         cfg = self.cfg
         pair_start_t, self._vo_prev_t = self._vo_prev_t, vo.t_s
+        # the next pair starts at this frame, whatever becomes of it
+        spans_switch, self._imu_switched = self._imu_switched, False
         scale = vo_noise_scale(vo.quality, cfg)
         if scale is None:
             problem = vo_quality_problem(vo.quality, cfg)
@@ -753,12 +758,15 @@ class NavEstimator:
                 "VO quality acceptable again",
             )
             self._vo_refused = 0
-        if pair_start_t < self._imu_switch_t <= vo.t_s:
+        if spans_switch:
             # The frames were de-rotated with the gyro attitude, integrated from the old source for part of
             # the pair and the new one for the rest, each less this filter's one bias estimate: the sample's
             # error follows neither source's bias, which is what the VO Jacobian's gyro-bias columns model.
             # Fused, it pins the widened bias variance to a wrong value and the next frames are gated out
             # (regression scenario: redundancy_imu_bias_camera_heading). Nor does it go to the GPS-VO check.
+            # "Between" is by arrival: a change handed in before this frame on the frame's own tick is inside
+            # its pair, even when the IMU's stamp of that tick is a few ulps after the camera's (compared
+            # by time, such a frame was fused: redundancy_sub_alert_gyro_bias_camera with the filter at 100 Hz).
             self._emit(NavEventKind.REJECTED, "vo", vo.t_s - pair_start_t, 0.0, "imu_source_changed",
                        "VO frame pair spans an IMU source change")
             self.last_vo = Check(vo.t_s, math.nan, False)
@@ -1012,6 +1020,7 @@ class NavEstimator:
         if self._every_n > 1:  # with every_n = 1 nothing is ever pending after predict()
             self._predict_covariance()
         self._imu_switch_t = self._t
+        self._imu_switched = True
         P = self.P
         open_var = self._bias_widening
         for k, (i, step) in enumerate(zip(range(BG_.start, BA_.stop),

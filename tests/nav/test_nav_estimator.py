@@ -508,6 +508,33 @@ def test_a_vo_frame_pair_spanning_an_imu_source_change_is_not_fused():
     assert after is not None and after.fused and len(est._vo_recent) == recent + 1
 
 
+@pytest.mark.parametrize("ulps", [-2, 0, 2])
+def test_a_source_change_on_a_frames_own_tick_is_inside_its_pair_whatever_the_stamps(ulps):
+    """The IMU's stamp of a tick and the camera's can differ in the last bits. A change handed in on the
+    frame's own tick, before the frame, is inside the frame's pair; compared by time, a frame stamped a few
+    ulps before the IMU's sample was fused, pinned the widened bias and GPS was excluded
+    (redundancy_sub_alert_gyro_bias_camera with the filter at 100 Hz)."""
+    est = NavEstimator(NavConfig(), NavInit(pos_ned_m=(0.0, 0.0, -10.0)))
+    good_q = VoQuality(200, 0.95, 0.2, 0.9, valid=True)
+    level = (0.0, 0.0, -9.80665)
+    tt = 0.0
+    for k in range(1, 57):
+        tt = k * 0.0025
+        est.predict(ImuSample(tt, (0.0, 0.0, 0.0), level))
+        if k == 27:
+            assert est.update_vo(VoSample(tt, (0.0, 0.0, 0.0), (0.01, 0.01, 0.01), good_q)).fused
+    est.widen_imu_bias((0.0, 0.0, 0.0), (0.15, 0.0, 0.0))
+    est.pop_events()
+    frame_t = tt
+    for _ in range(abs(ulps)):
+        frame_t = math.nextafter(frame_t, math.inf if ulps > 0 else -math.inf)
+    check = est.update_vo(VoSample(frame_t, (0.0, 0.5, 0.0), (0.01, 0.01, 0.01), good_q))
+    assert check is not None and not check.fused
+    assert [e.parameter for e in est.pop_events()] == ["imu_source_changed"]
+    est.predict(ImuSample(tt + 0.07, (0.0, 0.0, 0.0), level))
+    assert est.update_vo(VoSample(tt + 0.07, (0.0, 0.0, 0.0), (0.01, 0.01, 0.01), good_q)).fused
+
+
 @settings(max_examples=60, deadline=None)
 @given(st.lists(st.floats(-50.0, 50.0), min_size=10, max_size=10),
        st.lists(st.floats(-1.0, 1.0), min_size=19 * 19, max_size=19 * 19))
