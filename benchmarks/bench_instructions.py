@@ -42,7 +42,10 @@ PROGRAM = (
     "sys.path.insert(0, 'benchmarks')\n"
     "import bench_ekf\n"
     "from sims.runner import run_scenario\n"
+    "from sims.scenario import Scenario\n"
     "sc, cfg = bench_ekf._loop_scenario(sys.argv[1])\n"
+    "rates = dict((k, float(v)) for k, v in (a.split('=') for a in sys.argv[4:]))\n"
+    "sc = Scenario.model_validate({**sc.model_dump(), **rates}) if rates else sc\n"
     "run_scenario(sc.model_copy(update={'duration_s': float(sys.argv[3])}), cfg)\n"
     "run_scenario(sc.model_copy(update={'duration_s': float(sys.argv[2])}), cfg)\n"
 )
@@ -58,9 +61,11 @@ SETUP_PROGRAM = (
 _IREFS = re.compile(r"I\s+refs:\s+([\d,]+)")
 
 
-def count(tree: Path, case: str, seconds: float, program: str = PROGRAM, warm_up_s: float = 5.0) -> int:
+def count(tree: Path, case: str, seconds: float, program: str = PROGRAM, warm_up_s: float = 5.0,
+          rates: tuple[str, ...] = ()) -> int:
     """Instructions a fresh process in ``tree`` executes flying ``case`` (a warm-up flight of ``warm_up_s``,
-    then ``seconds``; with :data:`SETUP_PROGRAM`, building its vehicle ``seconds`` times)."""
+    then ``seconds``; with :data:`SETUP_PROGRAM`, building its vehicle ``seconds`` times); ``rates``:
+    ``field=value`` of the scenario's periods (``core_dt_s``, ``nav_dt_s``)."""
     # One thread for the numerical libraries: OpenBLAS's helper threads spin for a while after each call
     # and valgrind counts their instructions too, by however long the scheduler let them spin. With them,
     # three counts of one build spread 97.6-115.9 M per simulated second; with one thread, three counts
@@ -68,7 +73,7 @@ def count(tree: Path, case: str, seconds: float, program: str = PROGRAM, warm_up
     env = dict(os.environ, PYTHONHASHSEED="0", PYTHONPATH=str(tree), MPLBACKEND="Agg", OPENBLAS_NUM_THREADS="1",
                OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
     cmd = ["valgrind", "--tool=cachegrind", "--cache-sim=no", "--cachegrind-out-file=/dev/null",
-           sys.executable, "-c", program, case, repr(seconds), repr(warm_up_s)]
+           sys.executable, "-c", program, case, repr(seconds), repr(warm_up_s), *rates]
     proc = subprocess.run(cmd, cwd=tree, env=env, capture_output=True, text=True)
     m = _IREFS.search(proc.stderr)
     if proc.returncode != 0 or m is None:
@@ -76,8 +81,8 @@ def count(tree: Path, case: str, seconds: float, program: str = PROGRAM, warm_up
     return int(m.group(1).replace(",", ""))
 
 
-def per_second(tree: Path, case: str, a: float, b: float) -> float:
-    return (count(tree, case, b, warm_up_s=b) - count(tree, case, a, warm_up_s=b)) / (b - a)
+def per_second(tree: Path, case: str, a: float, b: float, rates: tuple[str, ...] = ()) -> float:
+    return (count(tree, case, b, warm_up_s=b, rates=rates) - count(tree, case, a, warm_up_s=b, rates=rates)) / (b - a)
 
 
 def main() -> int:
@@ -88,9 +93,14 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, nargs=2, default=(1.0, 5.0), metavar=("A", "B"))
     ap.add_argument("--repeats", type=int, default=1, help="counts per tree and case (they should agree)")
     ap.add_argument("--setup", action="store_true", help="count building the vehicle again, not flying it")
+    ap.add_argument("--core-dt-s", type=float, default=None, help="fly this tree with the core at this period")
+    ap.add_argument("--nav-dt-s", type=float, default=None,
+                    help="fly this tree with the voter and the filter at this period")
     args = ap.parse_args()
     if shutil.which("valgrind") is None:
         raise SystemExit("valgrind is not installed (Debian: apt-get install valgrind)")
+    rates = tuple(f"{k}={v!r}" for k, v in (("core_dt_s", args.core_dt_s), ("nav_dt_s", args.nav_dt_s))
+                  if v is not None)
     trees = [("this tree", args.this_tree.resolve())]
     if args.baseline_tree is not None:
         trees.append(("baseline", args.baseline_tree.resolve()))
@@ -104,7 +114,8 @@ def main() -> int:
         results: dict[str, list[float]] = {}
         for name, tree in trees:
             count(tree, case, 0.1, warm_up_s=b)  # numba's cache for valgrind's CPU, in this tree
-            results[name] = [per_second(tree, case, a, b) / 1e6 for _ in range(args.repeats)]
+            rt = rates if name == "this tree" else ()
+            results[name] = [per_second(tree, case, a, b, rt) / 1e6 for _ in range(args.repeats)]
             xs = results[name]
             spread = f"{min(xs):.1f}-{max(xs):.1f}" if len(xs) > 1 else "1 count"
             print(f"| {case} | {name} | {sorted(xs)[len(xs) // 2]:.1f} | {spread} |", flush=True)
