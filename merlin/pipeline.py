@@ -216,12 +216,6 @@ class VehicleTick:
             voted = self.voter.vote(t, frame)
         return new_record(Sensed, (t, frame, voted, self.estimator.estimate(t, frame, voted)))
 
-    @property
-    def nav_due(self) -> bool:
-        """Whether the voter and the filter run on the next :meth:`sense` (the first tick, then every
-        ``nav_every``-th)."""
-        return self._nav_k == 0
-
     def _sense_held(self, t: float, frame: Any) -> Sensed:
         """:meth:`sense` with the voter and the filter every ``nav_every`` ticks: each tick's samples are
         held (:class:`~merlin.nav.downsample.SensorHold`: the IMU lanes down-sampled) for their next tick,
