@@ -275,12 +275,10 @@ class NavEstimator:
         self._vo_fused_t: float | None = None
         self._vo_lost_reported = True  # VO counts as lost until its first accepted sample
         self._vo_refused = 0  # frames refused by the quality test since the last usable one
-        # the previous VO sample's time (the start of the next sample's frame pair) and the time the IMU
-        # source feeding this filter last changed (widen_imu_bias): a pair spanning a change is not fused
+        # the previous VO sample's time (the start of the next sample's frame pair), and whether the IMU source
+        # changed (widen_imu_bias) since that sample was handed in: a pair spanning a change is not fused. By
+        # arrival, not by time: the IMU's stamps and the camera's come from different clocks
         self._vo_prev_t = -math.inf
-        self._imu_switch_t = -math.inf
-        # whether the source changed since the last VO sample was handed in: the pair test is on the order in
-        # which they arrive, not on their times, whose clocks differ (the IMU's sample stamps, the camera's)
         self._imu_switched = False
         self._clip_t = -math.inf  # the latest accelerometer sample clipped at full scale (_clipped)
         self._bias_widening = [0.0] * 6  # per bias axis, what widen_imu_bias added and is still open
@@ -1019,7 +1017,6 @@ class NavEstimator:
         excluded after the correct isolations (regression scenario: redundancy_duplex_instant_declaration)."""
         if self._every_n > 1:  # with every_n = 1 nothing is ever pending after predict()
             self._predict_covariance()
-        self._imu_switch_t = self._t
         self._imu_switched = True
         P = self.P
         open_var = self._bias_widening
