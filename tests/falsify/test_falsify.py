@@ -296,7 +296,8 @@ def test_every_adversary_flies_with_the_filter_period_asked_for(vehicle: str, pa
 
 def test_a_worst_case_that_did_not_reproduce_is_reported_not_crashed_on() -> None:
     """The summary is still written when ``merlin sim`` fails on the written worst case (its margin is then
-    None): a campaign whose code changed under it once lost its whole summary to a format error here."""
+    None): the summary is the campaign's only record of its runs, so a failed reproduction is reported in it,
+    not allowed to stop it being written."""
     from merlin.falsify.report import markdown
 
     summary = {"config": "c.yaml", "vehicle": "multirotor", "estimator": "ekf", "budget": 10, "evaluated": 10,

@@ -229,7 +229,7 @@ def test_the_output_predictor_between_filter_ticks_is_the_one_by_one_filter(per,
 def test_a_run_of_identical_samples_is_handed_on_bit_for_bit() -> None:
     """A stuck sensor repeats its sample exactly; the voter's stuck test counts identical samples, so the
     down-sampled lane must repeat exactly too (the rotated integral would differ in the last bits from one
-    interval to the next: fw_imu_stuck_ekf at 100 Hz was not isolated until this)."""
+    interval to the next; regression scenario: fw_imu_stuck_ekf with nav_dt_s 0.01)."""
     ds = ImuDownSampler()
     stuck_g, stuck_a = (0.0123, -0.456, 0.0789), (0.31, -0.27, -9.79)
     ds.add(ImuSample(0.0, stuck_g, stuck_a))
