@@ -9,7 +9,7 @@ vehicle clock; ``lane`` tells which redundant unit produced it (0, 1, 2).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Final
+from typing import Final, NamedTuple
 
 from merlin.core.types import ZERO3, Vec3, defined_native, set_frozen_fields
 
@@ -112,3 +112,24 @@ class VoSample:
     vel_ned_mps: Vec3 = ZERO3
     vel_cov_m2ps2: tuple[float, float, float] = (1.0, 1.0, 1.0)  # diagonal covariance
     quality: VoQuality = VoQuality()
+
+
+class SensorFrame(NamedTuple):
+    """All samples of one instant, as the voters and the filter read them: from the simulator's sensors each
+    tick (``sims.sensors.SensorSuite.step``), or held for the filter's tick at a longer period
+    (:meth:`merlin.nav.downsample.SensorHold.take`). ``imu`` holds one sample per lane, or is empty between IMU
+    samples; the others are None when no sample arrived.
+
+    An immutable ``NamedTuple`` (not a frozen dataclass) because one is built every 400 Hz tick: ~3x
+    cheaper (``docs/benchmarks/sim.md``)."""
+
+    t_s: float
+    imu: tuple[ImuSample, ...] = ()
+    gps: GpsSample | None = None
+    baro: BaroSample | None = None
+    mag: MagSample | None = None
+    # with several units of each (``sims.sensors.SensorParams.aux_lanes`` > 1): every unit's sample, lane by
+    # lane (None: no sample from that unit); ``gps``/``baro``/``mag`` above are then lane 0's. Empty with one.
+    gps_lanes: tuple[GpsSample | None, ...] = ()
+    baro_lanes: tuple[BaroSample | None, ...] = ()
+    mag_lanes: tuple[MagSample | None, ...] = ()

@@ -21,8 +21,8 @@ from enum import StrEnum
 import numpy as np
 
 from merlin.core.types import ZERO3, Vec3
-from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
-from sims.sensors import SensorFrame, normal_rows
+from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample, SensorFrame
+from sims.sensors import normal_rows
 
 FOREVER_S = math.inf
 

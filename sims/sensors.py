@@ -24,13 +24,13 @@ import math
 from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import Any, Final, NamedTuple, Protocol
+from typing import Any, Final, Protocol
 
 import numpy as np
 
 from merlin.config.loader import ConfigError
 from merlin.core.types import Vec3, new_record
-from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
+from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample, SensorFrame
 
 # math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
 # more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
@@ -560,25 +560,6 @@ class Mag:
             ),
             self._lane,
         )
-
-
-class SensorFrame(NamedTuple):
-    """All samples produced at one tick. ``imu`` holds one sample per lane, or is empty between IMU
-    samples; the others are None when no sample arrived at this tick.
-
-    An immutable ``NamedTuple`` (not a frozen dataclass) because one is built every 400 Hz tick: ~3x
-    cheaper (``docs/benchmarks/sim.md``)."""
-
-    t_s: float
-    imu: tuple[ImuSample, ...] = ()
-    gps: GpsSample | None = None
-    baro: BaroSample | None = None
-    mag: MagSample | None = None
-    # with ``SensorParams.aux_lanes > 1``: every unit's sample of this tick, lane by lane (None: no sample
-    # from that unit this tick); ``gps``/``baro``/``mag`` above are then lane 0's. Empty with one unit.
-    gps_lanes: tuple[GpsSample | None, ...] = ()
-    baro_lanes: tuple[BaroSample | None, ...] = ()
-    mag_lanes: tuple[MagSample | None, ...] = ()
 
 
 class SensorSuite:

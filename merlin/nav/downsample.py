@@ -12,8 +12,8 @@ does the same when a scenario sets ``nav_dt_s`` (``docs/scenarios.md``, "Navigat
   specific force rotated into the interval's first body frame (sculling).
 * :class:`SensorHold` adds each tick's IMU lanes to their down-samplers and keeps each unit's newest GPS,
   barometer and magnetometer sample for the filter's next tick; :meth:`SensorHold.take` hands them on as a
-  :class:`HeldFrame` with the fields of the simulator's sensor frame, so the voter and the filter read it as
-  they read a tick's frame. A sensor faster than the filter loses the samples it has overwritten, as a
+  :class:`merlin.measurements.SensorFrame`, the type of a tick's frame, so the voter and the filter read it
+  as they read a tick's frame. A sensor faster than the filter loses the samples it has overwritten, as a
   filter with one sample buffer per sensor does; the simulated ones (GPS 10 Hz, barometer 50 Hz,
   magnetometer 100 Hz) are not faster than a filter at 100 Hz.
 * :class:`OutputPredictor` propagates the filter's last nominal state (position, velocity, attitude, with its
@@ -29,10 +29,10 @@ its interval, the attitude at its start), which no library's down-sampler shares
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any
 
 from merlin.core.types import NavMode, VehicleState
-from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
+from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample, SensorFrame
 from merlin.nav.quaternion import quat_exp, quat_log, quat_mul, quat_normalize, quat_rotate, quat_to_euler
 
 Vec3 = tuple[float, float, float]
@@ -120,20 +120,6 @@ class ImuDownSampler:
         return out
 
 
-class HeldFrame(NamedTuple):
-    """What the filter's tick reads: the fields of the simulator's sensor frame (``sims.sensors.SensorFrame``),
-    with each IMU lane down-sampled and each other unit's newest sample since the filter's last tick."""
-
-    t_s: float
-    imu: tuple[ImuSample, ...] = ()
-    gps: GpsSample | None = None
-    baro: BaroSample | None = None
-    mag: MagSample | None = None
-    gps_lanes: tuple[GpsSample | None, ...] = ()
-    baro_lanes: tuple[BaroSample | None, ...] = ()
-    mag_lanes: tuple[MagSample | None, ...] = ()
-
-
 def _newest(held: list[Any], samples: tuple[Any, ...]) -> list[Any]:
     if not held:
         return list(samples)
@@ -144,10 +130,11 @@ def _newest(held: list[Any], samples: tuple[Any, ...]) -> list[Any]:
 
 
 class SensorHold:
-    """Each tick's sensor frame added (:meth:`add`), and handed to the filter's tick as one :class:`HeldFrame`
-    (:meth:`take`). An IMU lane that delivered nothing since the last take (a dead or disconnected lane) is
-    left out of the frame's ``imu`` only when every lane did: the voter needs all three, so a silent lane is
-    handed on as its last down-sampled sample, which the voter's timeout then sees as stale."""
+    """Each tick's sensor frame added (:meth:`add`), and handed to the filter's tick as one
+    :class:`~merlin.measurements.SensorFrame` (:meth:`take`). An IMU lane that delivered nothing since the
+    last take (a dead or disconnected lane) is left out of the frame's ``imu`` only when every lane did: the
+    voter needs all three, so a silent lane is handed on as its last down-sampled sample, which the voter's
+    timeout then sees as stale."""
 
     def __init__(self) -> None:
         self._imu: list[ImuDownSampler] = []
@@ -178,7 +165,7 @@ class SensorHold:
             self._baro_lanes = _newest(self._baro_lanes, frame.baro_lanes)
             self._mag_lanes = _newest(self._mag_lanes, frame.mag_lanes)
 
-    def take(self, t: float) -> HeldFrame:
+    def take(self, t: float) -> SensorFrame:
         """The filter's frame at ``t``; what it holds is handed on once."""
         imu: tuple[ImuSample, ...] = ()
         ds = self._imu
@@ -192,7 +179,7 @@ class SensorHold:
                 out.append(s)
             self._imu_last = out
             imu = tuple(out)
-        frame = HeldFrame(t, imu, self._gps, self._baro, self._mag, tuple(self._gps_lanes),
+        frame = SensorFrame(t, imu, self._gps, self._baro, self._mag, tuple(self._gps_lanes),
                           tuple(self._baro_lanes), tuple(self._mag_lanes))
         self._gps = self._baro = self._mag = None
         n = len(self._gps_lanes)

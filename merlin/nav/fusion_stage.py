@@ -59,7 +59,7 @@ class FusionStage:
 
     # ---- the filter at a period of several ticks (merlin.nav.downsample)
     def filter_tick(self, t: float, frame: Any, voted: VotedSensors | None) -> None:
-        """The filter's tick on a held frame (:class:`merlin.nav.downsample.HeldFrame`: each IMU lane
+        """The filter's tick on a held frame (:meth:`merlin.nav.downsample.SensorHold.take`: each IMU lane
         down-sampled since the filter's last tick, the other units' newest samples); the output predictor
         restarts from its state. :meth:`propagate` then gives the tick's state."""
         self._filter(t, frame, voted)

@@ -210,7 +210,7 @@ class ImuVoterStage:
 
     def vote(self, t: float, frame: Any) -> VotedSensors:
         """The voted samples at ``t`` from the tick's sensor frame (``imu``, ``mag``, ``baro``, ``gps`` and,
-        with three units of each, ``*_lanes``: :class:`sims.sensors.SensorFrame`'s fields). Call once per
+        with three units of each, ``*_lanes``: :class:`merlin.measurements.SensorFrame`'s fields). Call once per
         tick: the voter's persistence counts ticks."""
         if frame.mag is not None:
             self._mag = frame.mag

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from merlin.core.types import Vec3
+from merlin.measurements import SensorFrame
 from sims.multirotor import quat_from_rpy
 from sims.sensor_faults import (
     BaroDrift,
@@ -24,7 +25,7 @@ from sims.sensor_faults import (
     SensorFaultInjector,
     active_faults,
 )
-from sims.sensors import SensorFrame, SensorParams, SensorSuite
+from sims.sensors import SensorParams, SensorSuite
 
 DT = 0.0025
 G = 9.80665

@@ -12,7 +12,7 @@ import pytest
 
 from merlin.config.loader import ConfigError
 from merlin.core.types import Vec3
-from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
+from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample, SensorFrame
 from sims.multirotor import quat_from_rpy
 from sims.sensors import (
     Baro,
@@ -22,7 +22,6 @@ from sims.sensors import (
     ImuLane,
     ImuParams,
     MagParams,
-    SensorFrame,
     SensorParams,
     SensorSuite,
     dipole_field_ned_gauss,
