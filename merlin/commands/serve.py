@@ -26,6 +26,7 @@ import argparse
 import datetime as dt
 import json
 import logging
+import math
 import os
 import sys
 from pathlib import Path
@@ -40,6 +41,12 @@ def register(sub: Any) -> None:
                         "JSBSim fixed wing 'aerosonde' (it starts on its catapult: arm, then takeoff launches it; "
                         "without --config it flies the built-in fixed-wing configuration)")
     p.add_argument("--rate-hz", type=float, default=250.0, help="core and simulation tick rate (default 250)")
+    p.add_argument("--core-dt-s", type=float, default=None,
+                   help="the trusted core's period, a whole number of ticks of 1/--rate-hz up to 0.02 s (default: "
+                        "every tick); what arrives between its ticks waits for the next one, as in merlin sim")
+    p.add_argument("--nav-dt-s", type=float, default=None,
+                   help="the IMU voter's and the fusion EKF's period, a whole number of ticks up to 0.02 s, as PX4's "
+                        "EKF2_PREDICT_US (default: every tick); an output predictor gives the state between")
     p.add_argument("--speedup", type=float, default=1.0, help="run faster than real time (tests), default 1")
     p.add_argument("--instance", "-i", type=int, default=0,
                    help="vehicle instance, as PX4's multi-vehicle SITL (px4 -i N): ports offset by N, system id N+1")
@@ -217,6 +224,8 @@ def options_from_args(args: argparse.Namespace) -> Any:
             args.sysid = args.instance + 1
     if not 100.0 <= args.rate_hz <= 1000.0:  # the simulation step (1/rate) is at most 10 ms
         problems.append(f"--rate-hz {args.rate_hz}: allowed 100..1000")
+    else:
+        problems += _period_problems(args)
     if not 0.1 <= args.speedup <= 20.0:
         problems.append(f"--speedup {args.speedup}: allowed 0.1..20")
     if args.sysid is not None and not 1 <= args.sysid <= 255:
@@ -260,6 +269,7 @@ def options_from_args(args: argparse.Namespace) -> Any:
     host = args.remote_host
     return ServeOptions(
         config=cfg, config_source=args.config or "<built-in default>", rate_hz=args.rate_hz, speedup=args.speedup,
+        core_dt_s=args.core_dt_s, nav_dt_s=args.nav_dt_s,
         vehicle=args.vehicle,
         system_id=args.sysid, component_id=args.compid,
         gcs=None if args.no_gcs else UdpLinkSpec(("0.0.0.0", args.gcs_bind_port), (host, args.gcs_port)),
@@ -270,6 +280,20 @@ def options_from_args(args: argparse.Namespace) -> Any:
         tune_gc=not args.no_gc_tuning, realtime_priority=args.realtime_priority,
         params_locked=args.params_locked or cfg.links.params_locked,
     )
+
+
+def _period_problems(args: argparse.Namespace) -> list[str]:
+    """--core-dt-s and --nav-dt-s against the tick (1/--rate-hz): each a whole number of ticks, at most 20 ms."""
+    from sims.scenario import MAX_CORE_DT_S, MAX_NAV_DT_S, whole_ticks
+
+    tick = 1.0 / args.rate_hz
+    problems = []
+    for option, value, most in (("--core-dt-s", args.core_dt_s, MAX_CORE_DT_S),
+                                ("--nav-dt-s", args.nav_dt_s, MAX_NAV_DT_S)):
+        if value is not None and (not math.isfinite(value) or value > most or whole_ticks(value, tick) is None):
+            problems.append(f"{option} {value}: allowed a whole number of ticks of 1/--rate-hz ({tick * 1e3:g} ms) "
+                            f"up to {most:g} s, e.g. {2 * tick:g}")
+    return problems
 
 
 def preflight(cfg: Any, vehicle: str, source: str, accept_risk: list[str] | None, out_dir: Path,
@@ -300,14 +324,17 @@ def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     preflight(opts.config, args.vehicle, opts.config_source, getattr(args, "accept_risk", None), opts.out_dir,
-              1.0 / opts.rate_hz)
+              opts.core_dt_s if opts.core_dt_s is not None else 1.0 / opts.rate_hz)
     server = Server(opts)
     install_signal_handlers(server)
     if not args.quiet:
         links = ", ".join(f"{ls.name}: {getattr(ls.endpoint.transport, 'local_address', '?')} -> "
                           f"{ls.endpoint.remote}" for ls in server.links)
         only = ", autopilot only (no geofence, no envelope, link or low-battery action)" if args.autopilot_only else ""
-        print(f"merlin serve: {opts.rate_hz:g} Hz{only}, {links}; logs in {opts.out_dir}", flush=True)
+        periods = "".join(f", {name} every {v * 1e3:g} ms" for name, v in (("core", opts.core_dt_s),
+                                                                            ("voter and filter", opts.nav_dt_s))
+                          if v is not None)
+        print(f"merlin serve: {opts.rate_hz:g} Hz{periods}{only}, {links}; logs in {opts.out_dir}", flush=True)
     summary = server.run()
     if not args.quiet:
         json.dump(summary["timing"], sys.stdout, indent=1)

@@ -62,6 +62,7 @@ from merlin.core.types import (
     RequestKind,
     Setpoint,
     SetpointKind,
+    VehicleState,
 )
 from merlin.geodesy import LocalFrame
 from merlin.link import inbound as i
@@ -150,6 +151,10 @@ class ServeOptions:
     config_source: str = "<built-in default>"
     vehicle: str = "quadrotor_default"  # sims.runner.make_loop's choice: a multirotor file or a JSBSim fixed wing
     rate_hz: float = 250.0
+    # the trusted core's period and the IMU voter's and fusion EKF's (a scenario's core_dt_s and nav_dt_s): None
+    # runs them at every tick; else a whole number of ticks (merlin serve --core-dt-s / --nav-dt-s checks it)
+    core_dt_s: float | None = None
+    nav_dt_s: float | None = None
     speedup: float = 1.0
     system_id: int = 1
     component_id: int = 1
@@ -192,13 +197,22 @@ class _Pending:
     commands: list[GcsCommand] = field(default_factory=list)
 
 
+def _scenario(opts: ServeOptions, estimator: str) -> Any:
+    """The simulated flight serve ticks: the vehicle, its tick (1/rate), the core's and the filter's periods."""
+    from sims.scenario import Scenario
+
+    return Scenario.model_validate({"name": "serve", "duration_s": 7200.0, "dt_s": 1.0 / opts.rate_hz,
+                                    "vehicle": opts.vehicle, "estimator": estimator, "core_dt_s": opts.core_dt_s,
+                                    "nav_dt_s": opts.nav_dt_s})
+
+
 class Server:
     """One ``merlin serve`` process: see the module doc. ``run()`` returns when the duration elapses or
     ``stop()`` is called (SIGINT/SIGTERM)."""
 
     def __init__(self, opts: ServeOptions) -> None:
         from sims.runner import FIXED_WING_VEHICLES, make_loop
-        from sims.scenario import Scenario, estimator_note
+        from sims.scenario import estimator_note
 
         self.opts = opts
         self.cfg = opts.config
@@ -212,9 +226,7 @@ class Server:
         # scenario offboard_position_climb_ekf).
         self.estimator = "ekf"
         self.estimator_note = estimator_note(self.estimator)
-        sc = Scenario.model_validate({"name": "serve", "duration_s": 7200.0, "dt_s": self.dt, "vehicle": opts.vehicle,
-                                      "estimator": self.estimator})
-        self.loop = make_loop(sc, self.cfg, opts.config_source)
+        self.loop = make_loop(_scenario(opts, self.estimator), self.cfg, opts.config_source)
         self.mav_type = o.MAV_TYPE_FIXED_WING if opts.vehicle in FIXED_WING_VEHICLES else o.MAV_TYPE_QUADROTOR
         h = self.cfg.home
         self.frame = LocalFrame(h.lat_deg, h.lon_deg, h.alt_amsl_m)
@@ -1052,42 +1064,20 @@ class Server:
     def _tick(self) -> None:
         t = self.t
         state = self.loop.sense()
-        p = self.pending
-        self.pending = _Pending()
-        self._advance_held_request(t, p.requests)
-        self._advance_requeued(t, p.requests)
-        self._advance_takeoff(t, p)
-        sp_arrival_ns = 0
-        if p.setpoint is not None:
-            sp_t, m, sp_arrival_ns = p.setpoint
-            self.stats.coalesced += p.coalesced
-            yaw = state.att_rpy_rad[2]
-            if isinstance(m, i.SetpointIn):
-                self.sp = m.to_setpoint(state.pos_ned_m, yaw)
-            elif isinstance(m, i.GlobalSetpointIn):
-                self.sp = m.to_setpoint(self.frame, yaw)
-            else:
-                self.sp = m.to_setpoint()
-            self.sp_t = sp_t
-        # the core's inputs, built as merlin sim builds them (merlin.pipeline.InputBuilder), with the
-        # vehicle's redundancy report
-        b = self.inputs
-        b.controller_heartbeat(self.hb_t)
-        b.setpoint(self.sp, self.sp_t)
-        b.request(tuple(p.requests))
-        b.gcs_heartbeat(self.gcs_t)
-        b.rc_frame(self.rc_t)
-        b.operator(self.op)
-        inputs = b.build(state, tuple(p.commands), self.loop.redundancy_report(t))
         prev = self.decision
-        d = self.loop.act(inputs)
-        if sp_arrival_ns:
-            self.stats.record_setpoint_latency(time.monotonic_ns() - sp_arrival_ns)
+        if self.loop.core_due:
+            d = self._core_tick(t, state)
+        else:
+            # the core's period spans several ticks and this is not its tick: the actuator stage flies its last
+            # decision; what arrived meanwhile waits in self.pending for the core's next tick, as merlin sim's
+            # runner holds its commands (nothing lost, nothing decided twice, no event reported twice)
+            d = self.loop.act(None)
         self.decision = d
         self._fixed_wing_tick(d)
         self.ulog.record(t, state, d, self.sp, self.loop)
-        for e in d.events:
-            self._on_event(e, d)
+        if d is not prev:
+            for e in d.events:
+                self._on_event(e, d)
         changed = prev is None or (prev.authority, prev.behavior, prev.armed) != (d.authority, d.behavior, d.armed)
         if changed:
             for ls in self.links:
@@ -1130,6 +1120,39 @@ class Server:
         for ls in self.links:
             for _ in range(min(BULK_PER_TICK, len(ls.bulk))):
                 self._send(ls, ls.bulk.popleft())
+
+    def _core_tick(self, t: float, state: VehicleState) -> Decision:
+        """The core's tick: what arrived since its last tick becomes its inputs, built as merlin sim builds them
+        (merlin.pipeline.InputBuilder), with the vehicle's redundancy report; returns its decision."""
+        p = self.pending
+        self.pending = _Pending()
+        self._advance_held_request(t, p.requests)
+        self._advance_requeued(t, p.requests)
+        self._advance_takeoff(t, p)
+        sp_arrival_ns = 0
+        if p.setpoint is not None:
+            sp_t, m, sp_arrival_ns = p.setpoint
+            self.stats.coalesced += p.coalesced
+            yaw = state.att_rpy_rad[2]
+            if isinstance(m, i.SetpointIn):
+                self.sp = m.to_setpoint(state.pos_ned_m, yaw)
+            elif isinstance(m, i.GlobalSetpointIn):
+                self.sp = m.to_setpoint(self.frame, yaw)
+            else:
+                self.sp = m.to_setpoint()
+            self.sp_t = sp_t
+        b = self.inputs
+        b.controller_heartbeat(self.hb_t)
+        b.setpoint(self.sp, self.sp_t)
+        b.request(tuple(p.requests))
+        b.gcs_heartbeat(self.gcs_t)
+        b.rc_frame(self.rc_t)
+        b.operator(self.op)
+        inputs = b.build(state, tuple(p.commands), self.loop.redundancy_report(t))
+        d = self.loop.act(inputs)
+        if sp_arrival_ns:
+            self.stats.record_setpoint_latency(time.monotonic_ns() - sp_arrival_ns)
+        return d
 
     def _link(self, name: str) -> _LinkState | None:
         for ls in self.links:
@@ -1401,7 +1424,9 @@ class Server:
     def run(self) -> dict[str, Any]:
         """Serve until the duration elapses or :meth:`stop`; returns the timing and link statistics."""
         opts = self.opts
-        self.events.write({"t": 0.0, "type": "serve_start", "rate_hz": opts.rate_hz, "speedup": opts.speedup,
+        self.events.write({"t": 0.0, "type": "serve_start", "rate_hz": opts.rate_hz,
+                           "core_dt_s": self.loop.core_every * self.dt, "nav_dt_s": self.loop.tick.nav_every * self.dt,
+                           "speedup": opts.speedup,
                            "estimator": self.estimator, "estimator_note": self.estimator_note,
                            "config": opts.config_source, "config_sha256": self.cfg_sha256,
                            "effective_config": str(self.effective_config),

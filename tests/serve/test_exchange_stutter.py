@@ -35,9 +35,12 @@ QUIET_S = 0.7
 
 
 class Rig:
-    def __init__(self, out: Path) -> None:
+    """``options``: further ServeOptions fields (tests.serve.test_serve_periods drives the same rig with the
+    core and the filter at periods of several ticks)."""
+
+    def __init__(self, out: Path, **options: Any) -> None:
         self.s = Server(ServeOptions(gcs=None, controller=UdpLinkSpec(("127.0.0.1", 0), ("127.0.0.1", 9)),
-                                     out_dir=out))
+                                     out_dir=out, **options))
         self.ls = self.s._controller_link()
         self.p = mavlink_module().MAVLink(None, 245, 191)
         self.events: list[dict[str, Any]] = []
