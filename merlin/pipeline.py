@@ -41,7 +41,7 @@ from merlin.core.types import (
     VehicleState,
     new_record,
 )
-from merlin.nav.downsample import SensorHold
+from merlin.nav.downsample import ImuClip, SensorHold
 from merlin.redundancy.lanes import VotedSensors, new_voted_sensors
 
 _NO_OPERATOR = OperatorInput()
@@ -129,7 +129,11 @@ class NavRateEstimator(Estimator, Protocol):
     """An estimator that can run at a period of several ticks (:class:`~merlin.nav.fusion_stage.FusionStage`):
     its filter's tick on a held frame, and an output predictor's state on every tick."""
 
-    def filter_tick(self, t: float, frame: Any, voted: VotedSensors | None) -> None: ...
+    @property
+    def accel_clip_mps2(self) -> float: ...
+
+    def filter_tick(self, t: float, frame: Any, voted: VotedSensors | None,
+                    clips: tuple[ImuClip, ...] = ()) -> None: ...
 
     def propagate(self, t: float, frame: Any, isolated: tuple[bool, ...]) -> VehicleState: ...
 
@@ -197,7 +201,7 @@ class VehicleTick:
         #: tick's state is its output predictor's (merlin.nav.downsample)
         self.nav_every = nav_every
         self._nav_k = 0
-        self._held = SensorHold() if nav_every > 1 else None
+        self._held = SensorHold(cast(NavRateEstimator, estimator).accel_clip_mps2) if nav_every > 1 else None
         self._vote: VotedSensors | None = None
         self._isolated: tuple[bool, ...] = ()
         self.actuators = actuators
@@ -232,7 +236,7 @@ class VehicleTick:
             if self.voter is not None and self.vote_before_estimate:
                 vote = self._vote = self.voter.vote(t, nav_frame)
                 self._isolated = vote.imu_isolated
-            est.filter_tick(t, nav_frame, vote)
+            est.filter_tick(t, nav_frame, vote, held.clips)
         self._nav_k = 0 if self._nav_k + 1 >= self.nav_every else self._nav_k + 1
         state = est.propagate(t, frame, self._isolated)
         voted = vote

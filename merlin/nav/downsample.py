@@ -16,6 +16,12 @@ does the same when a scenario sets ``nav_dt_s`` (``docs/scenarios.md``, "Navigat
   as they read a tick's frame. A sensor faster than the filter loses the samples it has overwritten, as a
   filter with one sample buffer per sensor does; the simulated ones (GPS 10 Hz, barometer 50 Hz,
   magnetometer 100 Hz) are not faster than a filter at 100 Hz.
+* A sample clipped at the accelerometer's full scale is invisible in an interval's mean (one clipped sample
+  of four averages below the limit), yet the filter must know of it: the impact's excess specific force was
+  not measured (``NavEstimator._clipped``). Each down-sampler keeps the interval's clipping record
+  (:class:`ImuClip`: per body axis the sum of the clipped samples' squared intervals, and the newest clipped
+  sample's time), as PX4's down-sampler keeps its per-axis clipping flags, and the filter's prediction applies
+  it instead of testing the mean (:func:`voted_clip` picks the lanes' record as the voter picks their values).
 * :class:`OutputPredictor` propagates the filter's last nominal state (position, velocity, attitude, with its
   bias estimates) with each raw IMU sample until the filter's next tick: the mechanisation's equations
   without the covariance. At a filter tick it restarts from the filter's state, so between two filter ticks
@@ -29,13 +35,27 @@ its interval, the attitude at its start), which no library's down-sampler shares
 
 from __future__ import annotations
 
-from typing import Any
+import math
+from typing import Any, NamedTuple
 
 from merlin.core.types import NavMode, VehicleState
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample, SensorFrame
 from merlin.nav.quaternion import quat_exp, quat_log, quat_mul, quat_normalize, quat_rotate, quat_to_euler
 
 Vec3 = tuple[float, float, float]
+
+
+class ImuClip(NamedTuple):
+    """Which of an interval's samples were clipped at the accelerometer's full scale: ``dt2`` per body axis
+    the sum of dt² over the samples clipped on that axis (the filter widens the velocity's variance by
+    (accel_clip_noise_mps2)² times it, as it does by (accel_clip_noise_mps2 dt)² for each clipped sample at
+    every tick), ``t_s`` the newest clipped sample's time (-inf: none)."""
+
+    dt2: Vec3 = (0.0, 0.0, 0.0)
+    t_s: float = -math.inf
+
+
+NO_CLIP = ImuClip()
 
 
 class ImuDownSampler:
@@ -45,7 +65,14 @@ class ImuDownSampler:
     time), so :meth:`take` hands it on alone; every later sample covers the time since the one before.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, clip_mps2: float = math.inf) -> None:
+        #: the accelerometer's full scale as the filter tests it (NavConfig.accel_clip_mps2)
+        self.clip_mps2 = clip_mps2
+        #: the clipping record of the interval :meth:`take` handed on last
+        self.clip = NO_CLIP
+        self._clip_dt2: Vec3 = (0.0, 0.0, 0.0)
+        self._clip_t = -math.inf
+        self._amax: Vec3 = (0.0, 0.0, 0.0)  # the interval's largest specific force magnitude per axis
         self._t_prev: float | None = None  # time of the newest sample added
         self._first: ImuSample | None = None
         self._dq: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)  # interval start frame -> newest sample's
@@ -71,6 +98,11 @@ class ImuDownSampler:
             return  # duplicate or out of order: the filter would skip it too
         self._t_prev = s.t_s
         g, a = s.gyro_frd_radps, s.accel_frd_mps2
+        m = self._amax
+        self._amax = (max(m[0], abs(a[0])), max(m[1], abs(a[1])), max(m[2], abs(a[2])))
+        lim = self.clip_mps2
+        if not (-lim < a[0] < lim and -lim < a[1] < lim and -lim < a[2] < lim):
+            self._clipped(a, dt, s.t_s)
         dq = self._dq
         fx, fy, fz = quat_rotate(dq, a)
         dv = self._dv
@@ -84,18 +116,32 @@ class ImuDownSampler:
         self._n += 1
         self._lane = s.lane
 
+    def _clipped(self, a: Vec3, dt: float, t: float) -> None:
+        """A sample at full scale on one axis or more (the filter's own test, ``NavEstimator.predict``)."""
+        lim, c, q = self.clip_mps2, self._clip_dt2, dt * dt
+        self._clip_dt2 = (c[0] + q if abs(a[0]) >= lim else c[0], c[1] + q if abs(a[1]) >= lim else c[1],
+                          c[2] + q if abs(a[2]) >= lim else c[2])
+        self._clip_t = t
+
     @property
     def pending(self) -> int:
         """Samples added since the last :meth:`take` (the first sample ever counts as one)."""
         return self._n + (1 if self._first is not None else 0)
 
     def take(self) -> ImuSample | None:
-        """The samples since the last call as one (None: none arrived), timed at the newest."""
+        """The samples since the last call as one (None: none arrived), timed at the newest; :attr:`clip` is
+        then their clipping record."""
+        self.clip = NO_CLIP
         first = self._first
         if first is not None and self._n == 0:
             self._first = None
             return first
         self._first = None
+        clipped = self._clip_t != -math.inf
+        if clipped:
+            self.clip = ImuClip(self._clip_dt2, self._clip_t)
+            self._clip_dt2, self._clip_t = (0.0, 0.0, 0.0), -math.inf
+        amax, self._amax = self._amax, (0.0, 0.0, 0.0)
         n, span = self._n, self._span
         if n == 0 or span <= 0.0:
             return None
@@ -112,7 +158,17 @@ class ImuDownSampler:
             rx, ry, rz = quat_log(self._dq)
             dv = self._dv
             inv = 1.0 / span
-            out = ImuSample(t, (rx * inv, ry * inv, rz * inv), (dv[0] * inv, dv[1] * inv, dv[2] * inv), self._lane)
+            f = (dv[0] * inv, dv[1] * inv, dv[2] * inv)
+            if clipped:
+                # Samples at full scale while the body turns: the mean in the interval's first body frame can
+                # exceed full scale on an axis (by 0.9 m/s² in the regression scenario
+                # crash_clipped_impact_nav_100hz), which the voter's range test takes for a failed sensor on
+                # every lane at once, and the filter then went unfed for the impact. Held to the largest
+                # magnitude each axis measured: what is lost is smaller than the clipped excess the clipping
+                # record already widens the velocity's variance for.
+                f = (max(-amax[0], min(amax[0], f[0])), max(-amax[1], min(amax[1], f[1])),
+                     max(-amax[2], min(amax[2], f[2])))
+            out = ImuSample(t, (rx * inv, ry * inv, rz * inv), f, self._lane)
         self._dq = (1.0, 0.0, 0.0, 0.0)
         self._dv = (0.0, 0.0, 0.0)
         self._span = 0.0
@@ -136,9 +192,12 @@ class SensorHold:
     voter needs all three, so a silent lane is handed on as its last down-sampled sample, which the voter's
     timeout then sees as stale."""
 
-    def __init__(self) -> None:
+    def __init__(self, clip_mps2: float = math.inf) -> None:
+        self.clip_mps2 = clip_mps2  # the accelerometer's full scale as the filter tests it
         self._imu: list[ImuDownSampler] = []
         self._imu_last: list[ImuSample] = []
+        #: each IMU lane's clipping record of the interval :meth:`take` handed on last
+        self.clips: tuple[ImuClip, ...] = ()
         self._gps: GpsSample | None = None
         self._baro: BaroSample | None = None
         self._mag: MagSample | None = None
@@ -151,7 +210,7 @@ class SensorHold:
         if lanes:
             ds = self._imu
             while len(ds) < len(lanes):
-                ds.append(ImuDownSampler())
+                ds.append(ImuDownSampler(self.clip_mps2))
             for i, s in enumerate(lanes):
                 ds[i].add(s)
         if frame.gps is not None:
@@ -179,6 +238,9 @@ class SensorHold:
                 out.append(s)
             self._imu_last = out
             imu = tuple(out)
+            self.clips = tuple(d.clip for d in ds)
+        else:
+            self.clips = ()
         frame = SensorFrame(t, imu, self._gps, self._baro, self._mag, tuple(self._gps_lanes),
                           tuple(self._baro_lanes), tuple(self._mag_lanes))
         self._gps = self._baro = self._mag = None
@@ -218,6 +280,28 @@ def select_imu(lanes: tuple[ImuSample, ...], isolated: tuple[bool, ...]) -> ImuS
     if len(use) == 1:
         return use[0]
     return None
+
+
+def voted_clip(clips: tuple[ImuClip, ...], isolated: tuple[bool, ...]) -> ImuClip:
+    """The clipping record that goes with the sample the filter is fed: per axis, and for the newest clipped
+    time, the lower median of the records of the lanes the voter uses (all three but the isolated ones;
+    without a voter, ``isolated`` empty, the median of three lanes, else lane 0's). The lower median of two is
+    the smaller: as the voter's mean of two or mid-value of three stays below full scale while only one lane
+    is there, a single lane stuck at full scale is not a clipped vehicle; every lane at full scale is."""
+    if not clips:
+        return NO_CLIP
+    if not isolated:
+        use = list(clips) if len(clips) == 3 else [clips[0]]
+    else:
+        use = [c for i, c in enumerate(clips) if not (i < len(isolated) and isolated[i])] or list(clips)
+    if len(use) == 1:
+        return use[0]
+    k = (len(use) - 1) // 2
+    t = sorted(c.t_s for c in use)[k]
+    if t == -math.inf:
+        return NO_CLIP
+    return ImuClip((sorted(c.dt2[0] for c in use)[k], sorted(c.dt2[1] for c in use)[k],
+                    sorted(c.dt2[2] for c in use)[k]), t)
 
 
 def _mid(a: float, b: float, c: float) -> float:

@@ -36,6 +36,7 @@ from merlin.core.types import ZERO3, NavMode, Vec3, VehicleState, new_record
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample, VoQuality, VoSample
 from merlin.nav import kernels
 from merlin.nav.config import NavConfig
+from merlin.nav.downsample import ImuClip
 from merlin.nav.events import NavEvent, NavEventKind
 from merlin.nav.modes import select_mode
 from merlin.nav.quaternion import (
@@ -311,9 +312,12 @@ class NavEstimator:
 
     # ------------------------------------------------------------------------------ prediction
 
-    def predict(self, imu: ImuSample) -> None:
+    def predict(self, imu: ImuSample, clip: ImuClip | None = None) -> None:
         """Strapdown mechanisation of one IMU sample (Solà eq. 260, 'nominal state kinematics', with the
-        rates and specific force held over the interval) and the error-state covariance propagation."""
+        rates and specific force held over the interval) and the error-state covariance propagation.
+
+        ``clip``: the sample is several down-sampled into one (:mod:`merlin.nav.downsample`), and this is their
+        clipping record, applied instead of testing the sample itself (whose mean hides a clipped sample)."""
         if not self._imu_seen:
             self._imu_seen = True
             if imu.t_s > self._t:
@@ -332,9 +336,13 @@ class NavEstimator:
         kernels.mechanise(
             self._s, self.P, self._q_density, self._c, g[0], g[1], g[2], a[0], a[1], a[2], dt
         )
-        lim = self.cfg.accel_clip_mps2
-        if not (-lim < a[0] < lim and -lim < a[1] < lim and -lim < a[2] < lim):
-            self._clipped(a, dt)
+        if clip is not None:
+            if clip.t_s != -math.inf:
+                self._clipped_interval(clip)
+        else:
+            lim = self.cfg.accel_clip_mps2
+            if not (-lim < a[0] < lim and -lim < a[1] < lim and -lim < a[2] < lim):
+                self._clipped(a, dt)
         self._update_mode()
 
     def _clipped(self, a: Vec3, dt: float) -> None:
@@ -350,6 +358,19 @@ class NavEstimator:
         for i in range(3):
             if abs(a[i]) >= cfg.accel_clip_mps2:
                 P[3:6, 3:6] += q * np.outer(R[:, i], R[:, i])
+
+    def _clipped_interval(self, clip: ImuClip) -> None:
+        """:meth:`_clipped` for the samples of a down-sampled interval: along each body axis the variance of
+        all its clipped samples, (accel_clip_noise_mps2)² Σ dt²; GPS epochs from before the newest clipped
+        sample are refused as after it (regression scenario ``crash_clipped_record_nav_100hz``)."""
+        cfg = self.cfg
+        self._clip_t = max(self._clip_t, clip.t_s)
+        R = quat_to_dcm(self._q)
+        n2 = cfg.accel_clip_noise_mps2 * cfg.accel_clip_noise_mps2
+        P = self.P
+        for i in range(3):
+            if clip.dt2[i] > 0.0:
+                P[3:6, 3:6] += n2 * clip.dt2[i] * np.outer(R[:, i], R[:, i])
 
     @property
     def _q(self) -> Quat:

@@ -19,7 +19,7 @@ from typing import Any
 
 from merlin.core.types import VehicleState
 from merlin.measurements import ImuSample
-from merlin.nav.downsample import OutputPredictor, select_imu
+from merlin.nav.downsample import ImuClip, OutputPredictor, select_imu, voted_clip
 from merlin.nav.estimator import NavEstimator
 from merlin.redundancy.lanes import VotedSensors
 
@@ -58,11 +58,20 @@ class FusionStage:
             self.predictor.anchor(ekf.nominal(), ekf.t_s, ekf.state())
 
     # ---- the filter at a period of several ticks (merlin.nav.downsample)
-    def filter_tick(self, t: float, frame: Any, voted: VotedSensors | None) -> None:
+    @property
+    def accel_clip_mps2(self) -> float:
+        """The accelerometer's full scale as the filter tests it: the held IMU lanes' down-samplers keep their
+        clipping records against it (:class:`merlin.nav.downsample.SensorHold`)."""
+        return self.ekf.cfg.accel_clip_mps2
+
+    def filter_tick(self, t: float, frame: Any, voted: VotedSensors | None,
+                    clips: tuple[ImuClip, ...] = ()) -> None:
         """The filter's tick on a held frame (:meth:`merlin.nav.downsample.SensorHold.take`: each IMU lane
-        down-sampled since the filter's last tick, the other units' newest samples); the output predictor
-        restarts from its state. :meth:`propagate` then gives the tick's state."""
-        self._filter(t, frame, voted)
+        down-sampled since the filter's last tick, the other units' newest samples, and ``clips`` each lane's
+        clipping record, :attr:`SensorHold.clips`); the output predictor restarts from its state.
+        :meth:`propagate` then gives the tick's state."""
+        isolated = voted.imu_isolated if voted is not None else ()
+        self._filter(t, frame, voted, voted_clip(clips, isolated))
         ekf = self.ekf
         if self.predictor is None:
             self.predictor = OutputPredictor(ekf.cfg.gravity_mps2, ekf.cfg.max_imu_dt_s)
@@ -76,13 +85,14 @@ class FusionStage:
         pred.step(select_imu(frame.imu, isolated))
         return pred.state() if self.complete is None else pred.state(*self.complete())
 
-    def _filter(self, t: float, frame: Any, voted: VotedSensors | None) -> None:
+    def _filter(self, t: float, frame: Any, voted: VotedSensors | None, clip: ImuClip | None = None) -> None:
+        """``clip``: the held IMU samples' clipping record (None at every tick: the sample is tested itself)."""
         fr = frame
         ekf = self.ekf
         if voted is not None:
             imu_v = voted.imu
             if fr.imu and imu_v is not None:
-                ekf.predict(imu_v)
+                ekf.predict(imu_v, clip)
                 step = voted.imu_source_step
                 if step is not None:  # a lane switch: the new source's biases are not the old one's
                     ekf.widen_imu_bias(step[3:6], step[0:3])
@@ -94,7 +104,7 @@ class FusionStage:
                 imu = ImuSample(lanes[0].t_s, g, a, -1)
             else:
                 imu = lanes[0]
-            ekf.predict(imu)
+            ekf.predict(imu, clip)
         gps, baro, mag = fr.gps, fr.baro, fr.mag
         if fr.gps_lanes and voted is not None:
             # three units of each: the voted samples, not lane 0's

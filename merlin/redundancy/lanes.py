@@ -392,7 +392,8 @@ class LaneNavigation:
         #: lane's state on every tick is its own output predictor's, moved on with its own raw IMU lane
         self.nav_every = nav_every if ekfs is not None else 1
         self._nav_k = 0
-        self._held = SensorHold() if self.nav_every > 1 else None
+        # each lane's filter is fed its own lane, with that lane's own clipping record
+        self._held = SensorHold(ekfs[0].cfg.accel_clip_mps2) if ekfs is not None and self.nav_every > 1 else None
         self._predictors: list[OutputPredictor] = []
         self.states: list[VehicleState] = [VehicleState()] * N_LANES
         self.last_seen: list[dict[str, float]] = [{} for _ in range(N_LANES)]
@@ -458,7 +459,7 @@ class LaneNavigation:
             for i in range(N_LANES):
                 ekf = ekfs[i]
                 if nav.imu and len(nav.imu) > i:
-                    ekf.predict(nav.imu[i])
+                    ekf.predict(nav.imu[i], held.clips[i])
                 ekf.update_samples(self._unit(nav, "gps", i), self._unit(nav, "baro", i), self._unit(nav, "mag", i))
                 for e in ekf.pop_events():
                     self.events.append({"t": e.t_s, "type": f"nav_{e.kind.value}", "lane": i, "source": e.source,

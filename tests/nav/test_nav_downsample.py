@@ -12,11 +12,19 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from merlin.measurements import BaroSample, GpsSample, ImuSample
+from merlin.measurements import BaroSample, GpsSample, ImuSample, SensorFrame
 from merlin.nav.config import NavConfig
-from merlin.nav.downsample import ImuDownSampler, OutputPredictor, SensorHold, select_imu
+from merlin.nav.downsample import (
+    NO_CLIP,
+    ImuClip,
+    ImuDownSampler,
+    OutputPredictor,
+    SensorHold,
+    select_imu,
+    voted_clip,
+)
 from merlin.nav.estimator import NavEstimator, NavInit
-from merlin.nav.quaternion import quat_conj, quat_log, quat_mul, quat_rotate, quat_to_euler
+from merlin.nav.quaternion import quat_conj, quat_log, quat_mul, quat_rotate, quat_to_dcm, quat_to_euler
 
 DT = 0.0025  # the simulator's IMU: 400 Hz
 G = 9.80665
@@ -245,3 +253,139 @@ def test_a_run_of_identical_samples_is_handed_on_bit_for_bit() -> None:
     ds.add(ImuSample(42 * 0.0025, (0.0, 0.0, 0.0), stuck_a))
     out = ds.take()
     assert out is not None and out.gyro_frd_radps[0] == pytest.approx(0.5 * stuck_g[0], rel=1e-3)
+
+
+# ---- an accelerometer at full scale within an interval (regression scenarios crash_clipped_record_nav_100hz
+# and crash_clipped_impact_nav_100hz)
+
+LIM = NavConfig().accel_clip_mps2
+FULL = 16 * G  # the simulated accelerometer's full scale, the voter's range
+
+
+def _impact(per: int, clipped_at: set[int], t0: float = 1.0, turn_radps: float = 0.0) -> list[ImuSample]:
+    """A sample before, then ``per`` samples of an impact along body z; those at ``clipped_at`` at full scale,
+    the others at 12 g, and about 6 g along y (varying: samples identical bit for bit are a stuck sensor's)."""
+    out = [ImuSample(t0, (0.0, 0.0, 0.0), (0.0, 0.0, -G))]
+    for k in range(1, per + 1):
+        az = -FULL if k - 1 in clipped_at else -12 * G
+        out.append(ImuSample(t0 + k * DT, (turn_radps, 0.0, 0.0), (0.0, 6 * G + 0.1 * k, az)))
+    return out
+
+
+@settings(max_examples=30, deadline=None)
+@given(per=st.integers(2, 8), clipped=st.sets(st.integers(0, 7), max_size=8))
+def test_the_clipping_record_holds_each_clipped_samples_dt_squared_and_the_newest_time(per: int,
+                                                                                    clipped: set[int]) -> None:
+    clipped = {k for k in clipped if k < per}
+    ds = ImuDownSampler(LIM)
+    samples = _impact(per, clipped)
+    ds.add(samples[0])
+    ds.take()
+    for smp in samples[1:]:
+        ds.add(smp)
+    ds.take()
+    if not clipped:
+        assert ds.clip == NO_CLIP
+    else:
+        assert ds.clip.dt2[0] == 0.0 and ds.clip.dt2[1] == 0.0
+        assert ds.clip.dt2[2] == pytest.approx(len(clipped) * DT * DT, rel=1e-9)
+        assert ds.clip.t_s == samples[1 + max(clipped)].t_s
+    ds.add(ImuSample(samples[-1].t_s + DT, (0.0, 0.0, 0.0), (0.0, 0.0, -G)))
+    ds.take()
+    assert ds.clip == NO_CLIP  # handed on once
+
+
+@pytest.mark.parametrize("clipped", [{0}, {1, 2}, {0, 1, 2, 3}])
+def test_the_filter_widens_its_velocity_for_a_clipped_interval_as_for_the_samples_one_by_one(clipped) -> None:
+    """The velocity variance the clipping adds, and the time before which GPS epochs are refused, are the
+    same whether the filter is fed the samples one by one or down-sampled with their clipping record; fed the
+    down-sampled sample without the record (its mean below full scale) it would add nothing."""
+    per = 4
+    added = {}
+    clip_t = {}
+    for path in ("one_by_one", "held", "held_without_record"):
+        grown = []
+        for cl in (clipped, set()):
+            ekf = _filter()
+            samples = _impact(per, cl)
+            if path == "one_by_one":
+                for smp in samples:
+                    ekf.predict(smp)
+            else:
+                ds = ImuDownSampler(LIM)
+                ds.add(samples[0])
+                ekf.predict(ds.take(), ds.clip)
+                for smp in samples[1:]:
+                    ds.add(smp)
+                held = ds.take()
+                ekf.predict(held, ds.clip if path == "held" else NO_CLIP)
+            grown.append(ekf.covariance[3:6, 3:6].copy())
+            if cl:
+                clip_t[path] = ekf._clip_t
+        added[path] = grown[0] - grown[1]
+    r = quat_to_dcm(_filter().quaternion)[:, 2]
+    expect = (NavConfig().accel_clip_noise_mps2 * DT) ** 2 * len(clipped)
+    assert float(r @ added["one_by_one"] @ r) == pytest.approx(expect, rel=0.02)
+    assert np.allclose(added["held"], added["one_by_one"], rtol=0.02, atol=1e-6)
+    assert clip_t["held"] == clip_t["one_by_one"]
+    assert float(r @ added["held_without_record"] @ r) < 1e-3 * expect
+    assert clip_t["held_without_record"] == -math.inf
+
+
+def test_a_clipped_interval_of_a_turning_body_stays_within_what_each_axis_measured() -> None:
+    """Samples at full scale while the body turns: their mean in the interval's first body frame exceeds full
+    scale on z (the voter's range test failed every lane at once); a clipped interval's mean is held to the
+    largest magnitude each axis measured. An interval without a clipped sample is not touched."""
+    turn = -20.0  # rad/s about x: the 6 g along y turns into z within the interval
+    samples = _impact(4, {0, 1, 2, 3}, turn_radps=turn)
+    plain = ImuDownSampler()  # no clipping limit: the mean as it comes
+    held = ImuDownSampler(LIM)
+    for ds in (plain, held):
+        for smp in samples:
+            ds.add(smp)
+            if smp is samples[0]:
+                ds.take()
+    raw, out = plain.take(), held.take()
+    assert raw is not None and out is not None
+    assert abs(raw.accel_frd_mps2[2]) > FULL  # what the voter refused
+    measured = [max(abs(smp.accel_frd_mps2[i]) for smp in samples[1:]) for i in range(3)]
+    assert all(abs(v) <= m for v, m in zip(out.accel_frd_mps2, measured, strict=True))
+    assert out.accel_frd_mps2[2] == -FULL
+    assert out.gyro_frd_radps == raw.gyro_frd_radps
+    # the same turn at 12 g: no sample clipped, the mean handed on as it is
+    calm = _impact(4, set(), turn_radps=turn)
+    a, b = ImuDownSampler(), ImuDownSampler(LIM)
+    for ds in (a, b):
+        for smp in calm:
+            ds.add(smp)
+            if smp is calm[0]:
+                ds.take()
+    assert a.take() == b.take() and b.clip == NO_CLIP
+
+
+def test_the_voted_clipping_record_needs_the_lanes_the_voter_would_follow() -> None:
+    """A lane stuck at full scale is not a clipped vehicle: the lower median of the lanes in use (the
+    smaller of two); isolated lanes are left out; with one lane, its own."""
+    c1 = ImuClip((0.0, 0.0, 2 * DT * DT), 1.01)
+    c2 = ImuClip((0.0, 0.0, 3 * DT * DT), 1.0075)
+    assert voted_clip((c1, NO_CLIP, NO_CLIP), (False, False, False)) == NO_CLIP
+    assert voted_clip((c1, c2, NO_CLIP), (False, False, False)) == ImuClip((0.0, 0.0, 2 * DT * DT), 1.0075)
+    assert voted_clip((c1, NO_CLIP, NO_CLIP), (False, True, False)) == NO_CLIP  # the smaller of two
+    assert voted_clip((c1, c2, NO_CLIP), (False, False, True)) == ImuClip((0.0, 0.0, 2 * DT * DT), 1.0075)
+    assert voted_clip((c1, NO_CLIP, NO_CLIP), (False, True, True)) == c1
+    assert voted_clip((c1, c2, NO_CLIP), ()) == ImuClip((0.0, 0.0, 2 * DT * DT), 1.0075)  # no voter, three
+    assert voted_clip((c1,), ()) == c1
+    assert voted_clip((), ()) == NO_CLIP
+
+
+def test_the_held_frame_carries_each_lanes_clipping_record() -> None:
+    hold = SensorHold(LIM)
+    samples = _impact(4, {1})
+    for k, smp in enumerate(samples):  # lane 0 in the impact, lane 1 at rest
+        hold.add(SensorFrame(smp.t_s, (smp, ImuSample(smp.t_s, smp.gyro_frd_radps, (0.0, 0.0, -G), 1))))
+        if k == 0:
+            hold.take(smp.t_s)
+            assert hold.clips == (NO_CLIP, NO_CLIP)
+    hold.take(samples[-1].t_s)
+    assert hold.clips[1] == NO_CLIP
+    assert hold.clips[0].t_s == samples[2].t_s and hold.clips[0].dt2[2] == pytest.approx(DT * DT)

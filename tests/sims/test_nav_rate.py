@@ -42,9 +42,9 @@ class _Stage:
     def estimate(self, t: float, frame: Any, voted: Any) -> Any:
         raise AssertionError("with nav_dt_s the tick calls filter_tick and propagate, not estimate")
 
-    def filter_tick(self, t: float, frame: Any, voted: Any) -> None:
+    def filter_tick(self, t: float, frame: Any, voted: Any, clips: tuple[Any, ...] = ()) -> None:
         self.times.append(t)
-        self.stage.filter_tick(t, frame, voted)
+        self.stage.filter_tick(t, frame, voted, clips)
 
     def propagate(self, t: float, frame: Any, isolated: tuple[bool, ...]) -> Any:
         return self.stage.propagate(t, frame, isolated)
