@@ -48,6 +48,18 @@ def whole_ticks(period_s: float, dt_s: float) -> int | None:
     return round(n)
 
 
+def period_problems(tick_s: float, tick_name: str, core_dt_s: float | None, nav_dt_s: float | None) -> list[str]:
+    """What is wrong with a command line's ``--core-dt-s`` and ``--nav-dt-s`` (None: not given) against the
+    driver's tick of ``tick_s`` (``tick_name`` says which, in the message): each must be a whole number of
+    ticks, at most :data:`MAX_CORE_DT_S` / :data:`MAX_NAV_DT_S` (``merlin serve``, ``merlin falsify``)."""
+    problems = []
+    for option, value, most in (("--core-dt-s", core_dt_s, MAX_CORE_DT_S), ("--nav-dt-s", nav_dt_s, MAX_NAV_DT_S)):
+        if value is not None and (value > most or whole_ticks(value, tick_s) is None):
+            problems.append(f"{option} {value!r}: allowed a whole number of ticks of {tick_name} "
+                            f"({tick_s * 1e3:g} ms) up to {most * 1e3:g} ms, e.g. {2 * tick_s:g}")
+    return problems
+
+
 class S(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 

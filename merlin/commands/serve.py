@@ -26,7 +26,6 @@ import argparse
 import datetime as dt
 import json
 import logging
-import math
 import os
 import sys
 from pathlib import Path
@@ -225,7 +224,9 @@ def options_from_args(args: argparse.Namespace) -> Any:
     if not 100.0 <= args.rate_hz <= 1000.0:  # the simulation step (1/rate) is at most 10 ms
         problems.append(f"--rate-hz {args.rate_hz}: allowed 100..1000")
     else:
-        problems += _period_problems(args)
+        from sims.scenario import period_problems
+
+        problems += period_problems(1.0 / args.rate_hz, "1/--rate-hz", args.core_dt_s, args.nav_dt_s)
     if not 0.1 <= args.speedup <= 20.0:
         problems.append(f"--speedup {args.speedup}: allowed 0.1..20")
     if args.sysid is not None and not 1 <= args.sysid <= 255:
@@ -280,20 +281,6 @@ def options_from_args(args: argparse.Namespace) -> Any:
         tune_gc=not args.no_gc_tuning, realtime_priority=args.realtime_priority,
         params_locked=args.params_locked or cfg.links.params_locked,
     )
-
-
-def _period_problems(args: argparse.Namespace) -> list[str]:
-    """--core-dt-s and --nav-dt-s against the tick (1/--rate-hz): each a whole number of ticks, at most 20 ms."""
-    from sims.scenario import MAX_CORE_DT_S, MAX_NAV_DT_S, whole_ticks
-
-    tick = 1.0 / args.rate_hz
-    problems = []
-    for option, value, most in (("--core-dt-s", args.core_dt_s, MAX_CORE_DT_S),
-                                ("--nav-dt-s", args.nav_dt_s, MAX_NAV_DT_S)):
-        if value is not None and (not math.isfinite(value) or value > most or whole_ticks(value, tick) is None):
-            problems.append(f"{option} {value}: allowed a whole number of ticks of 1/--rate-hz ({tick * 1e3:g} ms) "
-                            f"up to {most:g} s, e.g. {2 * tick:g}")
-    return problems
 
 
 def preflight(cfg: Any, vehicle: str, source: str, accept_risk: list[str] | None, out_dir: Path,

@@ -40,7 +40,7 @@ from merlin.config.models import MerlinConfig
 from merlin.config.runtime import build_core_config
 from merlin.core.geofence import check
 from merlin.core.step import MAX_SETPOINT_VELOCITY_MPS
-from sims.scenario import MAX_CORE_DT_S, Scenario, whole_ticks
+from sims.scenario import Scenario, period_problems
 
 VEHICLES = {"multirotor": "quadrotor_default", "aerosonde": "aerosonde"}
 #: the runs' tick: the multirotor's, the scenarios' default; the fixed wing's, its scenarios' 200 Hz
@@ -165,10 +165,9 @@ def load_site(cfg: MerlinConfig, vehicle: str, source: str, core_dt_s: float | N
     if vehicle not in VEHICLES:
         raise ConfigError(source, [f"--vehicle: {vehicle!r}; allowed: {sorted(VEHICLES)}"])
     tick = FW_DT_S if vehicle == "aerosonde" else MR_DT_S
-    for option, period in (("--core-dt-s", core_dt_s), ("--nav-dt-s", nav_dt_s)):
-        if period is not None and whole_ticks(period, tick) is None:
-            raise ConfigError(source, [f"{option}: {period!r} s; allowed: a whole number of the {vehicle}'s "
-                                       f"{tick * 1e3:g} ms tick, at most {MAX_CORE_DT_S * 1e3:g} ms"])
+    problems = period_problems(tick, f"the {vehicle}", core_dt_s, nav_dt_s)
+    if problems:
+        raise ConfigError(source, problems)
     want = "fixed_wing" if vehicle == "aerosonde" else "multirotor"
     if cfg.vehicle.type != want:
         raise ConfigError(source, [f"vehicle.type: {cfg.vehicle.type!r}, but --vehicle {vehicle} flies a {want}"
