@@ -259,15 +259,14 @@ def loop_once(case: str, dt_s: float | None = None, core_dt_s: float | None = No
     simulated duration, process CPU time and build."""
     from merlin import _build
     from sims.runner import run_scenario
-    from sims.scenario import Scenario
 
     sc, cfg = _loop_scenario(case)
     if dt_s is not None:
         sc = sc.model_copy(update={"dt_s": dt_s})
     if core_dt_s is not None:  # validated: a whole number of ticks
-        sc = Scenario.model_validate({**sc.model_dump(), "core_dt_s": core_dt_s})
+        sc = sc.with_fields(core_dt_s=core_dt_s)
     if nav_dt_s is not None:
-        sc = Scenario.model_validate({**sc.model_dump(), "nav_dt_s": nav_dt_s})
+        sc = sc.with_fields(nav_dt_s=nav_dt_s)
     c0 = time.process_time()
     run_scenario(sc, cfg)
     cpu = time.process_time() - c0

@@ -45,7 +45,7 @@ PROGRAM = (
     "from sims.scenario import Scenario\n"
     "sc, cfg = bench_ekf._loop_scenario(sys.argv[1])\n"
     "rates = dict((k, float(v)) for k, v in (a.split('=') for a in sys.argv[4:]))\n"
-    "sc = Scenario.model_validate({**sc.model_dump(), **rates}) if rates else sc\n"
+    "sc = Scenario.model_validate({**sc.model_dump(exclude_unset=True), **rates}) if rates else sc\n"
     "run_scenario(sc.model_copy(update={'duration_s': float(sys.argv[3])}), cfg)\n"
     "run_scenario(sc.model_copy(update={'duration_s': float(sys.argv[2])}), cfg)\n"
 )

@@ -73,12 +73,11 @@ def closed_flight(seed: int, minutes: float, texture: str, gps_noise_scale: floa
                   rates: dict[str, float] | None = None) -> dict[str, float]:
     """One closed-loop mission; ``rates``: scenario periods to fly it with (``nav_dt_s``, ``core_dt_s``)."""
     from sims.runner import run_scenario
-    from sims.scenario import Scenario
     from sims.vision_loop import nominal_mission
 
     sc = nominal_mission(seed, minutes, texture, gps_noise_scale)
     if rates:
-        sc = Scenario.model_validate({**sc.model_dump(), **rates})
+        sc = sc.with_fields(**rates)
     from sims.scenario import resolve_config
 
     cfg = resolve_config(sc, Path("."), "<bench_nav_hour>")

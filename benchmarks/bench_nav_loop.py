@@ -55,7 +55,7 @@ def inertial_honesty(seeds: list[int], fusions: list[str], limit_s: float) -> No
     import yaml
 
     from merlin.core.types import NavMode
-    from sims.scenario import Scenario, resolve_config
+    from sims.scenario import resolve_config
 
     path = ROOT / "examples" / "scenarios" / "gps_loss_water_land.yaml"
     print("| seed | mag_fusion | largest error / sigma | error at that time (sigma) | error when INERTIAL ends |")
@@ -104,7 +104,7 @@ def main() -> None:
         sc, cfg = load_scenario(path)
         rates = {k: v for k, v in (("nav_dt_s", args.nav_dt_s), ("core_dt_s", args.core_dt_s)) if v is not None}
         if rates:
-            sc = Scenario.model_validate({**sc.model_dump(), **rates})
+            sc = sc.with_fields(**rates)
         c0 = time.process_time()
         r = run_scenario(sc, cfg, source=str(path))
         cpu = time.process_time() - c0

@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     from sims.runner import FIXED_WING_VEHICLES
-    from sims.scenario import Scenario, load_scenario
+    from sims.scenario import load_scenario
 
     rows: list[dict[str, Any]] = []
     for path in sorted(SCENARIOS.glob("*.yaml")):
@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.core_dt_s is not None:
             update["core_dt_s"] = args.core_dt_s
         try:
-            slow = Scenario.model_validate({**sc.model_dump(), **update})
+            slow = sc.with_fields(**update)
         except ValueError as exc:
             row["new"] = {"refused": str(exc).splitlines()[-1]}
         else:

@@ -16,6 +16,11 @@ the machine; no shipped scenario does.
     # after each change: compare (exit status 1 and the differing parts named when anything moved)
     .venv/bin/python benchmarks/check_digests.py --check /tmp/digests_before.json --fixed-wing
 
+To check that the 100 Hz default (``core_dt_s`` and ``nav_dt_s`` not given: 10 ms, rounded down to whole
+ticks; the filter's only with the EKF) flies exactly what the same periods given by hand flew before it,
+record on a tree from before the default with ``--at-default-periods`` (each scenario that leaves a period
+unset flown at the default's value), then check on the tree with the default.
+
 Options: ``--skip-ekf`` leaves out the ``estimator: ekf`` scenarios (4-10 s CPU each, the others 1-5 s),
 ``--fixed-wing`` adds the JSBSim fixed-wing (``vehicle: aerosonde``) ones, ``-k TEXT`` keeps the scenarios
 whose file name contains TEXT (repeatable). A check compares only the scenarios it ran. The EKF scenarios
@@ -37,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from sims.runner import FIXED_WING_VEHICLES, RunResult, run_scenario
-from sims.scenario import load_scenario
+from sims.scenario import Scenario, load_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = ROOT / "examples" / "scenarios"
@@ -81,6 +86,20 @@ def digests(r: RunResult) -> dict[str, str]:
     }
 
 
+def _at_default_periods(sc: Scenario) -> Scenario:
+    """``sc`` with each of ``core_dt_s`` and ``nav_dt_s`` it leaves unset at what the 100 Hz default gives it:
+    10 ms rounded down to whole ticks (at least one), the filter's only with the EKF. Written out here, not
+    imported, so that it runs on a tree from before the default."""
+    period = max(1, int(0.01 / sc.dt_s + 1e-9)) * sc.dt_s
+    update: dict[str, Any] = {}
+    if sc.core_dt_s is None:
+        update["core_dt_s"] = period
+    if sc.nav_dt_s is None and sc.estimator == "ekf":
+        update["nav_dt_s"] = period
+    # Scenario.with_fields written out: the fields the scenario gave, so that a section it left out stays out
+    return Scenario.model_validate({**sc.model_dump(exclude_unset=True), **update}) if update else sc
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     mode = ap.add_mutually_exclusive_group(required=True)
@@ -89,6 +108,8 @@ def main() -> int:
     ap.add_argument("--skip-ekf", action="store_true", help="leave out the estimator: ekf scenarios")
     ap.add_argument("--fixed-wing", action="store_true", help="include the JSBSim fixed-wing scenarios")
     ap.add_argument("-k", action="append", default=[], help="only scenario files whose name contains this")
+    ap.add_argument("--at-default-periods", action="store_true",
+                    help="fly a period a scenario leaves unset (null) at what the 100 Hz default resolves it to")
     a = ap.parse_args()
 
     results: dict[str, dict[str, str]] = {}
@@ -100,6 +121,8 @@ def main() -> int:
             continue
         if sc.estimator == "ekf" and a.skip_ekf:
             continue
+        if a.at_default_periods:
+            sc = _at_default_periods(sc)
         c0 = time.process_time()
         d = digests(run_scenario(sc, cfg, source=str(path)))
         results[path.stem] = d

@@ -45,6 +45,8 @@ def summary_dict(r: RunResult, verdicts: list[Verdict]) -> dict[str, Any]:
         "estimator": sc.estimator,
         "estimator_note": estimator_note(sc.estimator)
         + ("; angle of attack from a vane read as truth" if sc.vehicle in FIXED_WING_VEHICLES else ""),
+        # the periods flown (not given: the 100 Hz default, sims.scenario.default_period), in seconds
+        "periods": {"tick_s": sc.dt_s, "core_s": sc.core_every * sc.dt_s, "nav_s": sc.nav_every * sc.dt_s},
         "terrain": sc.ground,
         "camera": camera_statement(sc),
         "passed": all(v.passed for v in verdicts),

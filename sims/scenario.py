@@ -36,6 +36,11 @@ CAMERA_TERRAINS: tuple[str, ...] = ("grass", "gravel", "brick")
 MAX_CORE_DT_S = 0.02
 #: the longest period of the IMU voter and the fusion EKF (``nav_dt_s``): PX4's EKF2_PREDICT_US goes to 20 ms
 MAX_NAV_DT_S = 0.02
+#: The trusted core's and the filter's period when a scenario does not give one (``auto``): 10 ms, PX4's
+#: default EKF2_PREDICT_US (10,000 us; its EKF2 runs at 100 Hz on a 400 Hz or faster IMU, with an output
+#: predictor on every IMU sample), and half seed 004's 20 ms sync period (section 4.3.2). Evidence that the
+#: decisions hold at it: docs/benchmarks/sim.md, "The 100 Hz default".
+DEFAULT_PERIOD_S = 0.01
 
 
 def whole_ticks(period_s: float, dt_s: float) -> int | None:
@@ -46,6 +51,13 @@ def whole_ticks(period_s: float, dt_s: float) -> int | None:
     if not 0.0 < period_s <= MAX_CORE_DT_S or abs(n - round(n)) > 1e-6 or round(n) < 1:
         return None
     return round(n)
+
+
+def default_period(tick_s: float) -> float:
+    """The period ``auto`` resolves to on a tick of ``tick_s``: the largest whole number of ticks (at least
+    one) that is not longer than :data:`DEFAULT_PERIOD_S`, as PX4 rounds EKF2_PREDICT_US to whole IMU
+    samples (0.01 s on the 2.5 ms and 5 ms ticks, 9 ms on a 3 ms tick, one tick of 10 ms)."""
+    return max(1, int(DEFAULT_PERIOD_S / tick_s + 1e-9)) * tick_s
 
 
 def period_problems(tick_s: float, tick_name: str, core_dt_s: float | None, nav_dt_s: float | None) -> list[str]:
@@ -320,12 +332,15 @@ class Scenario(S):
         None, gt=0.0, le=MAX_CORE_DT_S,
         description="the trusted core's tick period: a whole number of dt_s, at most 0.02 s (seed 004's 20 ms "
                     "sync period, section 4.3.2); its decision is flown on the ticks between, and what arrives "
-                    "between its ticks waits for the next one. null: every tick")
+                    "between its ticks waits for the next one. Not given or 'auto': 0.01 s, rounded down to "
+                    "whole ticks (DEFAULT_PERIOD_S); null: every tick")
     nav_dt_s: float | None = Field(
         None, gt=0.0, le=MAX_NAV_DT_S,
         description="the period of the IMU voter and the fusion EKF: a whole number of dt_s, at most 0.02 s; "
                     "each IMU lane is down-sampled to it and an output predictor gives the state on the ticks "
-                    "between, as PX4's EKF2 runs at EKF2_PREDICT_US (needs estimator: ekf). null: every tick")
+                    "between, as PX4's EKF2 runs at EKF2_PREDICT_US (needs estimator: ekf). Not given or "
+                    "'auto': 0.01 s rounded down to whole ticks with the EKF, every tick with the stand-in "
+                    "(it has no filter to slow); null: every tick")
     vehicle: str = Field("quadrotor_default", description="a file in sims/vehicles (without .yaml) or a path")
     config: str | dict[str, Any] = Field(
         "default", description="'default', a path relative to the scenario file, or an inline mapping"
@@ -380,6 +395,29 @@ class Scenario(S):
         elif isinstance(cam, dict) and "texture" not in cam:
             data["camera"] = {**cam, "texture": terrain}
         return data
+
+    @model_validator(mode="before")
+    @classmethod
+    def _periods_auto(cls, data: Any) -> Any:
+        """``core_dt_s`` and ``nav_dt_s`` not given or ``auto`` resolved by :func:`default_period` on the
+        scenario's tick (the filter's only with the EKF). A tick that is not a number is left for the field's
+        own check to name."""
+        if not isinstance(data, dict):
+            return data
+        data = dict(data)
+        dt = data.get("dt_s", cls.model_fields["dt_s"].default)
+        ok = isinstance(dt, int | float) and not isinstance(dt, bool) and 0.0 < dt <= 0.01
+        ekf = data.get("estimator", cls.model_fields["estimator"].default) == "ekf"
+        for key, on in (("core_dt_s", True), ("nav_dt_s", ekf)):
+            if data.get(key, "auto") == "auto":
+                data[key] = default_period(float(dt)) if ok and on else None
+        return data
+
+    def with_fields(self, **update: Any) -> Scenario:
+        """This scenario with ``update``'s fields, validated. Built from the fields the scenario gave, not from
+        a full dump, so that what it left out stays left out: a ``redundancy`` section's presence is itself a
+        setting (:func:`sims.vehicle_loop.core_source` turns the ``nav_redundancy`` monitor on for it)."""
+        return Scenario.model_validate({**self.model_dump(exclude_unset=True), **update})
 
     @property
     def ground(self) -> str:

@@ -29,6 +29,15 @@ DEMO_SET = (
 )
 
 
+
+def _periods(s: dict[str, Any]) -> str:
+    """The tick and the periods a summary says were flown: the core's and the voter's and filter's."""
+    p = s.get("periods") or {}
+    if not p:
+        return ""
+    return (f"simulation tick {p['tick_s'] * 1e3:g} ms, trusted core every {p['core_s'] * 1e3:g} ms, "
+            f"IMU voter and estimator every {p['nav_s'] * 1e3:g} ms")
+
 def _scenarios_dir() -> Path:
     from merlin.resources import scenarios_dir  # the repository's, or the wheel's copy
 
@@ -83,7 +92,8 @@ def write_report(out: Path, summaries: list[dict[str, Any]], wall_s: float) -> P
         sections.append(
             f"<section id='{name}'><h2>{html.escape(name)}</h2><p>{html.escape(s['description'])}</p>"
             f"<p class=small>configuration {html.escape(s['config_name'])}, SHA-256 <code>{s['config_sha256']}</code>;"
-            f" seed {s['seed']}; estimator {html.escape(s['estimator'])} ({html.escape(s['estimator_note'])})</p>"
+            f" seed {s['seed']}; estimator {html.escape(s['estimator'])} ({html.escape(s['estimator_note'])});"
+            f" {_periods(s)}</p>"
             f"<h3>Expectations</h3><ul>{exp}</ul><h3>Authority changes</h3><ul>{auth}</ul>"
             f"<div class=plots>{_img(d / 'ground_track.png')}{_img(d / 'authority.png')}</div>"
             f"<details><summary>Envelope parameters against their limits</summary>{_img(d / 'envelope.png')}</details>"

@@ -39,10 +39,11 @@ def register(sub: Any) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--core-dt-s", type=float, default=None,
                    help="fly every run with the trusted core at this period (s; a whole number of the vehicle's "
-                        "tick, at most 0.02; docs/scenarios.md, 'Core rate'); default: every tick")
+                        "tick, at most 0.02; docs/scenarios.md, 'Core rate'); default: the scenarios' 10 ms, "
+                        "rounded down to whole ticks; the tick itself for every tick")
     p.add_argument("--nav-dt-s", type=float, default=None,
                    help="fly every run with the IMU voter and the fusion EKF at this period (s; the same bounds; "
-                        "docs/scenarios.md, 'Navigation rate'); default: every tick")
+                        "docs/scenarios.md, 'Navigation rate'); default: as --core-dt-s")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
 

@@ -29,7 +29,7 @@ import logging
 import os
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 
 def register(sub: Any) -> None:
@@ -42,10 +42,11 @@ def register(sub: Any) -> None:
     p.add_argument("--rate-hz", type=float, default=250.0, help="core and simulation tick rate (default 250)")
     p.add_argument("--core-dt-s", type=float, default=None,
                    help="the trusted core's period, a whole number of ticks of 1/--rate-hz up to 0.02 s (default: "
-                        "every tick); what arrives between its ticks waits for the next one, as in merlin sim")
+                        "10 ms rounded down to whole ticks, 8 ms at the default 250 Hz; 1/--rate-hz for every "
+                        "tick); what arrives between its ticks waits for the next one, as in merlin sim")
     p.add_argument("--nav-dt-s", type=float, default=None,
                    help="the IMU voter's and the fusion EKF's period, a whole number of ticks up to 0.02 s, as PX4's "
-                        "EKF2_PREDICT_US (default: every tick); an output predictor gives the state between")
+                        "EKF2_PREDICT_US (default: as --core-dt-s); an output predictor gives the state between")
     p.add_argument("--speedup", type=float, default=1.0, help="run faster than real time (tests), default 1")
     p.add_argument("--instance", "-i", type=int, default=0,
                    help="vehicle instance, as PX4's multi-vehicle SITL (px4 -i N): ports offset by N, system id N+1")
@@ -270,7 +271,7 @@ def options_from_args(args: argparse.Namespace) -> Any:
     host = args.remote_host
     return ServeOptions(
         config=cfg, config_source=args.config or "<built-in default>", rate_hz=args.rate_hz, speedup=args.speedup,
-        core_dt_s=args.core_dt_s, nav_dt_s=args.nav_dt_s,
+        core_dt_s=_period(args.core_dt_s, args.rate_hz), nav_dt_s=_period(args.nav_dt_s, args.rate_hz),
         vehicle=args.vehicle,
         system_id=args.sysid, component_id=args.compid,
         gcs=None if args.no_gcs else UdpLinkSpec(("0.0.0.0", args.gcs_bind_port), (host, args.gcs_port)),
@@ -281,6 +282,13 @@ def options_from_args(args: argparse.Namespace) -> Any:
         tune_gc=not args.no_gc_tuning, realtime_priority=args.realtime_priority,
         params_locked=args.params_locked or cfg.links.params_locked,
     )
+
+
+def _period(given: float | None, rate_hz: float) -> float:
+    """A period option as flown: the one given, or the default's 10 ms rounded down to whole ticks."""
+    from sims.scenario import default_period
+
+    return given if given is not None else default_period(1.0 / rate_hz)
 
 
 def preflight(cfg: Any, vehicle: str, source: str, accept_risk: list[str] | None, out_dir: Path,
@@ -311,16 +319,15 @@ def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     preflight(opts.config, args.vehicle, opts.config_source, getattr(args, "accept_risk", None), opts.out_dir,
-              opts.core_dt_s if opts.core_dt_s is not None else 1.0 / opts.rate_hz)
+              float(cast(float, opts.core_dt_s)))
     server = Server(opts)
     install_signal_handlers(server)
     if not args.quiet:
         links = ", ".join(f"{ls.name}: {getattr(ls.endpoint.transport, 'local_address', '?')} -> "
                           f"{ls.endpoint.remote}" for ls in server.links)
         only = ", autopilot only (no geofence, no envelope, link or low-battery action)" if args.autopilot_only else ""
-        periods = "".join(f", {name} every {v * 1e3:g} ms" for name, v in (("core", opts.core_dt_s),
-                                                                            ("voter and filter", opts.nav_dt_s))
-                          if v is not None)
+        periods = "".join(f", {name} every {float(cast(float, v)) * 1e3:g} ms"
+                          for name, v in (("core", opts.core_dt_s), ("voter and filter", opts.nav_dt_s)))
         print(f"merlin serve: {opts.rate_hz:g} Hz{periods}{only}, {links}; logs in {opts.out_dir}", flush=True)
     summary = server.run()
     if not args.quiet:

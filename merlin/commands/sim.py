@@ -96,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"{summary['scenario']}: {'passed' if summary['passed'] else 'FAILED'}"
             f" (config {summary['config_sha256'][:12]}, seed {summary['seed']}, estimator {summary['estimator']},"
+            f" core/filter every {summary['periods']['core_s'] * 1e3:g}/{summary['periods']['nav_s'] * 1e3:g} ms,"
             f" {rtf:.1f}x real time,"
             f" {summary['timing']['build'].split(':')[0]}) -> {out}"
         )

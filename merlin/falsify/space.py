@@ -40,7 +40,7 @@ from merlin.config.models import MerlinConfig
 from merlin.config.runtime import build_core_config
 from merlin.core.geofence import check
 from merlin.core.step import MAX_SETPOINT_VELOCITY_MPS
-from sims.scenario import Scenario, period_problems
+from sims.scenario import Scenario, default_period, period_problems
 
 VEHICLES = {"multirotor": "quadrotor_default", "aerosonde": "aerosonde"}
 #: the runs' tick: the multirotor's, the scenarios' default; the fixed wing's, its scenarios' 200 Hz
@@ -161,13 +161,16 @@ def load_site(cfg: MerlinConfig, vehicle: str, source: str, core_dt_s: float | N
               nav_dt_s: float | None = None) -> Site:
     """The range of ``cfg`` as the search flies it with ``vehicle``; ``core_dt_s``: every run's trusted core
     at that period, ``nav_dt_s``: every run's IMU voter and fusion EKF (each a whole number of the vehicle's
-    tick, at most 20 ms; None: every tick)."""
+    tick, at most 20 ms; None: the scenarios' default, 10 ms rounded down to whole ticks, written into every
+    run so that a worst case's file flies what the search flew)."""
     if vehicle not in VEHICLES:
         raise ConfigError(source, [f"--vehicle: {vehicle!r}; allowed: {sorted(VEHICLES)}"])
     tick = FW_DT_S if vehicle == "aerosonde" else MR_DT_S
     problems = period_problems(tick, f"the {vehicle}", core_dt_s, nav_dt_s)
     if problems:
         raise ConfigError(source, problems)
+    core_dt_s = default_period(tick) if core_dt_s is None else core_dt_s
+    nav_dt_s = default_period(tick) if nav_dt_s is None else nav_dt_s
     want = "fixed_wing" if vehicle == "aerosonde" else "multirotor"
     if cfg.vehicle.type != want:
         raise ConfigError(source, [f"vehicle.type: {cfg.vehicle.type!r}, but --vehicle {vehicle} flies a {want}"

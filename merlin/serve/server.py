@@ -151,10 +151,11 @@ class ServeOptions:
     config_source: str = "<built-in default>"
     vehicle: str = "quadrotor_default"  # sims.runner.make_loop's choice: a multirotor file or a JSBSim fixed wing
     rate_hz: float = 250.0
-    # the trusted core's period and the IMU voter's and fusion EKF's (a scenario's core_dt_s and nav_dt_s): None
-    # runs them at every tick; else a whole number of ticks (merlin serve --core-dt-s / --nav-dt-s checks it)
-    core_dt_s: float | None = None
-    nav_dt_s: float | None = None
+    # the trusted core's period and the IMU voter's and fusion EKF's (a scenario's core_dt_s and nav_dt_s):
+    # "auto" 10 ms rounded down to whole ticks (sims.scenario.default_period), None every tick, else a whole
+    # number of ticks (merlin serve --core-dt-s / --nav-dt-s checks it)
+    core_dt_s: float | str | None = "auto"
+    nav_dt_s: float | str | None = "auto"
     speedup: float = 1.0
     system_id: int = 1
     component_id: int = 1

@@ -25,10 +25,12 @@ OTHERS = sorted(p for p in SCENARIOS.glob("*.yaml") if not p.name.startswith(("f
 
 
 @cache
-def _run(path: str, log_rate_hz: float | None = None) -> RunResult:
+def _run(path: str, log_rate_hz: float | None = None, every_tick: bool = False) -> RunResult:
     sc, cfg = load_scenario(path)
     if log_rate_hz is not None:
         sc = sc.model_copy(update={"log_rate_hz": log_rate_hz})
+    if every_tick:
+        sc = sc.with_fields(core_dt_s=None, nav_dt_s=None)
     return run_scenario(sc, cfg, source=path)
 
 
@@ -70,23 +72,28 @@ def test_figure4_projection_never_breaches_and_position_only_breach_grows_with_s
     assert all(a < b for a, b in itertools.pairwise(pos)), pos
 
 
+@pytest.mark.parametrize("every_tick", [False, True], ids=["core_at_100_hz", "core_every_tick"])
 @pytest.mark.parametrize("name, duration", [("figure5_instant", 0.0), ("figure5_delayed", 1.0)])
-def test_figure5_revocation_timing_exact_to_the_tick(name: str, duration: float) -> None:
-    """Points A and C: the revocation comes on the first tick at which the continuous roll violation
-    has lasted the exceedance duration (0 s: the tick of the violation), checked on the 400 Hz log."""
-    r = _run(str(SCENARIOS / f"{name}.yaml"), log_rate_hz=400.0)
+def test_figure5_revocation_timing_exact_to_the_tick(name: str, duration: float, every_tick: bool) -> None:
+    """Points A and C: the revocation comes on the first tick of the core at which the continuous roll
+    violation, as the core saw it on its ticks, has lasted the exceedance duration (0 s: the core's first
+    tick of the violation), checked on the 400 Hz log: with the core at the default 10 ms and at every
+    2.5 ms tick (null)."""
+    r = _run(str(SCENARIOS / f"{name}.yaml"), log_rate_hz=400.0, every_tick=every_tick)
+    every = r.scenario.core_every
+    assert every == (1 if every_tick else 4)
     t, roll, auth = r.log["t"], r.log["env_roll_deg"], r.log["authority"]
     rev = [e for e in r.events if e["type"] == "revoked"]
     assert rev and rev[0]["reason"] == "envelope" and rev[0]["reason_detail"]["parameter"] == "roll_deg"
     t_rev = rev[0]["t"]
     k_rev = int(np.argmin(np.abs(t - t_rev)))
-    assert abs(t[k_rev] - t_rev) < 1e-9
-    # walk back to the start of the continuous violation that caused it
+    assert abs(t[k_rev] - t_rev) < 1e-9 and k_rev % every == 0  # on one of the core's ticks
+    # walk back, on the core's ticks, to the start of the continuous violation that caused it
     k0 = k_rev
-    while k0 > 0 and abs(roll[k0 - 1]) > 30.0:
-        k0 -= 1
+    while k0 >= every and abs(roll[k0 - every]) > 30.0:
+        k0 -= every
     ticks = k_rev - k0
-    assert ticks == round(duration / r.scenario.dt_s), (ticks, t[k0], t_rev)
+    assert ticks == every * math.ceil(round(duration / r.scenario.dt_s) / every), (ticks, t[k0], t_rev)
     assert auth[k_rev] == 0 and auth[k_rev - 1] == 2  # EXPERIMENTAL until that tick, TRUSTED from it
     if duration > 0:
         # point B: an earlier excursion beyond the limit that was shorter than the duration was tolerated

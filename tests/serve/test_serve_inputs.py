@@ -26,8 +26,9 @@ class _Recording:
     def __setattr__(self, name: str, value: Any) -> None:
         setattr(self._loop, name, value)
 
-    def act(self, inputs: Inputs) -> Any:
-        self._seen.append(inputs)
+    def act(self, inputs: Inputs | None) -> Any:
+        if inputs is not None:  # None: a tick between the core's, which flies its last decision
+            self._seen.append(inputs)
         return self._loop.act(inputs)
 
 

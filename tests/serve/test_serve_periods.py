@@ -20,6 +20,7 @@ from typing import Any
 import pytest
 
 from merlin.config.loader import ConfigError
+from merlin.serve.server import _scenario
 from tests.serve.conftest import ServeProc, lines_until, start_serve, stop
 from tests.serve.test_exchange_stutter import ARM, DO_SET_MODE, MASK_VELOCITY, TAKEOFF, Rig
 
@@ -133,8 +134,14 @@ def test_a_period_that_is_not_whole_ticks_is_refused_by_name(tmp_path: Path, arg
 def test_whole_periods_are_accepted(tmp_path: Path) -> None:
     o = _options(tmp_path, "--rate-hz", "400", "--core-dt-s", "0.01", "--nav-dt-s", "0.01")
     assert (o.rate_hz, o.core_dt_s, o.nav_dt_s) == (400.0, 0.01, 0.01)
-    o = _options(tmp_path)
-    assert (o.core_dt_s, o.nav_dt_s) == (None, None)
+    o = _options(tmp_path)  # the default: 10 ms rounded down to whole ticks of the default 250 Hz
+    assert (o.core_dt_s, o.nav_dt_s) == (0.008, 0.008)
+    o = _options(tmp_path, "--rate-hz", "400")
+    assert (o.core_dt_s, o.nav_dt_s) == (0.01, 0.01)
+    o = _options(tmp_path, "--rate-hz", "400", "--core-dt-s", "0.0025", "--nav-dt-s", "0.0025")  # every tick
+    sc = _scenario(o, "ekf")
+    assert (sc.core_every, sc.nav_every) == (1, 1)
+    assert (_scenario(_options(tmp_path), "ekf").core_every, _scenario(_options(tmp_path), "ekf").nav_every) == (2, 2)
 
 
 @pytest.mark.integration

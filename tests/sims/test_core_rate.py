@@ -96,7 +96,7 @@ def test_each_ground_station_command_reaches_the_core_once_at_its_first_tick(
 
 
 def test_the_controllers_requests_and_the_core_events_are_neither_lost_nor_recorded_twice() -> None:
-    every_tick, spy1 = _fly(_scenario())
+    every_tick, spy1 = _fly(_scenario(core_dt_s=None))
     quarter, spy4 = _fly(_scenario(core_dt_s=0.01))
     requests1 = [(r.kind, r.seq) for _, inputs, _ in spy1.calls for r in inputs.experimental.requests]
     requests4 = [(r.kind, r.seq) for _, inputs, _ in spy4.calls for r in inputs.experimental.requests]
@@ -137,7 +137,39 @@ def test_a_core_period_that_is_not_a_whole_number_of_ticks_is_refused_naming_fil
     path.write_text("name: slow_core\nduration_s: 2\ncore_dt_s: 0.05\n", encoding="utf-8")
     with pytest.raises(ConfigError, match="core_dt_s"):
         load_scenario(path)
-    assert _scenario(core_dt_s=0.0025).core_every == 1 and _scenario().core_every == 1
+    assert _scenario(core_dt_s=0.0025).core_every == 1 and _scenario(core_dt_s=None).core_every == 1
+
+
+@pytest.mark.parametrize(("dt_s", "estimator", "core", "nav"), [
+    (0.0025, "ekf", 0.01, 0.01),  # the multirotor's 400 Hz tick: four ticks, PX4's EKF2_PREDICT_US
+    (0.005, "ekf", 0.01, 0.01),  # the fixed wing's 200 Hz: two
+    (0.003, "ekf", 0.009, 0.009),  # rounded down to whole ticks, never up past 10 ms
+    (0.01, "ekf", 0.01, 0.01),  # one tick
+    (0.0025, "truth_plus_noise", 0.01, None),  # the stand-in has no filter to slow
+])
+def test_the_default_periods_are_10_ms_rounded_down_to_whole_ticks(
+        dt_s: float, estimator: str, core: float, nav: float | None) -> None:
+    for stated in ({}, {"core_dt_s": "auto", "nav_dt_s": "auto"}):
+        sc = _scenario(dt_s=dt_s, estimator=estimator, **stated)
+        assert sc.core_dt_s == pytest.approx(core) and (sc.nav_dt_s is None) == (nav is None)
+        assert sc.core_every == round(core / dt_s)
+        assert sc.nav_every == (1 if nav is None else round(nav / dt_s))
+    # null is every tick, as before the default; a period given is kept as given
+    sc = _scenario(dt_s=dt_s, estimator=estimator, core_dt_s=None, nav_dt_s=None)
+    assert (sc.core_every, sc.nav_every) == (1, 1)
+    assert _scenario(core_dt_s=0.02, nav_dt_s=0.005).core_dt_s == 0.02
+
+
+def test_with_fields_keeps_out_what_the_scenario_left_out() -> None:
+    """A scenario's ``redundancy`` section turns the core's ``nav_redundancy`` monitor on by being there
+    (sims.vehicle_loop.core_source): a copy with another period must not add it."""
+    sc = _scenario()
+    assert "redundancy" not in sc.model_fields_set
+    copy = sc.with_fields(core_dt_s=None)
+    assert "redundancy" not in copy.model_fields_set and copy.core_every == 1 and copy.nav_every == 4
+    assert not runner.make_loop(copy, MerlinConfig()).reports_redundancy
+    red = _scenario(redundancy={"sensor_voter": True}).with_fields(nav_dt_s=None)
+    assert "redundancy" in red.model_fields_set and red.nav_every == 1
 
 
 def test_the_fence_reaction_time_must_cover_the_cores_period() -> None:
