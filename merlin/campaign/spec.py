@@ -124,6 +124,10 @@ class CampaignScenario:
     base: dict[str, Any]
     vary: tuple[Distribution, ...]
     base_config: MerlinConfig
+    # the top-level fields the file gave or varies: a run is built from these only, so that it flies what
+    # merlin sim flies of the same file (a section's presence can be a setting: a redundancy section turns
+    # the core's nav_redundancy monitor on, sims.vehicle_loop.core_source)
+    given: frozenset[str] = frozenset()
 
 
 def _inline_config(data: dict[str, Any], base_dir: Path, source: str) -> MerlinConfig:
@@ -168,7 +172,8 @@ def load_campaign_scenario(path: str | Path) -> CampaignScenario:
         set_path(probe, d.path, d.centre(), str(p))
     validate_model(Scenario, probe, f"{p} (vary: each key at its distribution's centre)", {})
     validate_model(MerlinConfig, probe["config"], f"{p} (vary: config keys at their centres)", {})
-    return CampaignScenario(p, p.stem, hashlib.sha256(text.encode("utf-8")).hexdigest(), data, vary, cfg)
+    given = frozenset(sc.model_fields_set | {d.path.split(".")[0] for d in vary} | {"name", "seed", "config"})
+    return CampaignScenario(p, p.stem, hashlib.sha256(text.encode("utf-8")).hexdigest(), data, vary, cfg, given)
 
 
 def run_seed_sequence(campaign_seed: int, content_sha256: str, index: int) -> np.random.SeedSequence:
@@ -203,6 +208,8 @@ def derive_run(cs: CampaignScenario, campaign_seed: int, index: int, run_id: str
     seed = int(sim_ss.generate_state(1, dtype=np.uint32)[0])
     data["seed"] = seed
     data["name"] = f"{data.get('name', cs.stem)}#{run_id}"
+    if cs.given:
+        data = {k: v for k, v in data.items() if k in cs.given}
     src = f"{cs.path} run {run_id} (samples {samples})"
     validate_model(Scenario, data, src, {})
     validate_model(MerlinConfig, data["config"], f"{src} config", {})

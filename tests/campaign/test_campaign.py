@@ -486,3 +486,19 @@ def test_local_workers_run_numerical_libraries_on_one_thread_unless_the_user_say
     threads = _threads_of_a_local_campaign(tmp_path / "user", {**base, "OMP_NUM_THREADS": "2"})
     assert [t["OMP_NUM_THREADS"] for t in threads] == ["2", "2"]
     assert [t["opencv"] for t in threads] == [1, 1]
+
+
+@pytest.mark.parametrize(("name", "section"), [("nominal", False), ("adversarial_crash", False), ("redundancy", True)])
+def test_a_run_has_a_redundancy_section_only_when_its_file_has_one(name: str, section: bool) -> None:
+    """A campaign run flies what merlin sim flies of its file: the run is built from the fields the file
+    gave or varies, not from every default written out, because a redundancy section's presence turns the
+    vehicle's redundancy report and the core's nav_redundancy monitor on (sims.vehicle_loop.core_source)."""
+    from sims.runner import make_loop
+    from sims.scenario import Scenario
+
+    cs = load_campaign_scenario(ROOT / "examples" / "campaigns" / f"{name}.yaml")
+    for spec in plan([cs], 2, seed=1):
+        assert set(spec.scenario) <= cs.given
+        sc = Scenario.model_validate(spec.scenario)
+        assert ("redundancy" in sc.model_fields_set) == section
+        assert make_loop(sc, cs.base_config).reports_redundancy == section
