@@ -237,6 +237,7 @@ class FixedWingBehaviours:
         self._trip_clear_since: float | None = None  # the monitor seen clear since (no escape flying)
         self._rtl_at_home_noted = False
         self._route_checked_t = -math.inf  # when _route_takes_over last planned a route
+        self._guidance_checked_t = -math.inf  # when _guidance_turn_clear last planned one
         #: the route a run-out's hand-over was judged on (:meth:`_open_course`): the RTL that follows flies it
         self._handover_plan: tuple[fr.LoiterChoice, float, fr.Route] | None = None
         self.notes: list[dict[str, Any]] = [] if notes is None else notes
@@ -381,6 +382,7 @@ class FixedWingBehaviours:
         self._escape_turned_rad = 0.0
         self._escape_run_out = False
         self._open_checked_t = -math.inf
+        self._guidance_checked_t = -math.inf
         self._trip_armed = False
         self._trip_clear_since = None
         self.notes.append({"t": t, "type": "fixed_wing_escape_turn",
@@ -492,6 +494,32 @@ class FixedWingBehaviours:
         _loiter, _c, route = self._rtl_plan(t, s, note=False)
         return route.status == "routed" and route.turn is not None
 
+    def _guidance_turn_clear(self, t: float, decision: Decision, s: VehicleState) -> bool:
+        """Whether an escape turn whose two projected turns are both clear may end into RTL's (or LAND's)
+        route: only when the first turn guidance flies on it is one the projection finds clear by the
+        route's margin, or a route that starts with its own checked turn is (the run-out's hand-over,
+        :meth:`_open_course`); the plan is kept for the hand-over. Both turns clear by centimetres, the route
+        from here had no planned turn and guidance turned the short way at its cruise bank, wider than the
+        projection's, on towards the radio mast: 24.6 m from its circle where the route was planned for
+        114.6 m (scenario fw_rtl_keepout_descend with the core at 100 Hz). Checked every
+        :data:`ROUTE_CHECK_S`, as the other hand-overs (a plan costs milliseconds); other behaviours, and a
+        range without keep-out zones, hand over on the two turns alone."""
+        fence = self.fence
+        if (fence is None or not self.rtl_routes or decision.behavior not in (Behavior.RTL, Behavior.LAND)
+                or not fr.has_zones(fence)):
+            return True
+        if t - self._guidance_checked_t < ROUTE_CHECK_S:
+            return False
+        self._guidance_checked_t = t
+        right, left = turn_clearances_m(fence, s)
+        plan = self._rtl_plan(t, s, note=False)
+        if not self._first_turn_clear(s, plan, right, left):
+            plan = self._rtl_plan(t, s, note=False, turn_first=True)
+            if plan[2].turn is None or not self._first_turn_clear(s, plan, right, left):
+                return False
+        self._handover_plan = plan
+        return True
+
     def _hold_clockwise(self, s: VehicleState) -> bool:
         """Loiter on the side whose circle keeps the larger fence margin (clockwise when no fence)."""
         fence = self.fence
@@ -563,9 +591,9 @@ class FixedWingBehaviours:
             self.notes[-1]["after"] = "half turn with the fence still tripped"
             return replace(targets, roll_rad=self.escape_side * fc.bank_limit_rad(self.cp),
                            airspeed_mps=fc.escape_airspeed_mps(self.cp))
-        if (not fence_tripped and homeward and (self.fence is None or not _turn_blocked(self.fence, s)
-                                                or self._route_takes_over(t, decision, s))) or half_turn_done \
-                or follow_on:
+        if (not fence_tripped and homeward and (self.fence is None or (
+                not _turn_blocked(self.fence, s) and self._guidance_turn_clear(t, decision, s))
+                or self._route_takes_over(t, decision, s))) or half_turn_done or follow_on:
             self.notes.append({"t": t, "type": "fixed_wing_escape_turn_end",
                                "turned_deg": math.degrees(self._escape_turned_rad),
                                "fence_tripped": fence_tripped})

@@ -11,6 +11,7 @@ from shapely.geometry import Point
 
 from merlin.campaign.scheduler import load_scenarios, plan
 from merlin.falsify.space import load_site
+from sims.scenario import Scenario
 
 ROOT = Path(__file__).resolve().parents[2]
 FILES = sorted((ROOT / "examples" / "campaigns").glob("adversarial_*.yaml"))
@@ -20,7 +21,8 @@ def test_both_vehicles_and_a_thousand_runs_plan() -> None:
     scs = load_scenarios([str(f) for f in FILES])
     specs = plan(scs, 1000, 0)
     assert len(specs) == 1000
-    vehicles = {s.scenario["vehicle"] for s in specs}
+    # a run carries the fields its file gave (merlin.campaign.spec.derive_run): the vehicle as validated
+    vehicles = {Scenario.model_validate(s.scenario).vehicle for s in specs}
     assert vehicles == {"quadrotor_default", "aerosonde"}
     kinds = {s.scenario["controller"]["type"].rsplit(":", 1)[1] for s in specs if s.scenario.get("controller")}
     assert kinds == {"SearchVelocity", "SearchTilt", "SearchPullPush"}

@@ -275,8 +275,14 @@ def test_every_adversary_flies_with_the_core_period_asked_for(vehicle: str, path
     for adv in adversary_classes(vehicle):
         sc = Scenario.model_validate(adv.scenario(site, np.full(adv.dim, 0.5), 1))
         assert sc.core_dt_s == core_dt_s and sc.core_every == every, adv.name
+    # without the option: the scenarios' 10 ms default, written into the run (a worst case's file flies it
+    # whatever the default is when it is read); the vehicle's own tick is every tick
     first = adversary_classes(vehicle)[0]
-    assert Scenario.model_validate(first.scenario(_site(path, vehicle), np.full(first.dim, 0.5), 1)).core_every == 1
+    run = first.scenario(_site(path, vehicle), np.full(first.dim, 0.5), 1)
+    assert run["core_dt_s"] == run["nav_dt_s"] == 0.01 and Scenario.model_validate(run).core_every == every
+    tick = 0.01 / every
+    run = first.scenario(load_site(load_config(path), vehicle, str(path), tick, tick), np.full(first.dim, 0.5), 1)
+    assert (Scenario.model_validate(run).core_every, Scenario.model_validate(run).nav_every) == (1, 1)
     for bad in (0.0035, 0.025, -0.01):
         with pytest.raises(Exception, match="--core-dt-s"):
             load_site(load_config(path), vehicle, str(path), bad)
