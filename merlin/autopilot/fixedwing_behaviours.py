@@ -512,8 +512,17 @@ class FixedWingBehaviours:
             return False
         self._guidance_checked_t = t
         right, left = turn_clearances_m(fence, s)
+        return self._route_handover(t, s, right, left)
+
+    def _route_handover(self, t: float, s: VehicleState, right: float, left: float) -> bool:
+        """Whether RTL's (LAND's) route from here starts with a turn the projection finds clear by the route's
+        margin (``right``, ``left``: its two turns); the plan is kept for the hand-over when it does."""
         plan = self._rtl_plan(t, s, note=False)
         if not self._first_turn_clear(s, plan, right, left):
+            # The short way guidance would turn is blocked (or dead astern, either way): a route that starts
+            # with its own turn, on the side the planner checked, if the projection finds that side clear
+            # (scenario fw_adv_runout_home_astern: guidance's short way to the loiter's tangent point, 6 deg
+            # off astern, turned through the notch's corner, 28.4 m outside)
             plan = self._rtl_plan(t, s, note=False, turn_first=True)
             if plan[2].turn is None or not self._first_turn_clear(s, plan, right, left):
                 return False
@@ -657,17 +666,7 @@ class FixedWingBehaviours:
             return False
         right, left = turn_clearances_m(fence, s)
         if decision.behavior in (Behavior.RTL, Behavior.LAND) and self.rtl_routes:
-            plan = self._rtl_plan(t, s, note=False)
-            if not self._first_turn_clear(s, plan, right, left):
-                # The short way guidance would turn is blocked (or dead astern, either way): a route that starts
-                # with its own turn, on the side the planner checked, if the projection finds that side clear
-                # (scenario fw_adv_runout_home_astern: guidance's short way to the loiter's tangent point, 6 deg
-                # off astern, turned through the notch's corner, 28.4 m outside)
-                plan = self._rtl_plan(t, s, note=False, turn_first=True)
-                if plan[2].turn is None or not self._first_turn_clear(s, plan, right, left):
-                    return False
-            self._handover_plan = plan
-            return True
+            return self._route_handover(t, s, right, left)
         return right > fr.ROUTE_MARGIN_M and left > fr.ROUTE_MARGIN_M
 
     @staticmethod
