@@ -41,6 +41,8 @@ MAX_NAV_DT_S = 0.02
 #: predictor on every IMU sample), and half seed 004's 20 ms sync period (section 4.3.2). Evidence that the
 #: decisions hold at it: docs/benchmarks/sim.md, "The 100 Hz default".
 DEFAULT_PERIOD_S = 0.01
+#: Scenario fields whose ``auto`` (or absence) is resolved at validation and does not count as given
+AUTO_FIELDS = ("camera", "core_dt_s", "nav_dt_s")
 
 
 def whole_ticks(period_s: float, dt_s: float) -> int | None:
@@ -413,10 +415,23 @@ class Scenario(S):
                 data[key] = default_period(float(dt)) if ok and on else None
         return data
 
+    @model_validator(mode="wrap")
+    @classmethod
+    def _resolved_is_not_given(cls, data: Any, handler: Any) -> Scenario:
+        """A field the scenario left to ``auto`` (``camera``, ``core_dt_s``, ``nav_dt_s``) is resolved, not
+        given: it stays out of ``model_fields_set``, so a copy (:meth:`with_fields`, a campaign's run) resolves
+        it again for what the copy changes (an estimator, a tick, a terrain) instead of carrying the original's
+        resolution into a scenario it may not fit."""
+        auto = {k for k in AUTO_FIELDS if data.get(k, "auto") == "auto"} if isinstance(data, dict) else set()
+        model: Scenario = handler(data)
+        model.__pydantic_fields_set__.difference_update(auto)
+        return model
+
     def with_fields(self, **update: Any) -> Scenario:
         """This scenario with ``update``'s fields, validated. Built from the fields the scenario gave, not from
         a full dump, so that what it left out stays left out: a ``redundancy`` section's presence is itself a
-        setting (:func:`sims.vehicle_loop.core_source` turns the ``nav_redundancy`` monitor on for it)."""
+        setting (:func:`sims.vehicle_loop.core_source` turns the ``nav_redundancy`` monitor on for it), and a
+        field left to ``auto`` is resolved again for the copy."""
         return Scenario.model_validate({**self.model_dump(exclude_unset=True), **update})
 
     @property

@@ -502,3 +502,23 @@ def test_a_run_has_a_redundancy_section_only_when_its_file_has_one(name: str, se
         sc = Scenario.model_validate(spec.scenario)
         assert ("redundancy" in sc.model_fields_set) == section
         assert make_loop(sc, cs.base_config).reports_redundancy == section
+
+
+def test_a_run_resolves_its_own_automatic_fields(tmp_path: Path) -> None:
+    """A file that varies what the camera and the periods resolve from (here the estimator) plans runs that
+    each resolve them for themselves: the base file's resolution is not carried into a run it does not fit
+    (the EKF's filter period and camera into a run on the stand-in, which refuses both)."""
+    from sims.scenario import Scenario
+
+    p = tmp_path / "estimators.yaml"
+    p.write_text((ROOT / "examples" / "campaigns" / "nominal.yaml").read_text()
+                 + "  estimator: {choice: [ekf, truth_plus_noise]}\n")
+    cs = load_campaign_scenario(p)
+    assert not {"camera", "core_dt_s", "nav_dt_s"} & cs.given
+    seen = set()
+    for spec in plan([cs], 8, seed=3):
+        sc = Scenario.model_validate(spec.scenario)
+        ekf = sc.estimator == "ekf"
+        seen.add(ekf)
+        assert (sc.nav_dt_s == 0.01, sc.camera is not None, sc.core_dt_s) == (ekf, ekf, 0.01)
+    assert seen == {True, False}

@@ -65,8 +65,9 @@ def test_the_gps_jump_acts_on_the_receiver_and_the_ekf_does_not_follow_it() -> N
 def test_the_stand_in_is_labelled_as_such_on_the_fixed_wing() -> None:
     # the stand-in, by name: the EKF is the default (fw_controller_crash.yaml flies it)
     sc, cfg = load_scenario(SCENARIOS / "fw_controller_crash.yaml")
-    # the stand-in has no filter period (null), validated: a copy that skipped validation kept the EKF's
-    sc = sc.with_fields(estimator="truth_plus_noise", nav_dt_s=None)
+    # validated, so the filter period left to auto is resolved again (the stand-in has none)
+    sc = sc.with_fields(estimator="truth_plus_noise")
+    assert sc.nav_dt_s is None
     r = run_scenario(sc, cfg, source="fw_controller_crash.yaml")
     s = summary_dict(r, [])
     assert s["estimator"] == "truth_plus_noise"

@@ -172,6 +172,22 @@ def test_with_fields_keeps_out_what_the_scenario_left_out() -> None:
     assert "redundancy" in red.model_fields_set and red.nav_every == 1
 
 
+def test_a_field_left_to_auto_is_resolved_again_for_a_copy() -> None:
+    """``camera``, ``core_dt_s`` and ``nav_dt_s`` left to auto are resolved, not given: a copy that changes
+    what they resolve from resolves them again, instead of carrying a period or a camera into a scenario
+    that refuses it (an EKF scenario's filter period on the stand-in, a 10 ms period on a 3 ms tick)."""
+    sc = _scenario(estimator="ekf", camera="auto")
+    assert not {"camera", "core_dt_s", "nav_dt_s"} & sc.model_fields_set
+    assert sc.nav_dt_s == 0.01 and sc.camera is not None
+    stand_in = sc.with_fields(estimator="truth_plus_noise")
+    assert (stand_in.nav_dt_s, stand_in.camera, stand_in.core_dt_s) == (None, None, 0.01)
+    assert math.isclose(sc.with_fields(dt_s=0.003).core_dt_s or 0.0, 0.009)
+    # what was given stays given, "auto" included as not given
+    given = _scenario(estimator="ekf", core_dt_s=0.005, nav_dt_s="auto")
+    assert "core_dt_s" in given.model_fields_set and "nav_dt_s" not in given.model_fields_set
+    assert given.with_fields(estimator="truth_plus_noise").core_dt_s == 0.005
+
+
 def test_the_fence_reaction_time_must_cover_the_cores_period() -> None:
     """XC005 with the driver's tick: a reaction time the vehicle's loops alone fit in, but not with a
     crossing seen one core tick late, is refused."""
