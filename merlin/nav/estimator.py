@@ -346,31 +346,32 @@ class NavEstimator:
         self._update_mode()
 
     def _clipped(self, a: Vec3, dt: float) -> None:
-        """A sample clipped at the accelerometer's full scale: along each clipped body axis (in NED, the
-        column of R) the velocity's variance grows by (accel_clip_noise_mps2 dt)², the unobserved excess
-        of the specific force (NavConfig.accel_clip_mps2; the regression scenario
-        ``crash_clipped_impact_ekf``)."""
-        cfg = self.cfg
-        self._clip_t = self._t
-        R = quat_to_dcm(self._q)
-        q = (cfg.accel_clip_noise_mps2 * dt) ** 2
-        P = self.P
-        for i in range(3):
-            if abs(a[i]) >= cfg.accel_clip_mps2:
-                P[3:6, 3:6] += q * np.outer(R[:, i], R[:, i])
+        """A sample clipped at the accelerometer's full scale: along each clipped body axis the velocity's
+        variance grows by (accel_clip_noise_mps2 dt)², the unobserved excess of the specific force
+        (NavConfig.accel_clip_mps2; the regression scenario ``crash_clipped_impact_ekf``)."""
+        lim = self.cfg.accel_clip_mps2
+        q = (self.cfg.accel_clip_noise_mps2 * dt) ** 2
+        self._inflate_clipped_axes((q if abs(a[0]) >= lim else 0.0, q if abs(a[1]) >= lim else 0.0,
+                                    q if abs(a[2]) >= lim else 0.0), self._t)
 
     def _clipped_interval(self, clip: ImuClip) -> None:
         """:meth:`_clipped` for the samples of a down-sampled interval: along each body axis the variance of
         all its clipped samples, (accel_clip_noise_mps2)² Σ dt²; GPS epochs from before the newest clipped
         sample are refused as after it (regression scenario ``crash_clipped_record_nav_100hz``)."""
-        cfg = self.cfg
-        self._clip_t = max(self._clip_t, clip.t_s)
+        n2 = self.cfg.accel_clip_noise_mps2 * self.cfg.accel_clip_noise_mps2
+        d = clip.dt2
+        self._inflate_clipped_axes((n2 * d[0], n2 * d[1], n2 * d[2]), clip.t_s)
+
+    def _inflate_clipped_axes(self, var: Vec3, t: float) -> None:
+        """The velocity's covariance grown by ``var[i]`` along each body axis i (in NED, the column i of R)
+        with a positive entry, and ``t`` the newest clipped sample's time (GPS epochs before it are refused,
+        :meth:`_clip_t`)."""
+        self._clip_t = max(self._clip_t, t)
         R = quat_to_dcm(self._q)
-        n2 = cfg.accel_clip_noise_mps2 * cfg.accel_clip_noise_mps2
         P = self.P
         for i in range(3):
-            if clip.dt2[i] > 0.0:
-                P[3:6, 3:6] += n2 * clip.dt2[i] * np.outer(R[:, i], R[:, i])
+            if var[i] > 0.0:
+                P[3:6, 3:6] += var[i] * np.outer(R[:, i], R[:, i])
 
     @property
     def _q(self) -> Quat:
