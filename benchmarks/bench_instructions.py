@@ -96,11 +96,14 @@ def main() -> int:
     ap.add_argument("--core-dt-s", type=float, default=None, help="fly this tree with the core at this period")
     ap.add_argument("--nav-dt-s", type=float, default=None,
                     help="fly this tree with the voter and the filter at this period")
+    ap.add_argument("--dt-s", type=float, default=None,
+                    help="fly this tree at this simulation tick (periods left unset resolve on it); with "
+                         "--baseline-tree . the same tree at the case's own tick beside it")
     args = ap.parse_args()
     if shutil.which("valgrind") is None:
         raise SystemExit("valgrind is not installed (Debian: apt-get install valgrind)")
-    rates = tuple(f"{k}={v!r}" for k, v in (("core_dt_s", args.core_dt_s), ("nav_dt_s", args.nav_dt_s))
-                  if v is not None)
+    rates = tuple(f"{k}={v!r}" for k, v in (("core_dt_s", args.core_dt_s), ("nav_dt_s", args.nav_dt_s),
+                                            ("dt_s", args.dt_s)) if v is not None)
     trees = [("this tree", args.this_tree.resolve())]
     if args.baseline_tree is not None:
         trees.append(("baseline", args.baseline_tree.resolve()))
