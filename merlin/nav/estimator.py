@@ -364,8 +364,8 @@ class NavEstimator:
 
     def _inflate_clipped_axes(self, var: Vec3, t: float) -> None:
         """The velocity's covariance grown by ``var[i]`` along each body axis i (in NED, the column i of R)
-        with a positive entry, and ``t`` the newest clipped sample's time (GPS epochs before it are refused,
-        :meth:`_clip_t`)."""
+        with a positive entry; ``_clip_t`` becomes the newest clipped sample's time ``t`` (GPS epochs from
+        before it are refused)."""
         self._clip_t = max(self._clip_t, t)
         R = quat_to_dcm(self._q)
         P = self.P
