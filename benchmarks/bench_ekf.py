@@ -253,10 +253,13 @@ def _loop_scenario(case: str) -> tuple[Any, Any]:
 
 
 def loop_once(case: str, dt_s: float | None = None, core_dt_s: float | None = None,
-              nav_dt_s: float | None = None) -> dict[str, Any]:
+              nav_dt_s: float | None = None, warm: bool = False) -> dict[str, Any]:
     """Fly one case once in this process (at the tick period ``dt_s`` instead of its scenario's, with the
     trusted core's period ``core_dt_s`` and the voter's and filter's ``nav_dt_s``, when given); its
-    simulated duration, process CPU time and build."""
+    simulated duration, process CPU time and build. ``warm``: then fly it a second time in the same process
+    and add that run's CPU time (``cpu_warm_s``): the process's one-off builds (the fence's distance grid, the
+    fixed wing's recovery height bound, the airframe's parameter file, the imports) are cached by then, as
+    they are for every run of a campaign worker after its first."""
     from merlin import _build
     from sims.runner import run_scenario
 
@@ -270,11 +273,16 @@ def loop_once(case: str, dt_s: float | None = None, core_dt_s: float | None = No
     c0 = time.process_time()
     run_scenario(sc, cfg)
     cpu = time.process_time() - c0
-    return {"sim_s": float(sc.duration_s), "cpu_s": cpu, "build": _build.describe()}
+    out: dict[str, Any] = {"sim_s": float(sc.duration_s), "cpu_s": cpu, "build": _build.describe()}
+    if warm:
+        c0 = time.process_time()
+        run_scenario(sc, cfg)
+        out["cpu_warm_s"] = time.process_time() - c0
+    return out
 
 
 def _child(case: str, tree: Path, build: str = "sources", dt_s: float | None = None,
-           core_dt_s: float | None = None, nav_dt_s: float | None = None) -> dict[str, Any]:
+           core_dt_s: float | None = None, nav_dt_s: float | None = None, warm: bool = False) -> dict[str, Any]:
     """One run of ``case`` in a fresh process on ``tree``: its ``.py`` sources (``build="sources"``,
     MERLIN_USE_SOURCES=1), or whatever that tree has built (``"installed"``: its mypyc extension modules
     when ``setup.py build_ext --inplace`` or an editable install compiled them there)."""
@@ -290,17 +298,22 @@ def _child(case: str, tree: Path, build: str = "sources", dt_s: float | None = N
         cmd += ["--core-dt-s", repr(core_dt_s)]
     if nav_dt_s is not None:
         cmd += ["--nav-dt-s", repr(nav_dt_s)]
+    if warm:
+        cmd += ["--warm"]
     res = subprocess.run(cmd, env=env, cwd=str(tree), capture_output=True, text=True, check=True)
     return dict(json.loads(res.stdout.strip().splitlines()[-1]))
 
 
 def bench_loop(runs: int, cases: list[str], baseline: Path | None, this_tree: Path = ROOT,
                build: str = "sources", periods: list[float] | None = None,
-               core_periods: list[float] | None = None, nav_periods: list[float] | None = None) -> None:
+               core_periods: list[float] | None = None, nav_periods: list[float] | None = None,
+               warm: bool = False) -> None:
     """``periods``: fly each case at each of these tick periods too (each a column of its own, interleaved
     with the others), beside its scenario's own period. ``core_periods``: fly it on this tree with the
     trusted core at each of these periods (the scenario's ``core_dt_s``) too; ``nav_periods``: with the core,
-    the voter and the filter at each of these (``core_dt_s`` and ``nav_dt_s``)."""
+    the voter and the filter at each of these (``core_dt_s`` and ``nav_dt_s``). ``warm``: each process flies
+    the case twice, and the second flight's factor is a row of its own ("warm": what a campaign worker's
+    later runs cost, the process's one-off builds cached; :func:`loop_once`)."""
     roots = [("this tree", this_tree)] + ([("baseline", baseline)] if baseline is not None else [])
     dts: list[float | None] = [None, *(periods or [])]
     trees: list[tuple[str, Path, float | None, float | None, float | None]] = [
@@ -311,20 +324,21 @@ def bench_loop(runs: int, cases: list[str], baseline: Path | None, this_tree: Pa
     print("| case | tree | build | real-time factor (CPU), median | spread | target | runs |")
     print("|---|---|---|---|---|---|---|")
     for case in cases:
-        rtf: dict[str, list[float]] = {name: [] for name, _, _, _, _ in trees}
+        rtf: dict[str, list[float]] = {}
         kind: dict[str, str] = {}
         for name, tree, dt, core_dt, nav_dt in trees:  # warm-up (numba's cache, imports), not counted
             kind[name] = str(_child(case, tree, build, dt, core_dt, nav_dt).get("build", "?"))
         for _ in range(runs):
             for name, tree, dt, core_dt, nav_dt in trees:
-                r = _child(case, tree, build, dt, core_dt, nav_dt)
-                rtf[name].append(r["sim_s"] / r["cpu_s"])
-        for name, _, _, _, _ in trees:
-            v = rtf[name]
+                r = _child(case, tree, build, dt, core_dt, nav_dt, warm)
+                rtf.setdefault(name, []).append(r["sim_s"] / r["cpu_s"])
+                if warm:
+                    rtf.setdefault(f"{name}, warm", []).append(r["sim_s"] / r["cpu_warm_s"])
+        for name, v in rtf.items():
             target = LOOP_TARGETS.get(case)
             print(
-                f"| {case} | {name} | {kind[name]} | {statistics.median(v):.1f}× | {min(v):.1f}–{max(v):.1f} |"
-                f" {f'≥ {target:g}×' if target else '—'} | {len(v)} |",
+                f"| {case} | {name} | {kind[name.removesuffix(', warm')]} | {statistics.median(v):.1f}× |"
+                f" {min(v):.1f}–{max(v):.1f} | {f'≥ {target:g}×' if target else '—'} | {len(v)} |",
                 flush=True,
             )
 
@@ -349,6 +363,9 @@ def main() -> None:
     ap.add_argument("--nav-dt-s", type=float, nargs="*", default=[],
                     help="--part loop: also fly every case on this tree with the trusted core, the IMU voter and "
                          "the fusion EKF at these periods (s), e.g. 0.01 for 100 Hz")
+    ap.add_argument("--warm", action="store_true",
+                    help="--part loop: each process flies the case a second time, reported as the 'warm' rows "
+                         "(the process's one-off builds cached, as for a campaign worker's later runs)")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if hasattr(os, "sched_setaffinity"):
@@ -358,7 +375,7 @@ def main() -> None:
         return
     if a.child:
         print(json.dumps(loop_once(a.child, a.dt_s[0] if a.dt_s else None, a.core_dt_s[0] if a.core_dt_s else None,
-                                   a.nav_dt_s[0] if a.nav_dt_s else None)))
+                                   a.nav_dt_s[0] if a.nav_dt_s else None, a.warm)))
         return
     from merlin.nav import kernels
 
@@ -394,7 +411,7 @@ def main() -> None:
             )
     if a.part in ("loop", "all"):
         bench_loop(a.runs, a.cases, a.baseline_tree, a.this_tree.resolve(), a.build, a.dt_s, a.core_dt_s,
-                   a.nav_dt_s)
+                   a.nav_dt_s, a.warm)
 
 
 if __name__ == "__main__":
