@@ -17,14 +17,13 @@ import statistics
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
 
-from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
+from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample, SensorFrame
 from merlin.nav.config import NavConfig
-from merlin.nav.downsample import ImuDownSampler
+from merlin.nav.downsample import SensorHold
 from merlin.nav.estimator import NavEstimator, NavInit
 from merlin.nav.events import NavEventKind
 from merlin.nav.quaternion import quat_to_euler
@@ -133,10 +132,11 @@ def denied_leg(seed: int, mode: str, texture: str = "grass", frame_hz: float = 2
     mode: 'gps' (GPS+INS kept, reference), 'vo' (camera VO+INS), 'ins' (inertial only).
 
     ``nav_every``: the filter every that many IMU samples, as the closed loop runs it at a scenario's
-    ``nav_dt_s`` (4: the 100 Hz default with the 400 Hz IMU): the samples between its ticks down-sampled into
-    one (:class:`merlin.nav.downsample.ImuDownSampler`), each sensor's newest GPS, barometer and magnetometer
-    sample held to the tick and fused there in the pipeline's order (``NavEstimator.update_samples``), then
-    the camera frame. The error is read at filter ticks only (every 40th sample, a multiple of 4)."""
+    ``nav_dt_s`` (4: the 100 Hz default with the 400 Hz IMU), through the closed loop's own hold
+    (:class:`merlin.nav.downsample.SensorHold`): the samples between its ticks down-sampled into one, each
+    sensor's newest GPS, barometer and magnetometer sample held to the tick and fused there in the pipeline's
+    order (``NavEstimator.update_samples``), then the camera frame. The error is read at filter ticks only
+    (every 40th sample, a multiple of 4)."""
     if 40 % nav_every:
         raise ValueError(f"nav_every={nav_every}: the error is read every 40 IMU samples, so it must divide 40")
     traj = denied_traj()
@@ -154,21 +154,20 @@ def denied_leg(seed: int, mode: str, texture: str = "grass", frame_hz: float = 2
     errs, sigs, ds = [], [], []
     t_render = t_vo = 0.0
     frames = valid = 0
-    down = ImuDownSampler(cfg.accel_clip_mps2) if nav_every > 1 else None
-    held: dict[type, Any] = {}
+    hold = SensorHold(cfg.accel_clip_mps2) if nav_every > 1 else None
     for s in samples:
         if isinstance(s, ImuSample):
             k = traj.index_at(s.t_s)
-            if down is None:
+            if hold is None:
                 est.predict(s)
             else:
-                down.add(s)
+                hold.add(SensorFrame(s.t_s, (s,)))
                 if k % nav_every:
                     continue  # between the filter's ticks
-                imu = down.take()
-                if imu is not None:
-                    est.predict(imu, down.clip)
-                est.update_samples(held.pop(GpsSample, None), held.pop(BaroSample, None), held.pop(MagSample, None))
+                frame = hold.take(s.t_s)
+                if frame.imu:
+                    est.predict(frame.imu[0], hold.clips[0])
+                est.update_samples(frame.gps, frame.baro, frame.mag)
             if mode == "vo" and s.t_s >= next_frame:
                 next_frame += 1.0 / frame_hz
                 st = est.state()
@@ -193,10 +192,12 @@ def denied_leg(seed: int, mode: str, texture: str = "grass", frame_hz: float = 2
                 )
                 sigs.append(st.pos_sigma_h_m)
                 ds.append(dist[k])
-        elif down is None:
+        elif hold is None:
             replay(est, [s])
-        else:
-            held[type(s)] = s  # the newest of each sensor, fused at the filter's next tick
+        else:  # the newest of each sensor, fused at the filter's next tick
+            hold.add(SensorFrame(s.t_s, gps=s if isinstance(s, GpsSample) else None,
+                                 baro=s if isinstance(s, BaroSample) else None,
+                                 mag=s if isinstance(s, MagSample) else None))
     ds_a = np.array(ds)
     after = ds_a >= dist[k_loss]
     leg = float(dist[-1] - dist[k_loss])
