@@ -200,9 +200,9 @@ def test_the_run_out_hands_rtl_the_turn_it_judged_with_home_astern() -> None:
 
 
 def test_the_falsifier_near_misses_under_the_ceiling_stay_inside() -> None:
-    """The two thinnest fixed-wing margins the falsifier found at the default periods (seed 4, evaluation 1720:
-    1.42 m; seed 5, evaluation 1469: 1.93 m), both a climb into the ceiling's projection with the escape that
-    follows. Each is revoked by the ceiling and stays inside the range; the margins are pinned loosely (a
+    """The two thinnest fixed-wing margins the falsifier found at the default periods (1.42 m and 1.93 m; the
+    searches' own files are under docs/benchmarks/falsify), both a climb into the ceiling's projection with the
+    escape that follows. Each is revoked by the ceiling and stays inside the range; the margins are pinned loosely (a
     metre either way) so that a change costing the projection or the escape most of its room fails here."""
     for name, margin in (("fw_adv_pull_push_banked_near_miss.yaml", 1.42),
                          ("fw_adv_ceiling_climb_west_near_miss.yaml", 1.93)):
