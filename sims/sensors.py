@@ -264,11 +264,21 @@ class ImuLane:
 
     The error of a sample (bias random walk + white noise) does not depend on the truth, so it is
     generated a block of 1024 samples at a time with numpy (cumulative sum for the walk) and each
-    sample only adds one precomputed row to the truth: ~3x cheaper per sample than updating the bias
+    sample only adds six precomputed numbers to the truth: ~3x cheaper per sample than updating the bias
     in Python.
+
+    The block's errors are handed over as one flat list of Python floats (six per sample) and the bias
+    stays in its numpy array until someone asks for it: per sample, a list of twelve floats (the errors and
+    the bias the sample carries) converted from a two-dimensional array cost about as much as the rest of
+    the sample, and nothing in the loop reads the bias (docs/benchmarks/sim.md, "The IMU lanes' noise
+    blocks"). The next block is drawn when the current one's row ``(2 lane + 1) / 8`` is used, as
+    :func:`staggered_rows` does for the other streams, so the lanes never refill on the same tick; each lane
+    owns its generator, so the samples are the ones a plain block-by-block draw gives
+    (tests/sims/test_noise_blocks.py).
     """
 
-    __slots__ = ("_b_last", "_kbias", "_knoise", "_lane", "_limits", "_next", "_row", "p", "rng")
+    __slots__ = ("_b_last", "_bias", "_bias0", "_err", "_k", "_kbias", "_knoise", "_lane", "_limits", "_nxt",
+                 "_prefetch_at", "p", "rng")
 
     def __init__(self, params: ImuParams, rng: np.random.Generator, lane: int) -> None:
         self.p = params
@@ -291,36 +301,55 @@ class ImuLane:
             params.gyro_range_radps - 50.0 * float(self._knoise[0]) - 1.0,
             params.accel_range_mps2 - 50.0 * float(self._knoise[3]) - 5.0,
         )
-        self._row: list[float] = [0.0] * 6 + [float(x) for x in self._b_last]
-        self._next = self._rows().__next__
+        # the bias before the first sample: the turn-on bias
+        self._bias0: list[float] = [float(x) for x in self._b_last]
+        # the current block (drawn at the first sample, as the other streams draw theirs) and the row used
+        # last: _BLOCK - 1 so that the first sample starts a block
+        self._err: list[float] = []
+        self._bias: Any = None
+        self._k = _BLOCK - 1
+        self._nxt: tuple[list[float], Any] | None = None
+        self._prefetch_at = ((2 * lane + 1) * _BLOCK // 8) % _BLOCK
 
-    def _rows(self) -> Iterator[list[float]]:
-        """Rows of (gyro error x3, accel error x3, gyro bias x3, accel bias x3), 1024 at a time; lane i
-        draws its next block at row (2i + 1)/8 of the current one, so the lanes never refill on the same
-        tick (:func:`staggered_rows`)."""
+    def _block(self) -> tuple[list[float], Any]:
+        """The next block: its errors (gyro x3, accel x3 per sample, flat) and its bias (``_BLOCK`` x 6)."""
+        steps = self.rng.standard_normal((_BLOCK, 6)) * self._kbias
+        white = self.rng.standard_normal((_BLOCK, 6)) * self._knoise
+        bias = self._b_last + np.cumsum(steps, axis=0)
+        self._b_last = bias[-1]
+        err: list[float] = (bias + white).ravel().tolist()
+        return err, bias
 
-        def block() -> list[list[float]]:
-            steps = self.rng.standard_normal((_BLOCK, 6)) * self._kbias
-            white = self.rng.standard_normal((_BLOCK, 6)) * self._knoise
-            bias = self._b_last + np.cumsum(steps, axis=0)
-            self._b_last = bias[-1]
-            rows: list[list[float]] = np.hstack((bias + white, bias)).tolist()
-            return rows
-
-        return staggered_rows(block, ((2 * self._lane + 1) * _BLOCK // 8) % _BLOCK)
+    def _bias_row(self, first: int) -> Vec3:
+        if self._bias is None:
+            b = self._bias0
+            return (b[first], b[first + 1], b[first + 2])
+        row = self._bias[self._k]
+        return (float(row[first]), float(row[first + 1]), float(row[first + 2]))
 
     @property
     def gyro_bias_radps(self) -> Vec3:
-        r = self._row
-        return (r[6], r[7], r[8])
+        return self._bias_row(0)
 
     @property
     def accel_bias_mps2(self) -> Vec3:
-        r = self._row
-        return (r[9], r[10], r[11])
+        return self._bias_row(3)
 
     def sample(self, t_s: float, omega: Vec3, sf: Vec3) -> ImuSample:
-        e = self._row = self._next()
+        k = self._k + 1
+        if k == _BLOCK:
+            nxt = self._nxt
+            if nxt is None:
+                nxt = self._block()
+            self._err, self._bias = nxt
+            self._nxt = None
+            k = 0
+        if k == self._prefetch_at:
+            self._nxt = self._block()
+        self._k = k
+        e = self._err
+        j = 6 * k
+        e0, e1, e2, e3, e4, e5 = e[j], e[j + 1], e[j + 2], e[j + 3], e[j + 4], e[j + 5]
         wx, wy, wz = omega
         fx, fy, fz = sf
         gl, al = self._limits
@@ -332,12 +361,10 @@ class ImuLane:
             and -al < fy < al
             and -al < fz < al
         ):
-            return ImuSample(
-                t_s, (wx + e[0], wy + e[1], wz + e[2]), (fx + e[3], fy + e[4], fz + e[5]), self._lane
-            )
+            return ImuSample(t_s, (wx + e0, wy + e1, wz + e2), (fx + e3, fy + e4, fz + e5), self._lane)
         gr, ar = self.p.gyro_range_radps, self.p.accel_range_mps2  # near full scale: clip
-        g = [min(gr, max(-gr, v)) for v in (wx + e[0], wy + e[1], wz + e[2])]
-        a = [min(ar, max(-ar, v)) for v in (fx + e[3], fy + e[4], fz + e[5])]
+        g = [min(gr, max(-gr, v)) for v in (wx + e0, wy + e1, wz + e2)]
+        a = [min(ar, max(-ar, v)) for v in (fx + e3, fy + e4, fz + e5)]
         return ImuSample(t_s, (g[0], g[1], g[2]), (a[0], a[1], a[2]), self._lane)
 
 
