@@ -47,6 +47,7 @@ altitude minimum, whichever is higher): a revocation at or above that height rec
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 import math
 from dataclasses import dataclass
 
@@ -175,11 +176,21 @@ class EntryStates:
     throttle: np.ndarray
 
 
+def _libm(f: Callable[[float], float], a: np.ndarray) -> np.ndarray:
+    """``f``, a function of :mod:`math` (the C library's), elementwise. numpy's own ``exp`` and ``arcsin``
+    are vectorised on CPUs with AVX-512 (numpy's X86_V4) and there differ from the C library in the last bit
+    for a few per cent of arguments (``sin``, ``cos`` and ``sqrt`` do not); the array form must give the bits
+    of the compiled scalar kernel, which calls the C library, on every machine
+    (tests/fixedwing/test_recovery_kernel.py)."""
+    arr = np.asarray(a, dtype=float)
+    return np.fromiter(map(f, arr.ravel().tolist()), dtype=float, count=arr.size).reshape(arr.shape)
+
+
 def _lift_coefficient(wing: WingModel, body: RigidBodyModel, alpha: np.ndarray) -> np.ndarray:
     """The lift curve: linear, capped at ``C_L,max``, blended into the flat plate beyond the stall."""
     m, a0 = body.stall_blend, body.stall_alpha_rad
-    e_minus = np.exp(np.clip(-m * (alpha - a0), -50.0, 50.0))
-    e_plus = np.exp(np.clip(m * (alpha + a0), -50.0, 50.0))
+    e_minus = _libm(math.exp, np.clip(-m * (alpha - a0), -50.0, 50.0))
+    e_plus = _libm(math.exp, np.clip(m * (alpha + a0), -50.0, 50.0))
     sigma = (1.0 + e_minus + e_plus) / ((1.0 + e_minus) * (1.0 + e_plus))
     linear = np.minimum(wing.cl0 + wing.cl_alpha_per_rad * alpha, wing.cl_max)
     plate = 2.0 * np.sign(alpha) * np.sin(alpha) ** 2 * np.cos(alpha)
@@ -199,7 +210,7 @@ def _working_arrays(entry: EntryStates) -> tuple[np.ndarray, ...]:
     """Float copies of the entry states the recovery integrates: airspeed, flight-path angle (from the sink),
     angle of attack, pitch rate, bank, roll rate, elevator, aileron, throttle."""
     v = entry.airspeed_mps.astype(float).copy()
-    gamma = -np.arcsin(np.clip(entry.sink_mps / v, -1.0, 1.0))
+    gamma = -_libm(math.asin, np.clip(entry.sink_mps / v, -1.0, 1.0))
     return (v, gamma, entry.alpha_rad.astype(float).copy(), entry.q_radps.astype(float).copy(),
             entry.bank_rad.astype(float).copy(), entry.p_radps.astype(float).copy(),
             entry.elevator.astype(float).copy(), entry.aileron.astype(float).copy(),
