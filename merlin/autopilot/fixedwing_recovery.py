@@ -47,8 +47,8 @@ altitude minimum, whichever is higher): a revocation at or above that height rec
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np

@@ -341,3 +341,48 @@ def test_tecs_reads_the_airspeed_rate_not_the_groundspeed_swing_in_a_turn_in_win
         s = VehicleState(vel_ned_mps=(v * cps + wind[0], v * sps + wind[1], 0.0), att_rpy_rad=(phi, 0.0, psi),
                          accel_frd_mps2=f_frd, airspeed_mps=v, pos_ned_m=(0.0, 0.0, -100.0))
         assert abs(fc._speed_rate(s)) < 1e-9, psi_deg
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    airspeed=st.floats(19.0, 32.0),
+    target_airspeed=st.floats(14.0, 30.0),
+    climb=st.floats(-3.0, 3.0),
+    dh=st.floats(-20.0, 20.0),
+    v_rate=st.floats(-3.0, 3.0),
+)
+def test_height_first_never_asks_to_climb_nor_trades_speed_for_height(  # type: ignore[no-untyped-def]
+    airspeed, target_airspeed, climb, dh, v_rate
+) -> None:
+    """With ``height_priority`` (Merlin's behaviours near the ceiling) the energy balance TECS's pitch flies is
+    the height rate's alone, and the height rate asked for is never a climb: an overspeed is the throttle's
+    to shed (the balanced weights traded it for the climb that took the falsifier's fixed-wing near misses
+    to 1.4-1.9 m under the ceiling). Outside it the weights stay balanced. Below the underspeed band the
+    speed keeps its weight either way."""
+    cp = fc.FixedWingControlParams()
+    s = VehicleState(pos_ned_m=(0.0, 0.0, -200.0), vel_ned_mps=(airspeed, 0.0, -climb), airspeed_mps=airspeed,
+                     accel_frd_mps2=(0.0, 0.0, -fc.G_MPS2))
+    t = fc.FixedWingTargets(airspeed_mps=target_airspeed, height_m=200.0 + dh)
+    first = fc._energy(cp, s, replace(t, height_priority=True), v_rate)
+    balanced = fc._energy(cp, s, t, v_rate)
+    v = max(airspeed, 3.0)
+    if not first.underspeed:
+        assert first.seb_d <= 1e-12  # no climb asked for
+        assert first.seb == pytest.approx(first.w_h * climb / v)  # the height rate alone
+        asked = min(max(min(cp.height_gain_per_s * dh, cp.climb_max_mps), -cp.sink_max_mps), 0.0)
+        assert first.seb_d == pytest.approx(asked / v)
+    else:
+        assert first == balanced
+    if target_airspeed < airspeed - 1.0 and not balanced.underspeed and dh <= 0.0:
+        # the balanced weights ask for a higher energy balance from the overspeed: pitch up
+        assert balanced.seb_d > first.seb_d
+
+
+def test_near_ceiling_is_two_fence_margins_under_it() -> None:
+    from merlin.autopilot.fixedwing_behaviours import near_ceiling
+    from merlin.core.geofence import FenceParams
+
+    prm = FenceParams(altitude_ceiling_m=250.0, margin_m=5.0)
+    assert near_ceiling(prm, 240.0) and near_ceiling(prm, 260.0)
+    assert not near_ceiling(prm, 239.9)
+    assert not near_ceiling(FenceParams(altitude_ceiling_m=None, margin_m=5.0), 1000.0)

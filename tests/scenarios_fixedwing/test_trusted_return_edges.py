@@ -191,21 +191,42 @@ def test_the_run_out_hands_rtl_the_turn_it_judged_with_home_astern() -> None:
     """The falsifier's silent step towards the notch's inner corner under the ceiling (2,000-run search, seed 4,
     evaluation 750): the run-out's hand-over was judged on the short way to home's centre (left), while RTL's
     guidance flew the short way to the loiter's tangent point (right, through the notch): 28.42 m outside. The
-    hand-over now hands RTL a route that starts with the left turn it checked."""
-    r, results = _run("fw_adv_runout_home_astern.yaml")
+    hand-over now hands RTL a route that starts with the left turn it checked. Flown from 0.8 m higher
+    (``fw_adv_runout_home_astern_higher``): since the behaviours fly the height first near the ceiling, the
+    original's RTL no longer climbs after the silence, so its ceiling's projection no longer trips and no
+    escape runs out; from 0.8 m higher it still does, right after the heartbeat's revocation."""
+    r, results = _run("fw_adv_runout_home_astern_higher.yaml")
     assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
     assert r.metrics["max_fence_breach_m"] == 0.0
+    revoked = [e for e in r.events if e.get("type") == "revoked"]
+    assert revoked and revoked[0]["reason"] == "controller_heartbeat", revoked
+    assert any(e.get("type") == "fixed_wing_escape_run_out" for e in r.events)
     route = [e for e in r.events if e.get("type") == "fixed_wing_rtl_route"]
     assert route and route[0]["turn"] is not None and route[0]["turn"]["side"] == "left", route
 
 
+def test_after_the_silence_under_the_ceiling_the_rtl_does_not_climb_into_it() -> None:
+    """The falsifier's original (``fw_adv_runout_home_astern``): the silence hands a 36 m/s aircraft climbing
+    0.5 m/s, 7 m under the ceiling, to RTL. With the balanced TECS weights RTL traded the speed it shed for
+    height, tripped the ceiling's projection half a second later and ran an escape out (1.96 m under the
+    ceiling). Flying the height first, it trips nothing more and keeps more than 5 m."""
+    r, results = _run("fw_adv_runout_home_astern.yaml")
+    assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
+    assert r.metrics["max_fence_breach_m"] == 0.0
+    assert not any(e.get("type") == "monitor_tripped" and e.get("reason") == "geofence" for e in r.events)
+    assert r.metrics["min_fence_margin_m"] > 5.0
+
+
 def test_the_falsifier_near_misses_under_the_ceiling_stay_inside() -> None:
-    """The two thinnest fixed-wing margins the falsifier found at the default periods (1.42 m and 1.93 m; the
-    searches' own files are under docs/benchmarks/falsify), both a climb into the ceiling's projection with the
-    escape that follows. Each is revoked by the ceiling and stays inside the range; the margins are pinned loosely (a
-    metre either way) so that a change costing the projection or the escape most of its room fails here."""
-    for name, margin in (("fw_adv_pull_push_banked_near_miss.yaml", 1.42),
-                         ("fw_adv_ceiling_climb_west_near_miss.yaml", 1.93)):
+    """The three thinnest fixed-wing margins the falsifier found at the default periods (1.42, 1.93 and 1.69 m;
+    the searches' own files are under docs/benchmarks/falsify), each a climb into the ceiling's projection
+    with Merlin's behaviour after it. All three lost their room the same way: the behaviour took over fast and
+    TECS traded the speed it shed for a climb the projection does not count. Near the ceiling the behaviours
+    now fly the height first, and the margins are 5.85, 5.92 and 5.74 m, pinned a metre either way: a change
+    that lets the hand-over climb again, or costs the projection its room, fails here."""
+    for name, margin in (("fw_adv_pull_push_banked_near_miss.yaml", 5.85),
+                         ("fw_adv_ceiling_climb_west_near_miss.yaml", 5.92),
+                         ("fw_adv_ceiling_overspeed_handover.yaml", 5.74)):
         r, results = _run(name)
         assert all(x.passed for x in results), (name, [(x.name, x.detail) for x in results])
         assert r.metrics["max_fence_breach_m"] == 0.0, name
