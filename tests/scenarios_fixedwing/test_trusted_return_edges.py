@@ -231,3 +231,29 @@ def test_the_falsifier_near_misses_under_the_ceiling_stay_inside() -> None:
         assert all(x.passed for x in results), (name, [(x.name, x.detail) for x in results])
         assert r.metrics["max_fence_breach_m"] == 0.0, name
         assert margin - 1.0 < r.metrics["min_fence_margin_m"] < margin + 1.0, (name, r.metrics["min_fence_margin_m"])
+
+
+def test_horizontal_escapes_at_full_speed_six_metres_under_the_ceiling_do_not_climb_into_it() -> None:
+    """The generated course and corner approaches (``fence_cases``) at the maximum airspeed, started 6 m under
+    the ceiling instead of at 120 m. With the balanced TECS weights the escape turn traded its 30 m/s for
+    height and climbed through the ceiling: course 60 deg 0.17 m and corner 30 deg 0.12 m outside (of the
+    25 generated cases, 2 breached and the rest kept 0-1.7 m). Flying the height first near the ceiling,
+    every one keeps its 6 m; the escape turns stay inside horizontally too."""
+    from merlin.config.loader import load_config
+    from merlin.config.runtime import build_core_config
+    from sims.scenario import resolve_config
+    from tests.scenarios_fixedwing import fence_cases
+
+    fence = build_core_config(load_config(SCENARIOS.parent / "configs" / "fixedwing_default.yaml")).fence
+    assert fence is not None
+    corner = fence_cases.corner_case(fence, 30.0, 30.0)
+    assert corner is not None
+    for sc in (fence_cases.course_case(fence, 60.0, 30.0), corner):
+        n, e, _ = sc.initial.pos_ned_m
+        high = sc.model_copy(update={"initial": sc.initial.model_copy(update={"pos_ned_m": [n, e, -244.0]})})
+        r = run_scenario(high, resolve_config(high, SCENARIOS, "<generated>"), source=sc.name)
+        results = evaluate_all(high.expectations, r.events, r.log, r.metrics)
+        assert all(x.passed for x in results), (sc.name, [(x.name, x.detail) for x in results])
+        assert r.metrics["max_fence_breach_m"] == 0.0, sc.name
+        assert r.metrics["min_fence_margin_m"] > 5.0, (sc.name, r.metrics["min_fence_margin_m"])
+        assert any(e.get("type") == "fixed_wing_escape_turn" for e in r.events), sc.name
