@@ -216,9 +216,10 @@ class FixedWingTargets:
     throttle: float | None = None
     # a turn that must go on through a dive recovery (an escape turn), instead of rolling level to pull out
     keep_turning: bool = False
-    # near the fence's ceiling: pitch flies the height alone and asks for no climb; the speed is the
-    # throttle's (TECS's speed weight at zero). With the balanced weights an overspeed is traded for
-    # height, and the trade is a climb the ceiling's projection does not count.
+    # near the fence's ceiling: pitch flies the height alone, the speed is the throttle's (TECS's speed
+    # weight at zero). With the balanced weights an overspeed is traded for height, and the trade is a
+    # climb the ceiling's projection does not count. A climb to the behaviour's own height is still
+    # flown (a take-off or RTL height the cross-checks admit, up to the ceiling less its margin).
     height_priority: bool = False
 
     def __post_init__(self) -> None:
@@ -422,7 +423,6 @@ def _energy(p: FixedWingControlParams, s: VehicleState, t: FixedWingTargets, v_r
         w_h = 1.0  # the recovery: pitch arrests the sink, the throttle (full) alone brings the speed back
     w_v = 2.0 - w_h if not recovering else 0.0
     if t.height_priority and not underspeed:
-        h_rate_d = min(h_rate_d, 0.0)
         w_v = 0.0
     return _Energy(
         ste_d=h_rate_d / v + v_rate_d / G_MPS2,

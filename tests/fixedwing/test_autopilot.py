@@ -351,14 +351,14 @@ def test_tecs_reads_the_airspeed_rate_not_the_groundspeed_swing_in_a_turn_in_win
     dh=st.floats(-20.0, 20.0),
     v_rate=st.floats(-3.0, 3.0),
 )
-def test_height_first_never_asks_to_climb_nor_trades_speed_for_height(  # type: ignore[no-untyped-def]
+def test_height_first_does_not_trade_speed_for_height(  # type: ignore[no-untyped-def]
     airspeed, target_airspeed, climb, dh, v_rate
 ) -> None:
     """With ``height_priority`` (Merlin's behaviours near the ceiling) the energy balance TECS's pitch flies is
-    the height rate's alone, and the height rate asked for is never a climb: an overspeed is the throttle's
-    to shed (the balanced weights traded it for the climb that took the falsifier's fixed-wing near misses
-    to 1.4-1.9 m under the ceiling). Outside it the weights stay balanced. Below the underspeed band the
-    speed keeps its weight either way."""
+    the height's alone: the demand is the height loop's and the measurement the height rate, whatever the
+    speed does. An overspeed is the throttle's to shed; the balanced weights traded it for the climb that took
+    the falsifier's fixed-wing near misses to 1.4-1.9 m under the ceiling. Below the underspeed band the speed
+    keeps its weight either way."""
     cp = fc.FixedWingControlParams()
     s = VehicleState(pos_ned_m=(0.0, 0.0, -200.0), vel_ned_mps=(airspeed, 0.0, -climb), airspeed_mps=airspeed,
                      accel_frd_mps2=(0.0, 0.0, -fc.G_MPS2))
@@ -367,15 +367,15 @@ def test_height_first_never_asks_to_climb_nor_trades_speed_for_height(  # type: 
     balanced = fc._energy(cp, s, t, v_rate)
     v = max(airspeed, 3.0)
     if not first.underspeed:
-        assert first.seb_d <= 1e-12  # no climb asked for
-        assert first.seb == pytest.approx(first.w_h * climb / v)  # the height rate alone
-        asked = min(max(min(cp.height_gain_per_s * dh, cp.climb_max_mps), -cp.sink_max_mps), 0.0)
+        asked = min(max(cp.height_gain_per_s * dh, -cp.sink_max_mps), cp.climb_max_mps)
         assert first.seb_d == pytest.approx(asked / v)
+        assert first.seb == pytest.approx(climb / v)
+        assert first.ste_d == balanced.ste_d and first.ste == balanced.ste  # the throttle's side unchanged
+        if target_airspeed < airspeed - 1.0:
+            # the balanced weights ask for a higher energy balance from the overspeed: pitch up
+            assert balanced.seb_d > first.seb_d
     else:
         assert first == balanced
-    if target_airspeed < airspeed - 1.0 and not balanced.underspeed and dh <= 0.0:
-        # the balanced weights ask for a higher energy balance from the overspeed: pitch up
-        assert balanced.seb_d > first.seb_d
 
 
 def test_near_ceiling_is_two_fence_margins_under_it() -> None:

@@ -105,3 +105,23 @@ def test_serve_options_choose_the_fixed_wing_and_its_configuration() -> None:
         _options("--vehicle", "bogus")
     fw = _options("--vehicle", "aerosonde", "--config", str(ROOT / "examples" / "configs" / "fixedwing_default.yaml"))
     assert fw.config.geofence.altitude_floor_m == 30.0  # type: ignore[attr-defined]
+
+
+def test_a_takeoff_height_just_under_the_ceilings_margin_is_still_reached() -> None:
+    """Merlin's behaviours fly the height first within two fence margins of the ceiling (no speed traded for
+    height), but still climb to their own height: with the ceiling 8 m above the built-in 60 m take-off
+    height (inside that band, and admitted by XC007: under the ceiling less its 5 m margin) the take-off
+    completes and the core makes it HOLD, without tripping the ceiling."""
+    cfg = default_config()
+    assert cfg.geofence is not None
+    fence = cfg.geofence.model_copy(update={"altitude_ceiling_m": cfg.trusted.takeoff_altitude_m + 8.0})
+    cfg = cfg.model_copy(update={"geofence": fence})
+    sc = Scenario.model_validate({
+        "name": "fw_launch_low_ceiling", "duration_s": 45.0, "dt_s": 0.01, "vehicle": "aerosonde",
+        "log_rate_hz": 10.0, "initial": {"pos_ned_m": [0.0, 0.0, 0.0], "yaw_deg": 30.0},
+        "gcs": [{"t": 1.0, "command": "arm"}, {"t": LAUNCH_T_S, "command": "takeoff"}],
+    })
+    r = run_scenario(sc, cfg)
+    behaviours = [e["behavior"] for e in r.events if e["type"] == "behavior"]
+    assert behaviours[-2:] == ["TAKEOFF", "HOLD"], behaviours
+    assert r.metrics["max_fence_breach_m"] == 0.0
