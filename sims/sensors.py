@@ -235,8 +235,9 @@ def staggered_rows(make_block: Callable[[], list[list[float]]], prefetch_at: int
     Why: every 400 Hz stream (three IMU lanes, the wind, the fault noise) used to refill on the same tick
     (ticks 1025, 2049, ...), and that one tick did 5-9 ms of numpy and ``tolist`` work, enough to make a
     real-time ``merlin serve`` miss its next 4 ms deadline (docs/benchmarks/serve.md). Giving each stream
-    its own ``prefetch_at`` spreads the refills over different ticks. Each stream owns its generator, so
-    drawing a block earlier changes no value: the samples are bit-identical to the unstaggered ones."""
+    its own ``prefetch_at`` spreads the refills over different ticks (the IMU lanes follow the same rule with
+    a cursor of their own: :class:`ImuLane`). Each stream owns its generator, so drawing a block earlier
+    changes no value: the samples are bit-identical to the unstaggered ones."""
     cur = make_block()
     while True:
         nxt: list[list[float]] | None = None
@@ -277,7 +278,7 @@ class ImuLane:
     (tests/sims/test_noise_blocks.py).
     """
 
-    __slots__ = ("_b_last", "_bias", "_bias0", "_err", "_k", "_kbias", "_knoise", "_lane", "_limits", "_nxt",
+    __slots__ = ("_b_last", "_bias", "_err", "_k", "_kbias", "_knoise", "_lane", "_limits", "_nxt",
                  "_prefetch_at", "p", "rng")
 
     def __init__(self, params: ImuParams, rng: np.random.Generator, lane: int) -> None:
@@ -301,8 +302,6 @@ class ImuLane:
             params.gyro_range_radps - 50.0 * float(self._knoise[0]) - 1.0,
             params.accel_range_mps2 - 50.0 * float(self._knoise[3]) - 5.0,
         )
-        # the bias before the first sample: the turn-on bias
-        self._bias0: list[float] = [float(x) for x in self._b_last]
         # the current block (drawn at the first sample, as the other streams draw theirs) and the row used
         # last: _BLOCK - 1 so that the first sample starts a block
         self._err: list[float] = []
@@ -321,10 +320,8 @@ class ImuLane:
         return err, bias
 
     def _bias_row(self, first: int) -> Vec3:
-        if self._bias is None:
-            b = self._bias0
-            return (b[first], b[first + 1], b[first + 2])
-        row = self._bias[self._k]
+        # before the first sample (no block drawn yet) the walk's last value is the turn-on bias
+        row = self._b_last if self._bias is None else self._bias[self._k]
         return (float(row[first]), float(row[first + 1]), float(row[first + 2]))
 
     @property

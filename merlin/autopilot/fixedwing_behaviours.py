@@ -187,7 +187,6 @@ def source_key(decision: Decision) -> tuple[Any, ...]:
     return ("trusted", decision.behavior)
 
 
-
 def near_ceiling(prm: geofence.FenceParams, alt_m: float) -> bool:
     """Whether a trusted behaviour at height ``alt_m`` flies with the height first (``height_priority``):
     within two fence margins of the ceiling. The ceiling's projection counts the climb under way and its
@@ -196,6 +195,7 @@ def near_ceiling(prm: geofence.FenceParams, alt_m: float) -> bool:
     ``fw_velocity`` near miss, searched with seed 6 at the default)."""
     c = prm.altitude_ceiling_m
     return c is not None and alt_m >= c - 2.0 * prm.margin_m
+
 
 class FixedWingBehaviours:
     """The fixed wing's actuator stage (module docstring): :meth:`step` once per tick of the core.
