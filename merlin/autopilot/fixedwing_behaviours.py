@@ -191,8 +191,8 @@ def near_ceiling(prm: geofence.FenceParams, alt_m: float) -> bool:
     """Whether a trusted behaviour at height ``alt_m`` flies with the height first (``height_priority``):
     within two fence margins of the ceiling. The ceiling's projection counts the climb under way and its
     stop at the vertical deceleration, not a climb the behaviour adds; TECS with balanced weights adds one
-    when it takes over fast (the speed it sheds becomes height: 4.4 m from 30 m/s in the falsifier's
-    ``fw_velocity`` near miss, searched with seed 6 at the default)."""
+    when it takes over fast (the speed it sheds becomes height: 4.4 m from 30 m/s in scenario
+    ``fw_adv_ceiling_overspeed_handover`` before this rule)."""
     c = prm.altitude_ceiling_m
     return c is not None and alt_m >= c - 2.0 * prm.margin_m
 
