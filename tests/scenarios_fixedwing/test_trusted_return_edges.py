@@ -257,3 +257,43 @@ def test_horizontal_escapes_at_full_speed_six_metres_under_the_ceiling_do_not_cl
         assert r.metrics["max_fence_breach_m"] == 0.0, sc.name
         assert r.metrics["min_fence_margin_m"] > 5.0, (sc.name, r.metrics["min_fence_margin_m"])
         assert any(e.get("type") == "fixed_wing_escape_turn" for e in r.events), sc.name
+
+
+def test_horizontal_escapes_at_full_speed_inside_the_height_first_band_keep_the_fence_margin() -> None:
+    """The two generated corner approaches that come closest at the maximum airspeed (corner 30 and 60 deg,
+    9.4 and 9.3 m at 120 m), started 8 m under the ceiling: inside the band where Merlin's behaviours fly
+    the height first (two margins, 10 m) but clear of the ceiling's own trip, so the horizontal boundary
+    revokes and the escape is flown with the speed shed by the drag alone, not traded for height. The
+    projection's turn is at the airspeed at the trip (``geofence.fixed_wing_turn``: the faster of it and the
+    escape airspeed), which an aircraft that keeps its speed still flies, so the truth path keeps the
+    fence's 5 m margin horizontally (6.4 and 6.6 m measured) and the escape does not climb into the
+    ceiling either."""
+    import shapely
+
+    from merlin.config.loader import load_config
+    from merlin.config.runtime import build_core_config
+    from sims.scenario import resolve_config
+    from tests.scenarios_fixedwing import fence_cases
+
+    fence = build_core_config(load_config(SCENARIOS.parent / "configs" / "fixedwing_default.yaml")).fence
+    assert fence is not None and fence.params.altitude_ceiling_m is not None
+    height = fence.params.altitude_ceiling_m - 8.0
+    assert height > fence.params.altitude_ceiling_m - 2.0 * fence.params.margin_m  # inside the band
+    boundary = shapely.boundary(fence.allowed_area)
+    for course in (30.0, 60.0):
+        sc = fence_cases.corner_case(fence, course, 30.0)
+        assert sc is not None
+        n, e, _ = sc.initial.pos_ned_m
+        band = sc.model_copy(update={"initial": sc.initial.model_copy(update={"pos_ned_m": [n, e, -height]})})
+        r = run_scenario(band, resolve_config(band, SCENARIOS, "<generated>"), source=sc.name)
+        results = evaluate_all(band.expectations, r.events, r.log, r.metrics)
+        assert all(x.passed for x in results), (sc.name, [(x.name, x.detail) for x in results])
+        revoked = [x for x in r.events if x["type"] == "revoked"]
+        assert revoked and revoked[0]["reason_detail"]["parameter"] == "inclusion", (sc.name, revoked)
+        assert any(x.get("type") == "fixed_wing_escape_turn" for x in r.events), sc.name
+        after = r.log["t"] >= revoked[0]["t"]
+        pts = shapely.points(r.log["truth_n"][after], r.log["truth_e"][after])
+        assert bool(np.all(shapely.contains(fence.allowed_area, pts))), sc.name
+        horizontal = float(np.min(shapely.distance(boundary, pts)))
+        assert horizontal > fence.params.margin_m, (sc.name, horizontal)
+        assert float(np.max(-r.log["truth_d"][after])) < fence.params.altitude_ceiling_m - 5.0, sc.name
