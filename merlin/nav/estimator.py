@@ -218,6 +218,10 @@ class NavEstimator:
         self._H_vo = np.zeros((2, N_ERR))
         self._gps_y = np.empty(6)  # a GPS epoch's innovation and R's diagonal (_gps_innovation)
         self._gps_r = np.empty(6)
+        self._mag_y = np.empty(1)  # a magnetic heading's innovation and R (update_mag, "heading" fusion)
+        self._mag_r = np.empty(1)
+        self._baro_y = np.empty(1)  # a barometer sample's innovation and R (update_baro)
+        self._baro_r = np.empty(1)
         self._g = np.array([0.0, 0.0, config.gravity_mps2])
         self._last_gyro: Vec3 = ZERO3
         self._last_accel: Vec3 = (0.0, 0.0, -config.gravity_mps2)
@@ -400,16 +404,6 @@ class NavEstimator:
 
     # ------------------------------------------------------------------------------ measurement update
 
-    def _residual(self, z: np.ndarray, hx: np.ndarray, angle: bool = False) -> np.ndarray:
-        """y = z − h(x̂) (angles wrapped), after the pending covariance prediction: every update is applied
-        at the filter's time."""
-        if self._every_n > 1:  # with every_n = 1 nothing is ever pending after predict()
-            self._predict_covariance()
-        y: np.ndarray = z - hx
-        if angle:
-            y = _angle_residual(z, hx)
-        return y
-
     def _nis(self, H: np.ndarray, r: np.ndarray, y: np.ndarray, lo: int = 0, hi: int = -1) -> float:
         """yᵀ S⁻¹ y over the rows lo..hi (all by default) with S = H P Hᵀ + R, R = diag(r)."""
         return float(kernels.nis(H, self.P, r, y, lo, len(y) if hi < 0 else hi))
@@ -419,15 +413,6 @@ class NavEstimator:
         form P = (I − K H) P (I − K H)ᵀ + K R Kᵀ), then inject δx and reset (Solà sec. 6.2-6.3, 7.3);
         evaluated on the non-zero entries of H in one kernel (``kernels.fuse``)."""
         kernels.fuse(self._s, self.P, H, r, y, False)
-
-    def _fuse_heading_only(self, y: np.ndarray, H: np.ndarray, r: np.ndarray) -> None:
-        """An update whose gain may not touch the tilt: K = P Hᵀ S⁻¹ with its δθ_n, δθ_e rows set to zero,
-        so the attitude correction is a rotation about the vertical (the heading) and roll and pitch are
-        left to the accelerometer's coupling with GPS and VO. The gain is then not the optimal one, and the
-        covariance must follow the gain actually applied: the Joseph form
-        P⁺ = (I − K H) P (I − K H)ᵀ + K R Kᵀ holds for any gain (Simon 2006, "Optimal State Estimation",
-        sec. 5.2; filterpy's ``update`` uses it with the optimal K), so the same kernel serves."""
-        kernels.fuse(self._s, self.P, H, r, y, True)
 
     def update_gps(self, gps: GpsSample) -> GpsCheck | None:
         """One GPS epoch: filterpy's ``update`` with the tests that guard it, one step per method.
@@ -846,15 +831,13 @@ class NavEstimator:
         is not pinned to the barometer alone: GPS height and the VO's scale (the δp_d column of the VO
         Jacobian) share in it, and the published height sigma grows when nothing but the baro holds it."""
         cfg = self.cfg
-        z = np.array([baro.alt_m])
-        hx = np.array([-self._p[2] + self._b_baro])
-        r = np.array((cfg.baro_sigma_m**2,))
-        y = self._residual(z, hx)
-        nis = self._nis(_H_BARO, r, y)
+        if self._every_n > 1:  # applied at the filter's time
+            self._predict_covariance()
+        # y, R, the NIS, the gate and the fusion in one kernel call (the steps as written above)
+        nis = float(kernels.baro_update(self._s, self.P, _H_BARO, self._baro_r, self._baro_y, float(baro.alt_m),
+                                        cfg.baro_sigma_m**2, float(cfg.baro_gate)))
         fused = nis <= cfg.baro_gate
-        if fused:
-            self._fuse(y, _H_BARO, r)
-        else:
+        if not fused:
             self._emit(NavEventKind.REJECTED, "baro", nis, cfg.baro_gate, "nis", "baro altitude inconsistent")
         self.last_baro = new_record(Check, (baro.t_s, nis, fused))
         return self.last_baro
@@ -866,7 +849,8 @@ class NavEstimator:
         velocity aiding). With ``mag_fusion = "heading"`` (the default) it is fused as a measurement of the
         rotation about the vertical, H_θ = [0, 0, 1] (a rotation of the global error δθ about the NED down
         axis changes the Euler yaw by exactly δθ_d and leaves roll and pitch alone), and the gain's tilt
-        rows are zeroed (:meth:`_fuse_heading_only`): the heading can no longer leak into roll and pitch.
+        rows are zeroed (:func:`merlin.nav.kernels.heading_update`, in the Joseph form, which holds for any
+        gain): the heading can no longer leak into roll and pitch.
 
         The levelling uses the *estimated* tilt, so z is not the true yaw: with the global error
         R = (I + [δθ]×) R̂, R̂ m_b = m − δθ × m (m the NED field), and to first order
@@ -884,43 +868,51 @@ class NavEstimator:
         Jacobian (``yaw_jacobian_global``; a hard pitch-up leaked ~2° into roll, and under manoeuvres the
         inertial-only error outgrew its σ); measured in docs/benchmarks/nav.md."""
         cfg = self.cfg
-        roll, pitch, yaw = quat_to_euler(self._q)
+        q = self._q
+        roll, pitch, yaw = quat_to_euler(q)
         heading, strength = _mag_heading(mag.field_frd_gauss, roll, pitch, cfg.mag_declination_rad)
         if strength < cfg.mag_min_horizontal_gauss:
             return None
         # the levelling's Jacobian: the exact H of "tilt_coupled", the tilt terms of R for "heading"
         jac = (0.0, 0.0, 0.0)
         if cfg.mag_fusion != "euler_yaw":
-            jac = mag_heading_jacobian(quat_rotate(self._q, mag.field_frd_gauss))
-        if cfg.mag_fusion == "tilt_coupled":
-            H = np.zeros((1, N_ERR))
-            H[0, 6:9] = jac
-        elif cfg.mag_fusion == "euler_yaw":
-            H = np.zeros((1, N_ERR))
-            H[0, 6:9] = yaw_jacobian_global(quat_to_dcm(self._q))
-        else:
-            H = _H_HEADING
-        if self._every_n > 1:  # applied at the filter's time
-            self._predict_covariance()
-        r = np.array((cfg.mag_heading_sigma_rad**2,))
+            jac = mag_heading_jacobian(quat_rotate(q, mag.field_frd_gauss))
         if cfg.mag_fusion == "heading":
+            # R, the NIS, the gate and the heading-only fusion in one kernel call (kernels.heading_update:
+            # the same arithmetic as the general path below, without its one-element arrays)
+            if self._every_n > 1:  # applied at the filter's time
+                self._predict_covariance()
             jn, je, _ = jac
-            P = self.P
-            r[0] += jn * jn * P[6, 6] + 2.0 * jn * je * P[6, 7] + je * je * P[7, 7]
-        y = np.array((wrap_pi(heading - yaw),))  # z − h(x̂), h(x̂) = ψ̂, wrapped
-        nis = self._nis(H, r, y)
-        fused = nis <= cfg.mag_gate
-        if fused:
-            if cfg.mag_fusion == "heading":
-                self._fuse_heading_only(y, H, r)
-            else:
-                self._fuse(y, H, r)
+            nis = float(kernels.heading_update(
+                self._s, self.P, _H_HEADING, self._mag_r, self._mag_y, wrap_pi(heading - yaw),
+                cfg.mag_heading_sigma_rad**2, jn, je, float(cfg.mag_gate)))
+            fused = nis <= cfg.mag_gate
         else:
+            nis, fused = self._mag_update_general(heading, yaw, jac)
+        if not fused:
             self._emit(
                 NavEventKind.REJECTED, "mag", nis, cfg.mag_gate, "nis", "magnetic heading inconsistent"
             )
         self.last_mag = new_record(Check, (mag.t_s, nis, fused))
         return self.last_mag
+
+    def _mag_update_general(
+        self, heading: float, yaw: float, jac: tuple[float, float, float]
+    ) -> tuple[float, bool]:
+        """The magnetic heading fused with the optimal gain (``mag_fusion`` "tilt_coupled" with the levelling's
+        Jacobian ``jac``, or "euler_yaw"): returns the NIS and whether the update was fused."""
+        cfg = self.cfg
+        H = np.zeros((1, N_ERR))
+        H[0, 6:9] = jac if cfg.mag_fusion == "tilt_coupled" else yaw_jacobian_global(quat_to_dcm(self._q))
+        if self._every_n > 1:  # applied at the filter's time
+            self._predict_covariance()
+        r = np.array((cfg.mag_heading_sigma_rad**2,))
+        y = np.array((wrap_pi(heading - yaw),))  # z − h(x̂), h(x̂) = ψ̂, wrapped
+        nis = self._nis(H, r, y)
+        fused = nis <= cfg.mag_gate
+        if fused:
+            self._fuse(y, H, r)
+        return nis, fused
 
     # ------------------------------------------------------------------------------ modes and output
 
@@ -1190,12 +1182,6 @@ def _badness(value: float, worst: float, good: float) -> float:
     if good <= worst:
         return 0.0
     return min(1.0, max(0.0, (good - value) / (good - worst)))
-
-
-def _angle_residual(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    d: np.ndarray = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
-    wrapped: np.ndarray = (d + math.pi) % (2.0 * math.pi) - math.pi
-    return wrapped
 
 
 _DIAG: Final = np.arange(N_ERR)

@@ -594,6 +594,80 @@ fuse: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool
 
 
 @_njit
+def _heading_update_blocks(
+    s: np.ndarray, P: np.ndarray, H: np.ndarray, r: np.ndarray, y: np.ndarray, innovation: float,
+    sigma2: float, jn: float, je: float, gate: float,
+) -> float:
+    """The magnetic heading update of ``NavEstimator.update_mag`` (``mag_fusion = "heading"``) in one call:
+    R = σ² + J_t P_tt J_tᵀ (the levelling's tilt terms ``jn, je`` through the tilt block of P) into
+    ``r[0]``, the innovation into ``y[0]``, the NIS, and the heading-only fusion when the NIS is within
+    ``gate``. Returns the NIS.
+
+    The heading-only fusion's gain may not touch the tilt: K = P Hᵀ S⁻¹ with its δθ_n, δθ_e rows set to
+    zero, so the attitude correction is a rotation about the vertical and roll and pitch are left to the
+    accelerometer's coupling with GPS and VO. That gain is not the optimal one, and the covariance follows
+    the gain applied: the Joseph form holds for any gain (Simon 2006, "Optimal State Estimation", sec. 5.2),
+    so :data:`fuse` serves with ``tilt_free``.
+
+    Why one kernel: the same arithmetic, in the same order, as computing R and y in the caller and calling
+    :data:`nis` and :data:`fuse` one after the other, but the magnetometer's update at 100 Hz spent more of
+    its time on those calls and the one-element arrays between them than in the update itself."""
+    r[0] = sigma2 + (jn * jn * P[6, 6] + 2.0 * jn * je * P[6, 7] + je * je * P[7, 7])
+    y[0] = innovation
+    v: float = _nis_blocks(H, P, r, y, 0, 1)
+    if v <= gate:
+        _fuse_blocks(s, P, H, r, y, True)
+    return v
+
+
+def _heading_update_dense(
+    s: np.ndarray, P: np.ndarray, H: np.ndarray, r: np.ndarray, y: np.ndarray, innovation: float,
+    sigma2: float, jn: float, je: float, gate: float,
+) -> float:
+    r[0] = sigma2 + (jn * jn * P[6, 6] + 2.0 * jn * je * P[6, 7] + je * je * P[7, 7])
+    y[0] = innovation
+    v = _nis_dense(H, P, r, y, 0, 1)
+    if v <= gate:
+        _fuse_dense(s, P, H, r, y, True)
+    return v
+
+
+heading_update: Callable[..., float] = _heading_update_blocks if JIT else _heading_update_dense
+
+
+@_njit
+def _baro_update_blocks(
+    s: np.ndarray, P: np.ndarray, H: np.ndarray, r: np.ndarray, y: np.ndarray, alt_m: float, sigma2: float,
+    gate: float,
+) -> float:
+    """The barometer's update of ``NavEstimator.update_baro`` in one call: y = z − (−p̂_d + b̂_baro) into
+    ``y[0]``, R = ``sigma2`` into ``r[0]``, the NIS, and the fusion when the NIS is within ``gate``; returns
+    the NIS. The same arithmetic, in the same order, as the steps it replaces (the caller's y and R, then
+    :data:`nis` and :data:`fuse`), for the same reason as :func:`_heading_update_blocks`."""
+    r[0] = sigma2
+    y[0] = alt_m - (-s[2] + s[I_BBARO])
+    v: float = _nis_blocks(H, P, r, y, 0, 1)
+    if v <= gate:
+        _fuse_blocks(s, P, H, r, y, False)
+    return v
+
+
+def _baro_update_dense(
+    s: np.ndarray, P: np.ndarray, H: np.ndarray, r: np.ndarray, y: np.ndarray, alt_m: float, sigma2: float,
+    gate: float,
+) -> float:
+    r[0] = sigma2
+    y[0] = alt_m - (-s[2] + s[I_BBARO])
+    v = _nis_dense(H, P, r, y, 0, 1)
+    if v <= gate:
+        _fuse_dense(s, P, H, r, y, False)
+    return v
+
+
+baro_update: Callable[..., float] = _baro_update_blocks if JIT else _baro_update_dense
+
+
+@_njit
 def vo_jacobian_into(s: np.ndarray, H: np.ndarray, coupling: bool) -> None:
     """The horizontal VO velocity's Jacobian (``NavEstimator._vo_jacobian`` gives the equations) into the
     2×19 array H: I₂ along δv_h and, with ``coupling``, v_h/h along δp_d, (v_e, −v_n) along δθ_d and
@@ -700,6 +774,8 @@ AOT_EXPORTS: dict[str, tuple[str, str]] = {
     "cov_predict_blocks": ("_cov_predict_blocks", f"void({_C1},{_C2},{_C1},f8)"),
     "nis_blocks": ("_nis_blocks", f"f8({_C2},{_C2},{_C1},{_C1},i8,i8)"),
     "fuse_blocks": ("_fuse_blocks", f"b1({_C1},{_C2},{_C2},{_C1},{_C1},b1)"),
+    "heading_update_blocks": ("_heading_update_blocks", f"f8({_C1},{_C2},{_C2},{_C1},{_C1},f8,f8,f8,f8,f8)"),
+    "baro_update_blocks": ("_baro_update_blocks", f"f8({_C1},{_C2},{_C2},{_C1},{_C1},f8,f8,f8)"),
     "gps_innovation": ("gps_innovation", f"UniTuple(f8,7)({_C1},{_C2},{_C2},{','.join(['f8'] * 14)},{_C1},{_C1})"),
     "vo_jacobian_into": ("vo_jacobian_into", f"void({_C1},{_C2},b1)"),
     "vo_filter_variance": ("vo_filter_variance", f"UniTuple(f8,2)({_C2},{_C2})"),
@@ -721,12 +797,16 @@ if _AOT is not None:
     _cov_predict_blocks = _AOT.cov_predict_blocks
     _nis_blocks = _AOT.nis_blocks
     _fuse_blocks = _AOT.fuse_blocks
+    _heading_update_blocks = _AOT.heading_update_blocks
+    _baro_update_blocks = _AOT.baro_update_blocks
     gps_innovation = _AOT.gps_innovation
     vo_jacobian_into = _AOT.vo_jacobian_into
     vo_filter_variance = _AOT.vo_filter_variance
     cov_predict = _cov_predict_blocks
     nis = _nis_blocks
     fuse = _fuse_blocks
+    heading_update = _heading_update_blocks
+    baro_update = _baro_update_blocks
 
 
 def build_aot(out_dir: str) -> str:

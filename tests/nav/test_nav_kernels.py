@@ -174,6 +174,76 @@ def test_heading_only_update_is_the_joseph_form_with_the_tilt_rows_of_the_gain_z
     np.testing.assert_allclose(P_k, P_ref, rtol=1e-10, atol=1e-11 * np.abs(P_ref).max())
 
 
+HEADING_UPDATES = {
+    "blocks": (kernels._heading_update_blocks, kernels._nis_blocks, kernels._fuse_blocks),
+    "blocks-python": (kernels.python_body("_heading_update_blocks"), kernels.python_body("_nis_blocks"),
+                      kernels.python_body("_fuse_blocks")),
+    "dense": (kernels._heading_update_dense, kernels._nis_dense, kernels._fuse_dense),
+}
+
+
+@pytest.mark.parametrize("name", HEADING_UPDATES)
+@pytest.mark.parametrize("seed", range(4))
+def test_the_heading_update_in_one_call_is_r_the_nis_and_the_tilt_free_fusion_to_the_bit(name, seed):
+    """kernels.heading_update (the magnetometer's update in one call) against the steps it replaces in
+    NavEstimator.update_mag: R = σ² + the tilt terms through P's tilt block, the NIS, and the tilt-free
+    fusion only within the gate. Bit for bit, for an innovation inside the gate and one outside it."""
+    update, nis, fuse = HEADING_UPDATES[name]
+    rng = np.random.default_rng(seed)
+    H = np.zeros((1, N))
+    H[0, 8] = 1.0
+    sigma2, jn, je = 0.05**2, float(rng.normal(0.0, 0.3)), float(rng.normal(0.0, 0.3))
+    for innovation, gate in ((float(rng.normal(0.0, 0.05)), 1e6), (2.5, 1e-3)):
+        s, P = random_state(rng), random_cov(rng)
+        r_ref = np.array((sigma2,))
+        r_ref[0] += jn * jn * P[6, 6] + 2.0 * jn * je * P[6, 7] + je * je * P[7, 7]
+        y_ref = np.array((innovation,))
+        s_ref, P_ref = s.copy(), P.copy()
+        want = float(nis(H, P_ref, r_ref, y_ref, 0, 1))
+        if want <= gate:
+            fuse(s_ref, P_ref, H, r_ref, y_ref, True)
+        r, y = np.empty(1), np.empty(1)
+        got = update(s, P, H, r, y, innovation, sigma2, jn, je, gate)
+        assert got == want
+        assert (want <= gate) == (gate > 1.0)  # the first innovation is fused, the second rejected
+        assert r[0] == r_ref[0] and y[0] == innovation
+        assert np.array_equal(s, s_ref) and np.array_equal(P, P_ref)
+
+
+BARO_UPDATES = {
+    "blocks": (kernels._baro_update_blocks, kernels._nis_blocks, kernels._fuse_blocks),
+    "blocks-python": (kernels.python_body("_baro_update_blocks"), kernels.python_body("_nis_blocks"),
+                      kernels.python_body("_fuse_blocks")),
+    "dense": (kernels._baro_update_dense, kernels._nis_dense, kernels._fuse_dense),
+}
+
+
+@pytest.mark.parametrize("name", BARO_UPDATES)
+@pytest.mark.parametrize("seed", range(4))
+def test_the_baro_update_in_one_call_is_the_residual_the_nis_and_the_fusion_to_the_bit(name, seed):
+    """kernels.baro_update against the steps it replaces in NavEstimator.update_baro: y = z − (−p̂_d +
+    b̂_baro), R = σ², the NIS, and the fusion only within the gate; bit for bit, fused and rejected."""
+    update, nis, fuse = BARO_UPDATES[name]
+    rng = np.random.default_rng(seed)
+    H = np.array(_H_BARO)
+    sigma2 = 0.5**2
+    for offset, gate in ((float(rng.normal(0.0, 0.5)), 1e6), (40.0, 1e-3)):
+        s, P = random_state(rng), random_cov(rng)
+        alt = float(-s[2] + s[kernels.I_BBARO] + offset)
+        y_ref = np.array([alt]) - np.array([-s[2] + float(s[kernels.I_BBARO])])
+        r_ref = np.array((sigma2,))
+        s_ref, P_ref = s.copy(), P.copy()
+        want = float(nis(H, P_ref, r_ref, y_ref, 0, 1))
+        if want <= gate:
+            fuse(s_ref, P_ref, H, r_ref, y_ref, False)
+        r, y = np.empty(1), np.empty(1)
+        got = update(s, P, H, r, y, alt, sigma2, gate)
+        assert got == want
+        assert (want <= gate) == (gate > 1.0)  # the first sample is fused, the second rejected
+        assert r[0] == sigma2 and y[0] == y_ref[0]
+        assert np.array_equal(s, s_ref) and np.array_equal(P, P_ref)
+
+
 @pytest.mark.parametrize("name", NISES)
 def test_nis_of_a_block_of_rows(name):
     rng = np.random.default_rng(3)
