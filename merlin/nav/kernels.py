@@ -594,6 +594,71 @@ fuse: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool
 
 
 @_njit
+def _one_row_update(
+    s: np.ndarray, P: np.ndarray, H: np.ndarray, r: np.ndarray, y: np.ndarray, gate: float, tilt_free: bool
+) -> float:
+    """A one-row measurement (H 1×n, R = r[0], y[0]): its NIS, then, when the NIS is within ``gate``, the
+    update, injection and reset that :func:`_fuse_blocks` makes; returns the NIS (inf when S is not
+    positive).
+
+    The same operations in the same order as :func:`_nis_blocks` followed by :func:`_fuse_blocks` with
+    m = 1, so the same bits: each of their one-term sums starts from 0.0 as theirs do (0.0 + x, which
+    differs from x for x = -0.0), and H's non-zero columns are summed in the same ascending order. What
+    it saves: H P, S and S⁻¹ are formed once for both, no matrix is allocated (Joseph form's A = P − K H P
+    is formed entry by entry as P is overwritten, after the columns A Hᵀ needs were read), and the loops
+    over the one row disappear."""
+    n = H.shape[1]
+    w = np.empty((4, n))
+    hp, k_, aht, dx = w[0], w[1], w[2], w[3]
+    # H P from the non-zero entries of H, and S = H P Hᵀ + r
+    for j in range(n):
+        hp[j] = 0.0
+    for k in range(n):
+        h = H[0, k]
+        if h != 0.0:
+            for j in range(n):
+                hp[j] += h * P[k, j]
+    acc = r[0]
+    for k in range(n):
+        h = H[0, k]
+        if h != 0.0:
+            acc += hp[k] * h
+    if acc <= 0.0:
+        return math.inf
+    li = 1.0 / math.sqrt(acc)
+    si = 0.0 + li * li
+    v = 0.0 + y[0] * si * y[0]
+    if not v <= gate:
+        return v
+    for i in range(n):
+        k_[i] = 0.0 + hp[i] * si
+    if tilt_free:
+        k_[6] = 0.0
+        k_[7] = 0.0
+    for i in range(n):
+        dx[i] = 0.0 + k_[i] * y[0]
+    for i in range(n):
+        aht[i] = 0.0
+    for k in range(n):
+        h = H[0, k]
+        if h != 0.0:
+            for i in range(n):
+                aht[i] += (P[i, k] - k_[i] * hp[k]) * h
+    r0 = r[0]
+    for i in range(n):
+        kri = k_[i] * r0
+        ahti = aht[i]
+        for j in range(i, n):
+            kj = k_[j]
+            P[i, j] = (P[i, j] - k_[i] * hp[j]) + (kri * kj - ahti * kj)
+    for i in range(n):
+        for j in range(i):
+            P[i, j] = P[j, i]
+    _inject_reset(s, P, dx)
+    return v
+
+
+@_njit
 def _heading_update_blocks(
     s: np.ndarray, P: np.ndarray, H: np.ndarray, r: np.ndarray, y: np.ndarray, innovation: float,
     sigma2: float, jn: float, je: float, gate: float,
@@ -614,9 +679,7 @@ def _heading_update_blocks(
     its time on those calls and the one-element arrays between them than in the update itself."""
     r[0] = sigma2 + (jn * jn * P[6, 6] + 2.0 * jn * je * P[6, 7] + je * je * P[7, 7])
     y[0] = innovation
-    v: float = _nis_blocks(H, P, r, y, 0, 1)
-    if v <= gate:
-        _fuse_blocks(s, P, H, r, y, True)
+    v: float = _one_row_update(s, P, H, r, y, gate, True)
     return v
 
 
@@ -646,9 +709,7 @@ def _baro_update_blocks(
     :data:`nis` and :data:`fuse`), for the same reason as :func:`_heading_update_blocks`."""
     r[0] = sigma2
     y[0] = alt_m - (-s[2] + s[I_BBARO])
-    v: float = _nis_blocks(H, P, r, y, 0, 1)
-    if v <= gate:
-        _fuse_blocks(s, P, H, r, y, False)
+    v: float = _one_row_update(s, P, H, r, y, gate, False)
     return v
 
 

@@ -210,6 +210,30 @@ def test_the_heading_update_in_one_call_is_r_the_nis_and_the_tilt_free_fusion_to
         assert np.array_equal(s, s_ref) and np.array_equal(P, P_ref)
 
 
+@settings(max_examples=150, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), cols=st.lists(st.integers(0, N - 1), min_size=1, max_size=3, unique=True),
+       y0=st.one_of(st.floats(-5.0, 5.0), st.sampled_from([0.0, -0.0])), tilt_free=st.booleans())
+def test_the_one_row_update_is_the_nis_then_the_fusion_to_the_bit(seed, cols, y0, tilt_free):
+    """kernels._one_row_update (what heading_update and baro_update call) against _nis_blocks then
+    _fuse_blocks, on any one-row H with one to three non-zero columns, any innovation (±0 among them) and
+    either gain: the same NIS, state and covariance bit for bit."""
+    rng = np.random.default_rng(seed)
+    H = np.zeros((1, N))
+    for c in sorted(cols):
+        H[0, c] = float(rng.choice([-1.0, 1.0])) * float(rng.uniform(0.1, 3.0))
+    r = np.array([float(rng.uniform(1e-4, 2.0))])
+    y = np.array([y0])
+    s, P = random_state(rng), random_cov(rng)
+    s_ref, P_ref = s.copy(), P.copy()
+    want = float(kernels._nis_blocks(H, P_ref, r, y, 0, 1))
+    gate = float(rng.choice([want * 0.5, want * 2.0 + 1e-12])) if math.isfinite(want) else 1.0
+    if want <= gate:
+        assert kernels._fuse_blocks(s_ref, P_ref, H, r, y, tilt_free)
+    got = kernels._one_row_update(s, P, H, r, y, gate, tilt_free)
+    assert got == want or (math.isnan(got) and math.isnan(want))
+    assert np.array_equal(s, s_ref) and np.array_equal(P, P_ref)
+
+
 BARO_UPDATES = {
     "blocks": (kernels._baro_update_blocks, kernels._nis_blocks, kernels._fuse_blocks),
     "blocks-python": (kernels.python_body("_baro_update_blocks"), kernels.python_body("_nis_blocks"),
