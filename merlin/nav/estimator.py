@@ -215,13 +215,7 @@ class NavEstimator:
         s[kernels.S_QG] = q0  # integrated from the bias-corrected gyro only, never updated
         self._c = np.array([config.gravity_mps2, config.gps_bias_tau_s, float(config.cov_predict_every_n)])
         self._every_n = config.cov_predict_every_n
-        self._H_vo = np.zeros((2, N_ERR))
-        self._gps_y = np.empty(6)  # a GPS epoch's innovation and R's diagonal (_gps_innovation)
-        self._gps_r = np.empty(6)
-        self._mag_y = np.empty(1)  # a magnetic heading's innovation and R (update_mag, "heading" fusion)
-        self._mag_r = np.empty(1)
-        self._baro_y = np.empty(1)  # a barometer sample's innovation and R (update_baro)
-        self._baro_r = np.empty(1)
+        self._alloc_update_arrays()
         self._g = np.array([0.0, 0.0, config.gravity_mps2])
         self._last_gyro: Vec3 = ZERO3
         self._last_accel: Vec3 = (0.0, 0.0, -config.gravity_mps2)
@@ -403,6 +397,17 @@ class NavEstimator:
         kernels.cov_predict(self._s, self.P, self._q_density, self.cfg.gps_bias_tau_s)
 
     # ------------------------------------------------------------------------------ measurement update
+
+    def _alloc_update_arrays(self) -> None:
+        """The arrays the measurement updates fill in place (the kernels write them; none is allocated
+        per update)."""
+        self._H_vo = np.zeros((2, N_ERR))
+        self._gps_y = np.empty(6)  # a GPS epoch's innovation and R's diagonal (_gps_innovation)
+        self._gps_r = np.empty(6)
+        self._mag_y = np.empty(1)  # a magnetic heading's innovation and R (update_mag, "heading" fusion)
+        self._mag_r = np.empty(1)
+        self._baro_y = np.empty(1)  # a barometer sample's innovation and R (update_baro)
+        self._baro_r = np.empty(1)
 
     def _nis(self, H: np.ndarray, r: np.ndarray, y: np.ndarray, lo: int = 0, hi: int = -1) -> float:
         """yᵀ S⁻¹ y over the rows lo..hi (all by default) with S = H P Hᵀ + R, R = diag(r)."""
