@@ -511,11 +511,18 @@ def _fuse_blocks(
                 acc += KR[i, a] * K[j, a] - AHt[i, a] * K[j, a]
             P[i, j] = acc
     # written symmetric: the upper triangle is the computed one (A's lower triangle differs by rounding)
+    _mirror_then_inject(s, P, dx)
+    return True
+
+
+@_njit
+def _mirror_then_inject(s: np.ndarray, P: np.ndarray, dx: np.ndarray) -> None:
+    """P's lower triangle copied from its upper one (the computed one), then the injection and reset."""
+    n = P.shape[0]
     for i in range(n):
         for j in range(i):
             P[i, j] = P[j, i]
     _inject_reset(s, P, dx)
-    return True
 
 
 @_njit
@@ -608,11 +615,9 @@ def _one_row_update(
     is formed entry by entry as P is overwritten, after the columns A Hᵀ needs were read), and the loops
     over the one row disappear."""
     n = H.shape[1]
-    w = np.empty((4, n))
+    w = np.zeros((4, n))  # the sums below start from +0.0, as the two kernels' do
     hp, k_, aht, dx = w[0], w[1], w[2], w[3]
     # H P from the non-zero entries of H, and S = H P Hᵀ + r
-    for j in range(n):
-        hp[j] = 0.0
     for k in range(n):
         h = H[0, k]
         if h != 0.0:
@@ -637,9 +642,7 @@ def _one_row_update(
         k_[7] = 0.0
     for i in range(n):
         dx[i] = 0.0 + k_[i] * y[0]
-    for i in range(n):
-        aht[i] = 0.0
-    for k in range(n):
+    for k in range(n):  # A Hᵀ, A = P − K H P read where H is not zero, before P is written
         h = H[0, k]
         if h != 0.0:
             for i in range(n):
@@ -651,10 +654,7 @@ def _one_row_update(
         for j in range(i, n):
             kj = k_[j]
             P[i, j] = (P[i, j] - k_[i] * hp[j]) + (kri * kj - ahti * kj)
-    for i in range(n):
-        for j in range(i):
-            P[i, j] = P[j, i]
-    _inject_reset(s, P, dx)
+    _mirror_then_inject(s, P, dx)
     return v
 
 
@@ -683,16 +683,24 @@ def _heading_update_blocks(
     return v
 
 
+def _one_row_update_dense(
+    s: np.ndarray, P: np.ndarray, H: np.ndarray, r: np.ndarray, y: np.ndarray, gate: float, tilt_free: bool
+) -> float:
+    """:func:`_one_row_update` with the dense numpy steps (no compiler): the NIS, then the fusion within
+    ``gate``."""
+    v = _nis_dense(H, P, r, y, 0, 1)
+    if v <= gate:
+        _fuse_dense(s, P, H, r, y, tilt_free)
+    return v
+
+
 def _heading_update_dense(
     s: np.ndarray, P: np.ndarray, H: np.ndarray, r: np.ndarray, y: np.ndarray, innovation: float,
     sigma2: float, jn: float, je: float, gate: float,
 ) -> float:
     r[0] = sigma2 + (jn * jn * P[6, 6] + 2.0 * jn * je * P[6, 7] + je * je * P[7, 7])
     y[0] = innovation
-    v = _nis_dense(H, P, r, y, 0, 1)
-    if v <= gate:
-        _fuse_dense(s, P, H, r, y, True)
-    return v
+    return _one_row_update_dense(s, P, H, r, y, gate, True)
 
 
 heading_update: Callable[..., float] = _heading_update_blocks if JIT else _heading_update_dense
@@ -719,10 +727,7 @@ def _baro_update_dense(
 ) -> float:
     r[0] = sigma2
     y[0] = alt_m - (-s[2] + s[I_BBARO])
-    v = _nis_dense(H, P, r, y, 0, 1)
-    if v <= gate:
-        _fuse_dense(s, P, H, r, y, False)
-    return v
+    return _one_row_update_dense(s, P, H, r, y, gate, False)
 
 
 baro_update: Callable[..., float] = _baro_update_blocks if JIT else _baro_update_dense

@@ -174,12 +174,28 @@ def test_heading_only_update_is_the_joseph_form_with_the_tilt_rows_of_the_gain_z
     np.testing.assert_allclose(P_k, P_ref, rtol=1e-10, atol=1e-11 * np.abs(P_ref).max())
 
 
-HEADING_UPDATES = {
-    "blocks": (kernels._heading_update_blocks, kernels._nis_blocks, kernels._fuse_blocks),
-    "blocks-python": (kernels.python_body("_heading_update_blocks"), kernels.python_body("_nis_blocks"),
-                      kernels.python_body("_fuse_blocks")),
-    "dense": (kernels._heading_update_dense, kernels._nis_dense, kernels._fuse_dense),
-}
+def _one_row_updates(kind: str) -> dict[str, tuple]:
+    """A one-row update kernel (``kind``: heading or baro) in each form, with the NIS and fusion steps
+    it must equal."""
+    return {
+        "blocks": (getattr(kernels, f"_{kind}_update_blocks"), kernels._nis_blocks, kernels._fuse_blocks),
+        "blocks-python": (kernels.python_body(f"_{kind}_update_blocks"), kernels.python_body("_nis_blocks"),
+                          kernels.python_body("_fuse_blocks")),
+        "dense": (getattr(kernels, f"_{kind}_update_dense"), kernels._nis_dense, kernels._fuse_dense),
+    }
+
+
+HEADING_UPDATES = _one_row_updates("heading")
+
+
+def _nis_then_fusion(nis, fuse, s, P, H, r, y, gate, tilt_free):
+    """The steps a one-row update kernel replaces, on copies of s and P: the NIS, then the fusion only
+    within the gate. Returns the NIS and the state and covariance after them."""
+    s_ref, P_ref = s.copy(), P.copy()
+    want = float(nis(H, P_ref, r, y, 0, 1))
+    if want <= gate:
+        fuse(s_ref, P_ref, H, r, y, tilt_free)
+    return want, s_ref, P_ref
 
 
 @pytest.mark.parametrize("name", HEADING_UPDATES)
@@ -198,10 +214,7 @@ def test_the_heading_update_in_one_call_is_r_the_nis_and_the_tilt_free_fusion_to
         r_ref = np.array((sigma2,))
         r_ref[0] += jn * jn * P[6, 6] + 2.0 * jn * je * P[6, 7] + je * je * P[7, 7]
         y_ref = np.array((innovation,))
-        s_ref, P_ref = s.copy(), P.copy()
-        want = float(nis(H, P_ref, r_ref, y_ref, 0, 1))
-        if want <= gate:
-            fuse(s_ref, P_ref, H, r_ref, y_ref, True)
+        want, s_ref, P_ref = _nis_then_fusion(nis, fuse, s, P, H, r_ref, y_ref, gate, True)
         r, y = np.empty(1), np.empty(1)
         got = update(s, P, H, r, y, innovation, sigma2, jn, je, gate)
         assert got == want
@@ -234,12 +247,7 @@ def test_the_one_row_update_is_the_nis_then_the_fusion_to_the_bit(seed, cols, y0
     assert np.array_equal(s, s_ref) and np.array_equal(P, P_ref)
 
 
-BARO_UPDATES = {
-    "blocks": (kernels._baro_update_blocks, kernels._nis_blocks, kernels._fuse_blocks),
-    "blocks-python": (kernels.python_body("_baro_update_blocks"), kernels.python_body("_nis_blocks"),
-                      kernels.python_body("_fuse_blocks")),
-    "dense": (kernels._baro_update_dense, kernels._nis_dense, kernels._fuse_dense),
-}
+BARO_UPDATES = _one_row_updates("baro")
 
 
 @pytest.mark.parametrize("name", BARO_UPDATES)
@@ -256,10 +264,7 @@ def test_the_baro_update_in_one_call_is_the_residual_the_nis_and_the_fusion_to_t
         alt = float(-s[2] + s[kernels.I_BBARO] + offset)
         y_ref = np.array([alt]) - np.array([-s[2] + float(s[kernels.I_BBARO])])
         r_ref = np.array((sigma2,))
-        s_ref, P_ref = s.copy(), P.copy()
-        want = float(nis(H, P_ref, r_ref, y_ref, 0, 1))
-        if want <= gate:
-            fuse(s_ref, P_ref, H, r_ref, y_ref, False)
+        want, s_ref, P_ref = _nis_then_fusion(nis, fuse, s, P, H, r_ref, y_ref, gate, False)
         r, y = np.empty(1), np.empty(1)
         got = update(s, P, H, r, y, alt, sigma2, gate)
         assert got == want
