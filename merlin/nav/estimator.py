@@ -882,11 +882,11 @@ class NavEstimator:
         jac = (0.0, 0.0, 0.0)
         if cfg.mag_fusion != "euler_yaw":
             jac = mag_heading_jacobian(quat_rotate(q, mag.field_frd_gauss))
+        if self._every_n > 1:  # applied at the filter's time
+            self._predict_covariance()
         if cfg.mag_fusion == "heading":
             # R, the NIS, the gate and the heading-only fusion in one kernel call (kernels.heading_update:
             # the same arithmetic as the general path below, without its one-element arrays)
-            if self._every_n > 1:  # applied at the filter's time
-                self._predict_covariance()
             jn, je, _ = jac
             nis = float(kernels.heading_update(
                 self._s, self.P, _H_HEADING, self._mag_r, self._mag_y, wrap_pi(heading - yaw),
@@ -905,12 +905,11 @@ class NavEstimator:
         self, heading: float, yaw: float, jac: tuple[float, float, float]
     ) -> tuple[float, bool]:
         """The magnetic heading fused with the optimal gain (``mag_fusion`` "tilt_coupled" with the levelling's
-        Jacobian ``jac``, or "euler_yaw"): returns the NIS and whether the update was fused."""
+        Jacobian ``jac``, or "euler_yaw"), any pending covariance prediction already applied: returns the NIS
+        and whether the update was fused."""
         cfg = self.cfg
         H = np.zeros((1, N_ERR))
         H[0, 6:9] = jac if cfg.mag_fusion == "tilt_coupled" else yaw_jacobian_global(quat_to_dcm(self._q))
-        if self._every_n > 1:  # applied at the filter's time
-            self._predict_covariance()
         r = np.array((cfg.mag_heading_sigma_rad**2,))
         y = np.array((wrap_pi(heading - yaw),))  # z − h(x̂), h(x̂) = ψ̂, wrapped
         nis = self._nis(H, r, y)

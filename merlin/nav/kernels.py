@@ -659,6 +659,24 @@ def _one_row_update(
 
 
 @_njit
+def _heading_r_y(
+    P: np.ndarray, r: np.ndarray, y: np.ndarray, innovation: float, sigma2: float, jn: float, je: float
+) -> None:
+    """The magnetic heading's R = σ² + J_t P_tt J_tᵀ (the levelling's tilt terms through P's tilt block)
+    into ``r[0]`` and its innovation into ``y[0]``, for both forms of :data:`heading_update`."""
+    r[0] = sigma2 + (jn * jn * P[6, 6] + 2.0 * jn * je * P[6, 7] + je * je * P[7, 7])
+    y[0] = innovation
+
+
+@_njit
+def _baro_r_y(s: np.ndarray, r: np.ndarray, y: np.ndarray, alt_m: float, sigma2: float) -> None:
+    """The barometer's R = σ² into ``r[0]`` and y = z − (−p̂_d + b̂_baro) into ``y[0]``, for both forms of
+    :data:`baro_update`."""
+    r[0] = sigma2
+    y[0] = alt_m - (-s[2] + s[I_BBARO])
+
+
+@_njit
 def _heading_update_blocks(
     s: np.ndarray, P: np.ndarray, H: np.ndarray, r: np.ndarray, y: np.ndarray, innovation: float,
     sigma2: float, jn: float, je: float, gate: float,
@@ -677,8 +695,7 @@ def _heading_update_blocks(
     Why one kernel: the same arithmetic, in the same order, as computing R and y in the caller and calling
     :data:`nis` and :data:`fuse` one after the other, but the magnetometer's update at 100 Hz spent more of
     its time on those calls and the one-element arrays between them than in the update itself."""
-    r[0] = sigma2 + (jn * jn * P[6, 6] + 2.0 * jn * je * P[6, 7] + je * je * P[7, 7])
-    y[0] = innovation
+    _heading_r_y(P, r, y, innovation, sigma2, jn, je)
     v: float = _one_row_update(s, P, H, r, y, gate, True)
     return v
 
@@ -698,8 +715,7 @@ def _heading_update_dense(
     s: np.ndarray, P: np.ndarray, H: np.ndarray, r: np.ndarray, y: np.ndarray, innovation: float,
     sigma2: float, jn: float, je: float, gate: float,
 ) -> float:
-    r[0] = sigma2 + (jn * jn * P[6, 6] + 2.0 * jn * je * P[6, 7] + je * je * P[7, 7])
-    y[0] = innovation
+    _heading_r_y(P, r, y, innovation, sigma2, jn, je)
     return _one_row_update_dense(s, P, H, r, y, gate, True)
 
 
@@ -715,8 +731,7 @@ def _baro_update_blocks(
     ``y[0]``, R = ``sigma2`` into ``r[0]``, the NIS, and the fusion when the NIS is within ``gate``; returns
     the NIS. The same arithmetic, in the same order, as the steps it replaces (the caller's y and R, then
     :data:`nis` and :data:`fuse`), for the same reason as :func:`_heading_update_blocks`."""
-    r[0] = sigma2
-    y[0] = alt_m - (-s[2] + s[I_BBARO])
+    _baro_r_y(s, r, y, alt_m, sigma2)
     v: float = _one_row_update(s, P, H, r, y, gate, False)
     return v
 
@@ -725,8 +740,7 @@ def _baro_update_dense(
     s: np.ndarray, P: np.ndarray, H: np.ndarray, r: np.ndarray, y: np.ndarray, alt_m: float, sigma2: float,
     gate: float,
 ) -> float:
-    r[0] = sigma2
-    y[0] = alt_m - (-s[2] + s[I_BBARO])
+    _baro_r_y(s, r, y, alt_m, sigma2)
     return _one_row_update_dense(s, P, H, r, y, gate, False)
 
 
