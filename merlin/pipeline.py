@@ -167,6 +167,10 @@ class Redundancy(Protocol):
     @property
     def voter(self) -> Voter | None: ...
 
+    def vote(self, t: float, frame: Any) -> VotedSensors | None:
+        """The voter's call of a tick on which it votes after the core (None without a voter)."""
+        ...
+
     def report(self, t: float) -> RedundancyReport | None: ...
 
 
@@ -262,7 +266,8 @@ class VehicleTick:
     def vote_after(self, sensed: Sensed) -> VotedSensors | None:
         """The voter's one call of the tick when the estimator did not read it (see the class docstring)."""
         if self.voter is not None and not self.vote_before_estimate and sensed.frame is not None:
-            return self.voter.vote(sensed.t, sensed.frame)
+            assert self.redundancy is not None
+            return self.redundancy.vote(sensed.t, sensed.frame)
         return sensed.voted
 
     def act(self, sensed: Sensed, inputs: Inputs) -> tuple[Decision, Any]:

@@ -130,7 +130,8 @@ class ClosedLoop(SimulatedVehicle):
                                 self.actuator_stage, red, vote_before_estimate=self.ekf is not None,
                                 reports_redundancy=self.reports_redundancy,
                                 # with a filter per autopilot lane, those filters keep the period themselves
-                                # (merlin.redundancy.lanes.LaneNavigation) and the voter votes every tick
+                                # (merlin.redundancy.lanes.LaneNavigation), and the voter votes at their period
+                                # on the frame they ran on (VehicleRedundancy.vote)
                                 nav_every=sc.nav_every if self.ekf is not None else 1)
 
     def _build_redundancy(self, sc: Scenario, cfg: MerlinConfig, root: np.random.Generator) -> Any:

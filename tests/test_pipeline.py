@@ -154,6 +154,9 @@ def test_each_stage_runs_once_per_tick_in_order(before: bool) -> None:
     class _Redundancy:
         voter = _Recorder(calls, "voter", VOTED)
 
+        def vote(self, t: float, frame: Any) -> Any:
+            return self.voter.vote(t, frame)
+
     tick = VehicleTick(_Core(calls), _Recorder(calls, "estimator"), _Recorder(calls, "actuators"),  # type: ignore[arg-type]
                        _Redundancy(), vote_before_estimate=before)  # type: ignore[arg-type]
     sensed = tick.sense(0.0, frame="F")

@@ -394,6 +394,9 @@ class LaneNavigation:
         self._nav_k = 0
         # each lane's filter is fed its own lane, with that lane's own clipping record
         self._held = SensorHold(ekfs[0].cfg.accel_clip_mps2) if ekfs is not None and self.nav_every > 1 else None
+        #: the frame the filters ran on at this tick (each IMU lane down-sampled, each other unit's newest
+        #: sample), None on the ticks between their ticks: the sensor voter votes it (VehicleRedundancy.vote)
+        self.taken: Any = None
         self._predictors: list[OutputPredictor] = []
         self.states: list[VehicleState] = [VehicleState()] * N_LANES
         self.last_seen: list[dict[str, float]] = [{} for _ in range(N_LANES)]
@@ -452,8 +455,9 @@ class LaneNavigation:
             for name in ("gps", "baro", "mag"):
                 if self._unit(frame, name, i) is not None:
                     seen[name] = t
+        self.taken = None
         if self._nav_k == 0:
-            nav = held.take(t)
+            nav = self.taken = held.take(t)
             if not self._predictors:
                 self._predictors = [OutputPredictor(ekf.cfg.gravity_mps2, ekf.cfg.max_imu_dt_s) for ekf in ekfs]
             for i in range(N_LANES):
@@ -808,8 +812,9 @@ class VehicleRedundancy:
         lane's own estimator with ``lane_navigation: own``."""
         rc = RedundancyConfig.model_validate({}) if rc is None else rc  # its defaults (mypyc's mypy reads no pydantic plugin)
         fdi = setup.fdi_preset or rc.fdi_preset
-        # with a filter per lane the voter still votes every tick (after the core, on the raw lanes: VehicleTick)
-        vote_every = 1 if setup.lane_navigation == "own" else setup.nav_every
+        # With a filter per lane the voter votes after the core (VehicleTick), at the lanes' filters' period
+        # on the frame they ran on (vote); with stand-in estimators per lane, which have no period, every tick.
+        vote_every = 1 if setup.lane_navigation == "own" and lane_ekfs is None else setup.nav_every
         self.voter = ImuVoterStage(voter_rng, field_ned_gauss, fdi, voter_specs(rc, vote_every)) \
             if setup.sensor_voter else None
         self.aux_voted = setup.sensor_lanes == 3
@@ -826,6 +831,33 @@ class VehicleRedundancy:
             self.lanes.max_sigma_h_m = max_sigma_h_m
         self._report = RedundancyReport()
         self._report_key: tuple[int, str, float] = (3, "", 1.0)
+        self._vote: VotedSensors | None = None  # the voter's last vote (vote, between the filters' ticks)
+
+    def vote(self, t: float, frame: Any) -> VotedSensors | None:
+        """The voter's one call of a tick on which it votes after the core (the estimator reads none of its
+        output: a filter per lane, or the stand-in). With each lane's filter at a period of several ticks
+        (LaneNavigation) it votes on the frame those filters ran on, on their ticks, as the voter before a
+        shared filter votes the held frame (merlin.pipeline.VehicleTick): the same down-sampled IMU lanes and
+        newest units, at the same period, with its stuck-sample count divided by the period (voter_specs).
+        Between those ticks it hands its last vote on with the tick's raw IMU lanes, which the autopilot
+        lanes' inner loops read every tick. Otherwise it votes the tick's raw frame."""
+        v = self.voter
+        if v is None:
+            return None
+        nav = self.lane_nav
+        if nav is None or nav.nav_every == 1:
+            return v.vote(t, frame)
+        taken = nav.taken
+        if taken is not None:
+            vote = self._vote = v.vote(t, taken)
+            if frame.imu:
+                return new_voted_sensors(vote.imu, vote.imu_source_step, tuple(frame.imu), vote.imu_isolated,
+                                         vote.mag, vote.baro, vote.gps)
+            return vote
+        last = self._vote
+        if last is not None and frame.imu:
+            return new_voted_sensors(last.imu, None, tuple(frame.imu), last.imu_isolated)
+        return last
 
     def report(self, t: float) -> RedundancyReport:
         """The redundancy level handed to the core (``Inputs.redundancy``): the fewest healthy lanes of any

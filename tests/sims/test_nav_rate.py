@@ -134,6 +134,61 @@ def test_a_stuck_imu_lane_is_isolated_as_soon_as_at_every_tick() -> None:
     assert abs(t4 - t1) <= 0.01 + 1e-9
 
 
+def _own_lanes(nav_dt_s: float | None, duration_s: float = 1.0, faults: list[Any] | None = None) -> Scenario:
+    """Three autopilot lanes, each on its own IMU, magnetometer, barometer and GPS with its own filter."""
+    return Scenario.model_validate({
+        "name": "own_lanes_rate", "duration_s": duration_s, "seed": 7, "camera": None, "estimator": "ekf",
+        "nav_dt_s": nav_dt_s, "faults": faults or [],
+        "redundancy": {"autopilot_lanes": 3, "sensor_lanes": 3, "lane_navigation": "own"},
+        "gcs": [{"t": 0.5, "command": "arm"}, {"t": 1.0, "command": "takeoff", "param": 8}]})
+
+
+@pytest.mark.parametrize(("nav_dt_s", "every"), [(0.01, 4), (None, 1)])
+def test_with_a_filter_per_lane_the_voter_votes_at_their_period_on_the_frame_they_ran_on(
+        nav_dt_s: float | None, every: int) -> None:
+    """With ``lane_navigation: own`` the voter votes after the core; at a filter period of several ticks it
+    votes once per period, on the frame the lanes' filters took (its clock, the IMU samples' time of
+    validity, is that frame's), and between its votes the autopilot lanes read each tick's raw IMU lanes.
+    At every tick it votes every tick on the raw frame."""
+    from merlin.pipeline import InputBuilder
+
+    sc = _own_lanes(nav_dt_s)
+    assert sc.nav_every == every
+    loop = runner.make_loop(sc, MerlinConfig())
+    red = loop.redundancy
+    voter = red.voter.suite.imu.voter
+    votes = 0
+    last = voter.state.t_s
+    for k in range(160):
+        state = loop.sense()
+        taken = red.lane_nav.taken
+        assert (taken is not None) == (every > 1 and k % every == 0)
+        inputs = InputBuilder().build(state, (), loop.redundancy_report(loop.t)) if loop.core_due else None
+        frame = loop.frame
+        loop.act(inputs)
+        if voter.state.t_s != last:
+            votes += 1
+            last = voter.state.t_s
+            assert k % every == 0
+            assert voter.state.t_s == (taken if every > 1 else frame).imu[0].t_s
+    assert votes == 160 // every
+
+
+def test_with_a_filter_per_lane_a_stuck_imu_lane_is_isolated_as_soon_as_at_every_tick() -> None:
+    """The voter after the lanes' own filters votes their down-sampled lanes at their period, with its
+    stuck-sample count scaled to it: a stuck lane is isolated within one period of when it is at every tick."""
+    def isolated_at(nav_dt_s: float | None) -> float:
+        sc = _own_lanes(nav_dt_s, 4.0, [{"type": "imu_stuck", "start_s": 2.5, "lane": 2}])
+        result, _ = _fly(sc)
+        times = [e["t"] for e in result.events if e["type"] == "imu_isolated" and e.get("lane") == 2]
+        assert times, [e["type"] for e in result.events][:40]
+        return float(times[0])
+
+    t1, t4 = isolated_at(None), isolated_at(0.01)
+    assert 2.5 < t1 < 2.7
+    assert abs(t4 - t1) <= 0.01 + 1e-9
+
+
 @pytest.mark.parametrize(("text", "needle"), [
     ("nav_dt_s: 0.006\n", "whole number"),
     ("nav_dt_s: 0.05\n", "nav_dt_s"),
