@@ -407,11 +407,13 @@ class LaneNavigation:
         # examples/scenarios/seed000_mag_failure_thesis.yaml pins it
         self.units_isolated: tuple[bool, ...] = (False,) * N_LANES
 
-    def _unit(self, frame: Any, name: str, lane: int) -> Any:
-        lanes = getattr(frame, f"{name}_lanes")
-        if lanes:
-            return lanes[lane]
-        return getattr(frame, name)
+    @staticmethod
+    def _units(frame: Any, lane: int) -> tuple[Any, Any, Any]:
+        """Lane ``lane``'s own GPS, barometer and magnetometer samples of ``frame`` (its unit of each with
+        three units, else the one unit's). Each attribute read by name: a name built per call and read with
+        ``getattr`` cost 1,400 instructions a unit, 5 M per simulated second over three lanes at 400 Hz."""
+        gl, bl, ml = frame.gps_lanes, frame.baro_lanes, frame.mag_lanes
+        return (gl[lane] if gl else frame.gps, bl[lane] if bl else frame.baro, ml[lane] if ml else frame.mag)
 
     def sense(self, t: float, frame: Any, truth: Any, armed: bool, batt_frac: float) -> list[VehicleState]:
         """Every lane's estimate at ``t`` from its own sensor lane (after the fault injector)."""
@@ -422,7 +424,7 @@ class LaneNavigation:
             imu = frame.imu[i] if frame.imu and len(frame.imu) > i else None
             if imu is not None:
                 seen["imu"] = t
-            gps, baro, mag = self._unit(frame, "gps", i), self._unit(frame, "baro", i), self._unit(frame, "mag", i)
+            gps, baro, mag = self._units(frame, i)
             for name, smp in (("gps", gps), ("baro", baro), ("mag", mag)):
                 if smp is not None:
                     seen[name] = t
@@ -452,9 +454,13 @@ class LaneNavigation:
             seen = self.last_seen[i]
             if frame.imu and len(frame.imu) > i:
                 seen["imu"] = t
-            for name in ("gps", "baro", "mag"):
-                if self._unit(frame, name, i) is not None:
-                    seen[name] = t
+            gps, baro, mag = self._units(frame, i)
+            if gps is not None:
+                seen["gps"] = t
+            if baro is not None:
+                seen["baro"] = t
+            if mag is not None:
+                seen["mag"] = t
         self.taken = None
         if self._nav_k == 0:
             nav = self.taken = held.take(t)
@@ -464,7 +470,8 @@ class LaneNavigation:
                 ekf = ekfs[i]
                 if nav.imu and len(nav.imu) > i:
                     ekf.predict(nav.imu[i], held.clips[i])
-                ekf.update_samples(self._unit(nav, "gps", i), self._unit(nav, "baro", i), self._unit(nav, "mag", i))
+                gps, baro, mag = self._units(nav, i)
+                ekf.update_samples(gps, baro, mag)
                 for e in ekf.pop_events():
                     self.events.append({"t": e.t_s, "type": f"nav_{e.kind.value}", "lane": i, "source": e.source,
                                         "parameter": e.parameter, "statistic": e.statistic, "limit": e.limit,
