@@ -42,7 +42,7 @@ from merlin.core.types import (
     new_record,
 )
 from merlin.nav.downsample import ImuClip, SensorHold
-from merlin.redundancy.lanes import VotedSensors, new_voted_sensors
+from merlin.redundancy.lanes import VotedSensors, with_raw_lanes
 
 _NO_OPERATOR = OperatorInput()
 _NO_COMMANDS: tuple[GcsCommand, ...] = ()
@@ -243,14 +243,7 @@ class VehicleTick:
             est.filter_tick(t, nav_frame, vote, held.clips)
         self._nav_k = 0 if self._nav_k + 1 >= self.nav_every else self._nav_k + 1
         state = est.propagate(t, frame, self._isolated)
-        voted = vote
-        if vote is not None and frame.imu:
-            if fresh:
-                voted = new_voted_sensors(vote.imu, vote.imu_source_step, tuple(frame.imu), vote.imu_isolated,
-                                          vote.mag, vote.baro, vote.gps)
-            else:  # nothing new from the voter on this tick
-                voted = new_voted_sensors(vote.imu, None, tuple(frame.imu), vote.imu_isolated)
-        return new_record(Sensed, (t, frame, voted, state))
+        return new_record(Sensed, (t, frame, with_raw_lanes(vote, frame.imu, fresh), state))
 
     def report(self, t: float) -> RedundancyReport | None:
         """The redundancy report for the core's inputs at ``t`` (None when the vehicle reports none)."""

@@ -175,6 +175,19 @@ def new_voted_sensors(imu: ImuSample | None, imu_source_step: tuple[float, ...] 
     return new_record(VotedSensors, (imu, imu_source_step, imu_lanes, imu_isolated, mag, baro, gps))
 
 
+def with_raw_lanes(vote: VotedSensors | None, imu: Any, fresh: bool) -> VotedSensors | None:
+    """A vote of the voter at a period of several ticks, handed to the autopilot lanes on a tick with that
+    tick's raw IMU lanes ``imu`` (their inner loops run every tick): all of the vote on the tick it was made
+    (``fresh``), only its IMU output and isolations on the ticks after it. Unchanged without a vote or
+    without IMU lanes this tick."""
+    if vote is None or not imu:
+        return vote
+    if fresh:
+        return new_voted_sensors(vote.imu, vote.imu_source_step, tuple(imu), vote.imu_isolated, vote.mag,
+                                 vote.baro, vote.gps)
+    return new_voted_sensors(vote.imu, None, tuple(imu), vote.imu_isolated)
+
+
 def _hold_newest(held: list[Any], samples: Any) -> bool:
     """Keep each unit's newest sample in ``held`` (one slot per unit); whether any unit delivered one."""
     new = False
@@ -856,15 +869,8 @@ class VehicleRedundancy:
             return v.vote(t, frame)
         taken = nav.taken
         if taken is not None:
-            vote = self._vote = v.vote(t, taken)
-            if frame.imu:
-                return new_voted_sensors(vote.imu, vote.imu_source_step, tuple(frame.imu), vote.imu_isolated,
-                                         vote.mag, vote.baro, vote.gps)
-            return vote
-        last = self._vote
-        if last is not None and frame.imu:
-            return new_voted_sensors(last.imu, None, tuple(frame.imu), last.imu_isolated)
-        return last
+            self._vote = v.vote(t, taken)
+        return with_raw_lanes(self._vote, frame.imu, taken is not None)
 
     def report(self, t: float) -> RedundancyReport:
         """The redundancy level handed to the core (``Inputs.redundancy``): the fewest healthy lanes of any
