@@ -5,6 +5,12 @@ station, 127.0.0.1:14540 for an offboard API), and once someone replies, answer 
 The remote is learned only from a datagram that produced at least one accepted message, and, when the
 link requires signing, at least one verified signed message, so unsigned junk cannot redirect the
 telemetry. Reads never block unless asked to; nothing here raises on hostile input.
+
+A UDP link can also say when each datagram arrived (:meth:`UdpTransport.read_stamped`): the kernel's
+receive time (``SO_TIMESTAMPNS``, Linux), taken even while the reading process is not running, so a
+real-time loop that fell behind can still tell which of the datagrams waiting in the socket came before
+which of its ticks (``merlin serve`` catching up after a stall, :meth:`merlin.serve.server.Server._drain`).
+No library does this for pymavlink's or our sockets; it is the socket option and ``recvmsg`` alone.
 """
 
 from __future__ import annotations
@@ -12,6 +18,8 @@ from __future__ import annotations
 import contextlib
 import select
 import socket
+import struct
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -26,6 +34,25 @@ from merlin.link.tlog import TlogWriter
 
 Address = tuple[str, int]
 MAX_DATAGRAM = 65535
+# Linux's socket option for a nanosecond receive time (asm-generic/socket.h; the socket module does not name
+# it). The control message comes back with the same number as its type, which is checked before it is read.
+SO_TIMESTAMPNS = 35
+_TIMESPEC = struct.Struct("@qq")  # struct timespec on a 64-bit Linux; anything else is not read
+_ANC_SPACE = socket.CMSG_SPACE(_TIMESPEC.size) if hasattr(socket, "CMSG_SPACE") else 0
+
+
+def _no_stamp_reads(batch: list[tuple[bytes, Address | None]]) -> list[tuple[bytes, Address | None, int]]:
+    now = time.monotonic_ns()
+    return [(data, addr, now) for data, addr in batch]
+
+
+def read_stamped(transport: Any, timeout_s: float = 0.0) -> list[tuple[bytes, Address | None, int]]:
+    """``transport``'s datagrams with when each arrived (monotonic ns): its own ``read_stamped`` when it has
+    one, else the time of the read for all of them."""
+    own = getattr(transport, "read_stamped", None)
+    if own is not None:
+        return own(timeout_s)  # type: ignore[no-any-return]
+    return _no_stamp_reads(transport.read(timeout_s))
 
 
 class Transport(Protocol):
@@ -53,6 +80,18 @@ class UdpTransport:
         self.remote = remote
         self.send_errors = 0
         self.max_datagrams_per_read = 256
+        self.kernel_stamps = False  # whether read_stamped has the kernel's receive times (enable_kernel_stamps)
+
+    def enable_kernel_stamps(self) -> bool:
+        """Ask the kernel to stamp each datagram when it arrives (Linux ``SO_TIMESTAMPNS``); returns whether it
+        will. Without it :meth:`read_stamped` stamps a datagram when it is read."""
+        if sys.platform.startswith("linux") and _ANC_SPACE > 0:
+            try:
+                self.sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+                self.kernel_stamps = True
+            except OSError:
+                self.kernel_stamps = False
+        return self.kernel_stamps
 
     @property
     def local_address(self) -> Address:
@@ -74,6 +113,35 @@ class UdpTransport:
             except OSError:  # e.g. ICMP port unreachable reported on the next recv (Linux)
                 continue
             out.append((data, (str(addr[0]), int(addr[1]))))
+        return out
+
+    def read_stamped(self, timeout_s: float) -> list[tuple[bytes, Address | None, int]]:
+        """As :meth:`read`, each datagram with the monotonic time it arrived: the kernel's receive time when
+        :meth:`enable_kernel_stamps` took, moved from the wall clock onto the monotonic one, never later than
+        the read (a wall clock stepped back cannot put an arrival in the future); else the time of the read."""
+        if not self.kernel_stamps:
+            return _no_stamp_reads(self.read(timeout_s))
+        out: list[tuple[bytes, Address | None, int]] = []
+        if timeout_s > 0:
+            ready, _, _ = select.select([self.sock], [], [], timeout_s)
+            if not ready:
+                return out
+        mono = time.monotonic_ns()
+        wall_minus_mono = time.time_ns() - mono
+        while len(out) < self.max_datagrams_per_read:
+            try:
+                data, anc, _flags, addr = self.sock.recvmsg(MAX_DATAGRAM, _ANC_SPACE)
+            except (BlockingIOError, InterruptedError):
+                return out
+            except OSError:  # as in read
+                continue
+            read_ns = time.monotonic_ns()
+            arrived = read_ns
+            for level, kind, payload in anc:
+                if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(payload) == _TIMESPEC.size:
+                    sec, nsec = _TIMESPEC.unpack(payload)
+                    arrived = min(read_ns, sec * 1_000_000_000 + nsec - wall_minus_mono)
+            out.append((data, (str(addr[0]), int(addr[1])), arrived))
         return out
 
     def write(self, data: bytes) -> None:

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import gc
+import itertools
 import logging
 import math
 import os
@@ -82,7 +83,7 @@ from merlin.link.commands import (
     command_ack,
     interpret_command,
 )
-from merlin.link.endpoint import MavlinkEndpoint
+from merlin.link.endpoint import MavlinkEndpoint, read_stamped
 from merlin.link.fence_protocol import FenceDescription, FenceProtocol
 from merlin.link.mission_protocol import (
     MissionEnd,
@@ -183,7 +184,7 @@ class _LinkState:
     # bulk messages (the envelope burst, a parameter list) are sent a few per tick, never all in one
     bulk: deque[o.OutMessage] = field(default_factory=deque)
     # datagrams read from the socket but not yet decoded (decoding is time-bounded, see Server._drain)
-    # (datagram, sender address, monotonic ns of its read from the socket)
+    # (datagram, sender address, monotonic ns of its arrival: the kernel's receive time, or else its read)
     backlog: deque[tuple[bytes, Any, int]] = field(default_factory=deque)
 
 
@@ -326,6 +327,10 @@ class Server:
             ep = MavlinkEndpoint.udp(opts.gcs_policy, opts.gcs.bind, opts.gcs.remote, sid, cid, self.tlog,
                                      key_file=opts.gcs_key_file)
             links.append(_LinkState("gcs", LinkRole.GCS, ep))
+        for ls in links:
+            enable = getattr(ls.endpoint.transport, "enable_kernel_stamps", None)
+            if enable is not None:
+                enable()  # when each datagram arrived, for the catch-up after a stall (Server._drain)
         return links
 
     # ---------------------------------------------------------------------------------- time
@@ -1301,21 +1306,30 @@ class Server:
             out[fd] = ls
         return out
 
-    def _drain(self, ls: _LinkState, until_ns: int | None = None) -> int:
+    def _drain(self, ls: _LinkState, until_ns: int | None = None, before_ns: int | None = None) -> int:
         """Read what the link's socket holds (at most MAX_DATAGRAMS_PER_READ more than the backlog) and
-        decode and handle it in arrival order until ``until_ns`` (monotonic; None: all of it). Returns
-        how many datagrams were handled; the rest stay in ``ls.backlog`` for the next call."""
+        decode and handle it in arrival order until ``until_ns`` (monotonic; None: all of it), only what
+        arrived before ``before_ns`` (None: all of it). Returns how many datagrams were handled; the rest
+        stay in ``ls.backlog`` for the next call.
+
+        ``before_ns`` is how a tick run late, catching up after the process stalled, gets only what had
+        arrived by its time in the schedule (Server.run): the datagrams that waited in the socket during
+        the stall are spread over the catch-up ticks by their kernel receive times, as ticks on time would
+        have taken them. Handled all at the first of those ticks, a controller that kept streaming would be
+        seen silent for the whole stall in the core's clock, and revoked for the vehicle's own delay
+        (tests/serve/test_scheduler.py, the stalled serve)."""
         ep = ls.endpoint
         t = self.t
         if len(ls.backlog) < MAX_DATAGRAMS_PER_READ:
-            batch = ep.transport.read(0.0)
+            batch = read_stamped(ep.transport)
             if batch:
-                now = time.monotonic_ns()
-                ls.backlog.extend((data, addr, now) for data, addr in batch)
+                ls.backlog.extend(batch)
         if ls.role is LinkRole.CONTROLLER and len(ls.backlog) > 1:
-            self._coalesce(ls.backlog)
+            self._coalesce(ls.backlog, before_ns)
         n = 0
         while ls.backlog and (until_ns is None or time.monotonic_ns() < until_ns):
+            if before_ns is not None and ls.backlog[0][2] >= before_ns:
+                break
             data, addr, self._read_ns = ls.backlog.popleft()
             n += 1
             rxs = ep.link.receive(data, t, time.time(), final=ep.transport.datagram)
@@ -1333,15 +1347,20 @@ class Server:
                                        "detail": f"handling {type(rx.msg).__name__}"})
         return n
 
-    def _coalesce(self, backlog: deque[tuple[bytes, Any, int]]) -> None:
+    def _coalesce(self, backlog: deque[tuple[bytes, Any, int]], before_ns: int | None = None) -> None:
         """Drop from ``backlog``, before decoding, setpoint datagrams superseded by a later one from the
         same sender: only the latest setpoint before a tick matters (icd/ICD.md section 7), and decoding
         costs ~0.1 ms a frame. A superseded datagram is still written to the tlog and counted. Only
         datagrams holding exactly one MAVLink 2 setpoint frame are candidates; anything else is decoded as
         usual, in order. A setpoint is superseded only by a later one with nothing else between them: a
         command sent after a setpoint (OFFBOARD right after the first one, as MAVSDK's examples do) is
-        still handled after a setpoint, as it was sent."""
-        keys = [_lone_setpoint_sender(item[0]) for item in backlog]
+        still handled after a setpoint, as it was sent. Only datagrams that arrived before ``before_ns``
+        (None: all) take part: a later one belongs to a later tick (:meth:`_drain`), and must not take the
+        place of one that a tick before it handles."""
+        items = list(backlog)
+        if before_ns is not None:
+            items = list(itertools.takewhile(lambda item: item[2] < before_ns, items))
+        keys = [_lone_setpoint_sender(item[0]) for item in items]
         superseded: set[int] = set()
         later: set[tuple[int, int]] = set()  # senders with a later setpoint in this run of setpoints
         for k in range(len(keys) - 1, -1, -1):
@@ -1395,9 +1414,13 @@ class Server:
             self.stats.gc_unreachable += gc.collect(gen)
         self.stats.record_gc(time.monotonic_ns() - g0, k, gen)
 
-    def _wait_until(self, deadline: int, fd_list: list[int], fds: dict[int, _LinkState]) -> None:
+    def _wait_until(self, deadline: int, fd_list: list[int], fds: dict[int, _LinkState],
+                    period_ns: int | None = None) -> None:
         """Return at ``deadline`` (monotonic ns), decoding what arrives meanwhile but never within
-        DRAIN_GUARD_NS of it; the last SPIN_NS are spun, below the sleep's timer slack."""
+        DRAIN_GUARD_NS of it; the last SPIN_NS are spun, below the sleep's timer slack. What is decoded is
+        for the tick due at ``deadline``: what arrived before the one after it (``period_ns`` later), which
+        while waiting is everything."""
+        period_ns = self.stats.period_ns if period_ns is None else period_ns
         while True:
             left = deadline - time.monotonic_ns()
             if left <= DRAIN_GUARD_NS:
@@ -1407,7 +1430,7 @@ class Server:
             else:
                 ready, _, _ = select.select(fd_list, [], [], (left - DRAIN_GUARD_NS) / 1e9)
             for fd in ready:
-                self._drain(fds[fd], deadline - DRAIN_GUARD_NS)
+                self._drain(fds[fd], deadline - DRAIN_GUARD_NS, deadline + period_ns)
         left = deadline - time.monotonic_ns()
         if left > SPIN_NS:
             time.sleep((left - SPIN_NS) / 1e9)
@@ -1467,7 +1490,7 @@ class Server:
         prev_usage = usage() if usage else None
         try:
             while not self._stop and (n_ticks is None or self.loop.k < n_ticks):
-                self._wait_until(deadline, fd_list, fds)
+                self._wait_until(deadline, fd_list, fds, period_ns)
                 now = time.monotonic_ns()
                 late = now - deadline
                 if late > RESYNC_TICKS * period_ns:
@@ -1476,8 +1499,10 @@ class Server:
                     late = 0
                 start = now
                 budget_end = start + TICK_DRAIN_BUDGET_NS
-                for ls in links:  # what arrived since the last wake-up, time-bounded
-                    self._drain(ls, budget_end)
+                # what arrived since the last wake-up, time-bounded, and before the next tick was due: on
+                # time that is all of it; catching up, what this tick would have seen on time (_drain)
+                for ls in links:
+                    self._drain(ls, budget_end, deadline + period_ns)
                 self._tick()
                 work = time.monotonic_ns() - start
                 ctx = None

@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import gc
 import socket
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -119,3 +121,122 @@ def test_a_missed_tick_is_explained_by_what_the_guest_kernel_saw() -> None:
                                 "not_visible_in_guest": 1}
     assert st.missed_context == [(2, 0, 3, 0), (3, 0, 2, 1), (4, 2, 0, 0), (5, 0, 0, 0)]
     assert st.summary()["missed_causes"] == st.missed_causes
+
+
+# ------------------------------------------------------------------ what arrived when, and the stalled serve
+
+
+def _setpoints(n: int) -> list[bytes]:
+    mod = mavlink_module()
+    p = mod.MAVLink(None, 42, 191)
+    p.WIRE_PROTOCOL_VERSION = "2.0"
+    return [bytes(p.set_position_target_local_ned_encode(0, 1, 1, 1, 0b0000_1111_1100_0111, 0, 0, 0,
+                                                         float(k), 0, 0, 0, 0, 0, 0, 0).pack(p))
+            for k in range(n)]
+
+
+def _send_apart(server: Server, frames: list[bytes]) -> list[int]:
+    """Each frame sent after the monotonic time returned for it (one list entry per frame)."""
+    marks = []
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        for f in frames:
+            time.sleep(0.02)
+            marks.append(time.monotonic_ns())
+            s.sendto(f, _local(server))
+    time.sleep(0.05)
+    return marks
+
+
+def test_each_datagram_carries_the_kernels_arrival_time_not_its_read(server: Server) -> None:
+    tr = server.links[0].endpoint.transport
+    assert tr.kernel_stamps  # type: ignore[attr-defined]  # Linux: serve asked for them when it opened the link
+    frames = _frames(3)
+    marks = _send_apart(server, frames)
+    read_from = time.monotonic_ns()
+    got = tr.read_stamped(0.0)  # type: ignore[attr-defined]
+    assert [g[0] for g in got] == frames
+    arrivals = [g[2] for g in got]
+    # each arrived after it was sent and before the next was: long before this read (a read time would not be)
+    assert marks[0] < arrivals[0] < marks[1] < arrivals[1] < marks[2] < arrivals[2] < read_from
+
+
+def test_a_tick_handles_only_what_arrived_before_its_time_and_setpoints_coalesce_only_among_those(
+        server: Server) -> None:
+    ls = server.links[0]
+    sps = _setpoints(4)
+    marks = _send_apart(server, sps)
+    coalesced = server.stats.coalesced
+    # a tick due before the third setpoint arrived: the first is superseded by the second, the later two wait
+    assert server._drain(ls, until_ns=None, before_ns=marks[2]) == 1
+    assert server.stats.coalesced - coalesced == 1
+    assert [item[0] for item in ls.backlog] == sps[2:]
+    assert server.pending.setpoint is not None and server.pending.setpoint[1].vel_mps[0] == 1.0
+    # the next tick's: the third superseded by the fourth
+    assert server._drain(ls, until_ns=None, before_ns=None) == 1
+    assert server.pending.setpoint is not None and server.pending.setpoint[1].vel_mps[0] == 3.0
+    assert not ls.backlog
+
+
+def _silences(tmp_path: Path, serve_stall_s: float, controller_pause_s: float) -> tuple[float, dict[str, Any]]:
+    """A controller streaming setpoints at 20 Hz with a 1 Hz HEARTBEAT (MAVSDK's offboard rates) to a serve
+    that stalls once for ``serve_stall_s`` (its process not running: every tick late, then caught up), or that
+    itself pauses once for ``controller_pause_s``. Returns the longest silence of the controller the core was
+    given (the core's time minus the controller's last liveness, over the ticks) and serve's timing summary."""
+    opts = ServeOptions(gcs=None, controller=UdpLinkSpec(("127.0.0.1", 0), ("127.0.0.1", 9)), out_dir=tmp_path,
+                        duration_s=4.0)
+    s = Server(opts)
+    mod = mavlink_module()
+    p = mod.MAVLink(None, 42, 191)
+    p.WIRE_PROTOCOL_VERSION = "2.0"
+    hb = bytes(p.heartbeat_encode(6, 8, 0, 0, 0).pack(p))
+    sp = _setpoints(1)[0]
+    stop = threading.Event()
+    addr = _local(s)
+
+    def controller() -> None:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            k = 0
+            while not stop.is_set():
+                if k % 20 == 0:
+                    sock.sendto(hb, addr)
+                sock.sendto(sp, addr)
+                k += 1
+                if k == 30 and controller_pause_s > 0:
+                    time.sleep(controller_pause_s)
+                time.sleep(0.05)
+
+    worst = [0.0]
+    stalled = [False]
+
+    def on_tick(srv: Server) -> None:
+        if srv.hb_t is not None:
+            worst[0] = max(worst[0], srv.t - srv.hb_t)
+            if not stalled[0] and serve_stall_s > 0 and srv.t - srv.hb_t < 0.1 and srv.t > 1.5:
+                stalled[0] = True
+                time.sleep(serve_stall_s)  # the vehicle side stops, as a starved process does
+
+    s.on_tick = on_tick
+    th = threading.Thread(target=controller, daemon=True)
+    th.start()
+    try:
+        summary = s.run()
+    finally:
+        stop.set()
+        th.join(5.0)
+    assert stalled[0] or serve_stall_s == 0
+    return worst[0], summary["timing"]
+
+
+def test_a_stalled_serve_catching_up_does_not_see_a_streaming_controller_silent(tmp_path: Path) -> None:
+    """The stalled serve: a real-time vehicle that fell 0.6 s behind (less than its re-anchoring, so it
+    catches the ticks up) must not take its own delay for the controller's silence. With the datagrams that
+    waited in the socket all handled at the first late tick, the core saw 0.6 s of silence and revoked a
+    MAVSDK offboard example that had streamed throughout (the native offboard_velocity_body flow)."""
+    timeout = ServeOptions().config.watchdogs.controller_heartbeat.timeout_s
+    silence, timing = _silences(tmp_path / "stalled", serve_stall_s=0.6, controller_pause_s=0.0)
+    # stalled for longer than the watchdog's timeout, then caught up (not re-anchored)
+    assert timing["late_max_ms"] > 1000.0 * timeout and timing["resyncs"] == 0, timing
+    assert silence < timeout, silence
+    # the same watch sees a controller that does fall silent for as long
+    silence, timing = _silences(tmp_path / "silent", serve_stall_s=0.0, controller_pause_s=0.6)
+    assert silence > timeout, (silence, timing)
