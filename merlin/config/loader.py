@@ -32,11 +32,17 @@ class ConfigError(Exception):
         super().__init__("\n".join(lines))
 
 
-def _line_index(text: str) -> dict[tuple[str | int, ...], int]:
+# libyaml's parser when PyYAML was built with it (the wheels are): the same documents, nodes and marks
+# as the pure-Python one, about twenty times faster (a vehicle file 0.24 ms against 4.6 ms, read on every
+# run of a campaign). Errors are always reported by the pure-Python parser, whose messages we print.
+_FAST_LOADER: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+def _line_index(text: str, loader: Any = None) -> dict[tuple[str | int, ...], int]:
     """Map each key path in a YAML document to its 1-based line, for error messages."""
     out: dict[tuple[str | int, ...], int] = {}
     try:
-        root = yaml.compose(text, Loader=yaml.SafeLoader)
+        root = yaml.compose(text, Loader=_FAST_LOADER if loader is None else loader)
     except yaml.YAMLError:
         return out
 
@@ -85,7 +91,10 @@ def describe_validation_error(err: ValidationError, lines: Mapping[tuple[str | i
 
 def parse_yaml(text: str, source: str) -> tuple[Any, dict[tuple[str | int, ...], int]]:
     try:
-        data = yaml.safe_load(text)
+        try:
+            data = yaml.load(text, Loader=_FAST_LOADER)
+        except yaml.YAMLError:
+            data = yaml.safe_load(text)  # the pure-Python parser's message, or its reading if libyaml's failed
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
