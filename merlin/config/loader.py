@@ -33,8 +33,9 @@ class ConfigError(Exception):
 
 
 # libyaml's parser when PyYAML was built with it (the wheels are): the same documents, nodes and marks
-# as the pure-Python one, about twenty times faster (a vehicle file 0.24 ms against 4.6 ms, read on every
-# run of a campaign). Errors are always reported by the pure-Python parser, whose messages we print.
+# as the pure-Python one, ten to twenty times faster (benchmarks/bench_config_parse.py; the vehicle file is
+# read on every run of a campaign). Errors are always reported by the pure-Python parser, whose messages we
+# print.
 _FAST_LOADER: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
