@@ -97,6 +97,22 @@ class TickStats:
     # (tick, generation or -1 for a freeze, ms) of the first collections that took 1 ms or more
     slow_gc: list[tuple[int, int, float]] = field(default_factory=list)
     max_gc_ns: int = 0
+    # the longest wait between two of the controller's liveness messages (HEARTBEAT, or a setpoint where it
+    # counts), by when each arrived in the socket, counted from a message that arrived while the controller
+    # held authority (before it, MAVSDK heartbeats at 1 Hz), and the core's time when it ended: beside
+    # late_max_ms it tells a controller that fell silent from a serve that fell behind
+    # (docs/benchmarks/serve.md, "A stalled serve took its own delay for the controller's silence")
+    controller_gap_max_ns: int = 0
+    controller_gap_end_s: float = math.nan
+    _controller_last: tuple[int, bool] | None = None  # (arrival ns, whether it held authority then)
+
+    def record_controller_alive(self, arrival_ns: int, t_s: float, in_authority: bool) -> None:
+        last = self._controller_last
+        if last is not None and last[1] and arrival_ns - last[0] > self.controller_gap_max_ns:
+            self.controller_gap_max_ns = arrival_ns - last[0]
+            self.controller_gap_end_s = t_s
+        if last is None or arrival_ns >= last[0]:
+            self._controller_last = (arrival_ns, in_authority)
 
     def record_setpoint_latency(self, ns: int) -> None:
         if len(self.setpoint_latency_ns) < self.keep:
@@ -168,4 +184,6 @@ class TickStats:
             "setpoint_latency_p50_ms": pct(self.setpoint_latency_ns, 0.5),
             "setpoint_latency_p99_ms": pct(self.setpoint_latency_ns, 0.99),
             "setpoint_latency_max_ms": max(self.setpoint_latency_ns) / 1e6 if self.setpoint_latency_ns else math.nan,
+            "controller_gap_in_authority_max_ms": self.controller_gap_max_ns / 1e6,
+            "controller_gap_end_s": self.controller_gap_end_s,
         }

@@ -352,6 +352,10 @@ class Server:
         for ls in self.links:
             ls.endpoint.send(msg)
 
+    def _in_authority(self) -> bool:
+        """Whether the experimental controller holds authority in the latest decision."""
+        return self.decision is not None and self.decision.authority is Authority.EXPERIMENTAL
+
     def _controller_link(self) -> _LinkState | None:
         for ls in self.links:
             if ls.role is LinkRole.CONTROLLER:
@@ -371,6 +375,7 @@ class Server:
             if ls.role is LinkRole.CONTROLLER:
                 self.hb_t = t
                 self._controller_sender = sender
+                self.stats.record_controller_alive(self._read_ns, t, self._in_authority())
             else:
                 self.gcs_t = t
             return
@@ -383,6 +388,7 @@ class Server:
             self._sp_rx_t = t
             if self.opts.setpoint_liveness:
                 self.hb_t = t
+                self.stats.record_controller_alive(self._read_ns, t, self._in_authority())
             ack = self.bridge.on_setpoint(t)
             if ack is not None:
                 self.pending.requests.append(ack)

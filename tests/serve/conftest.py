@@ -130,6 +130,23 @@ def serve(tmp_path: Path) -> Iterator[ServeProc]:
         yield sp
     finally:
         stop(sp)
+        print_timing(sp)
+
+
+#: what serve's closing record says of its own timing and of the controller's (pytest shows it with a
+#: failed test): a revocation for silence with a long controller gap is the client's; with a short one and a
+#: long late_max_ms, serve's (docs/benchmarks/serve.md, "A stalled serve took its own delay...")
+TIMING_KEYS = ("ticks", "missed_ticks", "resyncs", "late_max_ms", "work_max_ms",
+               "controller_gap_in_authority_max_ms", "controller_gap_end_s", "tlog_write_max_ms")
+
+
+def print_timing(sp: ServeProc) -> None:
+    stops = [e for e in _complete_events(sp) if e["type"] == "serve_stop"]
+    if stops:
+        timing = stops[-1].get("timing", {})
+        print("serve timing:", {k: timing.get(k) for k in TIMING_KEYS})
+    else:
+        print("serve timing: no serve_stop record (serve did not stop cleanly)")
 
 
 #: the ground-station connections per ground-station port (:func:`gcs_connection`), closed with their serve

@@ -240,3 +240,17 @@ def test_a_stalled_serve_catching_up_does_not_see_a_streaming_controller_silent(
     # the same watch sees a controller that does fall silent for as long
     silence, timing = _silences(tmp_path / "silent", serve_stall_s=0.0, controller_pause_s=0.6)
     assert silence > timeout, (silence, timing)
+
+
+def test_the_controllers_longest_gap_counts_from_messages_sent_while_it_held_authority() -> None:
+    st = TickStats(period_ns=4_000_000)
+    ms = 1_000_000
+    st.record_controller_alive(0, 0.0, in_authority=False)
+    st.record_controller_alive(1000 * ms, 1.0, in_authority=False)  # 1 Hz heartbeats on the ground: not counted
+    st.record_controller_alive(1050 * ms, 1.05, in_authority=True)
+    st.record_controller_alive(1100 * ms, 1.10, in_authority=True)
+    st.record_controller_alive(1750 * ms, 1.75, in_authority=False)  # silent 650 ms from a message in authority
+    st.record_controller_alive(1800 * ms, 1.80, in_authority=True)
+    st.record_controller_alive(1790 * ms, 1.81, in_authority=True)  # an earlier arrival read later: no gap
+    summary = st.summary()
+    assert summary["controller_gap_in_authority_max_ms"] == 650.0 and summary["controller_gap_end_s"] == 1.75
