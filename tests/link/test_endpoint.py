@@ -191,3 +191,39 @@ def test_only_a_link_on_a_fixed_port_sets_so_reuseaddr() -> None:
     finally:
         ephemeral.close()
         fixed.close()
+
+
+def test_arrival_times_without_kernel_stamps_are_the_reads_and_with_them_the_kernels() -> None:
+    """read_stamped: a transport with no receive times (a serial port, a UDP socket that did not ask for
+    them) stamps a datagram when it is read; one with them, when the kernel received it, never later than
+    the read (merlin.serve.server.Server._drain orders its ticks by it)."""
+    from merlin.link.endpoint import read_stamped
+
+    class _Plain:  # a transport without read_stamped, as the serial one or a test's own
+        def read(self, timeout_s: float) -> list[tuple[bytes, Any]]:
+            return [(b"a", None), (b"b", None)]
+
+    before = time.monotonic_ns()
+    got = read_stamped(_Plain())
+    assert [g[0] for g in got] == [b"a", b"b"] and before <= got[0][2] == got[1][2] <= time.monotonic_ns()
+
+    for kernel in (False, True):
+        tr = UdpTransport(("127.0.0.1", 0), None)
+        try:
+            if kernel:
+                assert tr.enable_kernel_stamps()
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+                before_send = time.monotonic_ns()
+                s.sendto(b"x", tr.local_address)
+                time.sleep(0.05)  # the datagram waits in the socket before it is read
+            read_from = time.monotonic_ns()
+            (data, addr, arrived), = tr.read_stamped(0.0)
+            assert data == b"x" and addr is not None
+            if kernel:
+                # received after the send began (within the wall-to-monotonic conversion's microseconds),
+                # queued before the read
+                assert before_send - 1_000_000 <= arrived < read_from
+            else:
+                assert arrived >= read_from
+        finally:
+            tr.close()
