@@ -99,44 +99,33 @@ class UdpTransport:
         return (str(host), int(port))
 
     def read(self, timeout_s: float) -> list[tuple[bytes, Address | None]]:
-        out: list[tuple[bytes, Address | None]] = []
-        if timeout_s > 0:
-            ready, _, _ = select.select([self.sock], [], [], timeout_s)
-            if not ready:
-                return out
-        # Bounded: a flood must not hold the caller's tick; the rest waits in the socket buffer.
-        while len(out) < self.max_datagrams_per_read:
-            try:
-                data, addr = self.sock.recvfrom(MAX_DATAGRAM)
-            except (BlockingIOError, InterruptedError):
-                return out
-            except OSError:  # e.g. ICMP port unreachable reported on the next recv (Linux)
-                continue
-            out.append((data, (str(addr[0]), int(addr[1]))))
-        return out
+        return [(data, addr) for data, addr, _ in self.read_stamped(timeout_s)]
 
     def read_stamped(self, timeout_s: float) -> list[tuple[bytes, Address | None, int]]:
-        """As :meth:`read`, each datagram with the monotonic time it arrived: the kernel's receive time when
-        :meth:`enable_kernel_stamps` took, moved from the wall clock onto the monotonic one, never later than
-        the read (a wall clock stepped back cannot put an arrival in the future); else the time of the read."""
-        if not self.kernel_stamps:
-            return _no_stamp_reads(self.read(timeout_s))
+        """The datagrams waiting (after up to ``timeout_s`` for the first), each with the monotonic time it
+        arrived: the kernel's receive time when :meth:`enable_kernel_stamps` took, moved from the wall clock
+        onto the monotonic one and never later than the read (a wall clock stepped back cannot put an arrival
+        in the future); else the time of the read."""
         out: list[tuple[bytes, Address | None, int]] = []
         if timeout_s > 0:
             ready, _, _ = select.select([self.sock], [], [], timeout_s)
             if not ready:
                 return out
-        mono = time.monotonic_ns()
-        wall_minus_mono = time.time_ns() - mono
+        stamps = self.kernel_stamps
+        wall_minus_mono = time.time_ns() - time.monotonic_ns() if stamps else 0
+        anc: list[tuple[int, int, bytes]] = []
+        # Bounded: a flood must not hold the caller's tick; the rest waits in the socket buffer.
         while len(out) < self.max_datagrams_per_read:
             try:
-                data, anc, _flags, addr = self.sock.recvmsg(MAX_DATAGRAM, _ANC_SPACE)
+                if stamps:
+                    data, anc, _flags, addr = self.sock.recvmsg(MAX_DATAGRAM, _ANC_SPACE)
+                else:
+                    data, addr = self.sock.recvfrom(MAX_DATAGRAM)
             except (BlockingIOError, InterruptedError):
                 return out
-            except OSError:  # as in read
+            except OSError:  # e.g. ICMP port unreachable reported on the next recv (Linux)
                 continue
-            read_ns = time.monotonic_ns()
-            arrived = read_ns
+            arrived = read_ns = time.monotonic_ns()
             for level, kind, payload in anc:
                 if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(payload) == _TIMESPEC.size:
                     sec, nsec = _TIMESPEC.unpack(payload)

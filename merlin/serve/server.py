@@ -1363,9 +1363,7 @@ class Server:
         still handled after a setpoint, as it was sent. Only datagrams that arrived before ``before_ns``
         (None: all) take part: a later one belongs to a later tick (:meth:`_drain`), and must not take the
         place of one that a tick before it handles."""
-        items = list(backlog)
-        if before_ns is not None:
-            items = list(itertools.takewhile(lambda item: item[2] < before_ns, items))
+        items = backlog if before_ns is None else itertools.takewhile(lambda item: item[2] < before_ns, backlog)
         keys = [_lone_setpoint_sender(item[0]) for item in items]
         superseded: set[int] = set()
         later: set[tuple[int, int]] = set()  # senders with a later setpoint in this run of setpoints
