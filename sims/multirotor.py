@@ -619,7 +619,10 @@ class Multirotor:
     @property
     def airspeed_mps(self) -> float:
         w = self.wind
-        return math.sqrt((self.vx - w[0]) ** 2 + (self.vy - w[1]) ** 2 + (self.vz - w[2]) ** 2)
+        # math.pow, not **: compiled, ** on floats is a generic call with boxed operands; both are the C
+        # library's pow() of the same operands, so the same bits
+        return math.sqrt(math.pow(self.vx - w[0], 2.0) + math.pow(self.vy - w[1], 2.0)
+                         + math.pow(self.vz - w[2], 2.0))
 
     @property
     def motor_speed_radps(self) -> tuple[float, float, float, float]:
@@ -629,7 +632,9 @@ class Multirotor:
     def rotor_power_w(self) -> float:
         """Mechanical shaft power of the four rotors, sum(k_m w^3) (for the battery model)."""
         km = self._km
-        return km * (self.w0**3 + self.w1**3 + self.w2**3 + self.w3**3)
+        # math.pow, not ** (see airspeed_mps): every physics tick, for the battery
+        return km * (math.pow(self.w0, 3.0) + math.pow(self.w1, 3.0) + math.pow(self.w2, 3.0)
+                     + math.pow(self.w3, 3.0))
 
     def truth(self) -> MultirotorTruth:
         qw, qx, qy, qz = self.qw, self.qx, self.qy, self.qz
@@ -660,7 +665,7 @@ class Multirotor:
             (sfx, sfy, sfz),
             acc,
             w,
-            math.sqrt((vx - w[0]) ** 2 + (vy - w[1]) ** 2 + (vz - w[2]) ** 2),  # airspeed_mps, inlined
+            math.sqrt(math.pow(vx - w[0], 2.0) + math.pow(vy - w[1], 2.0) + math.pow(vz - w[2], 2.0)),  # airspeed_mps, inlined
             (self.w0, self.w1, self.w2, self.w3),
             self.landed,
             self.crashed,

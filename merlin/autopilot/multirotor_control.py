@@ -245,9 +245,11 @@ def mix_quad_x(
     o1 = c + roll - pitch
     o2 = c + roll + pitch
     o3 = c - roll - pitch
-    # room for yaw: +yaw raises motors 0,1 and lowers 2,3
-    up = max(min(1.0 - o0, 1.0 - o1, o2, o3), 0.0)
-    down = max(min(o0, o1, 1.0 - o2, 1.0 - o3), 0.0)
+    # room for yaw: +yaw raises motors 0,1 and lowers 2,3. min() of two operands compiles to a comparison,
+    # of four to a call of the builtin (boxed operands, an argument tuple) at 400 Hz per lane; nested, the
+    # same comparisons in the same order keep the same operand.
+    up = max(min(min(min(1.0 - o0, 1.0 - o1), o2), o3), 0.0)
+    down = max(min(min(min(o0, o1), 1.0 - o2), 1.0 - o3), 0.0)
     if yaw > up:
         yaw, sat_y = up, 1
     elif yaw < -down:

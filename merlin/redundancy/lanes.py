@@ -655,11 +655,12 @@ class AutopilotLanes:
             self.switches.append(SwitchRecord(t, prev_sel, sel, gap))
             self._window_until = t + SWITCH_WINDOW_S
         if flying and any(prev_motors):
-            # written out (not max() over a generator and a strict zip, generic calls when compiled): every
-            # tick in flight; max() of the four in the same order keeps the same one
+            # written out (not max() over a generator and a strict zip, generic calls when compiled; nor
+            # max() of four operands, a call of the builtin too): every tick in flight. Nested two-operand
+            # max() compiles to comparisons, in the builtin's order, so it keeps the same one
             u0, u1, u2, u3 = out
             v0, v1, v2, v3 = prev_motors
-            step = max(abs(u0 - v0), abs(u1 - v1), abs(u2 - v2), abs(u3 - v3))
+            step = max(max(max(abs(u0 - v0), abs(u1 - v1)), abs(u2 - v2)), abs(u3 - v3))
             if t <= self._window_until + 1e-9:
                 self.max_switch_step = max(self.max_switch_step, step)
                 # what the hand-over adds to the step beyond the incoming lane's own change: per motor
