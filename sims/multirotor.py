@@ -33,11 +33,10 @@ from typing import Any, Final, NamedTuple
 import numpy as np
 
 from merlin.config.loader import ConfigError, parse_yaml
-from merlin.core.types import ZERO3, Vec3, VehicleState, new_record
+from merlin.core.types import ZERO3, Vec3, VehicleState, finite_number, new_record
 
 # math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
 # more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
-_isfinite: Final = math.isfinite
 _atan2: Final = math.atan2
 _asin: Final = math.asin
 _acos: Final = math.acos
@@ -141,7 +140,7 @@ def multirotor_params_from_mapping(data: Any, source: str = "<multirotor params>
         v = data[key]
         lo, hi, lo_incl = _BOUNDS[key]
         allowed = f"a number in {'[' if lo_incl else '('}{lo:g}, {hi:g}]"
-        if isinstance(v, bool) or not isinstance(v, int | float) or not _isfinite(v):
+        if not finite_number(v):
             problems.append(f"{key}: value {v!r} is not {allowed}")
             continue
         if not ((v >= lo if lo_incl else v > lo) and v <= hi):

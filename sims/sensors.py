@@ -29,13 +29,12 @@ from typing import Any, Final, Protocol
 import numpy as np
 
 from merlin.config.loader import ConfigError
-from merlin.core.types import Vec3, new_record
+from merlin.core.types import Vec3, finite_number, new_record
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample, SensorFrame
 
 # math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
 # more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
 _hypot: Final = math.hypot
-_isfinite: Final = math.isfinite
 _atan2: Final = math.atan2
 _radians: Final = math.radians
 
@@ -80,7 +79,7 @@ def _check_params(obj: object, positive: tuple[str, ...]) -> None:
         v = getattr(obj, name)
         if isinstance(v, bool) or not isinstance(v, int | float):
             continue
-        if not _isfinite(v) or v < 0.0 or (name in positive and v <= 0.0):
+        if not finite_number(v) or v < 0.0 or (name in positive and v <= 0.0):
             need = "> 0" if name in positive else ">= 0"
             raise ValueError(f"{type(obj).__name__}.{name} = {v!r}: must be finite and {need}")
 
@@ -699,15 +698,16 @@ def sensor_params_from_mapping(data: Any, source: str = "<sensor params>") -> Se
             if k not in fields_:
                 problems.append(f"{key}.{k}: unknown key; value {v!r}; allowed: {', '.join(fields_)}")
             elif k == "field_ned_gauss":
-                ok = (
-                    isinstance(v, list | tuple) and len(v) == 3 and all(isinstance(x, int | float) for x in v)
-                )
+                ok = isinstance(v, list | tuple) and len(v) == 3 and all(finite_number(x) for x in v)
                 if ok:
                     kwargs[k] = tuple(float(x) for x in v)
                 else:
-                    problems.append(f"{key}.{k}: value {v!r}; allowed: three numbers (N, E, D gauss)")
+                    problems.append(f"{key}.{k}: value {v!r}; allowed: three finite numbers (N, E, D gauss)")
             elif isinstance(v, bool) or not isinstance(v, int | float):
                 problems.append(f"{key}.{k}: value {v!r} is not a number")
+            elif not finite_number(v) and isinstance(v, int):
+                # the parameter classes store floats: such an int would fail their constructor, unnamed
+                problems.append(f"{key}.{k}: value {v!r} is too large for a float; allowed: a finite number")
             else:
                 kwargs[k] = v
         try:

@@ -57,7 +57,7 @@ import math
 from dataclasses import dataclass
 from typing import Final, NamedTuple
 
-from merlin.core.types import VehicleState, defined_native, new_record, set_frozen_fields
+from merlin.core.types import VehicleState, defined_native, finite, new_record, set_frozen_fields
 
 #: this module's build: its frozen records' own ``__init__`` may store their fields (merlin.core.types)
 NATIVE: Final = defined_native(lambda: None)
@@ -389,7 +389,7 @@ def _speed_rate(s: VehicleState) -> float:
     ad = -st * fx + sf * ct * fy + cf * ct * fz + G_MPS2
     vn, ve, vd = s.vel_ned_mps
     v_air = s.airspeed_mps
-    if math.isfinite(v_air) and v_air > 3.0:
+    if finite(v_air) and v_air > 3.0:
         v_h = math.sqrt(max(v_air * v_air - vd * vd, 0.0))
         vn, ve = v_h * cp, v_h * sp
     speed = math.sqrt(vn * vn + ve * ve + vd * vd)

@@ -33,11 +33,11 @@ from dataclasses import dataclass, field
 from typing import Final, NamedTuple
 
 from merlin.core.types import ZERO3, Command, CommandKind, Vec3, VehicleState, new_record
+from merlin.core.types import finite as _isfinite
 
 # math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
 # more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
 _hypot: Final = math.hypot
-_isfinite: Final = math.isfinite
 _asin: Final = math.asin
 _acos: Final = math.acos
 _radians: Final = math.radians

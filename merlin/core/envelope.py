@@ -33,10 +33,10 @@ from typing import Final, NamedTuple
 
 from merlin.core.config import EnvelopeLimit
 from merlin.core.types import MonitorId, Reason, ReasonCode, Setpoint, SetpointKind, VehicleState, new_record
+from merlin.core.types import finite as _isfinite
 
 # math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
 # more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
-_isfinite: Final = math.isfinite
 _atan2: Final = math.atan2
 _fsum: Final = math.fsum
 

@@ -60,11 +60,11 @@ import numpy.typing as npt
 import shapely
 
 from merlin.core.types import defined_native, new_record, set_frozen_fields
+from merlin.core.types import finite as _isfinite
 
 # math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
 # more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
 _hypot: Final = math.hypot
-_isfinite: Final = math.isfinite
 _acos: Final = math.acos
 _radians: Final = math.radians
 

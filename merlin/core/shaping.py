@@ -30,11 +30,11 @@ from merlin.core.types import (
     VehicleState,
     new_command,
 )
+from merlin.core.types import finite as _isfinite
 
 # math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
 # more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
 _hypot: Final = math.hypot
-_isfinite: Final = math.isfinite
 _atan2: Final = math.atan2
 _acos: Final = math.acos
 

@@ -63,10 +63,10 @@ from merlin.core.types import (
     new_command,
     new_record,
 )
+from merlin.core.types import finite as _isfinite
 
 # math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
 # more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
-_isfinite: Final = math.isfinite
 _dist: Final = math.dist
 _degrees: Final = math.degrees
 

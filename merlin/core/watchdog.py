@@ -9,13 +9,9 @@ the timeout is still alive.
 from __future__ import annotations
 
 import math
-from typing import Final
 
 from merlin.core.types import Reason, ReasonCode
-
-# math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
-# more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
-_isfinite: Final = math.isfinite
+from merlin.core.types import finite as _isfinite
 
 
 def gap_s(now: float, last_t_s: float | None) -> float:

@@ -68,6 +68,7 @@ from merlin.core.types import (
     new_record,
     set_frozen_fields,
 )
+from merlin.core.types import finite as _isfinite
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
 from merlin.nav.downsample import OutputPredictor, SensorHold
 from merlin.redundancy.duplex_fdi import FDI_PRESETS, FdiState
@@ -85,10 +86,6 @@ from merlin.redundancy.lane_voter import (
 )
 from merlin.redundancy.sensor_suite import SensorSuiteVoter
 from merlin.redundancy.sensor_voter import CHANNEL_SPECS, ChannelSpec, LaneState
-
-# math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
-# more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
-_isfinite: Final = math.isfinite
 
 # enum members read on every tick and lane: Final statics in the compiled build, not the enum class's attribute
 _NAV_GPS: Final = NavMode.GPS

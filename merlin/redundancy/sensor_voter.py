@@ -31,17 +31,13 @@ Tick, in order (one direction of flow, nothing reaches back):
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Final, NamedTuple
 
+from merlin.core.types import finite as _isfinite
 from merlin.core.types import new_record
 from merlin.measurements import BaroSample, GpsSample, ImuSample, MagSample
 from merlin.redundancy.events import FaultKind, FaultReport, RedundancyLevel
-
-# math functions with no native form in mypyc, bound once: compiled, reading a module's attribute costs
-# more than the call (docs/benchmarks/sim.md, "Module constants, enum members and math functions in the tick")
-_isfinite: Final = math.isfinite
 
 # Module constants read on every tick are Final: compiled, a Final number is a native constant and a Final
 # object a C static, where a plain module global is a dictionary lookup per read (docs/benchmarks/sim.md,
