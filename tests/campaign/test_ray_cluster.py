@@ -68,18 +68,22 @@ class _Node:
             assert time.monotonic() < deadline, f"the Ray node did not come up in {timeout_s:.0f} s"
             time.sleep(0.5)
 
-    def start_waiting(self, attempts: int = 3) -> str:
+    def start_waiting(self, attempts: int = 5, pause_s: float = 15.0) -> str:
         """:meth:`wait_started`, starting the node again (up to ``attempts`` times in all) when ``ray start``
         itself gives up: on a loaded machine Ray's own start-up may time out ("The current node timed out
-        during startup", GCS deadline exceeded) before anything of Merlin's runs; an operator restarts it."""
+        during startup", GCS deadline exceeded) before anything of Merlin's runs; an operator restarts it.
+        Ray waits a fixed 30 s for its raylet to register; beside the rest of the suite on two cores three
+        starts in a row once took longer, so each new attempt first waits out the burst (``pause_s`` times
+        the attempt's number)."""
         for attempt in range(attempts):
             try:
                 return self.wait_started()
-            except AssertionError:
+            except AssertionError as exc:
                 if self.proc.poll() is None or attempt == attempts - 1:
-                    raise
+                    raise AssertionError(f"{exc}\n(start attempt {attempt + 1} of {attempts})") from exc
             self.kill()
             shutil.rmtree(self.temp, ignore_errors=True)
+            time.sleep(pause_s * (attempt + 1))
             self._launch()
         raise AssertionError("unreachable")
 
