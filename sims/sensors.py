@@ -705,7 +705,7 @@ def sensor_params_from_mapping(data: Any, source: str = "<sensor params>") -> Se
                     problems.append(f"{key}.{k}: value {v!r}; allowed: three finite numbers (N, E, D gauss)")
             elif isinstance(v, bool) or not isinstance(v, int | float):
                 problems.append(f"{key}.{k}: value {v!r} is not a number")
-            elif not finite_number(v) and isinstance(v, int):
+            elif isinstance(v, int) and not finite_number(v):
                 # the parameter classes store floats: such an int would fail their constructor, unnamed
                 problems.append(f"{key}.{k}: value {v!r} is too large for a float; allowed: a finite number")
             else:

@@ -39,7 +39,11 @@ def test_any_float(x: float) -> None:
 @given(st.integers(min_value=-(2**1023), max_value=2**1023))
 def test_ints_as_callers_pass_them(n: int) -> None:
     assert finite(n) is math.isfinite(n)
-    assert finite(True) is True
+
+
+@pytest.mark.parametrize("b", [True, False])
+def test_bools_as_callers_pass_them(b: bool) -> None:
+    assert finite(b) is math.isfinite(b) is True
 
 
 def test_an_int_too_large_for_a_float_is_refused() -> None:
