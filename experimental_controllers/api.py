@@ -30,6 +30,7 @@ from merlin.core.types import (
     RequestKind,
     Setpoint,
     VehicleState,
+    finite_number,
 )
 
 
@@ -46,6 +47,16 @@ class ControllerOutput:
     setpoint: Setpoint | None = None
     heartbeat: bool = True
     requests: tuple[AuthorityRequest, ...] = ()
+
+
+def _shown_int(v: int) -> str:
+    """An int for an error message: its leading digits and how many there are (Python refuses to write out
+    one of more than 4,300 digits, and a message of hundreds of digits hides the field's name)."""
+    try:
+        text = str(v)
+    except ValueError:
+        return f"of {v.bit_length()} bits"
+    return text if len(text) <= 24 else f"{text[:12]}... ({len(text.lstrip('-'))} digits)"
 
 
 class ParamError(ValueError):
@@ -86,6 +97,11 @@ class ExperimentalController(ABC):
                 raise ParamError(f"parameter {k!r} of controller {self.name!r} must be a list, got {v!r}")
         self.params: dict[str, Any] = {**allowed, **params}
         for k, v in self.params.items():
+            if isinstance(v, int) and not isinstance(v, bool) and not finite_number(v):
+                # the controllers compute in floats: such an int would fail in the first arithmetic with it,
+                # inside the controller's step instead of here with its name
+                raise ParamError(f"parameter {k!r} of controller {self.name!r}: value {_shown_int(v)} is too large "
+                                 "for a float; allowed: a finite number")
             if isinstance(v, float) and not math.isfinite(v) and k not in self.nan_allowed():
                 raise ParamError(f"parameter {k!r} of controller {self.name!r} must be finite, got {v!r}")
         self.holds_authority = False

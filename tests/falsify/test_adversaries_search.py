@@ -68,7 +68,18 @@ def test_pull_push_pulls_then_pushes_at_its_throttles() -> None:
 @pytest.mark.parametrize(("cls", "params"), [
     (SearchVelocity, {"end_mode": "explode"}), (SearchVelocity, {"speed_mps": -1.0}),
     (SearchTilt, {"tilt_deg": 95.0}), (SearchPullPush, {"push_throttle": 1.5}), (SearchVelocity, {"warp": 1}),
+    (SearchVelocity, {"speed_mps": 10**400}), (SearchVelocity, {"speed_mps": -(10**5000)}),
 ])
 def test_bad_parameters_are_refused(cls, params) -> None:
     with pytest.raises(ParamError):
         cls(**params)
+
+
+@pytest.mark.parametrize(("value", "shown"), [
+    (10**400, "value 100000000000... (401 digits) is too large for a float"),
+    (-(10**5000), "value of 16610 bits is too large for a float"),  # beyond what Python writes out as digits
+], ids=["401 digits", "5001 digits"])
+def test_an_int_no_float_can_hold_is_refused_by_name(value: int, shown: str) -> None:
+    with pytest.raises(ParamError) as err:
+        SearchVelocity(speed_mps=value)
+    assert "parameter 'speed_mps' of controller" in str(err.value) and shown in str(err.value)

@@ -155,6 +155,8 @@ def test_failed_expectation_exits_1(tmp_path: Path) -> None:
         ("nan_at_s: 15.0}", ["nan_at_s: 15.0, bogus_gain: 3}", "controller.params", "bogus_gain"]),
         ("seed: 6", ["seed: 6\nsurprise: 1", "surprise", "unknown key"]),
         ("nan_at_s: 15.0", ["nan_at_s: oops", "nan_at_s"]),
+        # an int no float can hold passed the controller's parameter check and failed in its first arithmetic
+        ("nan_at_s: 15.0", ["nan_at_s: 1" + "0" * 400, "nan_at_s", "value 100000000000... (401 digits) is too large"]),
     ],
 )
 def test_bad_scenario_exits_2_naming_file_key_and_value(tmp_path: Path, capsys, patch: str, expect: list[str]) -> None:
