@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -59,6 +60,16 @@ def _shown_int(v: int) -> str:
     return text if len(text) <= 24 else f"{text[:12]}... ({len(text.lstrip('-'))} digits)"
 
 
+def _non_finite_in(v: Any, where: str) -> Iterator[tuple[str, Any]]:
+    """Each number inside the (nested) list ``v`` that no float holds finitely, with where it is
+    (``waypoints_ned_m[2][0]``)."""
+    if isinstance(v, list | tuple):
+        for i, x in enumerate(v):
+            yield from _non_finite_in(x, f"{where}[{i}]")
+    elif isinstance(v, int | float) and not isinstance(v, bool) and not finite_number(v):
+        yield where, v
+
+
 class ParamError(ValueError):
     """A controller parameter is missing, unknown or out of range (the scenario loader reports it)."""
 
@@ -97,6 +108,13 @@ class ExperimentalController(ABC):
                 raise ParamError(f"parameter {k!r} of controller {self.name!r} must be a list, got {v!r}")
         self.params: dict[str, Any] = {**allowed, **params}
         for k, v in self.params.items():
+            if isinstance(v, list):
+                # the numbers inside a list (waypoints, keyframes) are held to the same rule as the
+                # parameters themselves; what else a list must hold is each controller's own check
+                for where, x in _non_finite_in(v, k):
+                    shown = _shown_int(x) if isinstance(x, int) else repr(x)
+                    raise ParamError(f"parameter {where} of controller {self.name!r}: value {shown}; allowed: "
+                                     "finite numbers")
             if isinstance(v, int) and not isinstance(v, bool) and not finite_number(v):
                 # the controllers compute in floats: such an int would fail in the first arithmetic with it,
                 # inside the controller's step instead of here with its name

@@ -35,7 +35,7 @@ class WaypointTracker(ExperimentalController):
         super().__init__(**params)
         wps = self.params["waypoints_ned_m"]
         if not wps or any(len(w) != 3 for w in wps):
-            raise ParamError("waypoints_ned_m must be a non-empty list of [north_m, east_m, down_m]")
+            raise ParamError(f"waypoints_ned_m must be a non-empty list of [north_m, east_m, down_m], got {wps!r}")
         self.wps = [tuple(float(x) for x in w) for w in wps]
         self.index = 0
         self.carrot: tuple[float, float, float] | None = None
@@ -101,6 +101,12 @@ class RollExceeder(ExperimentalController):
 
     def __init__(self, **params: Any) -> None:
         super().__init__(**params)
+        prof = self.params["profile"]
+        pairs = bool(prof) and all(isinstance(k, list | tuple) and len(k) == 2 and all(
+            isinstance(x, int | float) and not isinstance(x, bool) for x in k) for k in prof)
+        if not pairs or any(t1 <= t0 for (t0, _), (t1, _) in itertools.pairwise(prof)):
+            raise ParamError(f"profile must be a non-empty list of [t_after_start_s, roll_deg] keyframes, times "
+                             f"increasing, got {prof!r}")
         self.hold_down_m: float | None = None
         self.integral = 0.0
 

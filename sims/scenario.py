@@ -41,6 +41,9 @@ MAX_NAV_DT_S = 0.02
 #: predictor on every IMU sample), and half seed 004's 20 ms sync period (section 4.3.2). Evidence that the
 #: decisions hold at it: docs/benchmarks/sim.md, "The 100 Hz default".
 DEFAULT_PERIOD_S = 0.01
+#: The largest scenario seed: the run's ULog stores it as an int64 parameter (``merlin_seed``), and numpy's
+#: generators take no negative seed.
+SEED_MAX = 2**63 - 1
 #: Scenario fields whose ``auto`` (or absence) is resolved at validation and does not count as given
 AUTO_FIELDS = ("camera", "core_dt_s", "nav_dt_s")
 
@@ -327,7 +330,8 @@ class Scenario(S):
     name: str
     description: str = ""
     duration_s: float = Field(gt=0.0, le=7200.0)
-    seed: int = 1
+    seed: int = Field(1, ge=0, le=SEED_MAX, description="the run's random streams (wind, sensors, faults, the "
+                                                         "camera) all derive from it")
     dt_s: float = Field(0.0025, gt=0.0, le=0.01, description="simulation tick period (the physics, the sensors, "
                                                               "the filter and the inner loops)")
     core_dt_s: float | None = Field(
@@ -533,6 +537,8 @@ def load_scenario(path: str | Path, seed: int | None = None) -> tuple[Scenario, 
     data, lines = read_yaml_file(p, "the scenario")
     sc = validate_model(Scenario, data, str(p), lines)
     if seed is not None:
+        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= SEED_MAX:
+            raise ConfigError(f"{p} (--seed)", [f"seed: value {seed!r}; allowed: a whole number from 0 to {SEED_MAX}"])
         sc = sc.model_copy(update={"seed": seed})
     cfg = resolve_config(sc, p.parent, str(p), lines)
     return sc, cfg

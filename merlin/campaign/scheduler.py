@@ -351,10 +351,19 @@ def run_campaign(opts: CampaignOptions, scenarios: list[CampaignScenario] | None
     it again, so a run that kills its worker cannot stall every resume. ``retry_errors`` flies those runs
     again (after a fix, say); the new record replaces the old one (the store keeps both lines, the last
     one wins)."""
+    problems = []
     if opts.runs < 1:
-        raise ConfigError("merlin campaign", [f"--runs: must be at least 1, got {opts.runs}"])
+        problems.append(f"--runs: must be at least 1, got {opts.runs}")
+    if not 0 <= opts.seed < 2**32:
+        # each run's seed derives from the campaign seed's low 32 bits (spec.run_seed_sequence): any other
+        # value would fly the runs of another seed under its own name
+        problems.append(f"--seed: must be in [0, 2^32), got {opts.seed}")
+    if opts.workers < 0:
+        problems.append(f"--workers: must be >= 0 (0: every core), got {opts.workers}")
     if opts.backend not in ("local", "ray"):
-        raise ConfigError("merlin campaign", [f"--backend: {opts.backend!r}; allowed: local, ray"])
+        problems.append(f"--backend: {opts.backend!r}; allowed: local, ray")
+    if problems:
+        raise ConfigError("merlin campaign", problems)
     scs = scenarios if scenarios is not None else load_scenarios(opts.scenarios)
     specs = plan(scs, opts.runs, opts.seed)
     _check_meta(opts.out, fingerprint(scs, opts.seed))

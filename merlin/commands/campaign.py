@@ -16,6 +16,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from merlin.config.loader import ConfigError
+
 PRINT_FAILED = 20  # failed runs printed with their commands; campaign.json lists every one
 
 
@@ -68,6 +70,8 @@ def finish(out: Path, outcome: Any, scenarios: list[Any], seed: int, workers: in
 def run(args: argparse.Namespace) -> int:
     from merlin.campaign.scheduler import CampaignOptions, load_scenarios, run_campaign
 
+    if args.keep_runs < 0:
+        raise ConfigError("merlin campaign", [f"--keep-runs: must be >= 0, got {args.keep_runs}"])
     out = Path(args.out)
     opts = CampaignOptions(scenarios=tuple(args.scenarios), runs=args.runs, out=out, seed=args.seed,
                            backend=args.backend, address=args.address, workers=args.workers, quiet=args.quiet,
