@@ -13,6 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from merlin.config.loader import ConfigError, load_config, read_yaml_file, validate_model
 from merlin.config.models import MerlinConfig
+from merlin.core.types import ReasonCode
 
 if TYPE_CHECKING:
     from sims.sensors import SensorParams
@@ -44,6 +45,9 @@ DEFAULT_PERIOD_S = 0.01
 #: The largest scenario seed: the run's ULog stores it as an int64 parameter (``merlin_seed``), and numpy's
 #: generators take no negative seed.
 SEED_MAX = 2**63 - 1
+#: The reasons an authority event can carry (``merlin.core.types.Event.to_dict``): an expectation's ``reason``
+#: is one of them, since one that matches no event passes a "never" or a "none" check whatever happened.
+REASONS: tuple[str, ...] = tuple(c.name.lower() for c in ReasonCode if c is not ReasonCode.NONE)
 #: Scenario fields whose ``auto`` (or absence) is resolved at validation and does not count as given
 AUTO_FIELDS = ("camera", "core_dt_s", "nav_dt_s")
 
@@ -221,22 +225,25 @@ class Expectation(S):
         "max_tracking_error",
     ]
     name: str = ""
-    t: float | None = None
+    t: float | None = Field(None, ge=0.0)
     authority: str | None = None
     behavior: str | None = None
-    reason: str | None = None
+    reason: str | None = Field(
+        None, description="only events with this reason (an authority event's reason code, lower case: geofence, "
+                          "envelope, nav_degraded, ...)")
     parameter: str | None = None
-    after_s: float = 0.0
-    within_s: float | None = None
-    not_before_s: float | None = None
+    after_s: float = Field(0.0, ge=0.0)
+    within_s: float | None = Field(None, ge=0.0)
+    not_before_s: float | None = Field(None, ge=0.0)
     m: float | None = None
     mps: float | None = None
     event: str | None = None
-    count: int | None = None
+    count: int | None = Field(
+        None, ge=0, description="revoked, granted, denied, event: at least this many matching events (0: none)")
     duration_s: float | None = None  # revoked: the exceedance duration the reason must carry (to 1 µs)
     lane: int | None = Field(None, ge=0, le=2, description="event: only events about this lane")
-    source: str | None = Field(
-        None, description="event: only events from this source (nav events: gps, gps_pos, gps_vel, vo, baro, mag, imu, nav)")
+    source: Literal["gps", "gps_pos", "gps_vel", "vo", "baro", "mag", "imu", "nav"] | None = Field(
+        None, description="event: only events from this source (the navigation events' sources)")
     step: float | None = Field(None, gt=0.0, description="max_lane_switch_step: allowed motor-command step")
     nav_mode: str | None = Field(None, description="nav_mode_at: GPS, VO, INERTIAL or LOST")
     # max_tracking_error: ``parameter`` (height_m, or an envelope parameter such as airspeed_mps) stays within
@@ -248,6 +255,9 @@ class Expectation(S):
 
     @model_validator(mode="after")
     def _needs(self) -> Expectation:
+        # a reason no event carries matches nothing: never_revoked or count 0 would pass whatever happened
+        if self.reason is not None and self.reason not in REASONS:
+            raise ValueError(f"reason {self.reason!r} is not a reason any event carries; allowed: {', '.join(REASONS)}")
         if self.type == "landed_by" and self.t is None:
             raise ValueError("expectation type 'landed_by' needs t: the time by which the vehicle is on the ground")
         if self.type == "max_tracking_error" and (self.parameter is None or self.target is None
@@ -476,6 +486,18 @@ class Scenario(S):
     def core_every(self) -> int:
         """How many ticks the trusted core's period spans (1: the core decides on every tick)."""
         return 1 if self.core_dt_s is None else round(self.core_dt_s / self.dt_s)
+
+    @model_validator(mode="after")
+    def _expectations_within_the_run(self) -> Scenario:
+        # a time after the run's end names a window the run never reaches: the check would judge nothing
+        # (a count of 0 or a "never" passes, an "at" reads the last row)
+        for i, x in enumerate(self.expectations):
+            for k in ("t", "after_s", "not_before_s"):
+                v = getattr(x, k)
+                if v is not None and v > self.duration_s:
+                    raise ValueError(f"expectations[{i}] ({x.type}): {k} {v:g} s is after the run's end; allowed: "
+                                     f"0 to duration_s ({self.duration_s:g} s)")
+        return self
 
     @model_validator(mode="after")
     def _camera_needs_ekf(self) -> Scenario:
