@@ -23,6 +23,10 @@ from merlin.core.config import Clear
 from merlin.core.types import MonitorId
 
 CONFIG_VERSION = 1
+#: The largest finite float32. ``merlin serve`` publishes the envelope's limits and the PX4-named fields as
+#: MAVLink parameters (PARAM_VALUE carries a float32) and the run's ULog stores them as float parameters: a
+#: value beyond it could be neither sent nor logged, so those fields refuse it.
+FLOAT32_MAX = 3.4028234663852886e38
 
 
 class Strict(BaseModel):
@@ -95,6 +99,9 @@ class Limit(Strict):
     def _finite(cls, v: float) -> float:
         if not math.isfinite(v):
             raise ValueError("must be a finite number")
+        if abs(v) > FLOAT32_MAX:
+            raise ValueError(f"must be within +-{FLOAT32_MAX:.7g}: the limit is published as a float32 parameter "
+                             "(MAVLink PARAM_VALUE, the run's ULog)")
         return v
 
     @model_validator(mode="after")
@@ -542,8 +549,9 @@ class OperatorConfig(Strict):
 class TrustedConfig(Strict):
     """Merlin's own guidance behaviours (HOLD, RTL, LAND, TAKEOFF)."""
 
-    rtl_altitude_m: float = Field(30.0, gt=0.0, description="climb to at least this height, then return")
-    cruise_speed_mps: float = Field(6.0, gt=0.0)
+    # (the three published under PX4's names, MIS_TAKEOFF_ALT, RTL_RETURN_ALT and MPC_XY_CRUISE, fit a float32)
+    rtl_altitude_m: float = Field(30.0, gt=0.0, le=FLOAT32_MAX, description="climb to at least this height, then return")
+    cruise_speed_mps: float = Field(6.0, gt=0.0, le=FLOAT32_MAX)
     climb_speed_mps: float = Field(2.5, gt=0.0)
     land_speed_mps: float = Field(0.8, gt=0.0)
     land_final_height_m: float = Field(3.0, ge=0.0, description="below this, descend at half speed")
@@ -552,7 +560,7 @@ class TrustedConfig(Strict):
         10.0, ge=0.0, description="RTL closer than this to home skips the climb (as PX4's RTL_MIN_DIST)"
     )
     position_gain_per_s: float = Field(1.0, gt=0.0, description="position error to velocity, 1/s")
-    takeoff_altitude_m: float = Field(10.0, gt=0.0)
+    takeoff_altitude_m: float = Field(10.0, gt=0.0, le=FLOAT32_MAX)
     mission_ned_m: list[Annotated[list[float], Field(min_length=3, max_length=3)]] = Field(
         default_factory=list, description="trusted mission waypoints [north_m, east_m, down_m] about home"
     )

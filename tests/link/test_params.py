@@ -4,23 +4,31 @@ that may not write, and writes on the ground through the configuration models.""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from pydantic import ValidationError
+from pyulog import ULog
 
 from merlin.config.loader import config_sha256
-from merlin.config.models import ENVELOPE_PARAMETERS, EnvelopeConfig, MerlinConfig
+from merlin.config.models import ENVELOPE_PARAMETERS, FLOAT32_MAX, EnvelopeConfig, MerlinConfig
 from merlin.link import inbound as i
 from merlin.link import outbound as o
+from merlin.link.codec import encode
 from merlin.link.params import (
+    PX4_PARAMS,
     ParamProtocol,
     envelope_param_target,
     envelope_params,
     float32_decimal,
+    int32_params,
+    published_params,
     with_envelope_param,
 )
+from merlin.ulog.format import ULogWriter
 
 GCS = (255, 190)
 IDS = [n for n, _ in envelope_params(EnvelopeConfig().effective())]
@@ -289,3 +297,50 @@ def test_unknown_px4_parameters_stay_refused() -> None:
     p.read_only = None
     out = p.handle(_rx(_set("MPC_Z_VEL_MAX_UP", 2.0)))
     assert [type(x) for x in out] == [o.StatusTextOut] and "unknown parameter" in out[0].text  # type: ignore[union-attr]
+
+
+# --- every published value fits the float32 it is published as ----------------------------------------------
+
+def _config_with(path: tuple[str, ...], value: float) -> dict[str, object]:
+    data = MerlinConfig().model_dump(mode="json")
+    node = data
+    for k in path[:-1]:
+        node = node[k]  # type: ignore[assignment]
+    node[path[-1]] = value  # type: ignore[index]
+    return data
+
+
+@pytest.mark.parametrize("p", [p for p in PX4_PARAMS if p.name not in int32_params()], ids=lambda p: p.name)
+def test_a_px4_named_field_beyond_float32_is_refused(p: object) -> None:
+    """A cruise speed of 1e308 m/s loaded, then crashed the encoder of its PARAM_VALUE (and the ULog writer)."""
+    with pytest.raises(ValidationError, match="less than or equal to"):
+        MerlinConfig.model_validate(_config_with(p.path, 1e39))  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize("end", ["min", "max"])
+def test_an_envelope_limit_beyond_float32_is_refused(end: str) -> None:
+    stage = MerlinConfig().envelope.active_stage
+    data = _config_with(("envelope", "stages", stage, "yaw_deg", end), -1e308 if end == "min" else 1e308)
+    with pytest.raises(ValidationError, match=r"must be within \+-3\.402823e\+38: the limit is published as a float32"):
+        MerlinConfig.model_validate(data)
+
+
+def test_the_widest_limits_allowed_are_sent_and_logged(M: object, tmp_path: Path) -> None:
+    """Every envelope limit at the float32 edge: each published PARAM_VALUE packs and the ULog takes each
+    parameter (both refused a float beyond it with OverflowError)."""
+    stage = MerlinConfig().envelope.active_stage
+    data = MerlinConfig().model_dump(mode="json")
+    for name in ENVELOPE_PARAMETERS:
+        data["envelope"]["stages"][stage][name] = {"min": -FLOAT32_MAX, "max": FLOAT32_MAX, "duration_s": 600.0}
+    cfg = MerlinConfig.model_validate(data)
+    params = published_params(cfg)
+    assert ("ENV_YAW_MAX", FLOAT32_MAX) in params
+    out = ParamProtocol(params, None).handle(_rx(i.ParamRequestListIn(1, 1)))
+    mav = M.MAVLink(None, srcSystem=1)  # type: ignore[attr-defined]
+    sent = [m for x in out for m in encode(x, M)]  # type: ignore[arg-type]
+    assert len(sent) == len(params) and all(m.pack(mav) for m in sent)
+    w = ULogWriter(tmp_path / "p.ulg")
+    for name, value in params:
+        w.parameter(name, value)
+    w.close()
+    assert ULog(str(tmp_path / "p.ulg")).initial_parameters["ENV_YAW_MIN"] == -FLOAT32_MAX
