@@ -7,13 +7,22 @@ import math
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from merlin.config.models import ENVELOPE_PARAMETERS, EnvelopeConfig, EnvelopeStage, Limit, MerlinConfig
+from merlin.config.models import (
+    ENVELOPE_PARAMETERS,
+    FLOAT32_MAX,
+    EnvelopeConfig,
+    EnvelopeStage,
+    Limit,
+    MerlinConfig,
+)
 from merlin.config.runtime import build_core_config, envelope_limits
 from merlin.config.summary import envelope_table
 
-# Any finite float the models accept (subnormals excluded: below ~1e-308 a degree value has fewer than
-# 16 significant digits to begin with, so "exact within 1e-12" is not defined for it).
-finite = st.floats(allow_nan=False, allow_infinity=False, allow_subnormal=False)
+# Any float the models accept for a limit: finite and within a float32's range, which limits are published
+# as (subnormals excluded: below ~1e-308 a degree value has fewer than 16 significant digits to begin with,
+# so "exact within 1e-12" is not defined for it).
+finite = st.floats(min_value=-FLOAT32_MAX, max_value=FLOAT32_MAX, allow_nan=False, allow_infinity=False,
+                   allow_subnormal=False)
 durations = st.floats(min_value=0.0, max_value=600.0, allow_nan=False, allow_subnormal=False)
 
 
