@@ -13,7 +13,9 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from merlin.config.loader import ConfigError, load_config, read_yaml_file, validate_model
 from merlin.config.models import MerlinConfig
-from merlin.core.types import ReasonCode
+from merlin.core.types import EventKind, ReasonCode
+from merlin.nav.events import NavEventKind
+from merlin.redundancy.events import FaultKind
 
 if TYPE_CHECKING:
     from sims.sensors import SensorParams
@@ -48,6 +50,21 @@ SEED_MAX = 2**63 - 1
 #: The reasons an authority event can carry (``merlin.core.types.Event.to_dict``): an expectation's ``reason``
 #: is one of them, since one that matches no event passes a "never" or a "none" check whatever happened.
 REASONS: tuple[str, ...] = tuple(c.name.lower() for c in ReasonCode if c is not ReasonCode.NONE)
+#: The fixed wing's own events (merlin.autopilot.fixedwing_behaviours)
+_FIXED_WING_EVENTS = ("escape_run_out", "escape_run_out_end", "escape_turn", "escape_turn_end", "land_as_loiter",
+                      "mission_end", "rtl_at_home", "rtl_loiter_moved", "rtl_no_route", "rtl_route",
+                      "trusted_excursion", "trusted_excursion_end")
+#: The event types a run can log, which an expectation's ``event`` is one of (a misspelt one matches nothing,
+#: so ``count: 0`` would pass whatever happened): the core's (``EventKind``), the filter's (``nav_`` and a
+#: ``NavEventKind``), the voters' and the lanes' (a channel and a ``FaultKind``: merlin.redundancy.lanes),
+#: the runner's and the fixed wing's. The scenario tests hold every event of every shipped scenario's run to
+#: this list (tests/scenarios/test_shipped_scenarios.py, tests/scenarios_fixedwing/).
+EVENT_TYPES: frozenset[str] = frozenset(
+    [k.value for k in EventKind]
+    + [f"nav_{k.value}" for k in NavEventKind]
+    + [f"{channel}_{k.value}" for channel in ("imu", "mag", "baro", "gps", "autopilot") for k in FaultKind]
+    + ["fault_start", "fault_end", "controller_fault", "note"]
+    + [f"fixed_wing_{name}" for name in _FIXED_WING_EVENTS])
 #: Scenario fields whose ``auto`` (or absence) is resolved at validation and does not count as given
 AUTO_FIELDS = ("camera", "core_dt_s", "nav_dt_s")
 
@@ -256,6 +273,9 @@ class Expectation(S):
     @model_validator(mode="after")
     def _needs(self) -> Expectation:
         # a reason no event carries matches nothing: never_revoked or count 0 would pass whatever happened
+        if self.event is not None and self.event not in EVENT_TYPES:
+            raise ValueError(f"event {self.event!r} is not an event type any run logs; allowed: "
+                             f"{', '.join(sorted(EVENT_TYPES))}")
         if self.reason is not None and self.reason not in REASONS:
             raise ValueError(f"reason {self.reason!r} is not a reason any event carries; allowed: {', '.join(REASONS)}")
         if self.type == "landed_by" and self.t is None:

@@ -15,7 +15,7 @@ import pytest
 from merlin.cli import main
 from sims.expectations import evaluate_all
 from sims.runner import RunResult, run_scenario
-from sims.scenario import load_scenario
+from sims.scenario import EVENT_TYPES, load_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIOS = ROOT / "examples" / "scenarios"
@@ -50,6 +50,8 @@ def test_scenario_meets_its_expectations(path: Path) -> None:
     pairs = list(zip(r.scenario.expectations, verdicts, strict=True))
     failed = [v.to_dict() for x, v in pairs if not v.passed and x.type != known]
     assert not failed, failed
+    # the list a scenario's event expectations are checked against holds every event the run logged
+    assert {e["type"] for e in r.events} <= EVENT_TYPES, {e["type"] for e in r.events} - EVENT_TYPES
     if known is not None:
         assert any(not v.passed for x, v in pairs if x.type == known), (
             f"{path.stem}: the open finding's expectation {known!r} passes now: remove it from KNOWN_OPEN")

@@ -21,7 +21,7 @@ from merlin.config.loader import ConfigError
 from sims.expectations import evaluate, evaluate_all
 from sims.report import summary_dict
 from sims.runner import RunResult, make_loop, run_scenario
-from sims.scenario import Expectation, Scenario, load_scenario
+from sims.scenario import EVENT_TYPES, Expectation, Scenario, load_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIOS = ROOT / "examples" / "scenarios"
@@ -41,6 +41,7 @@ def test_fixed_wing_fault_scenario_meets_its_expectations(name: str) -> None:
     verdicts = evaluate_all(r.scenario.expectations, r.events, r.log, r.metrics)
     failed = [v.to_dict() for v in verdicts if not v.passed]
     assert not failed, failed
+    assert {e["type"] for e in r.events} <= EVENT_TYPES, {e["type"] for e in r.events} - EVENT_TYPES
     assert r.metrics["max_fence_breach_m"] == 0.0
 
 

@@ -21,7 +21,7 @@ from merlin.config.runtime import build_core_config
 from sims.expectations import evaluate_all
 from sims.fixedwing_loop import FixedWingLoop
 from sims.runner import RunResult, run_scenario
-from sims.scenario import Scenario, load_scenario, resolve_config
+from sims.scenario import EVENT_TYPES, Scenario, load_scenario, resolve_config
 from tests.scenarios_fixedwing.fence_cases import (
     ANGLES_DEG,
     CEILING_M,
@@ -51,6 +51,8 @@ def _expectations_pass(r: RunResult) -> None:
     verdicts = evaluate_all(r.scenario.expectations, r.events, r.log, r.metrics)
     failed = [v.to_dict() for v in verdicts if not v.passed]
     assert not failed, failed
+    # the list a scenario's event expectations are checked against holds every event the run logged
+    assert {e["type"] for e in r.events} <= EVENT_TYPES, {e["type"] for e in r.events} - EVENT_TYPES
 
 
 @cache
