@@ -134,10 +134,40 @@ def validate_model(
         validated = model.model_validate(data, context=context)
     except ValidationError as err:
         raise ConfigError(source, describe_validation_error(err, lines)) from None
-    bad = non_finite_numbers(validated.model_dump(mode="python"), lines)  # text such as "nan" read as a number
+    dumped = validated.model_dump(mode="python")
+    bad = non_finite_numbers(dumped, lines)  # text such as "nan" read as a number
+    bad += booleans_read_as_numbers(data, dumped, lines)
     if bad:
         raise ConfigError(source, bad)
     return validated
+
+
+def _key_and_line(path: tuple[str | int, ...], lines: Mapping[tuple[str | int, ...], int]) -> str:
+    """``line N: a.b[2].c`` for the key path ``path`` (the line of its deepest key that has one)."""
+    key = "".join(f"[{p}]" if isinstance(p, int) else (f".{p}" if i else str(p)) for i, p in enumerate(path))
+    line = next((lines[path[:k]] for k in range(len(path), 0, -1) if path[:k] in lines), None)
+    where = f"line {line}: " if line is not None else ""
+    return f"{where}{key or '(top level)'}"
+
+
+def booleans_read_as_numbers(data: Any, validated: Any, lines: Mapping[tuple[str | int, ...], int],
+                             path: tuple[str | int, ...] = ()) -> list[str]:
+    """One problem per true or false in the file (``data``) that the models took as a number
+    (``validated``, their dump): pydantic reads ``true`` as 1 where a number is expected, so
+    ``reaction_time_s: true`` would fly a 1 s reaction time and a fence vertex ``[true, 0]`` a corner at 1 m,
+    where the file almost certainly meant something else."""
+    out: list[str] = []
+    if isinstance(data, Mapping) and isinstance(validated, Mapping):
+        for k, v in data.items():
+            if k in validated:
+                out += booleans_read_as_numbers(v, validated[k], lines, (*path, k))
+    elif isinstance(data, (list, tuple)) and isinstance(validated, (list, tuple)) and len(data) == len(validated):
+        for i, v in enumerate(data):
+            out += booleans_read_as_numbers(v, validated[i], lines, (*path, i))
+    elif isinstance(data, bool) and isinstance(validated, int | float) and not isinstance(validated, bool):
+        out.append(f"{_key_and_line(path, lines)}: value {str(data).lower()} is true/false where a number is "
+                   "expected; write the number")
+    return out
 
 
 def non_finite_numbers(data: Any, lines: Mapping[tuple[str | int, ...], int],
@@ -153,10 +183,7 @@ def non_finite_numbers(data: Any, lines: Mapping[tuple[str | int, ...], int],
         for i, v in enumerate(data):
             out += non_finite_numbers(v, lines, (*path, i))
     elif isinstance(data, float) and not math.isfinite(data):
-        key = "".join(f"[{p}]" if isinstance(p, int) else (f".{p}" if i else str(p)) for i, p in enumerate(path))
-        line = next((lines[path[:k]] for k in range(len(path), 0, -1) if path[:k] in lines), None)
-        where = f"line {line}: " if line is not None else ""
-        out.append(f"{where}{key or '(top level)'}: value {data!r} is not a finite number; every number must be "
+        out.append(f"{_key_and_line(path, lines)}: value {data!r} is not a finite number; every number must be "
                    "finite (no NaN or infinity)")
     return out
 

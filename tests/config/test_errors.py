@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import pytest
+import yaml
 
 from merlin.cli import main
 from merlin.commands.check_config import allowed_keys, load_and_build, yaml_context
-from merlin.config.loader import ConfigError
+from merlin.config.loader import ConfigError, load_config_text
 from merlin.config.models import EnvelopeStage, FenceCircle, Limit, MerlinConfig, Rule
-from tests.config.paths import BROKEN_FILES, DATA
+from tests.config.paths import BROKEN_FILES, DATA, EXAMPLES
 
 # file -> (line, key path, offending value as it appears in the message)
 EXPECTED: dict[str, tuple[int, str, str]] = {
@@ -21,6 +22,7 @@ EXPECTED: dict[str, tuple[int, str, str]] = {
     "broken_stage_cycle.yaml": (3, "envelope", "a -> b -> a"),
     "broken_self_intersecting.yaml": (8, "geofence.inclusion_polygons[0]", "north 100.00 m, east 0.00 m"),
     "broken_yaml_syntax.yaml": (5, "geofence.inclusion_polygons.name", "'- name: field: north'"),
+    "broken_boolean_number.yaml": (7, "geofence.inclusion_polygons[0].vertices_ne_m[0][0]", "value true is true/false"),
 }
 
 
@@ -95,3 +97,30 @@ def test_yaml_context_follows_block_indentation() -> None:
     assert yaml_context(text, 3) == ("a.b.d", "d: [")
     assert yaml_context(text, 4) == ("a.e", "e: 2")
     assert yaml_context("", 0) == ("", "")
+
+
+
+def _default_with(path: tuple[str, ...], value: object) -> str:
+    data = yaml.safe_load((EXAMPLES / "default.yaml").read_text())
+    node = data
+    for k in path[:-1]:
+        node = node[k]
+    node[path[-1]] = value
+    return yaml.safe_dump(data)
+
+
+@pytest.mark.parametrize(("path", "value", "problem"), [
+    (("vehicle", "reaction_time_s"), True, "vehicle.reaction_time_s: value true is true/false where a number is"),
+    (("handover", "max_revocations_per_flight"), False, "handover.max_revocations_per_flight: value false"),
+    (("envelope", "stages", "conservative", "roll_deg", "max"), True,
+     "envelope.stages.conservative.roll_deg.max: value true"),
+])
+def test_true_or_false_where_a_number_belongs_is_refused(path: tuple[str, ...], value: bool, problem: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        load_config_text(_default_with(path, value), "bools.yaml")
+    assert any(problem in p for p in info.value.problems), info.value.problems
+
+
+def test_true_and_false_still_set_the_switches() -> None:
+    cfg = load_config_text(_default_with(("envelope", "stages", "conservative", "roll_deg", "enabled"), False))
+    assert cfg.envelope.stages["conservative"].roll_deg.enabled is False  # type: ignore[union-attr]

@@ -55,7 +55,8 @@ def test_a_roll_profile_interpolates_between_its_keyframes() -> None:
 
 
 @pytest.mark.parametrize(("seed", "message"), [
-    (-1, "greater than or equal to 0"), (SEED_MAX + 1, f"less than or equal to {SEED_MAX}")])
+    (-1, "greater than or equal to 0"), (SEED_MAX + 1, f"less than or equal to {SEED_MAX}"),
+    (True, "seed: value true is true/false where a number is expected")])  # it flew seed 1
 def test_a_scenario_seed_no_run_can_take_is_refused_with_its_line(tmp_path: Path, seed: int, message: str) -> None:
     """A negative seed crashed numpy's generator after the scenario loaded; one beyond int64 flew the whole run
     and then crashed the ULog's writer, losing the run's log."""
