@@ -4,6 +4,7 @@ reads it, and the column log gives exactly what a dict of lists would."""
 from __future__ import annotations
 
 import hashlib
+import math
 from typing import Any
 
 import numpy as np
@@ -97,6 +98,21 @@ def test_the_column_log_is_a_dict_of_lists() -> None:
     for key in want:
         assert got[key].dtype == want[key].dtype
         np.testing.assert_array_equal(got[key], want[key])
+
+
+def test_the_column_log_keeps_every_bit_and_grows_after_it_is_read() -> None:
+    log = _Log(("t", "v"))
+    special = [-0.0, math.nan, math.inf, 5e-324, -1.7976931348623157e308]
+    for k, v in enumerate(special):
+        log.add((float(k), v), {})
+    first = log.arrays()
+    log.add((9.0, 1.5), {})  # reading the table leaves the buffer free to grow
+    second = log.arrays()
+    assert first["v"].tobytes() == np.asarray(special).tobytes()
+    assert second["v"].tobytes() == np.asarray([*special, 1.5]).tobytes() and len(log) == 6
+    assert first["t"].flags.c_contiguous and first["t"].dtype == np.float64
+    with pytest.raises(ValueError, match="a log row has 3 fixed values; its columns are 2"):
+        log.add((1.0, 2.0, 3.0), {})
 
 
 def test_a_vehicle_side_already_flown_is_refused() -> None:
