@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from merlin.config.loader import ConfigError, load_config, read_yaml_file, validate_model
-from merlin.config.models import MerlinConfig
+from merlin.config.models import ENVELOPE_PARAMETERS, MerlinConfig
 from merlin.core.types import EventKind, ReasonCode
 from merlin.nav.events import NavEventKind
 from merlin.redundancy.events import FaultKind
@@ -272,12 +272,16 @@ class Expectation(S):
 
     @model_validator(mode="after")
     def _needs(self) -> Expectation:
-        # a reason no event carries matches nothing: never_revoked or count 0 would pass whatever happened
+        # an event type, a reason or an envelope parameter that no event carries matches nothing: a "never"
+        # or a count of 0 would pass whatever happened
         if self.event is not None and self.event not in EVENT_TYPES:
             raise ValueError(f"event {self.event!r} is not an event type any run logs; allowed: "
                              f"{', '.join(sorted(EVENT_TYPES))}")
         if self.reason is not None and self.reason not in REASONS:
             raise ValueError(f"reason {self.reason!r} is not a reason any event carries; allowed: {', '.join(REASONS)}")
+        if self.reason == "envelope" and self.parameter is not None and self.parameter not in ENVELOPE_PARAMETERS:
+            raise ValueError(f"parameter {self.parameter!r} is not an envelope parameter; allowed: "
+                             f"{', '.join(ENVELOPE_PARAMETERS)}")
         if self.type == "landed_by" and self.t is None:
             raise ValueError("expectation type 'landed_by' needs t: the time by which the vehicle is on the ground")
         if self.type == "max_tracking_error" and (self.parameter is None or self.target is None

@@ -29,6 +29,8 @@ def _load_with(tmp_path: Path, expectation: dict[str, object]) -> None:
     ({"type": "revoked", "count": -1}, "count: Input should be greater than or equal to 0; value -1"),
     # a reason no event carries matches nothing: never_revoked passes whatever was revoked
     ({"type": "never_revoked", "reason": "geofense"}, "reason 'geofense' is not a reason any event carries"),
+    ({"type": "never_revoked", "reason": "envelope", "parameter": "roll"},
+     "parameter 'roll' is not an envelope parameter; allowed: airspeed_mps"),
     ({"type": "event", "event": "nav_excluded", "source": "GPS", "count": 0}, "source: Input should be 'gps'"),
     # an event type no run logs: count 0 passes whatever happened
     ({"type": "event", "event": "nav_exluded", "count": 0}, "event 'nav_exluded' is not an event type any run logs"),
@@ -40,7 +42,7 @@ def _load_with(tmp_path: Path, expectation: dict[str, object]) -> None:
     ({"type": "authority_at", "t": 81.0, "authority": "TRUSTED"}, "t 81 s is after the run's end"),
     ({"type": "event", "event": "imu_isolated", "count": 0, "not_before_s": 1e9}, "not_before_s 1e+09 s is after"),
     ({"type": "authority_at", "t": -1.0, "authority": "TRUSTED"}, "t: Input should be greater than or equal to 0"),
-], ids=["count", "reason", "source", "event", "event without its channel", "within_s", "after_s", "t", "not_before_s", "negative t"])
+], ids=["count", "reason", "envelope parameter", "source", "event", "event without its channel", "within_s", "after_s", "t", "not_before_s", "negative t"])
 def test_an_expectation_that_could_judge_nothing_is_refused_by_name(tmp_path: Path, expectation: dict[str, object],
                                                                      message: str) -> None:
     with pytest.raises(ConfigError) as err:
