@@ -693,6 +693,7 @@ def sensor_params_from_mapping(data: Any, source: str = "<sensor params>") -> Se
             problems.append(f"{key}: value {value!r}; allowed: a mapping of {cls.__name__} fields")
             continue
         fields_ = cls.__dataclass_fields__  # type: ignore[attr-defined]
+        defaults = cls()  # (a field's type, read from its default: the compiled classes do not keep it as text)
         kwargs: dict[str, Any] = {}
         for k, v in value.items():
             if k not in fields_:
@@ -708,6 +709,10 @@ def sensor_params_from_mapping(data: Any, source: str = "<sensor params>") -> Se
             elif isinstance(v, int) and not finite_number(v):
                 # the parameter classes store floats: such an int would fail their constructor, unnamed
                 problems.append(f"{key}.{k}: value {v!r} is too large for a float; allowed: a finite number")
+            elif isinstance(getattr(defaults, k), int) and not isinstance(v, int):
+                # a count (satellites, fix type): the compiled classes refuse a float unnamed, the interpreted
+                # ones kept it (a fix of 0.5 satellites)
+                problems.append(f"{key}.{k}: value {v!r} is not an integer; allowed: an integer (a count: no decimal point)")
             else:
                 kwargs[k] = v
         try:

@@ -239,3 +239,16 @@ def test_sensor_parameters_from_a_mapping() -> None:
     msg = str(exc.value)
     assert "s.yaml" in msg and "gps.latency: unknown key" in msg and "lidar: unknown key" in msg
     assert "GpsParams.rate_hz = -1" in msg
+
+
+@pytest.mark.parametrize("value", [0.5, 3.0, math.nan, 1e308])
+@pytest.mark.parametrize("field_name", ["satellites", "fix_type"])
+def test_a_count_given_as_a_float_is_refused_by_name(field_name: str, value: float) -> None:
+    """The compiled parameter classes refused it with an unnamed TypeError, the interpreted ones kept it."""
+    with pytest.raises(ConfigError) as exc:
+        sensor_params_from_mapping({"gps": {field_name: value}}, "s.yaml")
+    assert f"gps.{field_name}: value {value!r} is not an integer; allowed: an integer" in str(exc.value)
+
+
+def test_a_count_given_as_an_integer_is_kept() -> None:
+    assert sensor_params_from_mapping({"gps": {"satellites": 9, "fix_type": 2}}).gps.satellites == 9
