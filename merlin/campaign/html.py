@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import base64
 import html
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +39,19 @@ def img(png: bytes | None, alt: str) -> str:
     if not png:
         return ""
     return f'<img alt="{_e(alt)}" src="data:image/png;base64,{base64.b64encode(png).decode("ascii")}">'
+
+
+def figure(draw: Callable[..., bytes | None], alt: str, *args: Any) -> str:
+    """``draw(*args)``'s figure as an ``<img>``, or a paragraph saying why it could not be drawn: matplotlib
+    cannot place values near the largest float on an axis (a varied value sampled at 1e308 stopped the report
+    with ``arange: cannot compute length``), and a figure must not cost the report its tables."""
+    try:
+        png = draw(*args)
+    except (ValueError, OverflowError, FloatingPointError) as exc:
+        plots.close_all()
+        return (f'<p class="fail">The figure "{_e(alt)}" could not be drawn ({_e(type(exc).__name__)}: {_e(exc)}), '
+                "most likely a value too large for an axis; the tables and results.jsonl hold every value.</p>")
+    return img(png, alt)
 
 
 def table_html(t: Table) -> str:
@@ -139,15 +153,15 @@ def render(agg: dict[str, Any], records: list[dict[str, Any]], scenarios: list[C
         [_e(e["scenario"]), _e(e["name"]),
          f'<span class="{"pass" if e["passed"] == e["n"] else "fail"}">{e["passed"]} / {e["n"]}</span>',
          f"{e['pass_rate']:.4f}", f"[{e['wilson95'][0]:.4f}, {e['wilson95'][1]:.4f}]"] for e in agg["expectations"]]))
-    out.append(img(plots.pass_rates(agg), "pass rates with Wilson intervals"))
+    out.append(figure(plots.pass_rates, "pass rates with Wilson intervals", agg))
     out.append("<h2>Distributions</h2>")
     out.append(rows_html(["metric", "n", "min", "5 %", "median", "95 %", "max"], [
         [_e(plots.METRIC_LABELS[k]), str(d.get("n", 0)), _fmt(d.get("min")), _fmt(d.get("p05")),
          _fmt(d.get("median")), _fmt(d.get("p95")), _fmt(d.get("max"))] for k, d in agg["distributions"].items()]))
-    out.append(img(plots.histograms(records), "distributions"))
-    sv = plots.samples_vs_margin(records)
-    if sv:
-        out.append("<h3>Varied values against the minimum fence margin</h3>" + img(sv, "samples against margin"))
+    out.append(figure(plots.histograms, "distributions", records))
+    if plots.varied_keys(records):
+        out.append("<h3>Varied values against the minimum fence margin</h3>"
+                   + figure(plots.samples_vs_margin, "samples against margin", records))
     out.append("<h2>Worst runs and failures</h2><p>Each command flies that single run again, bit for bit, "
                "from its resolved scenario (the configuration is inlined in the YAML).</p>")
     out.append(rows_html(["run", "seed", "status", "failed expectations / error", "max breach (m)",

@@ -123,11 +123,21 @@ def pass_rates(agg: dict[str, Any]) -> bytes:
     return _png(fig)
 
 
+def close_all() -> None:
+    """Close every figure (after one failed half-drawn)."""
+    plt.close("all")
+
+
+def varied_keys(records: list[dict[str, Any]]) -> list[str]:
+    """The numeric keys the runs that flew varied, sorted."""
+    return sorted({k for r in records if r.get("status") == "ok" for k, v in (r.get("samples") or {}).items()
+                   if isinstance(v, int | float) and not isinstance(v, bool)})
+
+
 def samples_vs_margin(records: list[dict[str, Any]]) -> bytes | None:
     """Each varied numeric key against the run's minimum fence margin (failures in red)."""
     ok = [r for r in records if r.get("status") == "ok"]
-    keys = sorted({k for r in ok for k, v in (r.get("samples") or {}).items()
-                   if isinstance(v, int | float) and not isinstance(v, bool)})
+    keys = varied_keys(records)
     if not keys:
         return None
     keys = keys[:6]
