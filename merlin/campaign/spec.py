@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import copy
 import hashlib
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,6 +27,7 @@ import numpy as np
 
 from merlin.config.loader import ConfigError, load_config, parse_yaml, validate_model
 from merlin.config.models import MerlinConfig
+from merlin.core.types import finite_number
 from sims.scenario import Scenario
 
 DISTRIBUTIONS = ("uniform", "normal", "choice", "int_uniform")
@@ -71,7 +71,7 @@ def parse_distribution(path: str, spec: Any, source: str) -> Distribution:
         raise ConfigError(source, [f"{where}.{kind}: expected a list, got {args!r}"])
     if kind != "choice":
         ok = len(args) == 2 and all(isinstance(a, int | float) and not isinstance(a, bool) for a in args)
-        ok = ok and all(math.isfinite(a) for a in args)
+        ok = ok and all(finite_number(a) for a in args)  # (an int no float holds too: math.isfinite raised)
         if not ok:
             raise ConfigError(source, [f"{where}.{kind}: expected two finite numbers [a, b], got {args!r}"])
         a, b = args
@@ -79,6 +79,9 @@ def parse_distribution(path: str, spec: Any, source: str) -> Distribution:
             raise ConfigError(source, [f"{where}.{kind}: lower bound {a} is above upper bound {b}"])
         if kind == "int_uniform" and (a != int(a) or b != int(b)):
             raise ConfigError(source, [f"{where}.int_uniform: bounds must be integers, got {args!r}"])
+        if kind == "int_uniform" and not -(2**63) <= a <= b < 2**63:
+            # numpy draws the integer as an int64: a bound beyond it raised at the first run's draw
+            raise ConfigError(source, [f"{where}.int_uniform: bounds must be within [-2^63, 2^63), got {args!r}"])
         if kind == "normal" and b < 0:
             raise ConfigError(source, [f"{where}.normal: sigma must be >= 0, got {b}"])
         if kind == "int_uniform":

@@ -99,6 +99,9 @@ def test_a_key_that_is_not_in_the_scenario_is_refused_with_its_centre(tmp_path: 
     ("duration_s: {gaussian: [0, 1]}", "unknown distribution"),
     ("duration_s: {uniform: [5, 1]}", "above upper bound"),
     ("wind.steady_ned_mps.7: {uniform: [0, 1]}", "not an index"),
+    # an int no float holds: math.isfinite raised OverflowError on it (found by benchmarks/sweep_bad_values.py)
+    ("duration_s: {uniform: [1" + "0" * 400 + ", 2]}", r"uniform: expected two finite numbers \[a, b\]"),
+    ("seed: {int_uniform: [0, 100000000000000000000]}", r"int_uniform: bounds must be within \[-2\^63, 2\^63\)"),
 ])
 def test_bad_vary_entries_are_refused_at_load(tmp_path: Path, vary: str, needle: str) -> None:
     p = tmp_path / "bad.yaml"
