@@ -29,11 +29,16 @@ def _at(log: dict[str, np.ndarray], t: float, col: str) -> float:
     return float(log[col][i])
 
 
+def event_parameter(e: dict[str, Any]) -> str | None:
+    """The parameter an event names: an authority event's in its ``reason_detail``, a navigation event's or a
+    trusted excursion's at its top level; None when it names none."""
+    return e.get("reason_detail", {}).get("parameter", e.get("parameter"))
+
+
 def _matches(e: dict[str, Any], x: Expectation) -> bool:
     if x.reason is not None and e.get("reason") != x.reason:
         return False
-    # an authority event names its parameter in reason_detail, a navigation event at its top level
-    if x.parameter is not None and e.get("reason_detail", {}).get("parameter", e.get("parameter")) != x.parameter:
+    if x.parameter is not None and event_parameter(e) != x.parameter:
         return False
     if x.lane is not None and e.get("lane") != x.lane:
         return False

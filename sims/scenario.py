@@ -65,6 +65,34 @@ EVENT_TYPES: frozenset[str] = frozenset(
     + [f"{channel}_{k.value}" for channel in ("imu", "mag", "baro", "gps", "autopilot") for k in FaultKind]
     + ["fault_start", "fault_end", "controller_fault", "note"]
     + [f"fixed_wing_{name}" for name in _FIXED_WING_EVENTS])
+#: The parameters an event can name, which an expectation's ``parameter`` is one of (a misspelt one matches
+#: nothing, so a "never" or ``count: 0`` would pass whatever happened): an authority event's
+#: ``reason_detail.parameter`` (the envelope's parameters, the core's monitors and the arbiter's preconditions
+#: in :mod:`merlin.core`, the fence's kinds and the route's warnings, and the fields of a state or setpoint
+#: that fails validation), a navigation event's ``parameter`` (:mod:`merlin.nav.estimator`: the tests'
+#: statistics and the vision pipeline's quality fields) and a fixed wing's trusted excursion's (an envelope
+#: parameter). tests/scenarios/test_expectation_checks.py holds every literal parameter of ``merlin`` and each
+#: field validation names to this list; the scenario tests hold every event of every shipped run to it.
+EVENT_PARAMETERS: frozenset[str] = frozenset((
+    *ENVELOPE_PARAMETERS,
+    # the core's monitors, the arbiter's and the hand-over's preconditions
+    "ack_wait_s", "altitude_m", "attitude_error_deg", "battery_frac", "clear_s", "cooldown_s",
+    "heartbeat_alive_s", "inertial_at_touchdown_s", "lanes", "nav_mode", "pos_sigma_h_m", "position",
+    "position_error_m", "revocations", "seq", "silence_s", "target_clearance_m", "velocity_error_mps",
+    # the fence's result kinds (``merlin.core.geofence.FenceKind``, "fence" when it names none) and the route's
+    # warnings
+    "outside", "inclusion", "exclusion", "ceiling", "floor", "invalid", "fence", "no_route", "safe_point",
+    # a state's or a setpoint's field that fails validation (``merlin.core.step.validate_state``,
+    # ``validate_setpoint``)
+    "pos_ned_m", "vel_ned_mps", "att_rpy_rad", "rates_frd_radps", "accel_frd_mps2", "airspeed_mps", "pos_sigma_v_m",
+    "nav_inertial_s", "alpha_rad", "kind", "thrust", "yaw_rad", "yaw_rate_radps",
+    # the navigation filter's statistics, and the vision pipeline's quality fields
+    # (``merlin.nav.estimator.vo_quality_problem``)
+    "accel_clipped", "agree_s", "cusum", "dt_s", "imu_source_changed", "nis", "refused_frames", "rejected_s",
+    "satellites", "sigma_h_m", "since_fused_s", "vo_cusum", "window_cusum",
+    "valid", "repetition", "features", "inlier_ratio", "reprojection_error_px", "texture_score"))
+#: What ``max_tracking_error`` tracks: the true height above home, or an envelope parameter's log column
+TRACKED_PARAMETERS: tuple[str, ...] = ("height_m", *ENVELOPE_PARAMETERS)
 #: Scenario fields whose ``auto`` (or absence) is resolved at validation and does not count as given
 AUTO_FIELDS = ("camera", "core_dt_s", "nav_dt_s")
 
@@ -282,6 +310,13 @@ class Expectation(S):
         if self.reason == "envelope" and self.parameter is not None and self.parameter not in ENVELOPE_PARAMETERS:
             raise ValueError(f"parameter {self.parameter!r} is not an envelope parameter; allowed: "
                              f"{', '.join(ENVELOPE_PARAMETERS)}")
+        if self.type == "max_tracking_error":
+            if self.parameter is not None and self.parameter not in TRACKED_PARAMETERS:
+                raise ValueError(f"parameter {self.parameter!r} is not tracked by max_tracking_error; allowed: "
+                                 f"{', '.join(TRACKED_PARAMETERS)}")
+        elif self.parameter is not None and self.parameter not in EVENT_PARAMETERS:
+            raise ValueError(f"parameter {self.parameter!r} is not a parameter any event names; allowed: "
+                             f"{', '.join(sorted(EVENT_PARAMETERS))}")
         if self.type == "landed_by" and self.t is None:
             raise ValueError("expectation type 'landed_by' needs t: the time by which the vehicle is on the ground")
         if self.type == "max_tracking_error" and (self.parameter is None or self.target is None

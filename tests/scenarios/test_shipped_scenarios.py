@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from merlin.cli import main
-from sims.expectations import evaluate_all
+from sims.expectations import evaluate_all, event_parameter
 from sims.runner import RunResult, run_scenario
-from sims.scenario import EVENT_TYPES, load_scenario
+from sims.scenario import EVENT_PARAMETERS, EVENT_TYPES, load_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIOS = ROOT / "examples" / "scenarios"
@@ -52,6 +52,9 @@ def test_scenario_meets_its_expectations(path: Path) -> None:
     assert not failed, failed
     # the list a scenario's event expectations are checked against holds every event the run logged
     assert {e["type"] for e in r.events} <= EVENT_TYPES, {e["type"] for e in r.events} - EVENT_TYPES
+    # and every parameter an event named (the list an expectation's ``parameter`` is checked against)
+    named = {event_parameter(e) for e in r.events} - {None, ""}
+    assert named <= EVENT_PARAMETERS, named - EVENT_PARAMETERS
     if known is not None:
         assert any(not v.passed for x, v in pairs if x.type == known), (
             f"{path.stem}: the open finding's expectation {known!r} passes now: remove it from KNOWN_OPEN")

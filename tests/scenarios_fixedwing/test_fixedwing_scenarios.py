@@ -18,10 +18,10 @@ import pytest
 
 from merlin.config.loader import load_config
 from merlin.config.runtime import build_core_config
-from sims.expectations import evaluate_all
+from sims.expectations import evaluate_all, event_parameter
 from sims.fixedwing_loop import FixedWingLoop
 from sims.runner import RunResult, run_scenario
-from sims.scenario import EVENT_TYPES, Scenario, load_scenario, resolve_config
+from sims.scenario import EVENT_PARAMETERS, EVENT_TYPES, Scenario, load_scenario, resolve_config
 from tests.scenarios_fixedwing.fence_cases import (
     ANGLES_DEG,
     CEILING_M,
@@ -53,6 +53,9 @@ def _expectations_pass(r: RunResult) -> None:
     assert not failed, failed
     # the list a scenario's event expectations are checked against holds every event the run logged
     assert {e["type"] for e in r.events} <= EVENT_TYPES, {e["type"] for e in r.events} - EVENT_TYPES
+    # and every parameter an event named (the list an expectation's ``parameter`` is checked against)
+    named = {event_parameter(e) for e in r.events} - {None, ""}
+    assert named <= EVENT_PARAMETERS, named - EVENT_PARAMETERS
 
 
 @cache
