@@ -63,9 +63,14 @@ def test_the_window_limits_what_is_checked() -> None:
 
 
 def test_an_unknown_parameter_fails_naming_what_is_allowed() -> None:
-    x = Expectation(type="max_tracking_error", parameter="altitude_ft", target=1.0, tolerance=1.0)
+    # refused when the scenario loads, naming what the expectation can track
+    with pytest.raises(ValidationError, match="'altitude_ft' is not tracked by max_tracking_error; allowed: "
+                                              "height_m, airspeed_mps"):
+        Expectation(type="max_tracking_error", parameter="altitude_ft", target=1.0, tolerance=1.0)
+    # an envelope parameter this run's log has no column for fails when judged, naming the log's columns
+    x = Expectation(type="max_tracking_error", parameter="alpha_deg", target=1.0, tolerance=1.0)
     v = evaluate(x, [], LAP, {})
-    assert not v.passed and "allowed: height_m, airspeed_mps" in v.detail
+    assert not v.passed and "'alpha_deg' is not tracked; allowed: height_m, airspeed_mps" in v.detail
 
 
 def test_the_fields_it_needs_are_required() -> None:
