@@ -6,7 +6,8 @@ The fence: a 50-vertex non-convex inclusion polygon about 1 km across (a wavy st
 * ``field``: positions uniform over the allowed area, heading uniform, speed 0-15 m/s (a flight).
 * ``near``: positions within 40 m of a hazard boundary, moving at 3-15 m/s (the exact shapely test runs).
 * ``tripped``: states that trip through the projection (the clearance bisection runs).
-* each for the multirotor and the fixed wing, and ``field``/``near`` without the lower-bound grid
+* each for the multirotor and the fixed wing (its turn alone, and with the inner edge of the loops' 35 deg bank,
+  ``turn_bank_max_rad``, as the Aerosonde's fence is built), and ``field``/``near`` without the lower-bound grid
   (``grid_cells=0``: every call goes to shapely) for comparison.
 
 Each call is timed on its own with ``time.perf_counter_ns`` (its ~0.1 µs overhead is included), three
@@ -136,8 +137,13 @@ def main() -> None:
         f"fence built in {build_s * 1e3:.0f} ms (grid {fence_mr.grid_cells} cells); {n_vert} boundary vertices"
     )
 
+    # the fixed wing as merlin.config.fence_build builds it for the Aerosonde: each side of the projection is the
+    # area between its turn and the loops' tightest, earliest one at their 35 deg bank (FenceParams.turn_bank_max_rad)
+    fw_inner = FenceParams(vehicle="fixed_wing", turn_bank_max_rad=math.radians(35.0))
+    fence_fwi, nogrid_fwi = fence_mr.with_params(fw_inner), nogrid_mr.with_params(fw_inner)
     cases = []
-    for vehicle, f, f0 in (("multirotor", fence_mr, nogrid_mr), ("fixed_wing", fence_fw, nogrid_fw)):
+    for vehicle, f, f0 in (("multirotor", fence_mr, nogrid_mr), ("fixed_wing", fence_fw, nogrid_fw),
+                           ("fixed_wing inner edge", fence_fwi, nogrid_fwi)):
         field_states = sample_states(f, rng, args.calls, "field")
         near_states = sample_states(f, rng, args.calls, "near")
         trip_states = sample_states(f, rng, max(200, args.calls // 10), "tripped")

@@ -52,6 +52,7 @@ def build_fence_params(geofence_cfg: GeofenceConfig, vehicle_cfg: VehicleLimits,
                 "turn_airspeed_mps": fc.escape_airspeed_mps(cp),
                 "turn_speed_gain_per_s": cp.speed_gain_per_s,
                 "roll_rate_radps": cp.roll_sp_rate_radps,
+                "turn_bank_max_rad": fc.bank_limit_rad(cp),
                 "recovery_height_m": recovery_height_m}
     return FenceParams(
         mode=mode,

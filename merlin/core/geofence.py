@@ -167,6 +167,11 @@ class FenceParams:
     # counts it beyond the reaction time's sink, so that a controller granted above the minimum grant height
     # is revoked while the recovery still keeps the floor. 0: no recovery to allow for (a multirotor brakes).
     recovery_height_m: float = 0.0
+    # Fixed wing: the steepest bank the trusted loops fly (their own bank limit, which may be steeper than
+    # ``bank_limit_rad``, the bank the projection's turn assumes). The inner edge of each side's swept area
+    # (:func:`fixed_wing_turn`): a turn begun at once at this bank (or the bank held now, if steeper) on the
+    # side of the turn. 0: not modelled (the projection's turn alone).
+    turn_bank_max_rad: float = 0.0
 
     def __post_init__(self) -> None:
         problems: list[str] = []
@@ -193,6 +198,8 @@ class FenceParams:
                 problems.append(f"{name}={v!r} must be finite and > 0")
         if not (0.0 < self.bank_limit_rad < 0.5 * math.pi):
             problems.append(f"bank_limit_rad={self.bank_limit_rad!r} must be in (0, pi/2)")
+        if not (0.0 <= self.turn_bank_max_rad < 0.5 * math.pi):
+            problems.append(f"turn_bank_max_rad={self.turn_bank_max_rad!r} must be in [0, pi/2)")
         for name in ("altitude_floor_m", "altitude_ceiling_m"):
             v = getattr(self, name)
             if v is not None and not _isfinite(v):
@@ -347,6 +354,10 @@ class Fence:
     _incl_hazard: Any = field(init=False, repr=False)  # box minus the inclusion union; or None
     _excl_hazard: Any = field(init=False, repr=False)  # exclusion union; or None
     _excl_boundary: Any = field(init=False, repr=False)
+    # the forbidden area's bounded parts (the allowed area's holes: keep-outs inside it; every exclusion zone
+    # without inclusion zones); or None. Only these can lie inside a fixed wing's swept area whose boundary
+    # keeps clear (:func:`_encloses`).
+    _enclosed: Any = field(init=False, repr=False)
     _box: tuple[float, float, float, float] = field(init=False, repr=False)  # n0, e0, n1, e1
     _grid: tuple[float, ...] = field(init=False, repr=False)
     _grid_nj: int = field(init=False, repr=False)
@@ -448,7 +459,12 @@ def _derived(inclusion_polygons: tuple[PolygonNE, ...], inclusion_circles: tuple
         else:
             box = (0.0, 0.0, 0.0, 0.0)
     excl_boundary = shapely.boundary(excl_union) if excl_union is not None else None
-    for g in (allowed, forbidden, incl_hazard, excl_union, excl_boundary):
+    enclosed = excl_union
+    if allowed is not None:
+        holes = [shapely.polygons(shapely.get_interior_ring(part, i))
+                 for part in shapely.get_parts(allowed) for i in range(shapely.get_num_interior_rings(part))]
+        enclosed = shapely.union_all(holes) if holes else None
+    for g in (allowed, forbidden, incl_hazard, excl_union, excl_boundary, enclosed):
         if g is not None:
             shapely.prepare(g)
     out["_has_inclusion"] = bool(incl)
@@ -457,6 +473,7 @@ def _derived(inclusion_polygons: tuple[PolygonNE, ...], inclusion_circles: tuple
     out["_incl_hazard"] = incl_hazard
     out["_excl_hazard"] = excl_union
     out["_excl_boundary"] = excl_boundary
+    out["_enclosed"] = enclosed
     out["_box"] = box
     grid, ni, nj, inv_cell = _build_grid(allowed, forbidden, box, grid_cells)
     out["_grid"] = grid
@@ -485,7 +502,7 @@ def _fence_from_fields(values: Sequence[Any]) -> Fence:
     """Unpickling: the fence from its field values, its shapely geometries prepared again (pickling keeps
     the geometries but not their prepared indexes, without which the check is slow)."""
     new = _fence_with_fields(values)
-    geoms = [new._allowed, new._forbidden, new._incl_hazard, new._excl_hazard, new._excl_boundary]
+    geoms = [new._allowed, new._forbidden, new._incl_hazard, new._excl_hazard, new._excl_boundary, new._enclosed]
     geoms += [t for lv in new._local for t in lv.tiles]
     live = [g for g in geoms if g is not None]
     if live:
@@ -1044,6 +1061,23 @@ def _grid_clears_path(
         an, ae = sn_ + side_leg * su_n, se_ + side_leg * su_e
         rn, re_ = -su_e * side, su_n * side
         centre_clear = _lower_bound(fence, an + radius * rn, ae + radius * re_) > radius + need
+        if turn is not None and turn.inner_radius_m > 0.0:
+            # The area between the inner edge (the half turn of radius r <= R from the leg's start) and this
+            # path (leg L, then R) is swept by the paths of leg lam L and radius r + lam (R - r), lam in
+            # [0, 1]; at each angle of the turn their points lie on one segment, so every point of the area
+            # is within d = hypot(L / 2, D) + D of the middle path (leg L / 2, radius r + D, D = (R - r) / 2),
+            # whose leg and turn are tested with the widening grown by d.
+            half_d = 0.5 * (radius - turn.inner_radius_m)
+            spread = _hypot(0.5 * side_leg, half_d) + half_d
+            mid_r, mid_leg = turn.inner_radius_m + half_d, 0.5 * side_leg
+            mn, me = sn_ + mid_leg * su_n, se_ + mid_leg * su_e
+            wider = need + spread
+            if (
+                _lower_bound(fence, mn + mid_r * rn, me + mid_r * re_) > mid_r + wider
+                or _arc_clear(fence, mn, me, su_n, su_e, rn, re_, mid_r, 0.0, math.pi, wider, _GRID_DEPTH)
+            ) and (mid_leg <= 0.0 or _segment_clear(fence, sn_, se_, mn, me, wider, _GRID_DEPTH)):
+                return True
+            continue
         if (
             centre_clear
             or _arc_clear(fence, an, ae, su_n, su_e, rn, re_, radius, 0.0, math.pi, need, _GRID_DEPTH)
@@ -1141,6 +1175,10 @@ _NO_WIND: tuple[float, float] = (0.0, 0.0)
 #: The largest bank the roll-out counts: a coordinated level turn beyond it needs more than 5.7 g, which no
 #: wing lifts in a fixed wing's speed range; an aircraft banked further turns no faster than this.
 _ROLLOUT_BANK_MAX_RAD: Final = _radians(80.0)
+#: A bank smaller than this is level for the roll-out: it would turn the heading by under a nanoradian, and a
+#: subnormal one made the roll-out's radius overflow (infinite, the path NaN), which the distance tests read as
+#: clear (tests/core/test_geofence_fixedwing_inner_edge.py).
+_MIN_ROLLOUT_BANK_RAD: Final = 1.0e-9
 
 
 class FixedWingTurn(NamedTuple):
@@ -1157,7 +1195,10 @@ class FixedWingTurn(NamedTuple):
     that time (``rollout_turn_rad`` of heading towards the bank, on an arc of ``rollout_radius_m``), then
     straight for the second half, before the reaction leg: the bank only decreases while it is rolled out
     and the turn rate ``g tan(bank) / V`` is convex in the bank, so that heading leads the real one at
-    every moment (scenarios ``fw_adv_pullup_reversal_tailwind`` and ``fw_adv_dive_reversal``)."""
+    every moment (scenarios ``fw_adv_pullup_reversal_tailwind`` and ``fw_adv_dive_reversal``).
+
+    ``inner_radius_m`` (0: none): the radius of the side's inner edge, the half turn begun at once (after the
+    roll-out's arc, if any) at the steepest bank the loops fly, at ``v0_mps`` (:func:`fixed_wing_turn`)."""
 
     v0_mps: float
     reaction_s: float
@@ -1171,6 +1212,7 @@ class FixedWingTurn(NamedTuple):
     rollout_s: float = 0.0
     rollout_turn_rad: float = 0.0
     rollout_radius_m: float = 0.0
+    inner_radius_m: float = 0.0
 
     def leg_s_m(self, t: FloatArray) -> FloatArray:
         """Distance along the leg at the times ``t`` (0..reaction_s + accel_s)."""
@@ -1202,7 +1244,17 @@ def fixed_wing_turn(prm: FenceParams, v_air_mps: float, bank_rad: float = 0.0) -
       turns the aircraft earlier, away from the hazard the turn escapes);
     * the half turn at the bank limit at ``max(v, V_t)``: the radius ``V^2 / (g tan(bank))`` and the time
       ``pi V / (g tan(bank))`` both grow with the speed, so the faster speed the loops may fly it at is
-      the cautious one (the loops slow a faster aircraft to ``V_t`` in the turn).
+      the cautious one (the loops slow a faster aircraft to ``V_t`` in the turn);
+    * that path is the outer edge of the side's swept area. Its inner edge (``turn_bank_max_rad`` > 0) is the
+      half turn begun at once at the current airspeed, at the steepest bank the loops fly (their own bank
+      limit, or the bank held now if steeper), radius ``v^2 / (g tan(bank))``: an aircraft already banked
+      towards the side keeps turning through the reaction time, and the loops bank beyond the projection's
+      ``bank_limit_rad``, so the flown turn lies inside the outer edge. A hazard on the inside of the turn (a
+      keep-out the turn wraps round) meets the inner edge first; the side is clear only when the area between
+      the edges is (:func:`_boundary`, :func:`_encloses`). Scenario ``fw_adv_mast_inside_banked_turn``: an RTL turning
+      right round the radio mast in a tailwind, whose projected right turn (straight for the reaction time,
+      then at 30 deg) passed the mast where the flown one, banked 29-39 deg and turning from the start, entered it by
+      18.8 m.
 
     Scenarios ``fw_adv_slow_pullup_west_wind`` and ``fw_adv_slow_climb_notch`` pin it: a slow aircraft
     revoked where the turn at its current airspeed would have cleared the edge, whose real turn started
@@ -1219,14 +1271,20 @@ def fixed_wing_turn(prm: FenceParams, v_air_mps: float, bank_rad: float = 0.0) -
     radius = vt * vt / g_tan
     phi = min(abs(bank_rad), _ROLLOUT_BANK_MAX_RAD) if _isfinite(bank_rad) else _ROLLOUT_BANK_MAX_RAD
     rollout_s = rollout_turn = rollout_radius = 0.0
+    if not (phi >= _MIN_ROLLOUT_BANK_RAD):
+        phi = 0.0
     if prm.roll_rate_radps > 0.0 and phi > 0.0 and v > 0.0:
         rollout_s = phi / prm.roll_rate_radps
         rate = prm.gravity_mps2 * math.tan(phi) / v
         rollout_turn, rollout_radius = 0.5 * rollout_s * rate, v / rate
+    inner = 0.0
+    if prm.turn_bank_max_rad > 0.0 and v > 0.0:
+        steepest = max(prm.turn_bank_max_rad, prm.bank_limit_rad, phi)
+        inner = v * v / (prm.gravity_mps2 * math.tan(steepest))
     return new_record(FixedWingTurn, (v, tr, accel_s, vt, k, leg, radius,
                                       rollout_s + tr + accel_s + math.pi * vt / g_tan,
                                       math.copysign(phi, bank_rad) if phi > 0.0 else 0.0, rollout_s, rollout_turn,
-                                      rollout_radius))
+                                      rollout_radius, inner))
 
 
 #: Time samples of a leg that regains speed in a wind (its ground path is curved: the air path's distance
@@ -1292,6 +1350,80 @@ def _turn_path(
         verts[:, 0] += wind[0] * t
         verts[:, 1] += wind[1] * t
     return verts, sag
+
+
+def _inner_path(
+    fence: Fence,
+    n: float,
+    e: float,
+    un: float,
+    ue: float,
+    turn: FixedWingTurn,
+    side: float,
+    wind: tuple[float, float] = _NO_WIND,
+) -> tuple[FloatArray, float, int]:
+    """The inner edge of the side's swept area (:func:`fixed_wing_turn`): the roll-out's arc, if the turn
+    rolls one out, then at once the half turn of ``turn.inner_radius_m`` flown at ``turn.v0_mps``, drifted by
+    the wind as :func:`_turn_path` drifts the outer edge. Returns (verts, sag, shared): ``shared``, how many
+    leading vertices are the outer edge's own (the roll-out's arc but its end), 0 without a roll-out."""
+    drifting = wind is not _NO_WIND and turn.v0_mps > 0.0
+    r = turn.inner_radius_m
+    sag, cphi, sphi = _arc_table(fence, r)
+    sn_, se_, t0 = n, e, 0.0
+    head: FloatArray | None = None
+    t_head: FloatArray | None = None
+    if turn.rolls_out(side):
+        head, t_head, sag_out = _rollout_arc(n, e, un, ue, turn, side)
+        sn_, se_, t0 = float(head[-1, 0]), float(head[-1, 1]), float(t_head[-1])
+        c, sn = math.cos(turn.rollout_turn_rad), math.sin(turn.rollout_turn_rad)
+        un, ue = c * un + side * sn * ue, c * ue - side * sn * un
+        sag = max(sag, sag_out)
+    rn, re_ = -ue * side, un * side  # unit normal towards the turn centre
+    arc = np.empty((cphi.shape[0], 2))
+    arc[:, 0] = sn_ + r * (rn - rn * cphi + un * sphi)
+    arc[:, 1] = se_ + r * (re_ - re_ * cphi + ue * sphi)
+    shared = 0
+    if head is not None and t_head is not None:
+        verts = np.vstack((head[:-1], arc))
+        t = np.concatenate((t_head[:-1], t0 + r * np.arctan2(sphi, cphi) / turn.v0_mps))
+        shared = head.shape[0] - 1
+    else:
+        verts = arc
+        t = r * np.arctan2(sphi, cphi) / turn.v0_mps
+    if drifting:
+        verts[:, 0] += wind[0] * t
+        verts[:, 1] += wind[1] * t
+        sag *= _WIND_SAG_FACTOR
+    return verts, sag, shared
+
+
+def _encloses(fence: Fence, n: float, e: float, reach: float, outer: FloatArray, inner: FloatArray,
+              shared: int) -> bool:
+    """Whether a bounded part of the forbidden area (``Fence._enclosed``: a keep-out inside the range) lies in
+    the area between a side's two edges (:func:`fixed_wing_turn`). Asked once the line round the area keeps
+    clear: then only such a part can meet the area, whole and inside it, and every turn the loops may fly
+    between the edges crosses it (a keep-out small enough to lie between them). The area is built only when
+    one lies within ``reach`` of the position."""
+    enclosed = fence._enclosed
+    if enclosed is None or not bool(shapely.dwithin(enclosed, shapely.points((n, e)), reach)):
+        return False
+    return bool(shapely.intersects(enclosed, _area(outer, inner, shared)))
+
+
+def _boundary(outer: FloatArray, inner: FloatArray, shared: int) -> FloatArray:
+    """The polyline round a side's area (:func:`fixed_wing_turn`): the outer edge, then back along the inner one
+    to the end of their shared roll-out arc; both edges and the segment joining their ends."""
+    return np.vstack((outer, inner[shared:][::-1]))
+
+
+def _area(outer: FloatArray, inner: FloatArray, shared: int) -> Any:
+    """The area between a side's two edges, from the end of their shared roll-out arc (the aircraft's position
+    without one): the outer edge, then the inner one back, closes it. A ring whose edges cross (the wind
+    drifts them by different times) is made valid: the same points, as polygons and lines."""
+    area = shapely.polygons(np.vstack((outer[shared:], inner[shared:][::-1])))
+    if not shapely.is_valid(area):
+        area = shapely.make_valid(area)
+    return area
 
 
 #: The roll-out arc's polyline is within this of the arc (as the half turn's, :data:`ARC_CHORD_ERROR_M`).
@@ -1390,8 +1522,17 @@ def _path_hits(
     un, ue = vn / v, ve / v
     for side in (1.0, -1.0):
         verts, arc_sag = _turn_path(fence, n, e, un, ue, turn, side, wind)
-        if not bool(shapely.dwithin(hazard, shapely.linestrings(verts), w + arc_sag)):
-            return False  # this turn stays clear: no trip
+        if bool(shapely.dwithin(hazard, shapely.linestrings(verts), w + arc_sag)):
+            continue  # the projection's turn is blocked
+        if turn.inner_radius_m > 0.0:
+            # the side's area: the line round it (a line is cheaper than the area), then a keep-out inside it
+            inner, inner_sag, shared = _inner_path(fence, n, e, un, ue, turn, side, wind)
+            side_w = w + max(arc_sag, inner_sag)
+            if bool(shapely.dwithin(hazard, shapely.linestrings(_boundary(verts, inner, shared)), side_w)):
+                continue
+            if _encloses(fence, n, e, reach + side_w, verts, inner, shared):
+                continue
+        return False  # this turn stays clear: no trip
     return True
 
 
@@ -1487,23 +1628,37 @@ def _projected_clearance(
     """Which hazard limits the projected path and how much path is available before it (the limit).
 
     ``path_verts``: a multirotor path given as a polyline (:func:`_demanded_path`) instead of the segment."""
+    # each side's paths: a fixed wing's turn, and its inner edge when it has one (the side is met where the
+    # first of them is)
+    sides: list[list[tuple[FloatArray, float]]]
     if path_verts is not None:
-        paths = [(path_verts, 0.0)]
+        sides = [[(path_verts, 0.0)]]
     elif turn is not None:
         un, ue = (vn / v, ve / v) if v > 0.0 else (1.0, 0.0)
-        paths = [_turn_path(fence, n, e, un, ue, turn, side, wind) for side in (1.0, -1.0)]
+        sides = []
+        for side in (1.0, -1.0):
+            verts, arc_sag = _turn_path(fence, n, e, un, ue, turn, side, wind)
+            edges = [(verts, arc_sag)]
+            if turn.inner_radius_m > 0.0:
+                inner, inner_sag, _shared = _inner_path(fence, n, e, un, ue, turn, side, wind)
+                edges.append((inner, inner_sag))
+            sides.append(edges)
     else:
         k = d / v if v > 0.0 else 0.0
-        paths = [(np.array(((n, e), (n + k * vn, e + k * ve))), 0.0)]
+        sides = [[(np.array(((n, e), (n + k * vn, e + k * ve))), 0.0)]]
     hazard = _local_hazard(fence, n, e, reach + w + sag)
     if hazard is _NOTHING_NEAR:  # cannot be when tripped; kept for safety
         hazard = fence._forbidden
     best = -_INF
-    best_verts, best_w = paths[0][0], w
-    for verts, arc_sag in paths:
-        s_side = _first_hit_s(hazard, verts, w + arc_sag)
+    best_verts, best_w = sides[0][0][0], w
+    for edges in sides:
+        s_side, side_verts, side_w = _INF, edges[0][0], w + edges[0][1]
+        for verts, arc_sag in edges:
+            s_edge = _first_hit_s(hazard, verts, w + arc_sag)
+            if s_edge < s_side:
+                s_side, side_verts, side_w = s_edge, verts, w + arc_sag
         if s_side > best:
-            best, best_verts, best_w = s_side, verts, w + arc_sag
+            best, best_verts, best_w = s_side, side_verts, side_w
     if not _isfinite(best):
         best = d  # touched by a rounding margin only: value equals limit
     # Which kind of hazard is met first: the path point at the first contact (or its start, when already
@@ -1609,13 +1764,24 @@ def turn_clearances(
         out = []
         for side in (1, -1):
             verts, arc_sag = _turn_path(fence, n, e, un, ue, turn, float(side), wind)
-            line = shapely.linestrings(verts)
+            inner: FloatArray | None = None
+            shared = 0
+            line, geom_sag = verts, arc_sag
+            if turn.inner_radius_m > 0.0:
+                # the side is the area between its turn and the inner edge: the line round it, and a keep-out
+                # inside it (which puts the area's distance to the hazard at 0)
+                inner, inner_sag, shared = _inner_path(fence, n, e, un, ue, turn, float(side), wind)
+                line, geom_sag = _boundary(verts, inner, shared), max(arc_sag, inner_sag)
             # the whole forbidden area for the distance (a tile answers exactly only within its reach)
-            margin = float(shapely.distance(fence._forbidden, line)) - w - arc_sag
+            margin = float(shapely.distance(fence._forbidden, shapely.linestrings(line))) - w - geom_sag
+            if inner is not None and margin > -w - geom_sag and _encloses(fence, n, e, reach, verts, inner, shared):
+                margin = -w - geom_sag
             if margin > 0.0 or hazard is _NOTHING_NEAR:
                 free = _INF
             else:
                 free = _first_hit_s(hazard, verts, w + arc_sag)
+                if inner is not None:
+                    free = min(free, _first_hit_s(hazard, inner, w + geom_sag))
                 free = max(free, 0.0)
             out.append(TurnClearance(side, margin, free))
     return out[0], out[1]

@@ -177,6 +177,19 @@ def test_a_hand_over_from_the_escape_keeps_a_margin_at_the_mast_in_a_tailwind() 
     assert r.metrics["min_fence_margin_m"] > 0.0
 
 
+def test_a_turn_round_the_mast_is_judged_on_the_inside_of_the_turn_too() -> None:
+    """The falsifier's pull-push dive south-west of the radio mast in a 12 m/s wind blowing north (seed 9,
+    evaluation 1340): RTL's turn to the right round the mast cut inside the projection's right turn (the
+    loops bank to 35-39 deg and turn from the start, the projection drew the turn after a straight reaction
+    leg at 30 deg), the monitor tripped in the turn with both escapes blocked, and the right one entered the
+    mast by 18.85 m. Each side of the projection is now the area between its turn and the loops' tightest,
+    earliest one: the run-out hands over to a route that turns left, clear of the mast."""
+    r, results = _run("fw_adv_mast_inside_banked_turn.yaml")
+    assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
+    assert r.metrics["max_fence_breach_m"] == 0.0
+    assert r.metrics["min_fence_margin_m"] > 20.0  # 44.4 m: the return never comes near the mast
+
+
 def test_a_ceiling_escape_and_its_return_stay_out_of_the_keep_out() -> None:
     """The falsifier's climbing step under the ceiling towards the south-west keep-out (2,000-run search,
     seed 4, evaluation 545): after the ceiling escape's run-out, the course closed on the keep-out and the
