@@ -52,7 +52,11 @@ def build_fence_params(geofence_cfg: GeofenceConfig, vehicle_cfg: VehicleLimits,
                 "turn_airspeed_mps": fc.escape_airspeed_mps(cp),
                 "turn_speed_gain_per_s": cp.speed_gain_per_s,
                 "roll_rate_radps": cp.roll_sp_rate_radps,
-                "turn_bank_max_rad": fc.bank_limit_rad(cp),
+                # the steepest bank the turns are flown at: the configuration's (an autopilot behind merlin
+                # guard), or Merlin's own loops' limit; never shallower than the projection's own turn
+                "turn_bank_max_rad": max(math.radians(vehicle_cfg.bank_max_deg) if vehicle_cfg.bank_max_deg
+                                         is not None else fc.bank_limit_rad(cp),
+                                         math.radians(vehicle_cfg.bank_limit_deg)),
                 "recovery_height_m": recovery_height_m}
     return FenceParams(
         mode=mode,

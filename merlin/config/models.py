@@ -333,6 +333,13 @@ class VehicleLimits(Strict):
     )
     max_vertical_decel_mps2: float = Field(3.0, gt=0.0, le=50.0)
     bank_limit_deg: float = Field(35.0, gt=0.0, lt=80.0, description="fixed wing: turn at this bank")
+    bank_max_deg: float | None = Field(
+        None, gt=0.0, lt=80.0,
+        description="fixed wing: the steepest bank the autopilot flying the turns may use, at least"
+        " bank_limit_deg. The fence projection's inner edge: each side is the area between the turn at"
+        " bank_limit_deg and the turn begun at once at this bank. null: Merlin's own loops' limit (35 deg); behind"
+        " merlin guard, the autopilot's roll limit (PX4 FW_R_LIM, ArduPlane ROLL_LIMIT_DEG)",
+    )
     hover_thrust: float = Field(0.5, gt=0.0, lt=1.0, description="normalised collective in hover")
     # The clamp on experimental setpoints (multirotor), with PX4's parameters as the reference: an offboard
     # setpoint beyond them is flown at the limit, and the fence projects what the clamped command can do.
@@ -374,6 +381,15 @@ class VehicleLimits(Strict):
         description="experimental yaw setpoints are turned to, and yaw-rate setpoints clamped to, this rate"
         " (PX4 MPC_YAWRAUTO_MAX)",
     )
+
+    @model_validator(mode="after")
+    def _bank_max_not_below_the_turn(self) -> VehicleLimits:
+        """``bank_max_deg``, when given, is at least ``bank_limit_deg``: an inner edge shallower than the fence
+        projection's own turn would draw no inside of the turn at all."""
+        if self.bank_max_deg is not None and self.bank_max_deg < self.bank_limit_deg:
+            raise ValueError(f"bank_max_deg ({self.bank_max_deg:g}) is below bank_limit_deg "
+                             f"({self.bank_limit_deg:g}); allowed: bank_limit_deg to 80, or null")
+        return self
 
 
 # ---------------------------------------------------------------------------------------- watchdogs

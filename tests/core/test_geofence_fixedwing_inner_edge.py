@@ -18,6 +18,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pytest
 import shapely
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -160,6 +161,25 @@ def test_the_fence_built_for_a_fixed_wing_carries_the_loops_bank() -> None:
     assert prm.turn_bank_max_rad == LOOPS_BANK > prm.bank_limit_rad
     multirotor = load_config(root / "examples" / "configs" / "default.yaml")
     assert build_fence_params(multirotor.geofence, multirotor.vehicle).turn_bank_max_rad == 0.0
+    # behind merlin guard, the autopilot's roll limit (vehicle.bank_max_deg) draws the inner edge
+    steeper = cfg.vehicle.model_copy(update={"bank_max_deg": 50.0})
+    assert math.isclose(build_fence_params(cfg.geofence, steeper).turn_bank_max_rad, math.radians(50.0))
+
+
+def test_a_bank_max_below_the_projection_s_bank_is_refused_by_name(tmp_path: Path) -> None:
+    import yaml
+
+    from merlin.config.loader import ConfigError, load_config
+
+    root = Path(__file__).resolve().parents[2]
+    data = yaml.safe_load((root / "examples" / "configs" / "fixedwing_default.yaml").read_text())
+    data["vehicle"]["bank_max_deg"] = 20.0
+    p = tmp_path / "fw.yaml"
+    p.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError) as err:
+        load_config(p)
+    text = str(err.value)
+    assert "fw.yaml" in text and "bank_max_deg (20) is below bank_limit_deg (30)" in text, text
 
 
 def test_a_subnormal_bank_is_level_and_heading_at_the_keep_out_still_trips() -> None:
