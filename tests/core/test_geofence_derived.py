@@ -37,8 +37,8 @@ def test_the_same_zones_share_what_was_derived_and_decide_the_same() -> None:
     again = Fence(FenceParams(margin_m=8.0), **_zones())  # type: ignore[arg-type]  # other parameters
     # the objects are shared; plain values are equal (the compiled build stores them unboxed: a new tuple or
     # float object at every read)
-    shared = {"_allowed", "_forbidden", "_incl_hazard", "_excl_hazard", "_excl_boundary", "_grid", "_arc_tables",
-              "_local"}
+    shared = {"_allowed", "_forbidden", "_incl_hazard", "_excl_hazard", "_excl_boundary", "_enclosed", "_grid",
+              "_arc_tables", "_local"}
     plain = {"_has_inclusion", "_box", "_grid_nj", "_grid_ni", "_grid_inv_cell", "_grid_cell"}
     assert shared | plain == set(gf._DERIVED_FIELDS)
     for name in shared:
