@@ -178,11 +178,10 @@ def test_a_hand_over_from_the_escape_keeps_a_margin_at_the_mast_in_a_tailwind() 
 
 
 def test_a_turn_round_the_mast_is_judged_on_the_inside_of_the_turn_too() -> None:
-    """The falsifier's pull-push dive south-west of the radio mast in a 12 m/s wind blowing north (seed 9,
-    evaluation 1340): RTL's turn to the right round the mast cut inside the projection's right turn (the
-    loops bank to 35-39 deg and turn from the start, the projection drew the turn after a straight reaction
-    leg at 30 deg), the monitor tripped in the turn with both escapes blocked, and the right one entered the
-    mast by 18.85 m. Each side of the projection is now the area between its turn and the loops' tightest,
+    """The falsifier's pull-push dive south-west of the radio mast in a 12 m/s wind blowing north: RTL's turn
+    to the right round the mast cut inside the projection's right turn (the loops bank to 35-39 deg and turn
+    from the start, the projection drew the turn after a straight reaction leg at 30 deg), the monitor
+    tripped in the turn with both escapes blocked, and the right one entered the mast by 18.85 m. Each side of the projection is now the area between its turn and the loops' tightest,
     earliest one: the run-out hands over to a route that turns left, clear of the mast."""
     r, results = _run("fw_adv_mast_inside_banked_turn.yaml")
     assert all(x.passed for x in results), [(x.name, x.detail) for x in results]
