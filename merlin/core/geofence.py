@@ -1055,8 +1055,7 @@ def _grid_clears_path(
                 continue
             head, _t, _sag = _rollout_arc(n, e, un, ue, turn, side)
             sn_, se_ = float(head[-1, 0]), float(head[-1, 1])
-            c, sn = math.cos(turn.rollout_turn_rad), math.sin(turn.rollout_turn_rad)
-            su_n, su_e = c * un + side * sn * ue, c * ue - side * sn * un
+            su_n, su_e = _rolled_out_heading(un, ue, turn, side)
             side_leg = leg + 0.5 * turn.rollout_m()
         an, ae = sn_ + side_leg * su_n, se_ + side_leg * su_e
         rn, re_ = -su_e * side, su_n * side
@@ -1339,9 +1338,7 @@ def _turn_path(
         # the rest of the roll-out, straight: a longer reaction leg from the arc's end, on the new heading
         half = 0.5 * turn.rollout_s
         rest = turn._replace(reaction_s=turn.reaction_s + half, leg_m=turn.leg_m + turn.v0_mps * half)
-        c, sn = math.cos(turn.rollout_turn_rad), math.sin(turn.rollout_turn_rad)
-        # towards the bank (-side): a right bank turns the heading clockwise (north towards east)
-        un2, ue2 = c * un + side * sn * ue, c * ue - side * sn * un
+        un2, ue2 = _rolled_out_heading(un, ue, turn, side)
         tail, t_tail, sag = _air_path(fence, float(head[-1, 0]), float(head[-1, 1]), un2, ue2, rest, side, drifting)
         verts = np.vstack((head[:-1], tail))
         t = np.concatenate((t_head[:-1], t_tail + half))
@@ -1375,8 +1372,7 @@ def _inner_path(
     if turn.rolls_out(side):
         head, t_head, sag_out = _rollout_arc(n, e, un, ue, turn, side)
         sn_, se_, t0 = float(head[-1, 0]), float(head[-1, 1]), float(t_head[-1])
-        c, sn = math.cos(turn.rollout_turn_rad), math.sin(turn.rollout_turn_rad)
-        un, ue = c * un + side * sn * ue, c * ue - side * sn * un
+        un, ue = _rolled_out_heading(un, ue, turn, side)
         sag = max(sag, sag_out)
     rn, re_ = -ue * side, un * side  # unit normal towards the turn centre
     arc = np.empty((cphi.shape[0], 2))
@@ -1403,7 +1399,10 @@ def _encloses(fence: Fence, n: float, e: float, reach: float, outer: FloatArray,
     the area between a side's two edges (:func:`fixed_wing_turn`). Asked once the line round the area keeps
     clear: then only such a part can meet the area, whole and inside it, and every turn the loops may fly
     between the edges crosses it (a keep-out small enough to lie between them). The area is built only when
-    one lies within ``reach`` of the position."""
+    one lies within ``reach`` of the position: the bound on how far either edge's vertices lie from it
+    (:func:`check`'s and :func:`turn_clearances`' reach), so on the area too, the hull of those vertices. A
+    keep-out that meets the area and not the line round it lies inside it, at least the widening nearer
+    than that."""
     enclosed = fence._enclosed
     if enclosed is None or not bool(shapely.dwithin(enclosed, shapely.points((n, e)), reach)):
         return False
@@ -1424,6 +1423,15 @@ def _area(outer: FloatArray, inner: FloatArray, shared: int) -> Any:
     if not shapely.is_valid(area):
         area = shapely.make_valid(area)
     return area
+
+
+def _rolled_out_heading(un: float, ue: float, turn: FixedWingTurn, side: float) -> tuple[float, float]:
+    """The unit heading at the end of the roll-out's arc (:func:`_rollout_arc`) before a turn to ``side``: the
+    heading ``un, ue`` turned by ``turn.rollout_turn_rad`` towards the bank (-side); a right bank turns it
+    clockwise (north towards east). One expression for every path that starts from the arc's end, so that
+    they all start on the same bits."""
+    c, sn = math.cos(turn.rollout_turn_rad), math.sin(turn.rollout_turn_rad)
+    return c * un + side * sn * ue, c * ue - side * sn * un
 
 
 #: The roll-out arc's polyline is within this of the arc (as the half turn's, :data:`ARC_CHORD_ERROR_M`).
@@ -1530,7 +1538,7 @@ def _path_hits(
             side_w = w + max(arc_sag, inner_sag)
             if bool(shapely.dwithin(hazard, shapely.linestrings(_boundary(verts, inner, shared)), side_w)):
                 continue
-            if _encloses(fence, n, e, reach + side_w, verts, inner, shared):
+            if _encloses(fence, n, e, reach, verts, inner, shared):
                 continue
         return False  # this turn stays clear: no trip
     return True
@@ -1830,8 +1838,7 @@ def straight_clearance(
         if turn.rollout_s > 0.0:
             side = -1.0 if turn.bank_rad > 0.0 else 1.0  # a turn to this side would roll the bank out
             head, t_head, sag = _rollout_arc(n, e, un, ue, turn, side)
-            c, sn = math.cos(turn.rollout_turn_rad), math.sin(turn.rollout_turn_rad)
-            un, ue = c * un + side * sn * ue, c * ue - side * sn * un
+            un, ue = _rolled_out_heading(un, ue, turn, side)
         else:
             head, t_head = np.array(((n, e),)), np.zeros(1)
         t_end = max(turn.duration_s, float(t_head[-1]))
