@@ -170,7 +170,8 @@ class FenceParams:
     # Fixed wing: the steepest bank the trusted loops fly (their own bank limit, which may be steeper than
     # ``bank_limit_rad``, the bank the projection's turn assumes). The inner edge of each side's swept area
     # (:func:`fixed_wing_turn`): a turn begun at once at this bank (or the bank held now, if steeper) on the
-    # side of the turn. 0: not modelled (the projection's turn alone).
+    # side of the turn, at the slower of the airspeed and ``full_bank_airspeed_mps``. 0: not modelled (the
+    # projection's turn alone).
     turn_bank_max_rad: float = 0.0
 
     def __post_init__(self) -> None:
@@ -1065,7 +1066,9 @@ def _grid_clears_path(
             # path (leg L, then R) is swept by the paths of leg lam L and radius r + lam (R - r), lam in
             # [0, 1]; at each angle of the turn their points lie on one segment, so every point of the area
             # is within d = hypot(L / 2, D) + D of the middle path (leg L / 2, radius r + D, D = (R - r) / 2),
-            # whose leg and turn are tested with the widening grown by d.
+            # whose leg and turn are tested with the widening grown by d. The area's far corner (_far_corner)
+            # closes it over the rectangle of those paths' ends, within hypot(L / 2, 2 D) <= d of the middle
+            # path's end.
             half_d = 0.5 * (radius - turn.inner_radius_m)
             spread = _hypot(0.5 * side_leg, half_d) + half_d
             mid_r, mid_leg = turn.inner_radius_m + half_d, 0.5 * side_leg
@@ -1197,7 +1200,8 @@ class FixedWingTurn(NamedTuple):
     every moment (scenarios ``fw_adv_pullup_reversal_tailwind`` and ``fw_adv_dive_reversal``).
 
     ``inner_radius_m`` (0: none): the radius of the side's inner edge, the half turn begun at once (after the
-    roll-out's arc, if any) at the steepest bank the loops fly, at ``v0_mps`` (:func:`fixed_wing_turn`)."""
+    roll-out's arc, if any) at the steepest bank the loops fly, at ``inner_speed_mps``: the slower of ``v0_mps``
+    and the loops' full-bank airspeed (:func:`fixed_wing_turn`)."""
 
     v0_mps: float
     reaction_s: float
@@ -1212,6 +1216,7 @@ class FixedWingTurn(NamedTuple):
     rollout_turn_rad: float = 0.0
     rollout_radius_m: float = 0.0
     inner_radius_m: float = 0.0
+    inner_speed_mps: float = 0.0
 
     def leg_s_m(self, t: FloatArray) -> FloatArray:
         """Distance along the leg at the times ``t`` (0..reaction_s + accel_s)."""
@@ -1245,10 +1250,13 @@ def fixed_wing_turn(prm: FenceParams, v_air_mps: float, bank_rad: float = 0.0) -
       ``pi V / (g tan(bank))`` both grow with the speed, so the faster speed the loops may fly it at is
       the cautious one (the loops slow a faster aircraft to ``V_t`` in the turn);
     * that path is the outer edge of the side's swept area. Its inner edge (``turn_bank_max_rad`` > 0) is the
-      half turn begun at once at the current airspeed, at the steepest bank the loops fly (their own bank
-      limit, or the bank held now if steeper), radius ``v^2 / (g tan(bank))``: an aircraft already banked
-      towards the side keeps turning through the reaction time, and the loops bank beyond the projection's
-      ``bank_limit_rad``, so the flown turn lies inside the outer edge. A hazard on the inside of the turn (a
+      half turn begun at once at the steepest bank the loops fly (their own bank limit, or the bank held now if
+      steeper), radius ``V^2 / (g tan(bank))`` at ``V`` the slower of the current airspeed and the full-bank
+      airspeed: an aircraft already banked towards the side keeps turning through the reaction time, the
+      loops bank beyond the projection's ``bank_limit_rad``, and a faster aircraft slows to the escape
+      airspeed in the turn, its radius shrinking with the speed (a turn begun at 33 m/s ends some 90 m inside
+      the circle of its starting radius), down to the full-bank airspeed's, below which the loops level the
+      wings; so the flown turn lies between the edges. A hazard on the inside of the turn (a
       keep-out the turn wraps round) meets the inner edge first; the side is clear only when the area between
       the edges is (:func:`_boundary`, :func:`_encloses`). Scenario ``fw_adv_mast_inside_banked_turn``: an RTL turning
       right round the radio mast in a tailwind, whose projected right turn (straight for the reaction time,
@@ -1276,14 +1284,16 @@ def fixed_wing_turn(prm: FenceParams, v_air_mps: float, bank_rad: float = 0.0) -
         rollout_s = phi / prm.roll_rate_radps
         rate = prm.gravity_mps2 * math.tan(phi) / v
         rollout_turn, rollout_radius = 0.5 * rollout_s * rate, v / rate
-    inner = 0.0
+    inner = inner_v = 0.0
     if prm.turn_bank_max_rad > 0.0 and v > 0.0:
         steepest = max(prm.turn_bank_max_rad, prm.bank_limit_rad, phi)
-        inner = v * v / (prm.gravity_mps2 * math.tan(steepest))
+        # the tightest radius at any speed the turn may slow to, whatever the rate of slowing
+        inner_v = min(v, prm.full_bank_airspeed_mps) if prm.full_bank_airspeed_mps > 0.0 else v
+        inner = inner_v * inner_v / (prm.gravity_mps2 * math.tan(steepest))
     return new_record(FixedWingTurn, (v, tr, accel_s, vt, k, leg, radius,
                                       rollout_s + tr + accel_s + math.pi * vt / g_tan,
                                       math.copysign(phi, bank_rad) if phi > 0.0 else 0.0, rollout_s, rollout_turn,
-                                      rollout_radius, inner))
+                                      rollout_radius, inner, inner_v))
 
 
 #: Time samples of a leg that regains speed in a wind (its ground path is curved: the air path's distance
@@ -1360,8 +1370,8 @@ def _inner_path(
     wind: tuple[float, float] = _NO_WIND,
 ) -> tuple[FloatArray, float, int]:
     """The inner edge of the side's swept area (:func:`fixed_wing_turn`): the roll-out's arc, if the turn
-    rolls one out, then at once the half turn of ``turn.inner_radius_m`` flown at ``turn.v0_mps``, drifted by
-    the wind as :func:`_turn_path` drifts the outer edge. Returns (verts, sag, shared): ``shared``, how many
+    rolls one out, then at once the half turn of ``turn.inner_radius_m`` flown at ``turn.inner_speed_mps``,
+    drifted by the wind as :func:`_turn_path` drifts the outer edge. Returns (verts, sag, shared): ``shared``, how many
     leading vertices are the outer edge's own (the roll-out's arc but its end), 0 without a roll-out."""
     drifting = wind is not _NO_WIND and turn.v0_mps > 0.0
     r = turn.inner_radius_m
@@ -1381,11 +1391,11 @@ def _inner_path(
     shared = 0
     if head is not None and t_head is not None:
         verts = np.vstack((head[:-1], arc))
-        t = np.concatenate((t_head[:-1], t0 + r * np.arctan2(sphi, cphi) / turn.v0_mps))
+        t = np.concatenate((t_head[:-1], t0 + r * np.arctan2(sphi, cphi) / turn.inner_speed_mps))
         shared = head.shape[0] - 1
     else:
         verts = arc
-        t = r * np.arctan2(sphi, cphi) / turn.v0_mps
+        t = r * np.arctan2(sphi, cphi) / turn.inner_speed_mps
     if drifting:
         verts[:, 0] += wind[0] * t
         verts[:, 1] += wind[1] * t
@@ -1393,8 +1403,8 @@ def _inner_path(
     return verts, sag, shared
 
 
-def _encloses(fence: Fence, n: float, e: float, reach: float, outer: FloatArray, inner: FloatArray,
-              shared: int) -> bool:
+def _encloses(fence: Fence, n: float, e: float, reach: float, outer: FloatArray, corner: FloatArray,
+              inner: FloatArray, shared: int) -> bool:
     """Whether a bounded part of the forbidden area (``Fence._enclosed``: a keep-out inside the range) lies in
     the area between a side's two edges (:func:`fixed_wing_turn`). Asked once the line round the area keeps
     clear: then only such a part can meet the area, whole and inside it, and every turn the loops may fly
@@ -1406,20 +1416,43 @@ def _encloses(fence: Fence, n: float, e: float, reach: float, outer: FloatArray,
     enclosed = fence._enclosed
     if enclosed is None or not bool(shapely.dwithin(enclosed, shapely.points((n, e)), reach)):
         return False
-    return bool(shapely.intersects(enclosed, _area(outer, inner, shared)))
+    return bool(shapely.intersects(enclosed, _area(outer, corner, inner, shared)))
 
 
-def _boundary(outer: FloatArray, inner: FloatArray, shared: int) -> FloatArray:
-    """The polyline round a side's area (:func:`fixed_wing_turn`): the outer edge, then back along the inner one
-    to the end of their shared roll-out arc; both edges and the segment joining their ends."""
-    return np.vstack((outer, inner[shared:][::-1]))
+def _far_corner(outer: FloatArray, turn: FixedWingTurn, un: float, ue: float, side: float,
+                wind: tuple[float, float]) -> FloatArray:
+    """Where a side's area closes beyond the half turns' ends (:func:`fixed_wing_turn`): the end of the outer
+    edge's half turn had it begun at once, with no leg. The turns between the edges (a leg from 0 to the
+    outer's, a radius from the inner's to the outer's) end their half turns at the leg's length along the
+    heading from the line through the aircraft, at twice their radius across it: in the rectangle whose
+    corners are the two edges' ends and this point. A segment straight from one end to the other cut off half
+    of it, where a turn begun at once at a radius between the two ends its half turn (a keep-out there was
+    missed: ``tests/core/test_geofence_fixedwing_inner_edge.py``, the slowing turns beside a wall). In the wind
+    it drifts as that turn would, the leg's time sooner than the outer's end."""
+    leg, t_leg = turn.leg_m, turn.reaction_s + turn.accel_s
+    hn, he = un, ue
+    if turn.rolls_out(side):
+        half = 0.5 * turn.rollout_s
+        leg, t_leg = leg + turn.v0_mps * half, t_leg + half
+        hn, he = _rolled_out_heading(un, ue, turn, side)
+    corner = np.array((float(outer[-1, 0]) - leg * hn, float(outer[-1, 1]) - leg * he))
+    if wind is not _NO_WIND and turn.v_turn_mps > 0.0:
+        corner[0] -= wind[0] * t_leg
+        corner[1] -= wind[1] * t_leg
+    return corner
 
 
-def _area(outer: FloatArray, inner: FloatArray, shared: int) -> Any:
+def _boundary(outer: FloatArray, corner: FloatArray, inner: FloatArray, shared: int) -> FloatArray:
+    """The polyline round a side's area (:func:`fixed_wing_turn`): the outer edge, its far corner
+    (:func:`_far_corner`), then back along the inner one to the end of their shared roll-out arc."""
+    return np.vstack((outer, corner[None, :], inner[shared:][::-1]))
+
+
+def _area(outer: FloatArray, corner: FloatArray, inner: FloatArray, shared: int) -> Any:
     """The area between a side's two edges, from the end of their shared roll-out arc (the aircraft's position
-    without one): the outer edge, then the inner one back, closes it. A ring whose edges cross (the wind
-    drifts them by different times) is made valid: the same points, as polygons and lines."""
-    area = shapely.polygons(np.vstack((outer[shared:], inner[shared:][::-1])))
+    without one): the outer edge, its far corner, then the inner one back, closes it. A ring whose edges cross
+    (the wind drifts them by different times) is made valid: the same points, as polygons and lines."""
+    area = shapely.polygons(np.vstack((outer[shared:], corner[None, :], inner[shared:][::-1])))
     if not shapely.is_valid(area):
         area = shapely.make_valid(area)
     return area
@@ -1535,10 +1568,11 @@ def _path_hits(
         if turn.inner_radius_m > 0.0:
             # the side's area: the line round it (a line is cheaper than the area), then a keep-out inside it
             inner, inner_sag, shared = _inner_path(fence, n, e, un, ue, turn, side, wind)
+            corner = _far_corner(verts, turn, un, ue, side, wind)
             side_w = w + max(arc_sag, inner_sag)
-            if bool(shapely.dwithin(hazard, shapely.linestrings(_boundary(verts, inner, shared)), side_w)):
+            if bool(shapely.dwithin(hazard, shapely.linestrings(_boundary(verts, corner, inner, shared)), side_w)):
                 continue
-            if _encloses(fence, n, e, reach, verts, inner, shared):
+            if _encloses(fence, n, e, reach, verts, corner, inner, shared):
                 continue
         return False  # this turn stays clear: no trip
     return True
@@ -1773,26 +1807,43 @@ def turn_clearances(
         for side in (1, -1):
             verts, arc_sag = _turn_path(fence, n, e, un, ue, turn, float(side), wind)
             inner: FloatArray | None = None
+            corner = verts[-1]
             shared = 0
             line, geom_sag = verts, arc_sag
             if turn.inner_radius_m > 0.0:
                 # the side is the area between its turn and the inner edge: the line round it, and a keep-out
                 # inside it (which puts the area's distance to the hazard at 0)
                 inner, inner_sag, shared = _inner_path(fence, n, e, un, ue, turn, float(side), wind)
-                line, geom_sag = _boundary(verts, inner, shared), max(arc_sag, inner_sag)
+                corner = _far_corner(verts, turn, un, ue, float(side), wind)
+                line, geom_sag = _boundary(verts, corner, inner, shared), max(arc_sag, inner_sag)
             # the whole forbidden area for the distance (a tile answers exactly only within its reach)
             margin = float(shapely.distance(fence._forbidden, shapely.linestrings(line))) - w - geom_sag
-            if inner is not None and margin > -w - geom_sag and _encloses(fence, n, e, reach, verts, inner, shared):
+            if (inner is not None and margin > -w - geom_sag
+                    and _encloses(fence, n, e, reach, verts, corner, inner, shared)):
                 margin = -w - geom_sag
             if margin > 0.0 or hazard is _NOTHING_NEAR:
                 free = _INF
             else:
-                free = _first_hit_s(hazard, verts, w + arc_sag)
-                if inner is not None:
-                    free = min(free, _first_hit_s(hazard, inner, w + geom_sag))
-                free = max(free, 0.0)
+                free = _free_path_m(fence, hazard, n, e, verts, corner, inner, shared, w, arc_sag, geom_sag)
             out.append(TurnClearance(side, margin, free))
     return out[0], out[1]
+
+
+def _free_path_m(fence: Fence, hazard: Any, n: float, e: float, verts: FloatArray, corner: FloatArray,
+                 inner: FloatArray | None, shared: int, w: float, arc_sag: float, geom_sag: float) -> float:
+    """A blocked side's free path (:func:`turn_clearances`): how far along the outer edge, or the inner one,
+    before it comes within the widening of ``hazard``. When both edges keep clear, the area's far corner or a
+    keep-out between the edges blocks the side, met by a turn between them, which neither edge says where: no
+    sooner than the straight line to the part of the hazard within the widening of the area (the escape's side
+    is not chosen for a free path that no flown turn has)."""
+    free = _first_hit_s(hazard, verts, w + arc_sag)
+    if inner is not None:
+        free = min(free, _first_hit_s(hazard, inner, w + geom_sag))
+        if free == _INF:
+            near = shapely.intersection(fence._forbidden, shapely.buffer(_area(verts, corner, inner, shared),
+                                                                         w + geom_sag))
+            free = float(shapely.distance(near, shapely.points((n, e)))) - w - geom_sag
+    return max(free, 0.0)
 
 
 def straight_clearance(

@@ -25,7 +25,8 @@ What this does not reproduce: the autopilot's own turn rate, bank limit and loit
 parameters, not Merlin's; the fence projection's bank (``vehicle.bank_limit_deg``) and the RTL route's
 clearance assume Merlin's, so they must be set no tighter than the autopilot flies (``docs/guard.md``).
 The guard measures how the autopilot answered: the first turn after each revocation is checked against
-``vehicle.reaction_time_s`` and ``vehicle.bank_limit_deg`` (:class:`merlin.guard.response.TurnMeter`,
+``vehicle.reaction_time_s`` and ``vehicle.bank_limit_deg``, and against the projection's inner edge
+(``vehicle.bank_max_deg``: a turn tighter than the projection looked) (:class:`merlin.guard.response.TurnMeter`,
 ``guard_turn_measured``), as a multirotor's braking is.
 """
 

@@ -38,7 +38,15 @@ the tick of the revocation: the autopilot's own mode may fly straight for reason
 on a radius more than ``RADIUS_TOLERANCE`` wider than ``vehicle.bank_limit_deg`` gives, means the
 projection trusted the aircraft more than it deserves: the fix is to raise ``vehicle.reaction_time_s`` or
 lower ``vehicle.bank_limit_deg`` to what the autopilot flies (its ``ROLL_LIMIT_DEG`` / ``FW_R_LIM`` and roll
-time constants). A turn too short to fit a rate (the escape found an open course after a few degrees) is
+time constants).
+
+The projection also bounds the turn from the inside: each side is the area between its turn and the
+tightest turn the aircraft may fly (the inner edge, at the steepest bank, ``vehicle.bank_max_deg`` or
+Merlin's loops' limit, and the slower of the revocation's airspeed and the loops' full-bank airspeed), so
+that a keep-out the turn wraps round is seen. A turn flown on a radius more than ``RADIUS_TOLERANCE``
+*tighter* than that edge (an autopilot banking steeper than configured, or slowing further in the turn)
+went where the projection did not look: the fix is to raise ``vehicle.bank_max_deg`` until its edge is as
+tight as the autopilot turns. A turn too short to fit a rate (the escape found an open course after a few degrees) is
 reported as inconclusive; the next revocation measures again.
 """
 
@@ -157,6 +165,7 @@ class TurnMeasurement:
     radius_limit_m: float | None  # the configured bank's radius at the same airspeed
     reaction_limit_s: float  # vehicle.reaction_time_s, plus the projection's roll-out of a bank the other way
     bank_limit_deg: float
+    radius_inner_m: float | None = None  # the projection's inner edge (None: not modelled)
 
     @property
     def reaction_ok(self) -> bool | None:
@@ -172,40 +181,55 @@ class TurnMeasurement:
         return self.radius_m <= self.radius_limit_m * (1.0 + RADIUS_TOLERANCE)
 
     @property
+    def inner_ok(self) -> bool | None:
+        """False: tighter than the projection's inner edge; None: not judged (no rate fitted, or no edge)."""
+        if self.radius_m is None or self.radius_inner_m is None:
+            return None
+        return self.radius_m >= self.radius_inner_m * (1.0 - RADIUS_TOLERANCE)
+
+    @property
     def ok(self) -> bool | None:
-        """False: the autopilot turned later or wider than configured; True: both judged and within; None:
-        inconclusive (nothing that could be judged was flown)."""
-        if False in (self.reaction_ok, self.radius_ok):
+        """False: the autopilot turned later, wider or tighter than configured; True: judged and within;
+        None: inconclusive (nothing that could be judged was flown)."""
+        if False in (self.reaction_ok, self.radius_ok, self.inner_ok):
             return False
         return None if self.radius_ok is None else True
 
     def problems(self) -> list[str]:
-        return [p for p, v in (("later", self.reaction_ok), ("wider", self.radius_ok)) if v is False]
+        return [p for p, v in (("later", self.reaction_ok), ("wider", self.radius_ok), ("tighter", self.inner_ok))
+                if v is False]
 
     def text(self) -> str:
         def f(x: float | None, fmt: str) -> str:
             return "none" if x is None else format(x, fmt)
 
         judged = f"allowed {self.reaction_limit_s:.2f} s" if self.commanded else "not judged: no turn commanded"
+        inner = "" if self.radius_inner_m is None else (
+            f"; the projection's inner edge {self.radius_inner_m:.0f} m, vehicle.bank_max_deg")
         return (f"turn at {self.speed_mps:.1f} m/s through {self.heading_change_deg:.0f} deg: established "
                 f"{f(self.established_s, '.2f')} s after the revocation (vehicle.reaction_time_s; {judged}), "
                 f"bank {f(self.bank_deg, '.1f')} deg, rate {f(self.turn_rate_degps, '.1f')} deg/s, radius "
                 f"{f(self.radius_m, '.0f')} m (vehicle.bank_limit_deg {self.bank_limit_deg:g} gives "
-                f"{f(self.radius_limit_m, '.0f')} m)")
+                f"{f(self.radius_limit_m, '.0f')} m{inner})")
 
 
 class TurnMeter:
     """A fixed wing's first turn after a revocation, measured (module docstring).
 
     ``roll_rate_radps``: the rate at which the projection rolls out a bank towards the other side before its
-    reaction time starts (:func:`merlin.core.geofence.fixed_wing_turn`; 0: none allowed)."""
+    reaction time starts (:func:`merlin.core.geofence.fixed_wing_turn`; 0: none allowed). ``inner_bank_rad``
+    and ``full_bank_airspeed_mps``: the projection's inner edge (``FenceParams.turn_bank_max_rad`` and
+    ``full_bank_airspeed_mps``; 0: no inner edge, no tighter turn judged)."""
 
     def __init__(self, reaction_limit_s: float, bank_limit_rad: float, gravity_mps2: float,
-                 roll_rate_radps: float = 0.0) -> None:
+                 roll_rate_radps: float = 0.0, inner_bank_rad: float = 0.0,
+                 full_bank_airspeed_mps: float = 0.0) -> None:
         self.reaction_limit_s = reaction_limit_s
         self.bank_limit_rad = bank_limit_rad
         self.g = gravity_mps2
         self.roll_rate_radps = roll_rate_radps
+        self.inner_bank_rad = inner_bank_rad
+        self.full_bank_airspeed_mps = full_bank_airspeed_mps
         self._t0: float | None = None
         self._side = 0.0  # +1 right, -1 left; 0: not known (the side of the largest bank then)
         self._speed0 = 0.0
@@ -289,6 +313,15 @@ class TurnMeter:
             return self.reaction_limit_s + against / self.roll_rate_radps
         return self.reaction_limit_s
 
+    def _inner_radius_m(self) -> float | None:
+        """The projection's inner edge at the revocation (:func:`merlin.core.geofence.fixed_wing_turn`): the
+        steepest of its banks and the bank held then, at the slower of the airspeed then and the full-bank one."""
+        if self.inner_bank_rad <= 0.0 or self._speed0 <= 0.0:
+            return None
+        steepest = min(max(self.inner_bank_rad, self.bank_limit_rad, abs(self._roll0)), math.radians(89.0))
+        v = min(self._speed0, self.full_bank_airspeed_mps) if self.full_bank_airspeed_mps > 0.0 else self._speed0
+        return v * v / (self.g * math.tan(steepest))
+
     def _finish(self) -> TurnMeasurement:
         assert self._t0 is not None
         t0, samples, commanded = self._t0, self._samples, self._side != 0.0
@@ -323,4 +356,4 @@ class TurnMeter:
         radius = speed / rate if rate > 0.0 else math.inf
         limit = speed * speed / (self.g * math.tan(self.bank_limit_rad))
         return TurnMeasurement(speed, commanded, turned, est_s, math.degrees(banks[n // 2]), math.degrees(rate),
-                               radius, limit, allowed, cfg_bank)
+                               radius, limit, allowed, cfg_bank, self._inner_radius_m())

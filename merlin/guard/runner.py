@@ -208,7 +208,9 @@ class Guard:
         # the fence projection's own bank, gravity and roll-out rate (merlin.config.fence_build)
         fence = self.core_cfg.fence
         self.turn = TurnMeter(v.reaction_time_s, math.radians(v.bank_limit_deg), STANDARD_GRAVITY_MPS2,
-                              fence.params.roll_rate_radps if fence is not None else 0.0)
+                              fence.params.roll_rate_radps if fence is not None else 0.0,
+                              fence.params.turn_bank_max_rad if fence is not None else 0.0,
+                              fence.params.full_bank_airspeed_mps if fence is not None else 0.0)
         #: set once a measured response (braking, turn) was worse than the configuration: the fence projection
         #: is known to trust this autopilot more than it deserves, so no further grant is given this session
         self.response_refusal: str | None = None
@@ -670,10 +672,13 @@ class Guard:
         self.event({"t": t, "type": "guard_turn_measured", "ok": m.ok, "speed_mps": m.speed_mps,
                     "commanded": m.commanded, "heading_change_deg": m.heading_change_deg,
                     "established_s": m.established_s, "bank_deg": m.bank_deg, "turn_rate_degps": m.turn_rate_degps,
-                    "radius_m": m.radius_m, "radius_limit_m": m.radius_limit_m, "detail": m.text()})
+                    "radius_m": m.radius_m, "radius_limit_m": m.radius_limit_m,
+                    "radius_inner_m": m.radius_inner_m, "detail": m.text()})
         if m.ok is False:
-            self._response_worse(f"turns {' and '.join(m.problems())} than configured",
-                                 "vehicle.reaction_time_s, vehicle.bank_limit_deg", m.text(), t)
+            fields = "vehicle.reaction_time_s, vehicle.bank_limit_deg"
+            if m.inner_ok is False:
+                fields += ", vehicle.bank_max_deg"
+            self._response_worse(f"turns {' and '.join(m.problems())} than configured", fields, m.text(), t)
 
     def _response_worse(self, what: str, fields: str, detail: str, t: float) -> None:
         """The autopilot answered a revocation worse than the fence projection assumes: warned on the links,

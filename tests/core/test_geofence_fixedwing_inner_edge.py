@@ -191,3 +191,111 @@ def test_a_subnormal_bank_is_level_and_heading_at_the_keep_out_still_trips() -> 
             assert r.tripped and r.kind == "exclusion", (bank, r)
             right, left = turn_clearances(fence, (-590.0, -500.0, -120.0), (20.0, 0.0, 0.0), 0.0, (0.0, 0.0), bank)
             assert right.margin_m < 0.0 and left.margin_m < 0.0, (bank, right, left)
+
+
+# A fast aircraft's turn tightens as it flies it: the escape is flown at the loops' escape airspeed, so an
+# aircraft faster than that slows in the turn, and at the bank limit its radius V^2 / (g tan(bank)) shrinks
+# with the speed. A turn begun at once at 33 m/s ends a half turn some 90 m inside the circle of its starting
+# radius. The inner edge is the circle at the slowest airspeed the loops give the whole bank at (below it they
+# level the wings), whatever the rate of slowing.
+LOOPS_PARAMS = replace(PARAMS, full_bank_airspeed_mps=fc.full_bank_airspeed_mps(CP),
+                       turn_airspeed_mps=fc.escape_airspeed_mps(CP), turn_speed_gain_per_s=CP.speed_gain_per_s)
+#: Rates of slowing in the turn (m/s^2): none, the speed loop's demand limit, faster, and at once.
+DECELS = (0.0, CP.accel_max_mps2, 4.0, math.inf)
+
+
+def slowing_turns(n: float, e: float, course: float, v: float, side: int, bank: float) -> list[np.ndarray]:
+    """Still air, a bank held towards ``side`` or level (the roll-out is :func:`reference_turns`' business):
+    half turns begun after a part of the reaction time, at a bank from the projection's to the steepest the
+    loops fly, the speed falling from ``v`` to the full-bank airspeed at each of :data:`DECELS` (integrated
+    on a fine time grid: heading rate g tan(bank) / V)."""
+    v_floor = min(v, LOOPS_PARAMS.full_bank_airspeed_mps)
+    steepest = max(LOOPS_BANK, bank * side)
+    paths = []
+    for frac in (0.0, 0.5, 1.0):
+        t_lead = LOOPS_PARAMS.reaction_time_s * frac
+        sn, se = n + v * t_lead * math.cos(course), e + v * t_lead * math.sin(course)
+        for turn_bank in np.linspace(LOOPS_PARAMS.bank_limit_rad, steepest, 3):
+            for decel in DECELS:
+                t_end = math.pi * v / (G * math.tan(float(turn_bank))) + 1.0  # the slowest half turn, and some
+                t = np.linspace(0.0, t_end, 4000)
+                speed = np.full_like(t, v_floor) if decel == math.inf else np.maximum(v - decel * t, v_floor)
+                rate = G * math.tan(float(turn_bank)) / speed
+                psi = np.concatenate(((0.0,), np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t))))
+                keep = psi <= math.pi
+                psi, speed, tk = course + side * psi[keep], speed[keep], t[keep]
+                dn = np.concatenate(((0.0,), np.cumsum(0.5 * np.diff(tk) * (speed[1:] * np.cos(psi[1:])
+                                                                          + speed[:-1] * np.cos(psi[:-1])))))
+                de = np.concatenate(((0.0,), np.cumsum(0.5 * np.diff(tk) * (speed[1:] * np.sin(psi[1:])
+                                                                          + speed[:-1] * np.sin(psi[:-1])))))
+                paths.append(np.vstack(((n, e), np.column_stack((sn + dn, se + de)))))
+    return paths
+
+
+def _walled_fast(centre: tuple[float, float], radius: float) -> Fence:
+    return Fence(LOOPS_PARAMS, inclusion_polygons=(PolygonNE(WALLED),), exclusion_circles=(CircleNE(centre, radius),))
+
+
+def _walled_margin(fence_zone: tuple[tuple[float, float], float], path: np.ndarray) -> float:
+    allowed = shapely.difference(shapely.Polygon(WALLED), shapely.Point(*fence_zone[0]).buffer(fence_zone[1], 256))
+    outside = float(np.max(shapely.distance(allowed, shapely.points(path))))
+    if outside > 0.0:
+        return -outside - LOOPS_PARAMS.margin_m  # how deep it goes, beyond the margin
+    return float(shapely.distance(shapely.LineString(path), shapely.boundary(allowed))) - LOOPS_PARAMS.margin_m
+
+
+def test_a_keep_out_a_fast_aircraft_s_slowing_turn_reaches_blocks_its_side() -> None:
+    """North-bound at 33 m/s from the origin, the wall 30 m west (the left turn is blocked): a keep-out of 40 m
+    about (60, 140) lies inside the circle of the turn begun at once at 33 m/s and 35 deg (radius 158 m about
+    (0, 158)), 55 m clear of it, so the area between that circle and the projection's turn misses it; the turn
+    flown slowing to the escape airspeed goes through it, 38 m deep."""
+    zone = ((60.0, 140.0), 40.0)
+    fence = _walled_fast(*zone)
+    vel = (33.0, 0.0, 0.0)
+    right, left = turn_clearances(fence, (0.0, 0.0, -120.0), vel, 0.0, (0.0, 0.0), 0.0)
+    assert left.margin_m < 0.0
+    flown = min(_walled_margin(zone, p) for p in slowing_turns(0.0, 0.0, 0.0, 33.0, 1, 0.0))
+    assert flown < -5.0, flown  # the case is real: a slowing turn the loops may fly enters the keep-out
+    assert right.margin_m < 0.0, right
+    r = check(fence, (0.0, 0.0, -120.0), vel, 0.0, 0.0, True, (0.0, 0.0), None, 0.0)
+    assert r.tripped
+
+
+@settings(max_examples=120, deadline=None)
+@given(cn=st.floats(-50.0, 330.0), ce=st.floats(0.0, 330.0), radius=st.floats(5.0, 60.0), v=st.floats(15.0, 38.0),
+       course_deg=st.floats(-20.0, 20.0), bank_deg=st.floats(0.0, 45.0))
+def test_no_trip_beside_a_wall_means_every_slowing_turn_on_the_open_side_stays_clear(
+    cn: float, ce: float, radius: float, v: float, course_deg: float, bank_deg: float
+) -> None:
+    """Beside the wall (the left turn always blocked), a keep-out anywhere on the right: when the monitor does
+    not trip, every right turn the loops may fly, slowing or not, stays the margin clear (up to 5 cm: the
+    reference's sampling)."""
+    zone = ((cn, ce), radius)
+    if math.hypot(cn, ce) < radius + 20.0:
+        return  # the aircraft is in or at the keep-out: the straight-line tests' business
+    fence = _walled_fast(*zone)
+    c = math.radians(course_deg)
+    vel = (v * math.cos(c), v * math.sin(c), 0.0)
+    r = check(fence, (0.0, 0.0, -120.0), vel, 0.0, 0.0, True, (0.0, 0.0), None, math.radians(bank_deg))
+    if r.tripped:
+        return
+    worst = min(_walled_margin(zone, p) for p in slowing_turns(0.0, 0.0, c, v, 1, math.radians(bank_deg)))
+    assert worst >= -0.05, (worst, r)
+
+
+def test_a_keep_out_where_a_turn_between_the_edges_ends_blocks_its_side() -> None:
+    """The area closes beyond the half turns' ends through the far corner (``merlin.core.geofence._far_corner``),
+    not by the segment between the edges' ends. North-bound at 32 m/s, the wall on the left: the turn begun at
+    once at 35 deg and holding its speed (radius 149 m) ends its half turn at (0, 298); a keep-out of 10 m about
+    (-8, 298) holds that end. The segment from the inner edge's end (0, 147) to the outer's (32, 362) passes
+    24 m north of it, so the area closed by that segment missed it."""
+    zone = ((-8.0, 298.0), 10.0)
+    fence = _walled_fast(*zone)
+    vel = (32.0, 0.0, 0.0)
+    held = [p for p in slowing_turns(0.0, 0.0, 0.0, 32.0, 1, 0.0) if _walled_margin(zone, p) < -5.0]
+    assert held, "no turn the loops may fly reaches the keep-out"
+    right, left = turn_clearances(fence, (0.0, 0.0, -120.0), vel, 0.0, (0.0, 0.0), 0.0)
+    assert left.margin_m < 0.0 and right.margin_m < 0.0, (right, left)
+    # the side's free path is no longer than the straight line to the keep-out (no edge meets it)
+    assert right.free_path_m <= math.hypot(-8.0, 298.0) - 10.0, right
+    assert check(fence, (0.0, 0.0, -120.0), vel, 0.0, 0.0, True, (0.0, 0.0), None, 0.0).tripped

@@ -154,3 +154,44 @@ def test_a_cancelled_measurement_reports_nothing() -> None:
     assert brake.start(0.0, (5.0, 0.0, 0.0))
     brake.cancel()
     assert not brake.active and brake.update(30.0, (0.0, 0.0, 0.0)) is None
+
+
+def _meter_with_inner_edge() -> TurnMeter:
+    # the projection's inner edge as fence_build sets it for Merlin's loops: 35 deg, full bank from 22.5 m/s
+    return TurnMeter(1.0, math.radians(30.0), G, 0.0, math.radians(35.0), 22.5)
+
+
+def test_a_fixed_wing_banking_steeper_than_the_inner_edge_is_flagged_tighter() -> None:
+    """The projection's inner edge assumes no turn tighter than 35 deg at the slower of the revocation's and the
+    full-bank airspeed: an autopilot that banks 45 deg went where the projection did not look."""
+    steep = turn(_meter_with_inner_edge(), 45.0, 0.1, 60.0)
+    assert steep.ok is False and steep.problems() == ["tighter"], steep.text()
+    assert steep.radius_inner_m is not None and abs(steep.radius_inner_m - 22.0 ** 2 / (G * math.tan(
+        math.radians(35.0)))) < 1e-9
+    assert "inner edge 70 m, vehicle.bank_max_deg" in steep.text()
+    within = turn(_meter_with_inner_edge(), 34.0, 0.1, 60.0)
+    assert within.ok is True and within.inner_ok is True, within.text()
+    # without an inner edge (a fence built without the loops' bank) the steep turn is not judged tighter
+    assert turn(TurnMeter(1.0, math.radians(30.0), G), 45.0, 0.1, 60.0).ok is True
+
+
+def test_a_fast_aircraft_is_judged_against_the_full_bank_airspeed_s_edge() -> None:
+    """At 30 m/s the edge is the circle at the full-bank airspeed (22.5 m/s), not at 30 m/s: a 40 deg turn
+    at 30 m/s (radius 109 m) is wider than that edge (73.7 m at 35 deg)."""
+    m = turn(_meter_with_inner_edge(), 40.0, 0.1, 60.0, speed=30.0)
+    assert m.radius_inner_m is not None and abs(m.radius_inner_m - 22.5 ** 2 / (G * math.tan(math.radians(35.0)))) < 1e-9
+    assert m.inner_ok is True and m.ok is True, m.text()
+
+
+@given(bank=st.floats(20.0, 60.0), speed=st.floats(16.0, 35.0), left=st.booleans())
+def test_tighter_is_flagged_exactly_when_the_turn_is_inside_the_inner_edge(bank: float, speed: float,
+                                                                           left: bool) -> None:
+    """Safety: a turn clearly tighter than the projection's inner edge (beyond the 5 % tolerance and the fit's
+    3 %) is never passed; one clearly wider is never flagged tighter."""
+    m = turn(_meter_with_inner_edge(), -bank if left else bank, 0.1, 120.0, speed)
+    flown = speed ** 2 / (G * math.tan(math.radians(bank)))
+    edge = min(speed, 22.5) ** 2 / (G * math.tan(math.radians(35.0)))
+    if flown * 1.03 < edge * 0.95:
+        assert m.inner_ok is False and "tighter" in m.problems(), m.text()
+    if flown > edge * 0.95:
+        assert m.inner_ok is True, m.text()
