@@ -1842,6 +1842,10 @@ def _free_path_m(fence: Fence, hazard: Any, n: float, e: float, verts: FloatArra
         if free == _INF:
             near = shapely.intersection(fence._forbidden, shapely.buffer(_area(verts, corner, inner, shared),
                                                                          w + geom_sag))
+            if shapely.is_empty(near):
+                # the line round the area only grazes the widening (rounding): the nearest hazard, whole (an
+                # empty part's distance is NaN, which would win no comparison and lose none)
+                near = fence._forbidden
             free = float(shapely.distance(near, shapely.points((n, e)))) - w - geom_sag
     return max(free, 0.0)
 

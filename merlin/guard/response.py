@@ -38,7 +38,8 @@ the tick of the revocation: the autopilot's own mode may fly straight for reason
 on a radius more than ``RADIUS_TOLERANCE`` wider than ``vehicle.bank_limit_deg`` gives, means the
 projection trusted the aircraft more than it deserves: the fix is to raise ``vehicle.reaction_time_s`` or
 lower ``vehicle.bank_limit_deg`` to what the autopilot flies (its ``ROLL_LIMIT_DEG`` / ``FW_R_LIM`` and roll
-time constants).
+time constants). A turn too short to fit a rate (the escape found an open course after a few degrees) is
+reported as inconclusive; the next revocation measures again.
 
 The projection also bounds the turn from the inside: each side is the area between its turn and the
 tightest turn the aircraft may fly (the inner edge, at the steepest bank, ``vehicle.bank_max_deg`` or
@@ -46,8 +47,7 @@ Merlin's loops' limit, and the slower of the revocation's airspeed and the loops
 that a keep-out the turn wraps round is seen. A turn flown on a radius more than ``RADIUS_TOLERANCE``
 *tighter* than that edge (an autopilot banking steeper than configured, or slowing further in the turn)
 went where the projection did not look: the fix is to raise ``vehicle.bank_max_deg`` until its edge is as
-tight as the autopilot turns. A turn too short to fit a rate (the escape found an open course after a few degrees) is
-reported as inconclusive; the next revocation measures again.
+tight as the autopilot turns.
 """
 
 from __future__ import annotations
