@@ -55,6 +55,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from merlin.core.geofence import FenceParams, fixed_wing_turn
 from merlin.core.types import Vec3, VehicleState
 
 REACTION_DROP_MPS = 0.2
@@ -217,19 +218,17 @@ class TurnMeter:
     """A fixed wing's first turn after a revocation, measured (module docstring).
 
     ``roll_rate_radps``: the rate at which the projection rolls out a bank towards the other side before its
-    reaction time starts (:func:`merlin.core.geofence.fixed_wing_turn`; 0: none allowed). ``inner_bank_rad``
-    and ``full_bank_airspeed_mps``: the projection's inner edge (``FenceParams.turn_bank_max_rad`` and
-    ``full_bank_airspeed_mps``; 0: no inner edge, no tighter turn judged)."""
+    reaction time starts (:func:`merlin.core.geofence.fixed_wing_turn`; 0: none allowed). ``fence_params``:
+    the fence projection's own, whose inner edge a turn is judged against (None, or no inner edge in them: no
+    tighter turn judged)."""
 
     def __init__(self, reaction_limit_s: float, bank_limit_rad: float, gravity_mps2: float,
-                 roll_rate_radps: float = 0.0, inner_bank_rad: float = 0.0,
-                 full_bank_airspeed_mps: float = 0.0) -> None:
+                 roll_rate_radps: float = 0.0, fence_params: FenceParams | None = None) -> None:
         self.reaction_limit_s = reaction_limit_s
         self.bank_limit_rad = bank_limit_rad
         self.g = gravity_mps2
         self.roll_rate_radps = roll_rate_radps
-        self.inner_bank_rad = inner_bank_rad
-        self.full_bank_airspeed_mps = full_bank_airspeed_mps
+        self.fence_params = fence_params
         self._t0: float | None = None
         self._side = 0.0  # +1 right, -1 left; 0: not known (the side of the largest bank then)
         self._speed0 = 0.0
@@ -314,13 +313,12 @@ class TurnMeter:
         return self.reaction_limit_s
 
     def _inner_radius_m(self) -> float | None:
-        """The projection's inner edge at the revocation (:func:`merlin.core.geofence.fixed_wing_turn`): the
-        steepest of its banks and the bank held then, at the slower of the airspeed then and the full-bank one."""
-        if self.inner_bank_rad <= 0.0 or self._speed0 <= 0.0:
+        """The projection's inner edge at the revocation, as the projection draws it
+        (:func:`merlin.core.geofence.fixed_wing_turn` at the airspeed and bank then)."""
+        prm = self.fence_params
+        if prm is None or prm.turn_bank_max_rad <= 0.0 or self._speed0 <= 0.0:
             return None
-        steepest = min(max(self.inner_bank_rad, self.bank_limit_rad, abs(self._roll0)), math.radians(89.0))
-        v = min(self._speed0, self.full_bank_airspeed_mps) if self.full_bank_airspeed_mps > 0.0 else self._speed0
-        return v * v / (self.g * math.tan(steepest))
+        return fixed_wing_turn(prm, self._speed0, self._roll0).inner_radius_m
 
     def _finish(self) -> TurnMeasurement:
         assert self._t0 is not None

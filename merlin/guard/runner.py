@@ -209,8 +209,7 @@ class Guard:
         fence = self.core_cfg.fence
         self.turn = TurnMeter(v.reaction_time_s, math.radians(v.bank_limit_deg), STANDARD_GRAVITY_MPS2,
                               fence.params.roll_rate_radps if fence is not None else 0.0,
-                              fence.params.turn_bank_max_rad if fence is not None else 0.0,
-                              fence.params.full_bank_airspeed_mps if fence is not None else 0.0)
+                              fence.params if fence is not None else None)
         #: set once a measured response (braking, turn) was worse than the configuration: the fence projection
         #: is known to trust this autopilot more than it deserves, so no further grant is given this session
         self.response_refusal: str | None = None

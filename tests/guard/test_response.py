@@ -5,6 +5,7 @@ import math
 from hypothesis import given
 from hypothesis import strategies as st
 
+from merlin.core.geofence import FenceParams
 from merlin.core.types import VehicleState
 from merlin.guard.response import TIMEOUT_S, BrakeMeter, TurnMeasurement, TurnMeter
 
@@ -158,7 +159,9 @@ def test_a_cancelled_measurement_reports_nothing() -> None:
 
 def _meter_with_inner_edge() -> TurnMeter:
     # the projection's inner edge as fence_build sets it for Merlin's loops: 35 deg, full bank from 22.5 m/s
-    return TurnMeter(1.0, math.radians(30.0), G, 0.0, math.radians(35.0), 22.5)
+    prm = FenceParams(vehicle="fixed_wing", bank_limit_rad=math.radians(30.0), gravity_mps2=G,
+                      turn_bank_max_rad=math.radians(35.0), full_bank_airspeed_mps=22.5, turn_airspeed_mps=23.0)
+    return TurnMeter(1.0, math.radians(30.0), G, 0.0, prm)
 
 
 def test_a_fixed_wing_banking_steeper_than_the_inner_edge_is_flagged_tighter() -> None:
